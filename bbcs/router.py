@@ -1,0 +1,56 @@
+"""``cromat router``: the robot's Zenoh router, a small process of its own, started first.
+
+It is zenoh-python in router mode, so a laptop needs nothing but this package. Access control and TLS come
+from a Zenoh JSON5 file (``--config``) or the TLS options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from bbcs.errors import SessionError
+from bbcs.session import SessionConfig, TlsConfig, open_session
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cromat router", description="Run a robot's Zenoh router.")
+    p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint to listen on (repeatable), default tcp/127.0.0.1:7447")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="another router to connect to (repeatable)")
+    p.add_argument("--config", metavar="FILE", help="Zenoh JSON5 config file (access control, auth, tuning)")
+    p.add_argument("--tls-ca", metavar="PEM", help="CA certificate for tls/ endpoints")
+    p.add_argument("--tls-cert", metavar="PEM", help="router certificate for tls/ endpoints")
+    p.add_argument("--tls-key", metavar="PEM", help="router private key for tls/ endpoints")
+    p.add_argument("--scouting", action="store_true", help="enable UDP multicast scouting (off by default)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    tls = None
+    if args.tls_ca:
+        tls = TlsConfig(root_ca=args.tls_ca, cert=args.tls_cert, key=args.tls_key)
+    cfg = SessionConfig(mode="router", listen=args.listen or ["tcp/127.0.0.1:7447"], connect=args.connect,
+                        multicast_scouting=args.scouting, tls=tls, config_file=args.config)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        session = open_session(cfg)
+    except SessionError as exc:
+        print(f"cromat router: {exc}", file=sys.stderr)
+        return 2
+    try:
+        print(f"cromat router: listening on {', '.join(cfg.listen)} (zid {session.zid()})", flush=True)
+        stop.wait()
+    finally:
+        session.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

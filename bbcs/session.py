@@ -1,0 +1,118 @@
+"""Open a Zenoh session from a small typed configuration.
+
+Each robot runs one Zenoh router (``cromat router``); its manager, RAL and modules are *clients* of it on
+loopback, and ground stations connect to it over the network. Tests use explicit ``127.0.0.1`` endpoints with
+multicast scouting off, so nothing leaves the machine.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Literal
+
+import msgspec
+import zenoh
+
+from bbcs.errors import SessionError
+
+Mode = Literal["peer", "client", "router"]
+
+
+class TlsConfig(msgspec.Struct, frozen=True, kw_only=True):
+    """Certificate files for ``tls/`` endpoints (mutual TLS: both sides present a certificate)."""
+
+    root_ca: str
+    """CA certificate (PEM) used to verify the other side."""
+    cert: str | None = None
+    """This side's certificate (PEM). A router uses it to listen, a client to connect."""
+    key: str | None = None
+    """This side's private key (PEM)."""
+    mtls: bool = True
+    """Require/present client certificates. Must be true on *both* sides for a client to present its cert."""
+    verify_name: bool = True
+    """Check the server certificate's name against the host connected to."""
+
+
+class SessionConfig(msgspec.Struct, frozen=True, kw_only=True):
+    """Where a process joins the bus. The defaults are a client of a router on the local machine."""
+
+    mode: Mode = "client"
+    listen: list[str] = msgspec.field(default_factory=list)
+    """Endpoints to listen on, e.g. ``tcp/127.0.0.1:7447``. Empty: listen nowhere (clients never listen)."""
+    connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    """Endpoints to connect to (the robot router for a client)."""
+    multicast_scouting: bool = False
+    """Discover peers by UDP multicast. Off by default: robots name their router explicitly."""
+    tls: TlsConfig | None = None
+    connect_timeout_s: float = 10.0
+    """How long opening a client/peer session waits for its first connect endpoint (-1: forever)."""
+    config_file: str | None = None
+    """A Zenoh JSON5 config file applied first (access control, auth, tuning); the fields above override it."""
+    user: str | None = None
+    password: str | None = None
+    """User/password authentication (Zenoh ``usrpwd``); authenticates but does not encrypt: combine with TLS."""
+
+
+def _set(conf: zenoh.Config, key: str, value: object) -> None:
+    conf.insert_json5(key, json.dumps(value))
+
+
+def zenoh_config(cfg: SessionConfig) -> zenoh.Config:
+    """Translate ``cfg`` into a ``zenoh.Config`` (SessionError if a file cannot be read)."""
+    if cfg.config_file:
+        try:
+            conf = zenoh.Config.from_file(cfg.config_file)
+        except Exception as exc:  # zenoh raises its own ZError type
+            raise SessionError(f"cannot load Zenoh config file {cfg.config_file}: {exc}") from exc
+    else:
+        conf = zenoh.Config()
+    _set(conf, "mode", cfg.mode)
+    _set(conf, "listen/endpoints", list(cfg.listen))
+    _set(conf, "connect/endpoints", list(cfg.connect))
+    _set(conf, "scouting/multicast/enabled", cfg.multicast_scouting)
+    if not cfg.multicast_scouting:
+        _set(conf, "scouting/gossip/enabled", cfg.mode == "router" or bool(cfg.connect))
+    if cfg.mode != "router":
+        timeout_ms = -1 if cfg.connect_timeout_s < 0 else int(cfg.connect_timeout_s * 1000)
+        _set(conf, "connect/timeout_ms", timeout_ms)
+    if cfg.tls is not None:
+        tls = cfg.tls
+        _set(conf, "transport/link/tls/root_ca_certificate", tls.root_ca)
+        _set(conf, "transport/link/tls/enable_mtls", tls.mtls)
+        _set(conf, "transport/link/tls/verify_name_on_connect", tls.verify_name)
+        if tls.cert and tls.key:
+            side = "listen" if cfg.mode == "router" else "connect"
+            _set(conf, f"transport/link/tls/{side}_certificate", tls.cert)
+            _set(conf, f"transport/link/tls/{side}_private_key", tls.key)
+            if cfg.mode == "peer":
+                _set(conf, "transport/link/tls/listen_certificate", tls.cert)
+                _set(conf, "transport/link/tls/listen_private_key", tls.key)
+    if cfg.user is not None:
+        _set(conf, "transport/auth/usrpwd/user", cfg.user)
+        _set(conf, "transport/auth/usrpwd/password", cfg.password or "")
+    return conf
+
+
+def open_session(cfg: SessionConfig) -> zenoh.Session:
+    """Open a session; SessionError says which endpoint could not be reached and why.
+
+    The caller must ``close()`` it on every path: a session with callback subscribers that is never closed
+    keeps the interpreter from exiting.
+    """
+    conf = zenoh_config(cfg)
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:
+        where = ", ".join(cfg.connect) or "(no connect endpoint)"
+        raise SessionError(f"cannot open a Zenoh {cfg.mode} session (connect: {where}; "
+                           f"listen: {', '.join(cfg.listen) or '-'}): {exc}") from exc
+
+
+def local_client(port: int, host: str = "127.0.0.1") -> SessionConfig:
+    """A client of the router listening on ``tcp/host:port``: what tests and local modules use."""
+    return SessionConfig(mode="client", connect=[f"tcp/{host}:{port}"])
+
+
+def local_router(port: int, host: str = "127.0.0.1") -> SessionConfig:
+    """A router listening on ``tcp/host:port`` only."""
+    return SessionConfig(mode="router", listen=[f"tcp/{host}:{port}"], connect=[])

@@ -1,0 +1,177 @@
+"""Slots: direction × state|stream × safe|unsafe × one msgspec Struct type, and their delivery on Zenoh.
+
+| slot          | publisher                                  | subscriber side                                   |
+|---------------|--------------------------------------------|---------------------------------------------------|
+| unsafe state  | best effort, congestion DROP               | newest value only (Zenoh ``RingChannel(1)``)      |
+| safe state    | reliable, BLOCK, last value cached for late | every value in order in a bounded FIFO; a late     |
+|               | joiners (zenoh.ext AdvancedPublisher)      | joiner first gets the cached last value            |
+| safe stream   | reliable, BLOCK                            | every value in order in a bounded FIFO            |
+
+*Why zenoh.ext for safe state*: the advanced publisher's cache and the advanced subscriber's history give a late
+joiner the last value with sequence numbers, so a value is never handled twice even when the history reply and a
+live sample race; with heartbeats it also recovers values lost while the robot router restarted. A hand-made
+queryable would need all of that written again.
+
+*The safe queue*: each safe input has a Zenoh ``FifoChannel`` of ``queue`` samples (default 1024) drained by
+the input's own thread. When it is full Zenoh stops reading that link: the reliable, BLOCK publisher is slowed
+down, nothing is dropped. The publisher reports it: a ``put`` that blocks longer than ``BACKPRESSURE_S`` is
+logged with the slot's name and counted in :attr:`OutputSlot.backpressure_events`.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import time
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+import msgspec
+import zenoh
+import zenoh.ext
+
+from bbcs import keys
+from bbcs.codec import Codec, codec_for, encode
+from bbcs.errors import SlotError
+
+log = logging.getLogger("bbcs.slots")
+
+T = TypeVar("T", bound=msgspec.Struct)
+
+DEFAULT_SAFE_QUEUE = 1024
+"""Samples a safe input buffers before Zenoh back-pressures its publisher."""
+BACKPRESSURE_S = 0.05
+"""A safe ``put`` blocked longer than this is reported as consumer back-pressure."""
+SAFE_STATE_HEARTBEAT_S = 0.5
+"""Sporadic heartbeat period of safe state publishers (lets subscribers detect and recover a lost last value)."""
+
+
+class Direction(enum.StrEnum):
+    IN = "in"
+    OUT = "out"
+
+
+class Kind(enum.StrEnum):
+    STATE = "state"
+    STREAM = "stream"
+
+
+class Safety(enum.StrEnum):
+    SAFE = "safe"
+    UNSAFE = "unsafe"
+
+
+@dataclass(frozen=True)
+class SlotSpec(Generic[T]):
+    """What a module declares about one slot. Names are lower-case key chunks (``datos``, ``control_modo``)."""
+
+    name: str
+    type: type[T]
+    direction: Direction
+    kind: Kind = Kind.STATE
+    safety: Safety = Safety.SAFE
+    queue: int = DEFAULT_SAFE_QUEUE
+
+    def __post_init__(self) -> None:
+        keys.validate_name(self.name, "slot name")
+        if not (isinstance(self.type, type) and issubclass(self.type, msgspec.Struct)):
+            raise SlotError(f"slot {self.name!r}: type must be a msgspec.Struct subclass, got {self.type!r}")
+        if self.kind is Kind.STREAM and self.safety is Safety.UNSAFE:
+            raise SlotError(f"slot {self.name!r}: a stream is always safe (every message, in order)")
+        if self.queue < 1:
+            raise SlotError(f"slot {self.name!r}: queue bound must be at least 1")
+
+    @property
+    def codec(self) -> Codec[T]:
+        return codec_for(self.type)
+
+    def describe(self) -> dict[str, Any]:
+        """What the schema query returns for this slot."""
+        return {
+            "direction": str(self.direction), "kind": str(self.kind), "safety": str(self.safety),
+            "type": self.codec.name, "schema": msgspec.json.schema(self.type),
+            **({"queue": self.queue} if self.direction is Direction.IN and self.safety is Safety.SAFE else {}),
+        }
+
+
+def InputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE, safety: Safety = Safety.SAFE,  # noqa: N802
+              queue: int = DEFAULT_SAFE_QUEUE) -> SlotSpec[T]:
+    """Declare an input slot."""
+    return SlotSpec(name, type, Direction.IN, Kind(kind), Safety(safety), queue)
+
+
+def OutputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE,  # noqa: N802
+               safety: Safety = Safety.SAFE) -> SlotSpec[T]:
+    """Declare an output slot."""
+    return SlotSpec(name, type, Direction.OUT, Kind(kind), Safety(safety))
+
+
+class Publisher(Generic[T]):
+    """Publishes one slot's structs with the QoS its kind and safety call for."""
+
+    def __init__(self, session: zenoh.Session, key: str, spec: SlotSpec[T]) -> None:
+        self.spec = spec
+        self.key = key
+        self.published = 0
+        self.backpressure_events = 0
+        self._closed = False
+        if spec.safety is Safety.UNSAFE:
+            self._pub: Any = session.declare_publisher(
+                key, reliability=zenoh.Reliability.BEST_EFFORT, congestion_control=zenoh.CongestionControl.DROP)
+        elif spec.kind is Kind.STATE:
+            self._pub = zenoh.ext.declare_advanced_publisher(
+                session, key, reliability=zenoh.Reliability.RELIABLE,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                cache=zenoh.ext.CacheConfig(1),
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(
+                    heartbeat=None, sporadic_heartbeat=SAFE_STATE_HEARTBEAT_S),
+                publisher_detection=True)
+        else:
+            self._pub = session.declare_publisher(
+                key, reliability=zenoh.Reliability.RELIABLE, congestion_control=zenoh.CongestionControl.BLOCK)
+        self._safe = spec.safety is Safety.SAFE
+
+    def publish(self, value: T) -> None:
+        """Encode and put ``value``. Types are checked where they are cheap: the struct class must match."""
+        if type(value) is not self.spec.type:
+            raise SlotError(f"slot {self.spec.name!r} carries {self.spec.type.__name__}, "
+                            f"not {type(value).__name__}")
+        payload = encode(value)
+        if self._safe:
+            t0 = time.monotonic()
+            self._pub.put(payload)
+            blocked = time.monotonic() - t0
+            if blocked > BACKPRESSURE_S:
+                self.backpressure_events += 1
+                log.warning("slot %s: put blocked %.0f ms: a consumer's safe queue is full (back-pressure)",
+                            self.key, blocked * 1000)
+        else:
+            self._pub.put(payload)
+        self.published += 1
+
+    def publish_raw(self, payload: bytes) -> None:
+        """Put bytes already encoded (bench and bridging code); no type check."""
+        self._pub.put(payload)
+        self.published += 1
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._pub.undeclare()
+
+
+def declare_reader(session: zenoh.Session, key: str, spec: SlotSpec[Any]) -> Any:
+    """Declare the Zenoh subscriber behind an input slot; the returned object iterates samples until undeclared.
+
+    unsafe → RingChannel(1) (newest only); safe stream → FifoChannel(queue);
+    safe state → AdvancedSubscriber with history of the last value, FifoChannel(queue).
+    """
+    if spec.safety is Safety.UNSAFE:
+        return session.declare_subscriber(key, zenoh.handlers.RingChannel(1))
+    if spec.kind is Kind.STREAM:
+        return session.declare_subscriber(key, zenoh.handlers.FifoChannel(spec.queue))
+    return zenoh.ext.declare_advanced_subscriber(
+        session, key, zenoh.handlers.FifoChannel(spec.queue),
+        history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+        recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+        subscriber_detection=True)

@@ -1,0 +1,3 @@
+from cromat.cli import main
+
+raise SystemExit(main())

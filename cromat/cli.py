@@ -1,0 +1,46 @@
+"""The ``cromat`` command: one dispatcher, each subcommand's ``main(argv) -> int`` in the package that owns it."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "launch": ("module_manager.cli", "start a robot from a manifest (router, manager, modules), supervise it"),
+    "router": ("bbcs.router", "run a robot's Zenoh router"),
+    "gcs": ("ral.gcs.cli", "ground control station: robots, watch, task, abort, modules, route, errors"),
+    "certs": ("ral.certs", "create a CA and certificates for a robot router, a GCS and modules"),
+    "dsp-sim": ("modules.dsp.sim.cli", "run the DSP simulator on a pty or a TCP port"),
+    "lidar": ("modules.lidar_logger.cli", "read and georeference lidar logs"),
+    "demo": ("examples.bus_demo", "a two-module bus demo on a private router"),
+}
+
+
+def usage() -> str:
+    width = max(map(len, COMMANDS))
+    rows = "\n".join(f"  {name.ljust(width)}  {text}" for name, (_, text) in COMMANDS.items())
+    return f"usage: cromat COMMAND [ARGS...]\n\ncommands:\n{rows}\n\n'cromat COMMAND --help' for its options."
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if not args or args[0] in {"-h", "--help", "help"}:
+        print(usage())
+        return 0 if args else 2
+    name, rest = args[0], args[1:]
+    if name not in COMMANDS:
+        print(f"cromat: unknown command {name!r}\n\n{usage()}", file=sys.stderr)
+        return 2
+    module_name = COMMANDS[name][0]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name and module_name.startswith(exc.name):
+            print(f"cromat {name}: not available in this build ({module_name} is missing)", file=sys.stderr)
+            return 2
+        raise
+    return int(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,99 @@
+"""What the simulated camera looks at: a procedural ground texture and moving targets, in a local ENU frame.
+
+The texture is a pure function of ground coordinates and a seed (integer hashing, no stored image), so
+any view of it is reproducible and costs only a few array operations per pixel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+RGB = tuple[int, int, int]
+
+
+def _hash2(ix: NDArray[np.int64], iy: NDArray[np.int64], seed: int) -> NDArray[np.float32]:
+    """Deterministic per-cell value in [0, 1) from integer cell indices (32-bit integer mixing)."""
+    h = ix.astype(np.uint32) * np.uint32(0x8DA6B343)
+    h ^= iy.astype(np.uint32) * np.uint32(0xD8163841)
+    h ^= np.uint32((seed * 0x9E3779B1) & 0xFFFFFFFF)
+    h ^= h >> np.uint32(13)
+    h *= np.uint32(0x5BD1E995)
+    h ^= h >> np.uint32(15)
+    return (h >> np.uint32(8)).astype(np.float32) * np.float32(1.0 / (1 << 24))
+
+
+@dataclass(frozen=True)
+class GroundTexture:
+    """Fields of ``field_m`` metres with varying tint, overlaid by a ``cell_m`` checker with per-cell noise.
+
+    Colours are muted greens/browns (red minus max(green, blue) stays below about 50), so the texture
+    never looks like a saturated coloured target.
+    """
+
+    seed: int = 0
+    cell_m: float = 2.0
+    field_m: float = 16.0
+    light: RGB = (118, 128, 82)
+    dark: RGB = (78, 100, 58)
+    noise: float = 30.0
+
+    def colour(self, east: NDArray[np.floating], north: NDArray[np.floating]) -> NDArray[np.float32]:
+        """RGB float32 (..., 3) in [0, 255] for ground points (same shape arrays)."""
+        ix = np.floor(east / self.cell_m).astype(np.int64)
+        iy = np.floor(north / self.cell_m).astype(np.int64)
+        fx = np.floor(east / self.field_m).astype(np.int64)
+        fy = np.floor(north / self.field_m).astype(np.int64)
+        checker = ((ix + iy) & 1).astype(np.float32)[..., None]
+        base = np.asarray(self.dark, np.float32) + checker * (
+            np.asarray(self.light, np.float32) - np.asarray(self.dark, np.float32)
+        )
+        cell_noise = (_hash2(ix, iy, self.seed) - 0.5) * self.noise
+        tint = _hash2(fx, fy, self.seed + 1)[..., None]
+        soil = np.asarray((1.10, 0.92, 0.90), np.float32)  # fields shade from green to brownish
+        rgb = base * (1.0 + tint * (soil - 1.0)) + cell_noise[..., None]
+        return np.clip(rgb, 0.0, 255.0)
+
+
+class Target(Protocol):
+    """A ground target: a disc of ``radius_m`` in ``colour`` whose centre follows ``position(t)``."""
+
+    radius_m: float
+    colour: RGB
+
+    def position(self, t: float) -> tuple[float, float]:
+        """(east, north) metres of the centre at scene time ``t`` seconds."""
+        ...
+
+
+@dataclass(frozen=True)
+class LinearTarget:
+    """Moves in a straight line at constant velocity (zero velocity = static)."""
+
+    start: tuple[float, float]
+    velocity: tuple[float, float] = (0.0, 0.0)
+    radius_m: float = 1.5
+    colour: RGB = (255, 20, 20)
+
+    def position(self, t: float) -> tuple[float, float]:
+        return self.start[0] + self.velocity[0] * t, self.start[1] + self.velocity[1] * t
+
+
+@dataclass(frozen=True)
+class CircularTarget:
+    """Circles ``centre`` at ``orbit_m`` radius, counter-clockwise seen from above, one lap per ``period_s``."""
+
+    centre: tuple[float, float]
+    orbit_m: float
+    period_s: float
+    phase_deg: float = 0.0
+    radius_m: float = 1.5
+    colour: RGB = (255, 20, 20)
+
+    def position(self, t: float) -> tuple[float, float]:
+        a = math.radians(self.phase_deg) + 2.0 * math.pi * t / self.period_s
+        return self.centre[0] + self.orbit_m * math.cos(a), self.centre[1] + self.orbit_m * math.sin(a)

@@ -1,0 +1,46 @@
+"""Fixtures shared by every test: a real Zenoh router process, client sessions, child processes.
+
+Everything runs on 127.0.0.1 with multicast scouting off, and everything started is stopped, also on failure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from bbcs.testing import Processes, start_router
+
+
+@pytest.fixture
+def processes() -> Iterator[Processes]:
+    procs = Processes()
+    try:
+        yield procs
+    finally:
+        procs.stop_all()
+
+
+@pytest.fixture
+def router(processes: Processes) -> int:
+    """A real robot router (``cromat router``) on a free 127.0.0.1 port; yields the port."""
+    return start_router(processes)
+
+
+@pytest.fixture
+def sessions(router: int) -> Iterator[Callable[[], object]]:
+    """Factory of client sessions of ``router``; all closed at teardown."""
+    from bbcs.session import local_client, open_session
+
+    opened = []
+
+    def make():
+        s = open_session(local_client(router))
+        opened.append(s)
+        return s
+
+    try:
+        yield make
+    finally:
+        for s in opened:
+            s.close()
