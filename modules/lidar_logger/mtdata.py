@@ -298,13 +298,10 @@ def encode_pose_payload(pose: Pose, mode: int = POSE_MODE, settings: int = POSE_
 
 
 def _orientation_values(euler: tuple[float, float, float], count: int) -> tuple[float, ...]:
-    r, p, y = (math.radians(a) for a in euler)
+    """Quaternion (q0..q3) of ZYX Euler angles in degrees; the only other orientation a device streams by default."""
+    if count != 4:
+        raise MTDataError("only Euler and quaternion orientation are encoded")
+    r, p, y = (math.radians(a) / 2 for a in euler)
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    if count == 4:
-        cr2, sr2, cp2, sp2, cy2, sy2 = (math.cos(r / 2), math.sin(r / 2), math.cos(p / 2), math.sin(p / 2),
-                                        math.cos(y / 2), math.sin(y / 2))
-        return (cr2 * cp2 * cy2 + sr2 * sp2 * sy2, sr2 * cp2 * cy2 - cr2 * sp2 * sy2,
-                cr2 * sp2 * cy2 + sr2 * cp2 * sy2, cr2 * cp2 * sy2 - sr2 * sp2 * cy2)
-    return (cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy,
-            cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy,
-            -sp, sr * cp, cr * cp)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)

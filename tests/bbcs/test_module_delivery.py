@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import msgspec
@@ -14,55 +11,13 @@ import zenoh
 
 from bbcs import keys
 from bbcs.errors import BusErrorCode
-from bbcs.routing import SlotRef, SlotTable
 from bbcs.slots import OutputSlot, Publisher
-from bbcs.testing import child_env, stop_process, wait_until
+from bbcs.testing import stop_process, wait_until
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from probe_module import ProbeError, ProbeMsg  # noqa: E402
-
-PROBE_TYPE = "probe_module:ProbeMsg"
-
-
-def records(path: Path) -> list[dict]:
-    if not path.exists():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.endswith("}")]
-
-
-def handled(path: Path, slot: str) -> list[dict]:
-    return [r for r in records(path) if r.get("slot") == slot]
-
-
-def start_probe(processes, router: int, tmp_path: Path, *extra: str, delay_ms: float = 0.0):
-    rec = tmp_path / "probe.jsonl"
-    table = tmp_path / "table.json"
-    table.write_bytes(msgspec.json.encode(SlotTable(robot="r1", slots={
-        1: SlotRef(module="pub_a", slot="datos", type=PROBE_TYPE),
-        2: SlotRef(module="pub_b", slot="datos", type=PROBE_TYPE),
-    })))
-    proc = processes.start(
-        [str(HERE / "probe_module.py"), "--robot", "r1", "--connect", f"tcp/127.0.0.1:{router}",
-         "--slot-table", str(table), "--param", f"record={rec}", "--param", f"delay_ms={delay_ms}", *extra],
-        env=child_env(PYTHONPATH=f"{HERE}:{HERE.parents[1]}"))
-    return proc, rec
-
-
-def wait_alive(session, robot: str, module: str) -> None:
-    seen = threading.Event()
-    sub = session.liveliness().declare_subscriber(keys.alive_key(robot, module), lambda s: seen.set(), history=True)
-    try:
-        assert seen.wait(20), f"{module} never became alive"
-    finally:
-        sub.undeclare()
-
-
-def publisher(processes, router: int, key: str, kind: str, count: int, source: str = "x", rate: float = 0,
-              final: bool = False):
-    args = [str(HERE / "publisher_proc.py"), "--port", str(router), "--key", key, "--kind", kind,
-            "--count", str(count), "--source", source, "--rate", str(rate)]
-    return processes.start(args + (["--final"] if final else []), stdout=subprocess.PIPE, text=True)
+from probe_support import handled, publisher, records, start_probe, wait_alive  # noqa: E402
 
 
 @pytest.mark.parametrize("kind,slot,route", [("state", "state", []), ("stream", "datos", ["--route", "datos=1"])])
