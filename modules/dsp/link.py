@@ -118,6 +118,7 @@ class DspLink:
         self._last_dsp_seq: int | None = None
         self._latest: p.Telemetry | None = None
         self._counts = dict.fromkeys(_COUNTERS, 0)
+        self._counts_lock = threading.Lock()
         self._reader = threading.Thread(target=self._read_loop, name=f"dsp-reader {url}", daemon=True)
         self._reader.start()
 
@@ -235,14 +236,17 @@ class DspLink:
 
     def stats(self) -> LinkStats:
         st = self._parser.stats
+        with self._counts_lock:
+            counts = dict(self._counts)
         return LinkStats(frames_ok=st.frames, bytes_rx=st.bytes_in, bytes_discarded=st.bytes_discarded,
                          bad_crc=st.bad_crc, unknown_id=st.unknown_id, bad_length=st.bad_length,
-                         oversize=st.oversize, truncated=st.truncated, **self._counts)
+                         oversize=st.oversize, truncated=st.truncated, **counts)
 
     # --- internals ---------------------------------------------------------------------------------------
 
     def _count(self, name: str, n: int = 1) -> None:
-        self._counts[name] += n  # written by one thread per counter; read as a snapshot
+        with self._counts_lock:
+            self._counts[name] += n
 
     def _raise_if_unusable(self, name: str) -> None:
         if self._failure is not None:
@@ -286,7 +290,7 @@ class DspLink:
 
     def _dispatch(self, frame: Frame) -> None:
         if self._last_dsp_seq is not None:
-            self._counts["dsp_frames_lost"] += (frame.seq - self._last_dsp_seq - 1) & 0xFF
+            self._count("dsp_frames_lost", (frame.seq - self._last_dsp_seq - 1) & 0xFF)
         self._last_dsp_seq = frame.seq
         try:
             msg = decode(frame)

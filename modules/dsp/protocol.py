@@ -169,8 +169,9 @@ class Message(msgspec.Struct, frozen=True, kw_only=True):
     MSG_ID: ClassVar[MsgId]
 
 
-class Command(Message, frozen=True, kw_only=True):
-    """A PC → DSP message; every command is acknowledged."""
+class Command(Message, frozen=True, kw_only=True, tag=True):
+    """A PC → DSP message; every command is acknowledged. Tagged (by class name) so a list of commands can
+    travel on the bus as one typed union (modules/dsp/bus.py)."""
 
 
 # --- PC → DSP ----------------------------------------------------------------------------------------------

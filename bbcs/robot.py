@@ -1,0 +1,62 @@
+"""Robot-independent structs that many processes share: the generic robot telemetry.
+
+A robot's telemetry module turns its own device data (for the UAV: the DSP's telemetry) into
+:class:`RobotTelemetry`, published on an unsafe state slot; the Module Manager folds it into the robot state
+and the RAL serves it to ground stations. Nothing here is UAV-specific: a field a robot lacks stays ``None``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+
+Lat = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
+Lon = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+
+
+class GeoPoint(msgspec.Struct, frozen=True, kw_only=True):
+    """WGS84 degrees, altitude in metres."""
+
+    lat: Lat
+    lon: Lon
+    alt: float
+
+
+class Attitude(msgspec.Struct, frozen=True, kw_only=True):
+    """Degrees: roll, pitch, yaw (yaw 0 = north, clockwise)."""
+
+    roll: float
+    pitch: float
+    yaw: float
+
+
+class VelocityNED(msgspec.Struct, frozen=True, kw_only=True):
+    """Metres per second, north-east-down."""
+
+    vn: float
+    ve: float
+    vd: float
+
+
+class RobotTelemetry(msgspec.Struct, frozen=True, kw_only=True):
+    """What every robot reports about its body; ``None`` when the robot does not know it (yet)."""
+
+    stamp: float
+    """Seconds since the epoch at which the telemetry module produced it."""
+    position: GeoPoint | None = None
+    attitude: Attitude | None = None
+    velocity: VelocityNED | None = None
+    heading_deg: float | None = None
+    mode: int | None = None
+    """The low-level controller's operating mode (robot-specific meaning, documented by the robot)."""
+    mode_name: str = ""
+    tracking: bool | None = None
+    path_valid: bool | None = None
+    airborne: bool | None = None
+    waypoints_queued: int | None = None
+    pan_deg: float | None = None
+    tilt_deg: float | None = None
+    pan_tilt_mode: int | None = None
+    error_code: int | None = None
+    """Error code the low-level controller reports (0 none)."""

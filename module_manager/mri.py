@@ -1,0 +1,181 @@
+"""The MRI (Management Robot Interface): typed requests to one robot's Module Manager, and its robot state.
+
+Every request is a Zenoh query on ``cromat/<robot>/@manager/<verb>`` whose payload is the request struct in
+msgpack; every reply is an :class:`MriReply` (``ok``, or ``ok=False`` with a reason). The manager publishes
+:class:`RobotState` on ``cromat/<robot>/@manager/state`` (safe state: a late joiner gets the last one).
+
+| verb | request | reply ``data`` |
+| --- | --- | --- |
+| ``modules`` | :class:`ListModules` | :class:`ModuleList` |
+| ``routes``  | :class:`ListRoutes`  | :class:`RouteList` |
+| ``route``   | :class:`SwapRoute`   | :class:`RouteList` (routes after the swap) |
+| ``module``  | :class:`ModuleCommand` (start/stop/restart) | :class:`ModuleStatus` |
+| ``task``    | :class:`SetTask` / :class:`EndTask` | :class:`TaskList` |
+| ``tasks``   | :class:`ListTasks`   | :class:`TaskList` |
+| ``mode``    | :class:`SetModuleMode` | none |
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import msgspec
+import zenoh
+
+from bbcs import keys
+from bbcs.robot import RobotTelemetry
+
+ModuleState = Literal["starting", "up", "restarting", "failed", "stopped"]
+TaskType = str
+"""A task type the manifest declares (UAV: ``perception``, ``movement``, ``pan_tilt``)."""
+
+VERBS = ("modules", "routes", "route", "module", "task", "tasks", "mode")
+STATE = "state"
+
+
+class ListModules(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    pass
+
+
+class ListRoutes(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    pass
+
+
+class ListTasks(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    pass
+
+
+class SwapRoute(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    """Route ``module``'s ``input`` slot to slot number ``slot`` (-1: ignore the input)."""
+
+    module: str
+    input: str
+    slot: int
+
+
+class ModuleCommand(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    module: str
+    action: Literal["start", "stop", "restart"]
+
+
+class SetTask(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    """Start task ``name`` (from the manifest's task map); it replaces the running task of the same type."""
+
+    name: str
+    params: dict[str, str] = msgspec.field(default_factory=dict)
+
+
+class EndTask(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    """End the running task of ``task_type``; its routes and modes are restored to what they were before."""
+
+    task_type: str
+
+
+class SetModuleMode(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    """Publish ``mode`` (msgpack of the module's mode struct, as a dict) on the manager's mode slot for ``module``."""
+
+    module: str
+    mode: dict[str, int]
+
+
+MriRequest = ListModules | ListRoutes | ListTasks | SwapRoute | ModuleCommand | SetTask | EndTask | SetModuleMode
+
+
+class ModuleStatus(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    name: str
+    state: ModuleState
+    pid: int | None = None
+    restarts: int = 0
+    last_exit: int | None = None
+    """Exit code of the last run (negative: killed by that signal)."""
+    reason: str = ""
+    """Why it is failed/stopped, when it is."""
+    routes: dict[str, int] = msgspec.field(default_factory=dict)
+    task_types: list[str] = msgspec.field(default_factory=list)
+    last_error: int | None = None
+
+
+class ModuleList(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    robot: str
+    modules: list[ModuleStatus]
+
+
+class RouteList(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    routes: dict[str, dict[str, int]]
+    """module → input slot → slot number."""
+    slots: dict[int, str] = msgspec.field(default_factory=dict)
+    """slot number → ``module/slot`` (type in the manifest)."""
+
+
+class ActiveTask(msgspec.Struct, frozen=True, kw_only=True):
+    task_type: str
+    name: str
+    params: dict[str, str] = msgspec.field(default_factory=dict)
+    started: float = 0.0
+
+
+class TaskList(msgspec.Struct, frozen=True, kw_only=True, tag=True):
+    active: list[ActiveTask]
+    available: dict[str, str] = msgspec.field(default_factory=dict)
+    """task name → task type, from the manifest."""
+
+
+class ErrorEvent(msgspec.Struct, frozen=True, kw_only=True):
+    module: str
+    code: int
+    stamp: float
+
+
+class RobotState(msgspec.Struct, frozen=True, kw_only=True):
+    """The generic robot state: module health + robot telemetry, what the RAL serves to ground stations."""
+
+    robot: str
+    kind: str
+    stamp: float
+    telemetry: RobotTelemetry | None = None
+    modules: list[ModuleStatus] = msgspec.field(default_factory=list)
+    tasks: list[ActiveTask] = msgspec.field(default_factory=list)
+    errors: list[ErrorEvent] = msgspec.field(default_factory=list)
+    """The most recent error codes from the modules' ERROR slots, newest last (bounded)."""
+
+
+class MriReply(msgspec.Struct, frozen=True, kw_only=True):
+    ok: bool
+    reason: str = ""
+    data: ModuleList | RouteList | ModuleStatus | TaskList | None = None
+
+
+_request_decoder = msgspec.msgpack.Decoder(MriRequest)
+_reply_decoder = msgspec.msgpack.Decoder(MriReply)
+
+
+def mri_key(robot: str, verb: str) -> str:
+    if verb not in VERBS and verb != STATE:
+        raise ValueError(f"unknown MRI verb {verb!r}; known: {', '.join(VERBS)}")
+    return keys.manager_key(robot, verb)
+
+
+def decode_request(payload: bytes) -> MriRequest:
+    return _request_decoder.decode(payload)
+
+
+def encode(value: msgspec.Struct) -> bytes:
+    return msgspec.msgpack.encode(value)
+
+
+class MriError(RuntimeError):
+    """The manager did not answer (not running, unreachable) or its answer could not be read."""
+
+
+def call(session: zenoh.Session, robot: str, verb: str, request: msgspec.Struct, timeout_s: float = 5.0) -> MriReply:
+    """Send one MRI request and wait for its typed reply; MriError if none arrives in ``timeout_s``."""
+    replies = session.get(mri_key(robot, verb), payload=encode(request), timeout=timeout_s)
+    for reply in replies:
+        if reply.ok is None:
+            continue
+        try:
+            return _reply_decoder.decode(reply.ok.payload.to_bytes())
+        except msgspec.MsgspecError as exc:
+            raise MriError(f"unreadable MRI reply from robot {robot!r} ({verb}): {exc}") from exc
+    raise MriError(f"no MRI reply from robot {robot!r} for {verb!r} within {timeout_s:g} s: "
+                   "is its Module Manager running and reachable?")

@@ -1,0 +1,71 @@
+"""The DSP process's slots on the bus: the contract between ``modules/dsp`` and every module that drives it.
+
+The DSP process (``python -m modules.dsp``) is the only owner of the serial port. Other modules never open it:
+
+| slot (``cromat/<robot>/dsp/<slot>``) | dir | kind / safety | struct |
+| --- | --- | --- | --- |
+| ``commands``  | in  | stream, safe   | :class:`DspCommands` — written by telemetry, pan_tilt, path_follower |
+| ``telemetry`` | out | state, unsafe  | :class:`modules.dsp.protocol.Telemetry` (fields the mask selects) |
+| ``errors``    | out | state, safe    | :class:`DspErrorReport` — DSP faults and refused/unacknowledged commands |
+| ``link``      | out | state, unsafe  | :class:`modules.dsp.link.LinkStats` |
+| ``error``     | out | state, safe    | :class:`DspModuleError` — bus-level error codes of the DSP process itself |
+
+``commands`` is a mailbox input: many modules write to the DSP's own key (``keys.slot_key(robot, "dsp",
+"commands")``), every batch is sent in order, each command acknowledged before the next. A batch is atomic in
+the sense that matters: if one command fails, the rest of that batch is not sent, and the failure is reported on
+``errors`` with the sender's name, so the sender can forward it (the path follower's ERROR slot does).
+Start-up commands (telemetry mask, helicopter type, PID groups) come only from the robot .conf: the DSP process
+refuses them on ``commands``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+
+from modules.dsp import protocol as p
+
+DspCommand = (
+    p.SetSpeed | p.SetStateTransmission | p.ClearError | p.SetTracking | p.InvalidatePath | p.SetMode
+    | p.SetHeading | p.AddWaypoint | p.SetRefs | p.SetPanTiltMode | p.SetPanTiltAngles | p.SetPanTiltTarget
+    | p.Abort | p.Ping
+)
+"""Every command another module may ask the DSP process to send (start-up-only ones excluded)."""
+
+STARTUP_ONLY: tuple[type[p.Command], ...] = (p.SetTelemetryMask, p.SetHelicopterType, p.SetPid)
+
+MODULE = "dsp"
+COMMANDS_SLOT = "commands"
+TELEMETRY_SLOT = "telemetry"
+ERRORS_SLOT = "errors"
+LINK_SLOT = "link"
+
+
+class DspCommands(msgspec.Struct, frozen=True, kw_only=True):
+    """A batch of DSP commands from one module, sent in order."""
+
+    sender: str
+    """Module instance name of the writer (errors about this batch name it)."""
+    commands: Annotated[list[DspCommand], msgspec.Meta(min_length=1, max_length=100_000)]
+    batch_id: int = 0
+    """Chosen by the sender, echoed in error reports about this batch."""
+
+
+class DspErrorReport(msgspec.Struct, frozen=True, kw_only=True):
+    """A DSP fault, or a command the DSP refused or never acknowledged."""
+
+    code: int
+    """A ``modules.dsp.protocol.ErrorCode`` value (DSP-side), or a link code (see docs/dsp_protocol.md)."""
+    name: str
+    detail: str
+    sender: str = ""
+    """Module whose batch failed; empty for faults the DSP reported on its own."""
+    batch_id: int = 0
+    command: str = ""
+
+
+class DspModuleError(msgspec.Struct, frozen=True, kw_only=True):
+    """The DSP process's ERROR slot: bus-level codes (bbcs.errors.BusErrorCode) and its own."""
+
+    error_dsp: int

@@ -1,0 +1,193 @@
+"""LD-MRS scan messages (data type 0x2202): numpy decoding, encoding, Cartesian points, time offsets.
+
+Payload (little-endian): a 44-byte scan header then N points of 10 bytes (reference/protocols.md §2.2).
+Points are decoded in one ``np.frombuffer`` with a structured dtype; nothing loops per point in Python.
+
+Scanner frame (DIN 70000, as libsick_ldmrs): x forward through the window, y left, z up. Horizontal angle
+h = ticks/32 degrees, positive to the left. The four layers look at elevations of -1.2°, -0.4°, +0.4°, +1.2°
+(layer 0 lowest): libsick_ldmrs ``LuxBase::getVAngleOfLayer`` spaces the 4 layers 0.8° apart symmetric about
+0° (with beam tilt 0, as on the 4-layer LD-MRS), and the seed's own Figure 42 shows the same angles
+(-0.4° for channel 1, -1.2° for channel 0). x = d·cos(e)·cos(h), y = d·cos(e)·sin(h), z = d·sin(e).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from modules.lidar_logger.ldmrs_proto import POINT_SIZE, SCAN_HEADER_SIZE, LdmrsProtocolError
+
+TICKS_PER_DEGREE = 32
+TICKS_PER_ROTATION = 360 * TICKS_PER_DEGREE
+LAYER_SPACING_DEG = 0.8
+NTP_UNIX_OFFSET = 2_208_988_800
+"""Seconds from 1900-01-01 (NTP era 0) to 1970-01-01."""
+
+SCAN_HEADER = struct.Struct("<HHHQQHhhHhhhhhhH")
+WIRE_POINT_DTYPE = np.dtype([
+    ("layer_echo", "u1"), ("flags", "u1"), ("angle", "<i2"), ("distance", "<u2"),
+    ("echo_width", "<u2"), ("reserved", "<u2"),
+])
+assert SCAN_HEADER.size == SCAN_HEADER_SIZE and WIRE_POINT_DTYPE.itemsize == POINT_SIZE
+
+# scan-level flags word
+SCAN_GROUND_LABELED = 0x0001
+SCAN_DIRT_LABELED = 0x0002
+SCAN_RAIN_LABELED = 0x0004
+SCAN_REAR_MIRROR = 0x0400
+
+
+def layer_elevation_deg(layer: np.ndarray | int) -> np.ndarray:
+    """Elevation of a layer's beams in degrees: (layer - 1.5) × 0.8°."""
+    return (np.asarray(layer, dtype=np.float64) - 1.5) * LAYER_SPACING_DEG
+
+
+def ntp_to_posix(ntp: np.ndarray | int) -> np.ndarray:
+    """64-bit NTP (32.32 seconds since 1900) → POSIX seconds as float64."""
+    ntp = np.asarray(ntp, dtype=np.uint64)
+    sec = (ntp >> np.uint64(32)).astype(np.float64) - NTP_UNIX_OFFSET
+    frac = (ntp & np.uint64(0xFFFFFFFF)).astype(np.float64) / 4294967296.0
+    return sec + frac
+
+
+def posix_to_ntp(t: float) -> int:
+    sec = int(np.floor(t))
+    frac = int(round((t - sec) * 4294967296.0))
+    if frac >= 1 << 32:
+        sec, frac = sec + 1, frac - (1 << 32)
+    return ((sec + NTP_UNIX_OFFSET) << 32) | frac
+
+
+def cartesian(angle_ticks: np.ndarray, distance_cm: np.ndarray, layer: np.ndarray) -> np.ndarray:
+    """(N, 3) points in metres in the scanner frame."""
+    h = np.radians(np.asarray(angle_ticks, dtype=np.float64) / TICKS_PER_DEGREE)
+    e = np.radians(layer_elevation_deg(layer))
+    d = np.asarray(distance_cm, dtype=np.float64) / 100.0
+    out = np.empty((len(d), 3))
+    de = d * np.cos(e)
+    out[:, 0] = de * np.cos(h)
+    out[:, 1] = de * np.sin(h)
+    out[:, 2] = d * np.sin(e)
+    return out
+
+
+def time_offsets_us(angle_ticks: np.ndarray, start_ticks: int, end_ticks: int, start_ntp: int,
+                    end_ntp: int) -> np.ndarray:
+    """Microseconds from scan start, interpolated linearly in angle between the start and end timestamps."""
+    duration_us = (int(end_ntp) - int(start_ntp)) * 1e6 / 4294967296.0
+    span = start_ticks - end_ticks
+    if span == 0:
+        return np.zeros(len(angle_ticks), dtype=np.int64)
+    frac = (start_ticks - np.asarray(angle_ticks, dtype=np.float64)) / span
+    return np.rint(duration_us * frac).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One decoded scan; per-point fields are numpy views on the received payload."""
+
+    scan_number: int
+    scanner_status: int
+    sync_phase_offset: int
+    start_ntp: int
+    end_ntp: int
+    ticks_per_rotation: int
+    start_angle: int
+    end_angle: int
+    mounting: tuple[int, int, int, int, int, int]
+    """yaw, pitch, roll [ticks]; x, y, z [cm] as configured in the scanner."""
+    scan_flags: int
+    points: np.ndarray
+    """Structured array with ``WIRE_POINT_DTYPE``."""
+
+    @property
+    def n_points(self) -> int:
+        return len(self.points)
+
+    @property
+    def layer(self) -> np.ndarray:
+        return self.points["layer_echo"] & 0x0F
+
+    @property
+    def echo(self) -> np.ndarray:
+        return self.points["layer_echo"] >> 4
+
+    @property
+    def wire_flags(self) -> np.ndarray:
+        return self.points["flags"]
+
+    @property
+    def angle_ticks(self) -> np.ndarray:
+        return self.points["angle"]
+
+    @property
+    def angles_rad(self) -> np.ndarray:
+        return np.radians(self.points["angle"] / TICKS_PER_DEGREE)
+
+    @property
+    def distance_cm(self) -> np.ndarray:
+        return self.points["distance"]
+
+    @property
+    def distances_m(self) -> np.ndarray:
+        return self.points["distance"] / 100.0
+
+    @property
+    def echo_width_cm(self) -> np.ndarray:
+        return self.points["echo_width"]
+
+    @property
+    def echo_width_m(self) -> np.ndarray:
+        return self.points["echo_width"] / 100.0
+
+    @property
+    def start_time(self) -> float:
+        return float(ntp_to_posix(self.start_ntp))
+
+    @property
+    def end_time(self) -> float:
+        return float(ntp_to_posix(self.end_ntp))
+
+    def time_offsets_us(self) -> np.ndarray:
+        return time_offsets_us(self.points["angle"], self.start_angle, self.end_angle, self.start_ntp,
+                               self.end_ntp)
+
+    def cartesian(self) -> np.ndarray:
+        return cartesian(self.points["angle"], self.points["distance"], self.layer)
+
+
+def decode_scan(payload: bytes) -> Scan:
+    """Decode a 0x2202 payload. Raises LdmrsProtocolError if its size disagrees with its point count."""
+    if len(payload) < SCAN_HEADER_SIZE:
+        raise LdmrsProtocolError(f"scan payload of {len(payload)} bytes, header alone is {SCAN_HEADER_SIZE}")
+    (number, status, sync, start_ntp, end_ntp, ticks, start_angle, end_angle, n, m_yaw, m_pitch, m_roll,
+     m_x, m_y, m_z, flags) = SCAN_HEADER.unpack_from(payload)
+    if len(payload) != SCAN_HEADER_SIZE + POINT_SIZE * n:
+        raise LdmrsProtocolError(f"scan {number}: {n} points need {SCAN_HEADER_SIZE + POINT_SIZE * n} bytes, "
+                                 f"payload has {len(payload)}")
+    points = np.frombuffer(payload, dtype=WIRE_POINT_DTYPE, count=n, offset=SCAN_HEADER_SIZE)
+    return Scan(number, status, sync, start_ntp, end_ntp, ticks, start_angle, end_angle,
+                (m_yaw, m_pitch, m_roll, m_x, m_y, m_z), flags, points)
+
+
+def encode_scan(scan: Scan) -> bytes:
+    """Inverse of ``decode_scan`` (the simulator's side)."""
+    pts = np.ascontiguousarray(scan.points, dtype=WIRE_POINT_DTYPE)
+    head = SCAN_HEADER.pack(scan.scan_number & 0xFFFF, scan.scanner_status, scan.sync_phase_offset,
+                            scan.start_ntp, scan.end_ntp, scan.ticks_per_rotation, scan.start_angle,
+                            scan.end_angle, len(pts), *scan.mounting, scan.scan_flags)
+    return head + pts.tobytes()
+
+
+def make_points(layer: np.ndarray, echo: np.ndarray, flags: np.ndarray, angle_ticks: np.ndarray,
+                distance_cm: np.ndarray, echo_width_cm: np.ndarray) -> np.ndarray:
+    """Assemble a wire point array from columns."""
+    pts = np.zeros(len(angle_ticks), dtype=WIRE_POINT_DTYPE)
+    pts["layer_echo"] = (np.asarray(layer) & 0x0F) | ((np.asarray(echo) & 0x0F) << 4)
+    pts["flags"] = flags
+    pts["angle"] = angle_ticks
+    pts["distance"] = distance_cm
+    pts["echo_width"] = echo_width_cm
+    return pts

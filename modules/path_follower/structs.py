@@ -1,0 +1,84 @@
+"""Slot structs of the path follower / bridge, as seed 004 §5.3.2.3 defines them (field names are the seed's).
+
+One definition each; ranges in the types. MAX_SPEED, known only from the robot .conf, is checked by the module
+right after decoding.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+import msgspec
+
+SlotNumber = Annotated[int, msgspec.Meta(ge=-1)]
+Radians = Annotated[float, msgspec.Meta(ge=-math.pi, lt=math.pi)]
+"""An angle in radians in [-π, π)."""
+
+
+class ControlEntradaSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """CONTROL_ENTRADA_SEG_CAM: which slot each routed input reads (-1 = ignore)."""
+
+    slot_entrada_control_modos: SlotNumber = -1
+    slot_entrada_heading: SlotNumber = -1
+    slot_entrada_speed: SlotNumber = -1
+    slot_entrada_datos: SlotNumber = -1
+
+
+class ControlModoSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """CONTROL_MODO_SEG_CAM. ``modo_o_comando``: 0 change the operating mode, 1 a command.
+    ``modo_de_funcionamiento``: 0 path following, DSP computes heading; 1 path following, heading from the
+    HEADING slot; 2 semi-automatic; 3 onboard path follower; 4 take-off; 5 landing; 6 bridge.
+    ``numero_de_comando``: 0 abort (empty the waypoint queues of the DSP and the onboard computer)."""
+
+    modo_o_comando: Annotated[int, msgspec.Meta(ge=0, le=1)]
+    modo_de_funcionamiento: Annotated[int, msgspec.Meta(ge=0, le=6)] = 0
+    numero_de_comando: Annotated[int, msgspec.Meta(ge=0, le=0)] = 0
+
+
+class HeadingSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """HEADING_SEG_CAM: heading in radians, [-π, π); sent to the DSP in degrees, only in mode 1."""
+
+    heading: Radians
+
+
+class SpeedSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """SPEED_SEG_CAM: navigation speed, m/s, [0, MAX_SPEED] (MAX_SPEED from the robot .conf)."""
+
+    speed: Annotated[float, msgspec.Meta(ge=0.0)]
+
+
+class DatoPuntoSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """DATO_PUNTO_SEG_CAM: one waypoint (WGS84 degrees, metres). Heading is not part of a waypoint."""
+
+    latitud: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
+    longitud: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+    altura: float
+
+
+class DatosSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """DATOS stream: ``n_points`` then n waypoints; the whole trajectory arrives at once.
+
+    A count that does not match the list (checked by the module right after decoding), n = 0, or any bad point
+    rejects the whole message.
+    """
+
+    n_points: Annotated[int, msgspec.Meta(ge=1, le=2**32 - 1)]
+    puntos: list[DatoPuntoSegCam]
+
+
+class RefsSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """REFS_SEG_CAM: bridge references, sent as they are in mode 6. ``ref_rpm_motor`` in [0, 1800]
+    (the seed's "1.800" is a Spanish thousands separator)."""
+
+    ref_altura: float
+    error_longitudinal: float
+    error_lateral: float
+    ref_heading: Radians
+    ref_rpm_motor: Annotated[float, msgspec.Meta(ge=0.0, le=1800.0)]
+
+
+class ErrorSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """ERROR_SEG_CAM: an error code of the path follower, also forwarded DSP errors (docs/error_codes.md)."""
+
+    error_seg_cam: int
