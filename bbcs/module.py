@@ -112,6 +112,8 @@ class Module:
                     raise SlotError(f"{cls.__name__}: {cls.control.type.__name__} has no field {field!r}")
                 if slot not in cls._inputs or slot == cls.control.slot:
                     raise SlotError(f"{cls.__name__}: control field {field!r} routes unknown input {slot!r}")
+                if cls._inputs[slot].peer is not None:
+                    raise SlotError(f"{cls.__name__}: input {slot!r} has a fixed peer and cannot be routed")
                 routed.add(slot)
         cls._routed = frozenset(routed)
         for name in cls._inputs:
@@ -224,7 +226,7 @@ class Module:
         assert self.session is not None
         s = self.session
         for name, spec in self._outputs.items():
-            self._outputs_by_name[name] = Publisher(s, keys.slot_key(self.robot, self.module, name), spec)
+            self._outputs_by_name[name] = Publisher(s, spec.key(self.robot, self.module), spec)
         self._ack_pub = Publisher(s, keys.route_ack_key(self.robot, self.module),
                                   SlotSpec("route", RouteAck, Direction.OUT, Kind.STATE, Safety.SAFE))
         self._heartbeat_pub = Publisher(s, keys.heartbeat_key(self.robot, self.module),
@@ -232,7 +234,7 @@ class Module:
         self._entities.append(s.declare_queryable(keys.schema_key(self.robot, self.module), self._answer_schema))
         for name, spec in self._inputs.items():
             if name not in self._routed:
-                self._readers[name] = self._make_reader(spec, keys.slot_key(self.robot, self.module, name), IGNORE)
+                self._readers[name] = self._make_reader(spec, spec.key(self.robot, self.module), IGNORE)
         initial = {slot: self.context.routes.get(slot, IGNORE) for slot in sorted(self._routed)}
         self._apply_routes(initial, request=initial, publish_ack=bool(self.context.routes))
         self._entities.append(s.liveliness().declare_token(keys.alive_key(self.robot, self.module)))

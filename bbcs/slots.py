@@ -71,9 +71,15 @@ class SlotSpec(Generic[T]):
     kind: Kind = Kind.STATE
     safety: Safety = Safety.SAFE
     queue: int = DEFAULT_SAFE_QUEUE
+    peer: str | None = None
+    """Another module of the same robot whose slot this one is bound to: an input reads that module's output
+    slot of the same name (e.g. ``dsp`` for ``telemetry``); an output writes into that module's input (a mailbox,
+    e.g. ``dsp`` for ``commands``). None: the slot lives under this module's own key."""
 
     def __post_init__(self) -> None:
         keys.validate_name(self.name, "slot name")
+        if self.peer is not None:
+            keys.validate_name(self.peer, "peer module name")
         if not (isinstance(self.type, type) and issubclass(self.type, msgspec.Struct)):
             raise SlotError(f"slot {self.name!r}: type must be a msgspec.Struct subclass, got {self.type!r}")
         if self.kind is Kind.STREAM and self.safety is Safety.UNSAFE:
@@ -85,25 +91,30 @@ class SlotSpec(Generic[T]):
     def codec(self) -> Codec[T]:
         return codec_for(self.type)
 
+    def key(self, robot: str, module: str) -> str:
+        """Where this slot lives for ``module`` of ``robot`` (the peer's key when it has one)."""
+        return keys.slot_key(robot, self.peer or module, self.name)
+
     def describe(self) -> dict[str, Any]:
         """What the schema query returns for this slot."""
         return {
             "direction": str(self.direction), "kind": str(self.kind), "safety": str(self.safety),
+            **({"peer": self.peer} if self.peer else {}),
             "type": self.codec.name, "schema": msgspec.json.schema(self.type),
             **({"queue": self.queue} if self.direction is Direction.IN and self.safety is Safety.SAFE else {}),
         }
 
 
 def InputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE, safety: Safety = Safety.SAFE,  # noqa: N802
-              queue: int = DEFAULT_SAFE_QUEUE) -> SlotSpec[T]:
-    """Declare an input slot."""
-    return SlotSpec(name, type, Direction.IN, Kind(kind), Safety(safety), queue)
+              queue: int = DEFAULT_SAFE_QUEUE, peer: str | None = None) -> SlotSpec[T]:
+    """Declare an input slot (``peer``: always read that module's output slot of the same name)."""
+    return SlotSpec(name, type, Direction.IN, Kind(kind), Safety(safety), queue, peer)
 
 
 def OutputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE,  # noqa: N802
-               safety: Safety = Safety.SAFE) -> SlotSpec[T]:
-    """Declare an output slot."""
-    return SlotSpec(name, type, Direction.OUT, Kind(kind), Safety(safety))
+               safety: Safety = Safety.SAFE, peer: str | None = None) -> SlotSpec[T]:
+    """Declare an output slot (``peer``: write into that module's input slot of the same name)."""
+    return SlotSpec(name, type, Direction.OUT, Kind(kind), Safety(safety), peer=peer)
 
 
 class Publisher(Generic[T]):

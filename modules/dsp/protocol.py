@@ -160,7 +160,7 @@ def heading_deg_from_rad(rad: float) -> float:
     """Radians (SPEC's HEADING slot) → degrees in [-180, 180) for SET_HEADING."""
     deg = math.degrees(rad)
     deg = (deg + 180.0) % 360.0 - 180.0
-    return 0.0 if deg == -0.0 else deg
+    return deg - 360.0 if deg >= 180.0 else deg
 
 
 class Message(msgspec.Struct, frozen=True, kw_only=True):

@@ -73,15 +73,19 @@ def cartesian(angle_ticks: np.ndarray, distance_cm: np.ndarray, layer: np.ndarra
     return out
 
 
-def time_offsets_us(angle_ticks: np.ndarray, start_ticks: int, end_ticks: int, start_ntp: int,
-                    end_ntp: int) -> np.ndarray:
-    """Microseconds from scan start, interpolated linearly in angle between the start and end timestamps."""
-    duration_us = (int(end_ntp) - int(start_ntp)) * 1e6 / 4294967296.0
-    span = start_ticks - end_ticks
-    if span == 0:
-        return np.zeros(len(angle_ticks), dtype=np.int64)
-    frac = (start_ticks - np.asarray(angle_ticks, dtype=np.float64)) / span
-    return np.rint(duration_us * frac).astype(np.int64)
+def time_offsets_us(angle_ticks: np.ndarray, start_ticks: np.ndarray | int, end_ticks: np.ndarray | int,
+                    start_ntp: np.ndarray | int, end_ntp: np.ndarray | int) -> np.ndarray:
+    """Microseconds from scan start, interpolated linearly in angle between the start and end timestamps.
+
+    Scan quantities may be scalars or per-point arrays (broadcast); a scan whose start and end angles are
+    equal gets offsets of 0.
+    """
+    diff = (np.asarray(end_ntp, dtype=np.uint64) - np.asarray(start_ntp, dtype=np.uint64)).view(np.int64)
+    duration_us = diff.astype(np.float64) * 1e6 / 4294967296.0
+    start = np.asarray(start_ticks, dtype=np.int64)
+    span = start - np.asarray(end_ticks, dtype=np.int64)
+    frac = (start - np.asarray(angle_ticks, dtype=np.float64)) / np.where(span == 0, 1, span)
+    return np.where(span == 0, 0.0, np.rint(duration_us * frac)).astype(np.int64)
 
 
 @dataclass(frozen=True)

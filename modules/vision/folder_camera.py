@@ -40,8 +40,9 @@ def load_image(path: Path) -> np.ndarray:
 
 def list_images(folder: Path) -> list[Path]:
     """Image files of ``folder`` (not recursive) sorted by file name."""
-    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES),
-                  key=lambda p: p.name)
+    return sorted(
+        (p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=lambda p: p.name
+    )
 
 
 class FolderCamera(CameraSource):

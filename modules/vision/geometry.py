@@ -17,7 +17,7 @@ The camera's centre of projection is at the aircraft position (no lever arm).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -78,7 +78,6 @@ class CameraModel:
     width: int = 640
     height: int = 480
     hfov_deg: float = 60.0
-    _rays: NDArray[np.float32] | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.width < 2 or self.height < 2:
@@ -108,15 +107,17 @@ class CameraModel:
         u_arr, v_arr = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64))
         return np.stack(((u_arr - cu) / f, (v_arr - cv) / f, np.ones_like(u_arr)), axis=-1)
 
-    def grid_rays(self) -> NDArray[np.float32]:
-        """Rays through every pixel centre, shape (height*width, 3), row-major; computed once and cached."""
-        if self._rays is None:
-            v, u = np.mgrid[0 : self.height, 0 : self.width]
-            rays = self.pixel_rays(u.ravel(), v.ravel()).astype(np.float32)
-            rays.setflags(write=False)
-            object.__setattr__(self, "_rays", rays)
-        assert self._rays is not None
-        return self._rays
+    def grid_axes(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Normalised image coordinates of the pixel centres: x per column (W,), y per row (H,).
+
+        The optical ray through pixel (u, v) is (x[u], y[v], 1); keeping the two axes separate lets a
+        renderer rotate all rays with broadcasting instead of a (H*W, 3) matrix product.
+        """
+        cu, cv = self.centre
+        f = self.focal_px
+        x = ((np.arange(self.width) - cu) / f).astype(np.float32)
+        y = ((np.arange(self.height) - cv) / f).astype(np.float32)
+        return x, y
 
     def project(self, points_optical: ArrayLike) -> NDArray[np.float64]:
         """Optical-frame points (..., 3) -> pixel (u, v) (..., 2); NaN for points not in front (z <= 0)."""

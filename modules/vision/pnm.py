@@ -42,7 +42,7 @@ def _read_number(data: bytes, pos: int, name: str) -> tuple[int, int]:
     if pos - start > _MAX_DIGITS:
         raise PnmError(f"header: {name} at byte {start} has too many digits")
     if pos < len(data) and data[pos] not in _WHITESPACE and data[pos] != ord("#"):
-        raise PnmError(f"header: {name} at byte {start} is followed by {data[pos:pos + 1]!r}")
+        raise PnmError(f"header: {name} at byte {start} is followed by {data[pos : pos + 1]!r}")
     return int(data[start:pos]), pos
 
 

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 RGB = tuple[int, int, int]
 
 
-def _hash2(ix: NDArray[np.int64], iy: NDArray[np.int64], seed: int) -> NDArray[np.float32]:
+def _hash2(ix: NDArray[np.int32], iy: NDArray[np.int32], seed: int) -> NDArray[np.float32]:
     """Deterministic per-cell value in [0, 1) from integer cell indices (32-bit integer mixing)."""
     h = ix.astype(np.uint32) * np.uint32(0x8DA6B343)
     h ^= iy.astype(np.uint32) * np.uint32(0xD8163841)
@@ -44,19 +44,21 @@ class GroundTexture:
 
     def colour(self, east: NDArray[np.floating], north: NDArray[np.floating]) -> NDArray[np.float32]:
         """RGB float32 (..., 3) in [0, 255] for ground points (same shape arrays)."""
-        ix = np.floor(east / self.cell_m).astype(np.int64)
-        iy = np.floor(north / self.cell_m).astype(np.int64)
-        fx = np.floor(east / self.field_m).astype(np.int64)
-        fy = np.floor(north / self.field_m).astype(np.int64)
-        checker = ((ix + iy) & 1).astype(np.float32)[..., None]
-        base = np.asarray(self.dark, np.float32) + checker * (
-            np.asarray(self.light, np.float32) - np.asarray(self.dark, np.float32)
-        )
-        cell_noise = (_hash2(ix, iy, self.seed) - 0.5) * self.noise
-        tint = _hash2(fx, fy, self.seed + 1)[..., None]
-        soil = np.asarray((1.10, 0.92, 0.90), np.float32)  # fields shade from green to brownish
-        rgb = base * (1.0 + tint * (soil - 1.0)) + cell_noise[..., None]
-        return np.clip(rgb, 0.0, 255.0)
+        ix = np.floor(east / np.float32(self.cell_m)).astype(np.int32)
+        iy = np.floor(north / np.float32(self.cell_m)).astype(np.int32)
+        fx = np.floor(east / np.float32(self.field_m)).astype(np.int32)
+        fy = np.floor(north / np.float32(self.field_m)).astype(np.int32)
+        checker = ((ix + iy) & 1).astype(np.float32)
+        cell_noise = (_hash2(ix, iy, self.seed) - np.float32(0.5)) * np.float32(self.noise)
+        tint = _hash2(fx, fy, self.seed + 1)
+        soil = (1.10, 0.92, 0.90)  # fields shade from green to brownish
+        rgb = np.empty((*checker.shape, 3), dtype=np.float32)
+        for c in range(3):
+            dark = np.float32(self.dark[c])
+            span = np.float32(self.light[c] - self.dark[c])
+            shade = np.float32(1.0) + tint * np.float32(soil[c] - 1.0)
+            rgb[..., c] = (dark + checker * span) * shade + cell_noise
+        return np.clip(rgb, 0.0, 255.0, out=rgb)
 
 
 class Target(Protocol):

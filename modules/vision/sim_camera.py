@@ -36,23 +36,26 @@ def render_view(
 ) -> NDArray[np.float32]:
     """Float32 RGB image (H, W, 3) for one camera orientation/position.
 
-    ``targets`` are (east, north, radius_m, colour) discs lying on the ground plane.
+    ``targets`` are (east, north, radius_m, colour) discs lying on the ground plane. The ENU ray of pixel
+    (u, v) is R @ (x[u], y[v], 1) = x[u]·R[:, 0] + y[v]·R[:, 1] + R[:, 2], built by broadcasting.
     """
-    rays = camera.grid_rays() @ rotation_enu_optical.T.astype(np.float32)
+    x, y = camera.grid_axes()
+    r = rotation_enu_optical.astype(np.float32)
+    col, row = x[None, :], y[:, None]
+    dz = col * r[2, 0] + row * r[2, 1] + r[2, 2]
     pos = np.asarray(position_enu, dtype=np.float64)
     height = np.float32(pos[2] - ground_up)
-    dz = rays[:, 2]
     hits = (dz < 0.0) & (height > 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(hits, -height / dz, np.float32(0.0))
-    east = np.float32(pos[0]) + t * rays[:, 0]
-    north = np.float32(pos[1]) + t * rays[:, 1]
+    east = np.float32(pos[0]) + t * (col * r[0, 0] + row * r[0, 1] + r[0, 2])
+    north = np.float32(pos[1]) + t * (col * r[1, 0] + row * r[1, 1] + r[1, 2])
     rgb = texture.colour(east, north)
     for te, tn, radius, colour in targets:
         inside = hits & ((east - np.float32(te)) ** 2 + (north - np.float32(tn)) ** 2 <= np.float32(radius) ** 2)
         rgb[inside] = np.asarray(colour, np.float32)
     rgb[~hits] = np.asarray(sky, np.float32)
-    return rgb.reshape(camera.height, camera.width, 3)
+    return rgb
 
 
 class SimulatedCamera(CameraSource):

@@ -21,7 +21,8 @@ ROTOR_LIFT_RPM = 1200.0  # below this the aircraft cannot leave the ground
 
 def wrap_deg(angle: float) -> float:
     """Angle in degrees wrapped into [-180, 180)."""
-    return (angle + 180.0) % 360.0 - 180.0
+    wrapped = (angle + 180.0) % 360.0 - 180.0
+    return wrapped - 360.0 if wrapped >= 180.0 else wrapped
 
 
 @dataclass(frozen=True)

@@ -127,8 +127,14 @@ def test_score_map_definitions():
 
 @pytest.mark.parametrize(
     "kwargs",
-    [dict(target_rgb=(300, 0, 0)), dict(threshold=400), dict(min_area=0), dict(max_area_fraction=0.0),
-     dict(area_scale=0.0), dict(connectivity=6)],
+    [
+        dict(target_rgb=(300, 0, 0)),
+        dict(threshold=400),
+        dict(min_area=0),
+        dict(max_area_fraction=0.0),
+        dict(area_scale=0.0),
+        dict(connectivity=6),
+    ],
 )
 def test_bad_detector_config(kwargs):
     with pytest.raises(ValueError):

@@ -49,8 +49,12 @@ def test_latitude_past_a_pole_is_refused():
 
 @pytest.mark.parametrize(
     ("lat", "lon", "alt", "field"),
-    [(91.0, 0.0, 0.0, "latitude"), (0.0, 180.5, 0.0, "longitude"), (0.0, 0.0, math.nan, "altitude"),
-     (math.inf, 0.0, 0.0, "latitude")],
+    [
+        (91.0, 0.0, 0.0, "latitude"),
+        (0.0, 180.5, 0.0, "longitude"),
+        (0.0, 0.0, math.nan, "altitude"),
+        (math.inf, 0.0, 0.0, "latitude"),
+    ],
 )
 def test_bad_positions_name_the_field(lat, lon, alt, field):
     with pytest.raises(ValueError, match=field):

@@ -104,8 +104,11 @@ def test_rendering_is_deterministic_from_the_seed():
 
 def test_target_free_views_give_no_detection():
     cam = make_camera([], noise_sigma=8.0)
-    for where, g in [((0, 0, 30), Gimbal(pan=0, tilt=90)), ((50, -20, 150), Gimbal(pan=45, tilt=20)),
-                     ((0, 0, 100), Gimbal(pan=0, tilt=-30))]:
+    for where, g in [
+        ((0, 0, 30), Gimbal(pan=0, tilt=90)),
+        ((50, -20, 150), Gimbal(pan=45, tilt=20)),
+        ((0, 0, 100), Gimbal(pan=0, tilt=-30)),
+    ]:
         cam.set_state_enu(where, g)
         assert detect(cam.read().image, DetectorConfig()) is None
 
@@ -121,8 +124,9 @@ def test_looking_up_sees_only_sky_and_grey_mode():
 
 
 def test_bright_target_is_found_in_grey_frames():
-    cam = make_camera([LinearTarget(start=(0.0, 0.0), radius_m=1.5, colour=(255, 255, 255))], grey=True,
-                      noise_sigma=6.0)
+    cam = make_camera(
+        [LinearTarget(start=(0.0, 0.0), radius_m=1.5, colour=(255, 255, 255))], grey=True, noise_sigma=6.0
+    )
     cam.set_state_enu((0.0, 0.0, 70.0), Gimbal(pan=0.0, tilt=90.0))
     det = detect(cam.read().image, DetectorConfig(threshold=200))
     assert np.hypot(det.x - 319.5, det.y - 239.5) < 1.0

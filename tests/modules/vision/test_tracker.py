@@ -75,8 +75,8 @@ def test_time_must_not_go_backwards_and_inputs_are_checked():
 
 
 @pytest.mark.parametrize(
-    "kwargs", [dict(confidence_on=0.2, confidence_off=0.3), dict(confirm_hits=0), dict(lose_s=0.0),
-               dict(confidence_on=1.5)],
+    "kwargs",
+    [dict(confidence_on=0.2, confidence_off=0.3), dict(confirm_hits=0), dict(lose_s=0.0), dict(confidence_on=1.5)],
 )
 def test_bad_tracker_config(kwargs):
     with pytest.raises(ValueError):

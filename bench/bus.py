@@ -1,0 +1,326 @@
+"""Bus benchmark: one-way latency and throughput between two processes, raw zenoh-python vs a ``bbcs`` slot.
+
+Both sides run in the same harness in the same run, through the same router, with the same QoS (reliable,
+BLOCK): raw is ``put(bytes)`` → Python callback; bbcs is ``Publisher.publish(struct)`` → the Module's input
+thread → decode + validate → handler. Latency is ping-pong (RTT/2), each reply sent from the receiving
+handler. Throughput is a publisher blasting as fast as it can into a handler that counts.
+
+    python bench/bus.py            # defaults: ~1 minute; table on stdout, JSON in bench/results/bus.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Annotated
+
+import msgspec
+import zenoh
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bbcs import keys  # noqa: E402
+from bbcs.context import ModuleContext  # noqa: E402
+from bbcs.module import Module  # noqa: E402
+from bbcs.session import SessionConfig, local_client, open_session  # noqa: E402
+from bbcs.slots import InputSlot, Kind, OutputSlot  # noqa: E402
+from bbcs.testing import Processes, start_router  # noqa: E402
+
+SIZES = {"small": 0, "1k": 1000, "32k": 32_000}
+ROBOT = "bench"
+
+
+class BenchMsg(msgspec.Struct, frozen=True, kw_only=True):
+    """A numbered, range-checked datum; ``body`` stands for a payload (empty: a ~40 B struct)."""
+
+    seq: int
+    stamp_ns: int
+    value: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)] = 12.5
+    tilt: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)] = -45.0
+    body: bytes = b""
+
+
+def _cfg(port: int) -> SessionConfig:
+    return local_client(port)
+
+
+# ------------------------------------------------------------------ roles (run in child processes)
+
+class Echo(Module):
+    """bbcs pong: every datum received on ``ping`` goes back out on ``pong``."""
+
+    name = "echo"
+    slots = (InputSlot("ping", BenchMsg, kind=Kind.STREAM, peer="pinger"),
+             OutputSlot("pong", BenchMsg, kind=Kind.STREAM))
+
+    def on_start(self) -> None:
+        self._pong = self.output("pong")
+
+    def on_ping(self, msg: BenchMsg) -> None:
+        self._pong.publish(msg)
+
+
+class Pinger(Module):
+    """bbcs ping: sends the next ping from the handler of the previous pong; records one-way times."""
+
+    name = "pinger"
+    slots = (InputSlot("pong", BenchMsg, kind=Kind.STREAM, peer="echo"),
+             OutputSlot("ping", BenchMsg, kind=Kind.STREAM))
+    count = 0
+    body = b""
+
+    def on_start(self) -> None:
+        self.samples: list[float] = []
+        self._ping = self.output("ping")
+        self.ready = threading.Event()
+
+    def send(self, seq: int) -> None:
+        self._ping.publish(BenchMsg(seq=seq, stamp_ns=time.perf_counter_ns(), body=self.body))
+
+    def on_pong(self, msg: BenchMsg) -> None:
+        self.samples.append((time.perf_counter_ns() - msg.stamp_ns) / 2000.0)
+        if len(self.samples) >= self.count:
+            self.request_stop()
+        else:
+            self.send(msg.seq + 1)
+
+
+class Counter(Module):
+    """bbcs throughput sink: counts every datum handled."""
+
+    name = "counter"
+    slots = (InputSlot("data", BenchMsg, kind=Kind.STREAM, peer="blaster", queue=100_000),)
+    expected = 0
+
+    def on_start(self) -> None:
+        self.n = 0
+        self.first = self.last = 0.0
+
+    def on_data(self, msg: BenchMsg) -> None:
+        self.n += 1
+        if self.n == 1:
+            self.first = time.perf_counter()
+        if self.n >= self.expected:
+            self.last = time.perf_counter()
+            self.request_stop()
+
+
+def _wait_alive(session: zenoh.Session, module: str) -> None:
+    seen = threading.Event()
+    sub = session.liveliness().declare_subscriber(keys.alive_key(ROBOT, module), lambda s: seen.set(), history=True)
+    if not seen.wait(20):
+        raise SystemExit(f"{module} never came up")
+    sub.undeclare()
+
+
+def role_main(args: argparse.Namespace) -> None:
+    port, body = args.port, b"x" * SIZES[args.size]
+    ctx = lambda name: ModuleContext(robot=ROBOT, module=name, bus=_cfg(port))  # noqa: E731
+    raw_ping_key, raw_pong_key = f"bench/{args.tag}/ping", f"bench/{args.tag}/pong"
+    qos = {"reliability": zenoh.Reliability.RELIABLE, "congestion_control": zenoh.CongestionControl.BLOCK}
+    if args.role == "echo" and args.mode == "bbcs":
+        echo = Echo(ctx("echo"))
+        threading.Thread(target=lambda: (sys.stdin.read(), echo.request_stop()), daemon=True).start()
+        echo.run()
+    elif args.role == "echo":
+        s = open_session(_cfg(port))
+        pub = s.declare_publisher(raw_pong_key, **qos)
+        sub = s.declare_subscriber(raw_ping_key, lambda smp: pub.put(smp.payload.to_bytes()))
+        token = s.liveliness().declare_token(keys.alive_key(ROBOT, "echo"))
+        sys.stdin.read()
+        token.undeclare()
+        sub.undeclare()
+        s.close()
+    elif args.role == "ping" and args.mode == "bbcs":
+        Pinger.count, Pinger.body = args.count, body
+        pinger = Pinger(ctx("pinger"))
+
+        def kick() -> None:
+            probe = open_session(_cfg(port))
+            _wait_alive(probe, "echo")
+            _wait_alive(probe, "pinger")
+            probe.close()
+            time.sleep(0.2)
+            with pinger.lock:
+                pinger.send(0)
+
+        threading.Thread(target=kick, daemon=True).start()
+        pinger.run()
+        print(json.dumps(pinger.samples))
+    elif args.role == "ping":
+        s = open_session(_cfg(port))
+        samples: list[float] = []
+        done = threading.Event()
+        pub = s.declare_publisher(raw_ping_key, **qos)
+        dec = msgspec.msgpack.Decoder(BenchMsg).decode
+
+        def on_pong(smp: zenoh.Sample) -> None:
+            msg = dec(smp.payload.to_bytes())
+            samples.append((time.perf_counter_ns() - msg.stamp_ns) / 2000.0)
+            if len(samples) >= args.count:
+                done.set()
+            else:
+                pub.put(msgspec.msgpack.encode(BenchMsg(seq=msg.seq + 1, stamp_ns=time.perf_counter_ns(), body=body)))
+
+        sub = s.declare_subscriber(raw_pong_key, on_pong)
+        _wait_alive(s, "echo")
+        time.sleep(0.2)
+        pub.put(msgspec.msgpack.encode(BenchMsg(seq=0, stamp_ns=time.perf_counter_ns(), body=body)))
+        done.wait(120)
+        sub.undeclare()
+        s.close()
+        print(json.dumps(samples))
+    elif args.role == "sink" and args.mode == "bbcs":
+        Counter.expected = args.count
+        counter = Counter(ctx("counter"))
+        counter.run()
+        print(json.dumps({"n": counter.n, "seconds": counter.last - counter.first}))
+    elif args.role == "sink":
+        s = open_session(_cfg(port))
+        state = {"n": 0, "first": 0.0, "last": 0.0}
+        done = threading.Event()
+
+        def on_data(smp: zenoh.Sample) -> None:
+            state["n"] += 1
+            if state["n"] == 1:
+                state["first"] = time.perf_counter()
+            if state["n"] >= args.count:
+                state["last"] = time.perf_counter()
+                done.set()
+
+        sub = s.declare_subscriber(f"bench/{args.tag}/data", on_data)
+        token = s.liveliness().declare_token(keys.alive_key(ROBOT, "counter"))
+        done.wait(120)
+        token.undeclare()
+        sub.undeclare()
+        s.close()
+        print(json.dumps({"n": state["n"], "seconds": state["last"] - state["first"]}))
+    elif args.role == "blast":
+        s = open_session(_cfg(port))
+        _wait_alive(s, "counter")
+        time.sleep(0.2)
+        if args.mode == "bbcs":
+            from bbcs.slots import Publisher
+            pub = Publisher(s, keys.slot_key(ROBOT, "blaster", "data"), OutputSlot("data", BenchMsg, kind=Kind.STREAM))
+            for seq in range(args.count + 1000):
+                pub.publish(BenchMsg(seq=seq, stamp_ns=0, body=body))
+            pub.close()
+        else:
+            rpub = s.declare_publisher(f"bench/{args.tag}/data", **qos)
+            payload = msgspec.msgpack.encode(BenchMsg(seq=0, stamp_ns=0, body=body))
+            for _ in range(args.count + 1000):
+                rpub.put(payload)
+            rpub.undeclare()
+        sys.stdin.read()
+        s.close()
+
+
+# ------------------------------------------------------------------ orchestration
+
+def _child(procs: Processes, *args: str) -> subprocess.Popen:
+    return procs.start([str(Path(__file__).resolve()), *args], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                       text=True)
+
+
+def latency_run(port: int, mode: str, size: str, count: int, tag: str) -> list[float]:
+    procs = Processes()
+    try:
+        base = ["--port", str(port), "--mode", mode, "--size", size, "--tag", tag]
+        echo = _child(procs, "--role", "echo", *base)
+        ping = _child(procs, "--role", "ping", "--count", str(count), *base)
+        out, _ = ping.communicate(timeout=180)
+        echo.stdin.close()
+        echo.wait(10)
+        samples = json.loads(out.strip().splitlines()[-1])
+        return samples[len(samples) // 10:]
+    finally:
+        procs.stop_all()
+
+
+def throughput_run(port: int, mode: str, size: str, count: int, tag: str) -> float:
+    procs = Processes()
+    try:
+        base = ["--port", str(port), "--mode", mode, "--size", size, "--tag", tag, "--count", str(count)]
+        sink = _child(procs, "--role", "sink", *base)
+        blast = _child(procs, "--role", "blast", *base)
+        out, _ = sink.communicate(timeout=180)
+        blast.stdin.close()
+        blast.wait(10)
+        res = json.loads(out.strip().splitlines()[-1])
+        return (res["n"] - 1) / res["seconds"]
+    finally:
+        procs.stop_all()
+
+
+def pct(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--rounds", type=int, default=3, help="interleaved rounds per configuration")
+    p.add_argument("--pings", type=int, default=2000)
+    p.add_argument("--messages", type=int, default=200_000, help="messages per throughput run (small)")
+    p.add_argument("--role", help=argparse.SUPPRESS)
+    p.add_argument("--mode", help=argparse.SUPPRESS)
+    p.add_argument("--size", default="small", help=argparse.SUPPRESS)
+    p.add_argument("--port", type=int, help=argparse.SUPPRESS)
+    p.add_argument("--count", type=int, help=argparse.SUPPRESS)
+    p.add_argument("--tag", default="t", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if args.role:
+        role_main(args)
+        return
+    procs = Processes()
+    try:
+        port = start_router(procs)
+        lat: dict[tuple[str, str], list[float]] = {}
+        thr: dict[tuple[str, str], list[float]] = {}
+        for rnd in range(args.rounds):
+            for size in SIZES:
+                for mode in ("raw", "bbcs"):
+                    lat.setdefault((mode, size), []).extend(
+                        latency_run(port, mode, size, args.pings, f"l{rnd}{size}{mode}"))
+            for size, count in (("small", args.messages), ("32k", max(5000, args.messages // 10))):
+                for mode in ("raw", "bbcs"):
+                    thr.setdefault((mode, size), []).append(
+                        throughput_run(port, mode, size, count, f"t{rnd}{size}{mode}"))
+    finally:
+        procs.stop_all()
+
+    rows = []
+    print(f"{'payload':8} {'mode':5} {'p50 µs':>9} {'p99 µs':>9} {'msgs/s':>11}")
+    for size in SIZES:
+        for mode in ("raw", "bbcs"):
+            s = lat[(mode, size)]
+            rate = statistics.median(thr[(mode, size)]) if (mode, size) in thr else None
+            rows.append({"payload": size, "mode": mode, "p50_us": pct(s, 0.5), "p99_us": pct(s, 0.99),
+                         "samples": len(s), "msgs_per_s": rate})
+            print(f"{size:8} {mode:5} {pct(s, 0.5):9.1f} {pct(s, 0.99):9.1f} "
+                  f"{'' if rate is None else f'{rate:11,.0f}'}")
+    get = {(r["mode"], r["payload"]): r for r in rows}
+    summary = {
+        "small_p50_ratio": get[("bbcs", "small")]["p50_us"] / get[("raw", "small")]["p50_us"],
+        "small_p99_ratio": get[("bbcs", "small")]["p99_us"] / get[("raw", "small")]["p99_us"],
+        "throughput_ratio": get[("bbcs", "small")]["msgs_per_s"] / get[("raw", "small")]["msgs_per_s"],
+        "scan_p50_ratio": get[("bbcs", "32k")]["p50_us"] / get[("raw", "32k")]["p50_us"],
+        "scan_throughput_ratio": get[("bbcs", "32k")]["msgs_per_s"] / get[("raw", "32k")]["msgs_per_s"],
+    }
+    print("\n" + "\n".join(f"{k:22} {v:.3f}" for k, v in summary.items()))
+    out = ROOT / "bench" / "results" / "bus.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"summary": summary, "rows": rows, "rounds": args.rounds, "pings": args.pings,
+                               "messages": args.messages, "stamp": time.time()}, indent=2))
+    print(f"\nwrote {out.relative_to(ROOT)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,267 @@
+"""Supervision of one module process as a pure state machine with an injected clock.
+
+The runtime feeds it events (spawned, alive/unreachable from liveliness, a matching RouteAck, a heartbeat, the
+exit status from ``waitpid``) and the current time; ``tick(now)`` returns what to do next (spawn, kill). Nothing
+here touches processes or the bus, so every policy is tested directly with a fake clock.
+
+Rules (after systemd, OTP and dora, see docs/manifest.md):
+- the exit status is the truth about death; a liveliness DELETE alone only means "unreachable" and is shown
+  after a debounce, it never restarts anything;
+- a module is ``up`` once it is alive *and* has acknowledged the routes the manager wants (a restarted module
+  gets its routing back before it is counted as up);
+- ``never``: no restart; ``on-failure``: restart after a non-zero exit, a signal, a start timeout or a watchdog
+  kill; ``always``: restart after any exit that the manager did not ask for;
+- backoff doubles per restart still inside the intensity window, capped; more than ``intensity`` restarts within
+  ``period_s`` marks the module ``failed`` (it stays down and is reported) — counted also after a good start.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Literal
+
+RestartPolicy = Literal["never", "on-failure", "always"]
+
+
+class Phase(enum.StrEnum):
+    STARTING = "starting"
+    UP = "up"
+    RESTARTING = "restarting"
+    """Down, waiting for the backoff delay before the next start."""
+    STOPPING = "stopping"
+    FAILED = "failed"
+    STOPPED = "stopped"
+
+
+@dataclass(frozen=True)
+class Policy:
+    """The supervision knobs of one module (manifest ``[supervision]`` merged with the module's overrides)."""
+
+    restart: RestartPolicy = "on-failure"
+    backoff_s: float = 0.5
+    backoff_max_s: float = 8.0
+    intensity: int = 5
+    """At most this many restarts within ``period_s``; one more marks the module failed."""
+    period_s: float = 10.0
+    start_timeout_s: float = 20.0
+    """A start that is not up (alive + routes acknowledged) by then is killed and counts as a failure."""
+    watchdog_s: float = 0.0
+    """Kill an up module whose heartbeat is older than this (0: no watchdog)."""
+    unreachable_debounce_s: float = 1.0
+    """A liveliness DELETE is reported as "unreachable" only if no PUT follows within this time."""
+
+
+@dataclass(frozen=True)
+class Spawn:
+    """Start the process now; ``restart_count`` goes into its context."""
+
+    restart_count: int
+
+
+@dataclass(frozen=True)
+class Kill:
+    """Stop the process: ``graceful`` is SIGTERM then SIGKILL after the grace period; otherwise SIGKILL now."""
+
+    reason: str
+    graceful: bool = True
+
+
+Action = Spawn | Kill
+
+
+@dataclass
+class Supervisor:
+    """State of one supervised module; all methods take ``now`` (monotonic seconds) from the caller."""
+
+    policy: Policy
+    needs_ack: bool = True
+    """Whether the module must acknowledge its routes (it has routed inputs) before it counts as up."""
+    phase: Phase = Phase.STOPPED
+    restarts: int = 0
+    """Restarts done by the supervisor (not the ones asked for through the MRI)."""
+    last_exit: int | None = None
+    reason: str = ""
+    alive: bool = False
+    routes_ok: bool = False
+    unreachable: bool = False
+    started_at: float = 0.0
+    next_start_at: float | None = None
+    _deleted_at: float | None = None
+    _last_beat: float | None = None
+    _kill_sent: bool = False
+    _kill_counts_as_failure: bool = False
+    _restart_requested: bool = False
+    _window: deque[float] = field(default_factory=deque)
+    _spawns: int = 0
+
+    # ------------------------------------------------------------------ operator requests
+
+    def start(self, now: float) -> None:
+        """Start (first start, or an operator's start after stopped/failed): counters of the window reset."""
+        if self.phase in (Phase.STARTING, Phase.UP, Phase.STOPPING):
+            return
+        self._window.clear()
+        self.reason = ""
+        self.phase = Phase.RESTARTING
+        self.next_start_at = now
+
+    def stop(self, now: float, reason: str = "stopped by request") -> list[Action]:
+        """Stop and do not restart. Returns the kill to perform if a process runs."""
+        self._restart_requested = False
+        if self.phase in (Phase.STARTING, Phase.UP, Phase.STOPPING):
+            self.phase = Phase.STOPPING
+            self.reason = reason
+            return self._kill(reason, graceful=True, failure=False)
+        self.phase = Phase.STOPPED
+        self.reason = reason
+        self.next_start_at = None
+        return []
+
+    def restart(self, now: float) -> list[Action]:
+        """Operator restart: stop the running process (if any) and start again at once, not counted as a failure."""
+        if self.phase in (Phase.STARTING, Phase.UP, Phase.STOPPING):
+            actions = self.stop(now, "restart requested")
+            self._restart_requested = True
+            return actions
+        self.start(now)
+        return []
+
+    # ------------------------------------------------------------------ events from the runtime
+
+    def spawned(self, now: float) -> None:
+        self.phase = Phase.STARTING
+        self.started_at = now
+        self.alive = False
+        self.routes_ok = not self.needs_ack
+        self.unreachable = False
+        self._deleted_at = None
+        self._last_beat = None
+        self._kill_sent = False
+        self._kill_counts_as_failure = False
+        self.next_start_at = None
+
+    def spawn_failed(self, now: float, reason: str) -> None:
+        """The process could not even be created (exec error): treated like a failing exit."""
+        self.spawned(now)
+        self.exited(now, 127, reason)
+
+    def liveliness(self, now: float, present: bool) -> None:
+        if present:
+            self.alive = True
+            self.unreachable = False
+            self._deleted_at = None
+        elif self.alive:
+            self._deleted_at = now
+        self._promote(now)
+
+    def routes_acknowledged(self, now: float, matches: bool) -> None:
+        """A RouteAck from the current run arrived; ``matches``: it shows the routes the manager wants."""
+        if self.phase in (Phase.STARTING, Phase.UP):
+            self.routes_ok = matches if self.phase is Phase.STARTING else (self.routes_ok or matches)
+            self._promote(now)
+
+    def routes_changed(self) -> None:
+        """The manager asked for new routes: a module still starting must acknowledge them again."""
+        if self.phase is Phase.STARTING and self.needs_ack:
+            self.routes_ok = False
+
+    def heartbeat(self, now: float) -> None:
+        self._last_beat = now
+
+    def exited(self, now: float, code: int, detail: str = "") -> list[Action]:
+        """``waitpid`` reported the exit: ``code`` >= 0 exit status, < 0 killed by that signal."""
+        self.last_exit = code
+        self.alive = False
+        self.routes_ok = False
+        self.unreachable = False
+        self._deleted_at = None
+        failure = code != 0 or self._kill_counts_as_failure
+        how = detail or _describe_exit(code)
+        if self.phase is Phase.STOPPING:
+            if self._restart_requested:
+                self._restart_requested = False
+                self.phase = Phase.RESTARTING
+                self.next_start_at = now
+                self.reason = ""
+            else:
+                self.phase = Phase.STOPPED
+            return []
+        wants = self.policy.restart == "always" or (self.policy.restart == "on-failure" and failure)
+        if not wants:
+            self.phase = Phase.FAILED if failure else Phase.STOPPED
+            self.reason = f"{how}; restart policy {self.policy.restart}"
+            return []
+        horizon = now - self.policy.period_s
+        while self._window and self._window[0] <= horizon:
+            self._window.popleft()
+        if len(self._window) >= self.policy.intensity:
+            self.phase = Phase.FAILED
+            self.reason = (f"{how}; restart intensity exceeded ({len(self._window)} restarts in "
+                           f"{self.policy.period_s:g} s): not restarted again")
+            return []
+        delay = min(self.policy.backoff_s * (2 ** len(self._window)), self.policy.backoff_max_s)
+        self._window.append(now)
+        self.restarts += 1
+        self.phase = Phase.RESTARTING
+        self.next_start_at = now + delay
+        self.reason = f"{how}; restart in {delay:g} s"
+        return []
+
+    # ------------------------------------------------------------------ time
+
+    def tick(self, now: float) -> list[Action]:
+        """What to do at ``now``: spawn after a backoff, kill a start that timed out or a silent module."""
+        if self.phase is Phase.RESTARTING and self.next_start_at is not None and now >= self.next_start_at:
+            self.next_start_at = None
+            count = self._spawns
+            self._spawns += 1
+            return [Spawn(restart_count=count)]
+        if self.phase is Phase.STARTING and now - self.started_at > self.policy.start_timeout_s:
+            what = "alive" if not self.alive else "route acknowledgement"
+            return self._kill(f"start timeout: no {what} after {self.policy.start_timeout_s:g} s",
+                              graceful=False, failure=True)
+        if self.phase is Phase.UP:
+            if (self._deleted_at is not None and not self.unreachable
+                    and now - self._deleted_at >= self.policy.unreachable_debounce_s):
+                self.unreachable = True
+            wd = self.policy.watchdog_s
+            if wd > 0 and self._last_beat is not None and now - self._last_beat > wd:
+                return self._kill(f"watchdog: no heartbeat for {wd:g} s", graceful=False, failure=True)
+        return []
+
+    # ------------------------------------------------------------------ helpers
+
+    @property
+    def running(self) -> bool:
+        """A process of this module exists (or is being started/stopped)."""
+        return self.phase in (Phase.STARTING, Phase.UP, Phase.STOPPING)
+
+    @property
+    def state(self) -> str:
+        """The MRI ``ModuleState`` of this module."""
+        if self.phase is Phase.STOPPING:
+            return "restarting" if self._restart_requested else "stopped"
+        return str(self.phase)
+
+    def _promote(self, now: float) -> None:
+        if self.phase is Phase.STARTING and self.alive and self.routes_ok:
+            self.phase = Phase.UP
+            self.reason = ""
+            self._last_beat = now
+
+    def _kill(self, reason: str, *, graceful: bool, failure: bool) -> list[Action]:
+        self._kill_counts_as_failure = self._kill_counts_as_failure or failure
+        if self._kill_sent and graceful:
+            return []
+        self._kill_sent = True
+        if failure:
+            self.reason = reason
+        return [Kill(reason=reason, graceful=graceful)]
+
+
+def _describe_exit(code: int) -> str:
+    if code < 0:
+        return f"killed by signal {-code}"
+    return f"exited with status {code}"

@@ -1,0 +1,129 @@
+"""``cromat dsp-sim`` / ``python -m modules.dsp.sim``: a simulated DSP on a pty or a TCP port.
+
+The first line on stdout is what the PC should open, as a pyserial URL: the pty slave path (``--pty``) or
+``socket://127.0.0.1:PORT`` (``--tcp``). The simulator then runs until SIGTERM/SIGINT or ``--duration``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+
+from modules.dsp import protocol as p
+from modules.dsp.codec import DSP_TO_PC_LENGTHS
+from modules.dsp.sim.faults import FaultInjector
+from modules.dsp.sim.machine import DspParams
+from modules.dsp.sim.server import DspSimulator
+from modules.dsp.sim.transport import PtyEndpoint, TcpEndpoint
+from modules.dsp.sim.vehicle import VehicleParams
+
+
+def _host_port(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+    return host or "127.0.0.1", int(port)
+
+
+def _home(text: str) -> tuple[float, float, float]:
+    try:
+        lat, lon, alt = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LAT,LON,ALT, got {text!r}") from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise argparse.ArgumentTypeError(f"home {text!r} is not a valid position")
+    return lat, lon, alt
+
+
+def _failure(text: str) -> tuple[float, int]:
+    code, sep, at = text.partition("@")
+    try:
+        value = p.ErrorCode[code.upper()] if not code.isdigit() else int(code)
+        return float(at), int(value)
+    except (KeyError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected CODE@SECONDS (e.g. GPS_LOST@30), got {text!r}") from None
+
+
+def _rate(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"a rate is a probability in [0, 1], got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="cromat dsp-sim", description=__doc__.splitlines()[0])
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument("--pty", action="store_true", help="serve on a new pty pair (default)")
+    where.add_argument("--tcp", type=_host_port, metavar="HOST:PORT", help="serve on TCP (port 0: any free port)")
+    ap.add_argument("--baud", type=int, default=921_600, help="the DSP's UART speed (default 921600)")
+    ap.add_argument("--rate", type=float, default=50.0, help="physics steps per simulated second (50)")
+    ap.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per wall second (1)")
+    ap.add_argument("--record", metavar="FILE", help="append every received command as a JSON line")
+    ap.add_argument("--home", type=_home, default=(37.4117, -6.0025, 12.0), metavar="LAT,LON,ALT",
+                    help="take-off point; ALT = ground level, m MSL")
+    ap.add_argument("--max-speed", type=float, default=10.0, help="airframe horizontal speed limit, m/s")
+    ap.add_argument("--takeoff-height", type=float, default=10.0, help="take-off climbs to this height, m")
+    ap.add_argument("--corrupt", type=_rate, default=0.0, help="probability a byte is corrupted")
+    ap.add_argument("--drop", type=_rate, default=0.0, help="probability a byte is lost")
+    ap.add_argument("--garbage", type=_rate, default=0.0, help="probability a frame is preceded by garbage")
+    ap.add_argument("--fault-dir", choices=("tx", "rx", "both"), default="both",
+                    help="apply faults to what the DSP sends, receives, or both")
+    ap.add_argument("--fail", type=_failure, action="append", default=[], metavar="CODE@SECONDS",
+                    help="raise DSP error CODE at simulated time SECONDS (repeatable)")
+    ap.add_argument("--seed", type=int, help="random seed for faults")
+    ap.add_argument("--duration", type=float, default=0.0, help="exit after this many wall seconds (0: never)")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="dsp-sim: %(levelname)s %(message)s")
+    if args.time_scale <= 0 or args.rate <= 0 or args.max_speed <= 0:
+        print("dsp-sim: --time-scale, --rate and --max-speed must be positive", file=sys.stderr)
+        return 2
+    try:
+        endpoint = TcpEndpoint(*args.tcp) if args.tcp else PtyEndpoint(args.baud)
+    except OSError as exc:
+        print(f"dsp-sim: cannot open the line: {exc}", file=sys.stderr)
+        return 1
+    faults = {}
+    if args.corrupt or args.drop or args.garbage:
+        for direction, ids in (("tx", DSP_TO_PC_LENGTHS), ("rx", {})):
+            if args.fault_dir in (direction, "both"):
+                false_ids = {i: max(lens) for i, lens in ids.items()}
+                seed = None if args.seed is None else args.seed + (direction == "rx")
+                faults[direction] = FaultInjector(corrupt=args.corrupt, drop=args.drop, garbage=args.garbage,
+                                                  seed=seed, false_ids=false_ids)
+    home_lat, home_lon, home_alt = args.home
+    sim = DspSimulator(
+        endpoint, params=DspParams(home_lat=home_lat, home_lon=home_lon, home_alt=home_alt,
+                                   takeoff_height=args.takeoff_height),
+        vehicle_params=VehicleParams(max_speed=args.max_speed), rate_hz=args.rate, time_scale=args.time_scale,
+        baud=args.baud, tx_faults=faults.get("tx"), rx_faults=faults.get("rx"), record_path=args.record,
+        fail_at=args.fail, seed=args.seed)
+    url = endpoint.path if isinstance(endpoint, PtyEndpoint) else f"socket://{endpoint.host}:{endpoint.port}"
+    print(url, flush=True)
+
+    def on_signal(signum: int, frame: object) -> None:
+        sim.stop()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    timer = threading.Timer(args.duration, sim.stop) if args.duration > 0 else None
+    if timer is not None:
+        timer.daemon = True
+        timer.start()
+    try:
+        sim.run()
+    finally:
+        if timer is not None:
+            timer.cancel()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,104 @@
+"""Line faults for the simulator, the tests and the benchmark: corrupted bytes, lost bytes, garbage bursts.
+
+Bursts can carry a *false header* — ``A5 5A`` followed by a known id and the length valid for it — which is
+the nastiest case for a receiver: it claims the bytes of the real frame behind it. A receiver that discards a
+whole claimed frame on a bad CRC loses the real one; ours must not (docs/dsp_protocol.md §6).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from modules.dsp.protocol import SYNC
+
+
+@dataclass
+class FaultCounts:
+    bytes_corrupted: int = 0
+    bytes_dropped: int = 0
+    garbage_bursts: int = 0
+    garbage_bytes: int = 0
+    false_headers: int = 0
+
+
+@dataclass
+class FaultInjector:
+    """Applies faults to bytes on their way out. Rates are probabilities; ``seed`` makes runs repeatable.
+
+    ``corrupt``: per byte, the byte is XORed with a random non-zero value (so it really changes).
+    ``drop``: per byte, the byte is lost. ``garbage``: per call, a burst of 1..``burst_max`` random bytes is
+    inserted before the data; half the bursts start with a false header for an id in ``false_ids``.
+    """
+
+    corrupt: float = 0.0
+    drop: float = 0.0
+    garbage: float = 0.0
+    burst_max: int = 48
+    seed: int | None = None
+    false_ids: Mapping[int, int] = field(default_factory=dict)  # id -> payload length for false headers
+    counts: FaultCounts = field(default_factory=FaultCounts)
+
+    def __post_init__(self) -> None:
+        for name in ("corrupt", "drop", "garbage"):
+            rate = getattr(self, name)
+            if not 0.0 <= rate <= 1.0:
+                raise ValueError(f"{name} rate {rate} must be within [0, 1]")
+        if self.burst_max < 1:
+            raise ValueError("burst_max must be >= 1")
+        self._rng = np.random.default_rng(self.seed)
+        self._false = sorted(self.false_ids.items())
+
+    @property
+    def active(self) -> bool:
+        return bool(self.corrupt or self.drop or self.garbage)
+
+    def apply(self, data: bytes) -> bytes:
+        return self.apply_frame(data)[0]
+
+    def apply_frame(self, data: bytes) -> tuple[bytes, bool]:
+        """Faulted bytes, and whether ``data`` itself came through intact (garbage may precede it)."""
+        rng = self._rng
+        counts = self.counts
+        intact = True
+        out = data
+        if self.corrupt or self.drop:
+            arr = np.frombuffer(data, dtype=np.uint8).copy()
+            if self.corrupt:
+                hit = rng.random(arr.size) < self.corrupt
+                n_hit = int(hit.sum())
+                if n_hit:
+                    arr[hit] ^= rng.integers(1, 256, n_hit, dtype=np.uint8)
+                    counts.bytes_corrupted += n_hit
+                    intact = False
+            if self.drop:
+                keep = rng.random(arr.size) >= self.drop
+                n_lost = arr.size - int(keep.sum())
+                if n_lost:
+                    arr = arr[keep]
+                    counts.bytes_dropped += n_lost
+                    intact = False
+            if not intact:
+                out = arr.tobytes()
+        if self.garbage and rng.random() < self.garbage:
+            out = self._burst() + out
+        return out, intact
+
+    def _burst(self) -> bytes:
+        rng = self._rng
+        burst = rng.integers(0, 256, int(rng.integers(1, self.burst_max + 1)), dtype=np.uint8).tobytes()
+        self.counts.garbage_bursts += 1
+        if self._false and rng.random() < 0.5:
+            msg_id, length = self._false[int(rng.integers(len(self._false)))]
+            burst = SYNC + bytes((length, msg_id, int(rng.integers(256)))) + burst
+            self.counts.false_headers += 1
+        self.counts.garbage_bytes += len(burst)
+        return burst
+
+
+def garble(data: bytes, rng: np.random.Generator, ratio: float) -> bytes:
+    """What a UART at the wrong baud rate makes of ``data``: about ``len × ratio`` bytes of noise."""
+    n = max(1, round(len(data) * min(ratio, 1.0))) if data else 0
+    return rng.integers(0, 256, n, dtype=np.uint8).tobytes()

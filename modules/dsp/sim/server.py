@@ -1,0 +1,267 @@
+"""The simulated DSP on a real transport: bytes in → frames → DspMachine → ACKs, telemetry and errors out.
+
+The loop is one thread around ``select``: it reads the line, answers commands at once, and steps the flight
+at a fixed rate (``rate_hz`` of simulated time, run ``time_scale`` times faster than the wall clock). Every
+command received is recorded in order with its time — in memory (``commands``) and, if asked, as JSON lines
+in a file — so tests can check exactly what the PC sent.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import select
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import msgspec
+import numpy as np
+
+from modules.dsp import protocol as p
+from modules.dsp.codec import PC_TO_DSP_LENGTHS, encode, message_name
+from modules.dsp.framing import FrameParser
+from modules.dsp.sim.faults import FaultInjector, garble
+from modules.dsp.sim.machine import DspMachine, DspParams
+from modules.dsp.sim.transport import Endpoint
+from modules.dsp.sim.vehicle import VehicleParams
+
+log = logging.getLogger(__name__)
+MAX_CATCH_UP_STEPS = 50
+
+
+@dataclass(frozen=True)
+class RecordedCommand:
+    """One command frame as the DSP received it."""
+
+    t_sim: float  # DSP time, s
+    t_wall: float  # s since the simulator started
+    seq: int
+    msg_id: int
+    name: str
+    fields: dict
+    status: int
+    duplicate: bool
+
+    def as_json(self) -> str:
+        return json.dumps({"t": round(self.t_sim, 6), "wall": round(self.t_wall, 6), "seq": self.seq,
+                           "id": self.msg_id, "name": self.name, "fields": self.fields, "status": self.status,
+                           "status_name": p.error_name(self.status), "duplicate": self.duplicate})
+
+
+@dataclass(frozen=True)
+class SimSnapshot:
+    """A consistent copy of the simulated DSP's state."""
+
+    time_s: float
+    mode: int
+    tracking: bool
+    path_valid: bool
+    queue_length: int
+    waypoints_reached: int
+    speed_cmd: float
+    heading: float
+    lat: float
+    lon: float
+    alt: float
+    local: tuple[float, float, float]
+    airborne: bool
+    error_code: int
+    heli_type: int | None
+    pid_axes: tuple[int, ...]
+    pt_mode: int
+    pan: float
+    tilt: float
+    state_tx: bool
+    telemetry_mask: int
+
+
+class DspSimulator:
+    """A DSP on ``endpoint``. Use ``start()``/``stop()`` (a thread, for tests) or ``run()`` (the CLI)."""
+
+    def __init__(self, endpoint: Endpoint, *, params: DspParams | None = None,
+                 vehicle_params: VehicleParams | None = None, rate_hz: float = 50.0, time_scale: float = 1.0,
+                 baud: int = 921_600, tx_faults: FaultInjector | None = None,
+                 rx_faults: FaultInjector | None = None, record_path: str | os.PathLike[str] | None = None,
+                 fail_at: list[tuple[float, int]] | None = None, seed: int | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        if rate_hz <= 0 or time_scale <= 0:
+            raise ValueError("rate_hz and time_scale must be positive")
+        self.endpoint = endpoint
+        self.machine = DspMachine(params, vehicle_params)
+        self.machine.scheduled_errors = sorted(fail_at or [])
+        self.rate_hz = rate_hz
+        self.time_scale = time_scale
+        self.baud = baud
+        self.tx_faults = tx_faults
+        self.rx_faults = rx_faults
+        self._clock = clock
+        self._rng = np.random.default_rng(seed)
+        self._parser = FrameParser(PC_TO_DSP_LENGTHS)
+        self._lock = threading.Lock()
+        self._commands: list[RecordedCommand] = []
+        self._record: IO[str] | None = open(record_path, "a", encoding="utf-8") if record_path else None  # noqa: SIM115
+        self._stop = threading.Event()
+        self._wake_r, self._wake_w = os.pipe()
+        self._thread: threading.Thread | None = None
+        self._tx_seq = 0
+        self._start_wall = clock()
+        self._closed = False
+        self.line_baud: int | None = None
+        self.tx_frames = 0
+        self.tx_bytes_lost = 0
+        self.error: BaseException | None = None
+
+    # --- control -----------------------------------------------------------------------------------------
+
+    def start(self) -> DspSimulator:
+        self._thread = threading.Thread(target=self._run_safely, name="dsp-sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the loop (from any thread or a signal handler), then release the transport; idempotent."""
+        self._stop.set()
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+            self._close()
+
+    def _run_safely(self) -> None:
+        try:
+            self.run()
+        except BaseException as exc:  # surfaced to tests through .error
+            self.error = exc
+            log.exception("DSP simulator stopped")
+
+    def _close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self.endpoint.close()
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        if self._record is not None:
+            self._record.close()
+
+    # --- observation -----------------------------------------------------------------------------------------
+
+    @property
+    def commands(self) -> list[RecordedCommand]:
+        with self._lock:
+            return list(self._commands)
+
+    @property
+    def rx_stats(self) -> dict[str, int]:
+        with self._lock:
+            return self._parser.stats.as_dict()
+
+    def snapshot(self) -> SimSnapshot:
+        with self._lock:
+            m = self.machine
+            st = m.vehicle.state
+            lat, lon, alt = m.to_global(st.pos)
+            return SimSnapshot(
+                time_s=m.time_s, mode=int(m.mode), tracking=m.tracking, path_valid=m.path_valid,
+                queue_length=len(m.queue), waypoints_reached=m.waypoints_reached, speed_cmd=m.speed_cmd,
+                heading=st.heading, lat=float(lat), lon=float(lon), alt=float(alt),
+                local=(float(st.pos[0]), float(st.pos[1]), float(st.pos[2])), airborne=st.airborne,
+                error_code=m.error_code, heli_type=None if m.heli_type is None else int(m.heli_type),
+                pid_axes=tuple(sorted(int(a) for a in m.pids)), pt_mode=int(m.pt_mode), pan=m.pan, tilt=m.tilt,
+                state_tx=m.state_tx, telemetry_mask=m.telemetry_mask)
+
+    # --- the loop ----------------------------------------------------------------------------------------
+
+    def run(self) -> None:
+        dt = 1.0 / self.rate_hz
+        wall_dt = dt / self.time_scale
+        next_tick = self._clock()
+        next_baud_check = 0.0
+        try:
+            while not self._stop.is_set():
+                timeout = max(0.0, next_tick - self._clock())
+                ready, _, _ = select.select([*self.endpoint.fileno_list(), self._wake_r], [], [], timeout)
+                for fd in ready:
+                    if fd == self._wake_r:
+                        os.read(self._wake_r, 64)
+                        continue
+                    data = self.endpoint.on_readable(fd)
+                    if data:
+                        self._on_rx(data)
+                now = self._clock()
+                if now >= next_baud_check:
+                    self._check_baud()
+                    next_baud_check = now + 0.1
+                steps = 0
+                while now >= next_tick and steps < MAX_CATCH_UP_STEPS:
+                    with self._lock:
+                        out = self.machine.step(dt)
+                    for msg in out:
+                        self._send(msg)
+                    next_tick += wall_dt
+                    steps += 1
+                if now >= next_tick:  # could not keep up: let simulated time slip instead of spiralling
+                    next_tick = now + wall_dt
+        finally:
+            if self._thread is None:
+                self._close()
+
+    def _check_baud(self) -> None:
+        baud = self.endpoint.line_baud()
+        if baud != self.line_baud:
+            if baud is not None and baud != self.baud:
+                log.warning("line set to %d baud, the DSP runs at %d: both directions will be garbage",
+                            baud, self.baud)
+            self.line_baud = baud
+
+    @property
+    def baud_mismatch(self) -> bool:
+        return self.line_baud is not None and self.line_baud != self.baud
+
+    def _on_rx(self, data: bytes) -> None:
+        if self.baud_mismatch:
+            data = garble(data, self._rng, self.baud / self.line_baud)  # type: ignore[operator]
+        if self.rx_faults is not None:
+            data = self.rx_faults.apply(data)
+        acks = []
+        with self._lock:
+            stats = self._parser.stats
+            before = stats.bytes_discarded
+            frames = self._parser.feed(data)
+            now = self._clock()
+            for frame in frames:
+                result = self.machine.handle(frame, now)
+                fields = {} if result.command is None else msgspec.to_builtins(result.command)
+                rec = RecordedCommand(t_sim=self.machine.time_s, t_wall=now - self._start_wall, seq=frame.seq,
+                                      msg_id=frame.msg_id, name=message_name(frame.msg_id), fields=fields,
+                                      status=result.ack.status, duplicate=result.duplicate)
+                self._commands.append(rec)
+                if self._record is not None:
+                    self._record.write(rec.as_json() + "\n")
+                    self._record.flush()
+                acks.append(result.ack)
+            if stats.bytes_discarded > before:
+                self.machine.note_rx_errors()
+        for ack in acks:
+            self._send(ack)
+
+    def _send(self, msg: p.Message) -> None:
+        frame = encode(msg, self._tx_seq)
+        self._tx_seq = (self._tx_seq + 1) & 0xFF
+        if self.baud_mismatch:
+            frame = garble(frame, self._rng, self.line_baud / self.baud)  # type: ignore[operator]
+        if self.tx_faults is not None:
+            frame = self.tx_faults.apply(frame)
+        written = self.endpoint.write(frame)
+        self.tx_frames += 1
+        self.tx_bytes_lost += len(frame) - written

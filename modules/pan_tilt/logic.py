@@ -1,0 +1,121 @@
+"""What the pan & tilt module decides, with no bus and no clock: datum in → DSP commands and error codes out.
+
+SPEC §3.2 (seed 004 §5.3.2.2): a CONTROL_MODO datum goes to the DSP as it is; a DATOS datum sends the angle
+references in mode 0, the target point in mode 1, nothing in mode 2. Ranges are checked by decoding (the
+struct types); what decoding cannot see (a non-finite or binary32-overflowing altitude) is checked here. A
+datum with any error produces no command at all (the seed's rule).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from enum import IntEnum
+
+from modules.dsp import protocol as p
+from modules.dsp.bus import DspCommand, DspErrorReport
+from modules.pan_tilt.structs import DatosPT, ModoFuncionamientoPT
+
+FORWARDED_DSP_ERROR_BASE = 1000
+"""A DSP error about one of this module's own batches is forwarded as 1000 + the DSP's code."""
+
+
+class PanTiltError(IntEnum):
+    """Codes on ERROR_PT (docs/error_codes.md). 1-99 are the bus's own (bbcs.errors.BusErrorCode)."""
+
+    CONTROL_ENTRADA_OUT_OF_RANGE = 100
+    """A CONTROL_ENTRADA_PT slot number below -1; the previous routes stay in force."""
+    MODE_OUT_OF_RANGE = 101
+    """modo_de_funcionamiento outside 0..2."""
+    REF_PAN_OUT_OF_RANGE = 102
+    """ref_pan outside [-180, 180] degrees."""
+    REF_TILT_OUT_OF_RANGE = 103
+    """ref_tilt outside [-90, 90] degrees."""
+    LATITUD_OUT_OF_RANGE = 104
+    """latitud outside [-90, 90] degrees."""
+    LONGITUD_OUT_OF_RANGE = 105
+    """longitud outside [-180, 180] degrees."""
+    ALTURA_NOT_REPRESENTABLE = 106
+    """altura is NaN, infinite or beyond binary32 (the DSP has no doubles)."""
+
+
+FIELD_CODES: dict[tuple[str, str], PanTiltError] = {
+    ("control_entrada", "slot_entrada_control_modos"): PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE,
+    ("control_entrada", "slot_entrada_datos"): PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE,
+    ("control_modo", "modo_de_funcionamiento"): PanTiltError.MODE_OUT_OF_RANGE,
+    ("datos", "ref_pan"): PanTiltError.REF_PAN_OUT_OF_RANGE,
+    ("datos", "ref_tilt"): PanTiltError.REF_TILT_OUT_OF_RANGE,
+    ("datos", "latitud"): PanTiltError.LATITUD_OUT_OF_RANGE,
+    ("datos", "longitud"): PanTiltError.LONGITUD_OUT_OF_RANGE,
+    ("datos", "altura"): PanTiltError.ALTURA_NOT_REPRESENTABLE,
+}
+
+
+def leaf_field(path: str) -> str:
+    """``$.puntos[3].latitud`` → ``latitud``: the struct field a msgspec error path ends with."""
+    tail = path.rsplit(".", 1)[-1]
+    return tail.split("[", 1)[0]
+
+
+def field_code(slot: str, path: str) -> int | None:
+    """The documented code for an out-of-range ``slot`` field (None: not one of ours)."""
+    return FIELD_CODES.get((slot, leaf_field(path)))
+
+
+def representable(x: float) -> bool:
+    """Finite and within binary32: what the DSP (no doubles) can be sent."""
+    return math.isfinite(x) and abs(x) <= p.F32_MAX
+
+
+@dataclass(frozen=True)
+class PanTiltState:
+    """The pan & tilt mode this module last gave the DSP; None until known (from a command or telemetry)."""
+
+    mode: int | None = None
+    mode_from_command: bool = False
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What one datum leads to: the new state, the commands to send (in order), the codes to report."""
+
+    state: PanTiltState
+    commands: tuple[DspCommand, ...] = ()
+    errors: tuple[int, ...] = ()
+    detail: str = ""
+
+
+def on_control_modo(state: PanTiltState, msg: ModoFuncionamientoPT) -> Decision:
+    """CONTROL_MODO: passed to the DSP as it is."""
+    mode = p.PanTiltMode(msg.modo_de_funcionamiento)
+    return Decision(PanTiltState(mode=int(mode), mode_from_command=True), (p.SetPanTiltMode(mode=mode),),
+                    detail=f"pan & tilt mode {mode.name}")
+
+
+def on_datos(state: PanTiltState, msg: DatosPT) -> Decision:
+    """DATOS: mode 0 → angle references, mode 1 → target point, mode 2 (or not yet known) → nothing."""
+    if state.mode == p.PanTiltMode.ANGLES:
+        return Decision(state, (p.SetPanTiltAngles(pan_deg=msg.ref_pan, tilt_deg=msg.ref_tilt),),
+                        detail="angle references")
+    if state.mode == p.PanTiltMode.TARGET:
+        if not representable(msg.altura):
+            return Decision(state, errors=(PanTiltError.ALTURA_NOT_REPRESENTABLE,),
+                            detail=f"altura {msg.altura!r} cannot be sent to the DSP; datum dropped")
+        return Decision(state, (p.SetPanTiltTarget(lat=msg.latitud, lon=msg.longitud, alt=msg.altura),),
+                        detail="target point")
+    return Decision(state, detail=f"DATOS ignored in pan & tilt mode {state.mode}")
+
+
+def on_telemetry(state: PanTiltState, telemetry: p.Telemetry) -> PanTiltState:
+    """Adopt the DSP's pan & tilt mode until a CONTROL_MODO has set one (e.g. after a module restart)."""
+    if state.mode_from_command or telemetry.pan_tilt is None:
+        return state
+    return replace(state, mode=telemetry.pan_tilt.mode)
+
+
+def on_dsp_error(state: PanTiltState, report: DspErrorReport, module: str) -> Decision:
+    """A refused or unacknowledged command of this module's own batch: forwarded on ERROR."""
+    if report.sender != module:
+        return Decision(state)
+    return Decision(state, errors=(FORWARDED_DSP_ERROR_BASE + report.code,),
+                    detail=f"DSP refused {report.command or 'a command'}: {report.name} {report.detail}")

@@ -1,0 +1,231 @@
+"""What the path follower / bridge decides, with no bus and no clock: datum in → DSP commands and codes out.
+
+SPEC §3.3 (seed 004 §5.3.2.3), one function per input slot. Each takes the current :class:`FollowerState`
+and a datum that already decoded (so its struct ranges hold) and returns a :class:`Decision`: the new state,
+the DSP commands to send in order, and the error codes to report. A datum with any error yields no command
+and leaves the state as it was (the seed's rule: no datum affected by an error is computed, sent or used).
+
+The "onboard queue" is the trajectory this module keeps (the whole DATOS message arrives at once so an onboard
+follower can use it); the abort command empties it together with the DSP's queue.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from enum import IntEnum
+
+from modules.dsp import protocol as p
+from modules.dsp.bus import DspCommand, DspErrorReport
+from modules.pan_tilt.logic import FORWARDED_DSP_ERROR_BASE, leaf_field, representable
+from modules.path_follower.structs import (
+    ControlModoSegCam,
+    DatoPuntoSegCam,
+    DatosSegCam,
+    HeadingSegCam,
+    RefsSegCam,
+    SpeedSegCam,
+)
+
+MODE_CHANGE = 0
+COMMAND = 1
+ABORT = 0
+
+FORWARDED_FAULTS = frozenset({p.ErrorCode.GPS_LOST, p.ErrorCode.LOW_BATTERY, p.ErrorCode.ROTOR_RPM,
+                              p.ErrorCode.SENSOR_FAULT})
+"""Faults the DSP reports on its own that directly affect the tasks ordered from above (forwarded on ERROR)."""
+
+
+class FollowerError(IntEnum):
+    """Codes on ERROR_SEG_CAM (docs/error_codes.md). 1-99 are the bus's own (bbcs.errors.BusErrorCode);
+    1000 + n is DSP error n forwarded."""
+
+    CONTROL_ENTRADA_OUT_OF_RANGE = 100
+    """A CONTROL_ENTRADA_SEG_CAM slot number below -1; the previous routes stay in force."""
+    MODO_O_COMANDO_OUT_OF_RANGE = 101
+    """modo_o_comando not 0 (mode change) or 1 (command)."""
+    MODE_OUT_OF_RANGE = 102
+    """modo_de_funcionamiento outside 0..6."""
+    COMMAND_OUT_OF_RANGE = 103
+    """numero_de_comando is not a known command (only 0, abort, exists)."""
+    HEADING_OUT_OF_RANGE = 104
+    """HEADING outside [-π, π) radians."""
+    SPEED_OUT_OF_RANGE = 105
+    """VELOCIDAD negative (or NaN)."""
+    SPEED_ABOVE_MAX = 106
+    """VELOCIDAD above MAX_SPEED of the robot .conf (or infinite)."""
+    N_POINTS_OUT_OF_RANGE = 107
+    """DATOS n_points outside [1, 2³²-1]."""
+    N_POINTS_MISMATCH = 108
+    """DATOS n_points differs from the number of points in the message."""
+    LATITUD_OUT_OF_RANGE = 109
+    """A DATOS point's latitud outside [-90, 90]."""
+    LONGITUD_OUT_OF_RANGE = 110
+    """A DATOS point's longitud outside [-180, 180]."""
+    ALTURA_NOT_REPRESENTABLE = 111
+    """A DATOS point's altura is NaN, infinite or beyond binary32 (the DSP has no doubles)."""
+    REF_HEADING_OUT_OF_RANGE = 112
+    """REFS ref_heading outside [-π, π)."""
+    REF_RPM_OUT_OF_RANGE = 113
+    """REFS ref_rpm_motor outside [0, 1800]."""
+    REF_NOT_REPRESENTABLE = 114
+    """REFS ref_altura, error_longitudinal or error_lateral NaN, infinite or beyond binary32."""
+    PATH_TOO_LONG = 115
+    """DATOS has more points than the DSP's waypoint queue holds (512)."""
+    HEADING_UNKNOWN = 116
+    """Mode 1 asked before any DSP telemetry gave the current heading."""
+    ONBOARD_FOLLOWER_NOT_BUILT = 117
+    """Mode 3 (onboard path follower) asked: reserved, not built yet; nothing changed."""
+
+
+FIELD_CODES: dict[tuple[str, str], FollowerError] = {
+    ("control_entrada", "slot_entrada_control_modos"): FollowerError.CONTROL_ENTRADA_OUT_OF_RANGE,
+    ("control_entrada", "slot_entrada_heading"): FollowerError.CONTROL_ENTRADA_OUT_OF_RANGE,
+    ("control_entrada", "slot_entrada_speed"): FollowerError.CONTROL_ENTRADA_OUT_OF_RANGE,
+    ("control_entrada", "slot_entrada_datos"): FollowerError.CONTROL_ENTRADA_OUT_OF_RANGE,
+    ("control_modo", "modo_o_comando"): FollowerError.MODO_O_COMANDO_OUT_OF_RANGE,
+    ("control_modo", "modo_de_funcionamiento"): FollowerError.MODE_OUT_OF_RANGE,
+    ("control_modo", "numero_de_comando"): FollowerError.COMMAND_OUT_OF_RANGE,
+    ("heading", "heading"): FollowerError.HEADING_OUT_OF_RANGE,
+    ("velocidad", "speed"): FollowerError.SPEED_OUT_OF_RANGE,
+    ("datos", "n_points"): FollowerError.N_POINTS_OUT_OF_RANGE,
+    ("datos", "latitud"): FollowerError.LATITUD_OUT_OF_RANGE,
+    ("datos", "longitud"): FollowerError.LONGITUD_OUT_OF_RANGE,
+    ("refs", "ref_heading"): FollowerError.REF_HEADING_OUT_OF_RANGE,
+    ("refs", "ref_rpm_motor"): FollowerError.REF_RPM_OUT_OF_RANGE,
+}
+
+
+def field_code(slot: str, path: str) -> int | None:
+    """The documented code for an out-of-range ``slot`` field (None: not one of ours)."""
+    return FIELD_CODES.get((slot, leaf_field(path)))
+
+
+@dataclass(frozen=True)
+class FollowerState:
+    """The operating mode this module last set on the DSP (None until known) and the onboard trajectory."""
+
+    mode: int | None = None
+    mode_from_command: bool = False
+    path: tuple[DatoPuntoSegCam, ...] = ()
+    """The onboard waypoint queue: every point sent to the DSP since it was last emptied."""
+    heading_deg: float | None = None
+    """Current heading from the latest DSP telemetry (degrees)."""
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What one datum leads to: the new state, the commands to send (in order), the codes to report."""
+
+    state: FollowerState
+    commands: tuple[DspCommand, ...] = ()
+    errors: tuple[int, ...] = ()
+    detail: str = ""
+
+
+def _refused(state: FollowerState, code: FollowerError, detail: str) -> Decision:
+    return Decision(state, errors=(int(code),), detail=detail)
+
+
+def on_control_modo(state: FollowerState, msg: ControlModoSegCam) -> Decision:
+    """CONTROL_MODO: the abort command, or one row of SPEC §3.3's mode table."""
+    if msg.modo_o_comando == COMMAND:
+        if msg.numero_de_comando == ABORT:
+            return Decision(replace(state, path=()), (p.Abort(),), detail="abort: both waypoint queues emptied")
+        return _refused(state, FollowerError.COMMAND_OUT_OF_RANGE, f"unknown command {msg.numero_de_comando}")
+    mode = p.Mode(msg.modo_de_funcionamiento)
+    new = replace(state, mode=int(mode), mode_from_command=True)
+    if mode == p.Mode.PATH_AUTO_HEADING:
+        cmds: tuple[DspCommand, ...] = (p.SetMode(mode=mode), p.SetTracking(enable=True))
+    elif mode == p.Mode.PATH_GIVEN_HEADING:
+        if state.heading_deg is None:
+            return _refused(state, FollowerError.HEADING_UNKNOWN,
+                            "mode 1 needs the current heading and no DSP telemetry has given it yet")
+        heading = p.heading_deg_from_rad(math.radians(state.heading_deg))
+        cmds = (p.SetHeading(heading_deg=heading), p.SetMode(mode=mode), p.SetTracking(enable=True))
+    elif mode == p.Mode.SEMI_AUTOMATIC:
+        cmds = (p.SetMode(mode=mode), p.SetTracking(enable=False), p.InvalidatePath())
+        new = replace(new, path=())
+    elif mode == p.Mode.ONBOARD_FOLLOWER:
+        return _refused(state, FollowerError.ONBOARD_FOLLOWER_NOT_BUILT,
+                        "mode 3 (onboard path follower) is reserved and not built yet; mode unchanged")
+    elif mode in (p.Mode.TAKE_OFF, p.Mode.LANDING):
+        cmds = (p.SetTracking(enable=False), p.InvalidatePath(), p.SetMode(mode=mode))
+        new = replace(new, path=())
+    else:  # BRIDGE
+        cmds = (p.SetMode(mode=mode),)
+    return Decision(new, cmds, detail=f"mode {mode.name}")
+
+
+def on_heading(state: FollowerState, msg: HeadingSegCam) -> Decision:
+    """HEADING: radians → degrees → DSP in mode 1 only; ignored otherwise."""
+    if state.mode != p.Mode.PATH_GIVEN_HEADING:
+        return Decision(state, detail=f"HEADING ignored in mode {state.mode}")
+    return Decision(state, (p.SetHeading(heading_deg=p.heading_deg_from_rad(msg.heading)),), detail="heading")
+
+
+def on_velocidad(state: FollowerState, msg: SpeedSegCam, max_speed: float) -> Decision:
+    """VELOCIDAD: always sent, once checked against MAX_SPEED."""
+    if not msg.speed <= max_speed:
+        return _refused(state, FollowerError.SPEED_ABOVE_MAX,
+                        f"speed {msg.speed!r} m/s above MAX_SPEED {max_speed} m/s; not sent")
+    return Decision(state, (p.SetSpeed(speed=msg.speed),), detail="speed")
+
+
+def on_datos(state: FollowerState, msg: DatosSegCam, capacity: int = p.WAYPOINT_QUEUE_CAPACITY) -> Decision:
+    """DATOS: in modes 0/1 every waypoint to the DSP (and the onboard queue); ignored otherwise.
+
+    The whole message is checked first: a count that does not match, or any bad point, rejects all of it.
+    """
+    if msg.n_points != len(msg.puntos):
+        return _refused(state, FollowerError.N_POINTS_MISMATCH,
+                        f"n_points={msg.n_points} but {len(msg.puntos)} points; whole path rejected")
+    for i, pt in enumerate(msg.puntos):
+        if not representable(pt.altura):
+            return _refused(state, FollowerError.ALTURA_NOT_REPRESENTABLE,
+                            f"point {i}: altura {pt.altura!r} cannot be sent to the DSP; whole path rejected")
+    if state.mode not in (p.Mode.PATH_AUTO_HEADING, p.Mode.PATH_GIVEN_HEADING):
+        return Decision(state, detail=f"DATOS ignored in mode {state.mode}")
+    if msg.n_points > capacity:
+        return _refused(state, FollowerError.PATH_TOO_LONG,
+                        f"{msg.n_points} points exceed the DSP's waypoint queue ({capacity}); whole path rejected")
+    cmds = tuple(p.AddWaypoint(lat=pt.latitud, lon=pt.longitud, alt=pt.altura) for pt in msg.puntos)
+    return Decision(replace(state, path=state.path + tuple(msg.puntos)), cmds, detail=f"{msg.n_points} waypoints")
+
+
+def on_refs(state: FollowerState, msg: RefsSegCam) -> Decision:
+    """REFS: sent as they are in mode 6 only; ignored otherwise."""
+    for name in ("ref_altura", "error_longitudinal", "error_lateral"):
+        if not representable(getattr(msg, name)):
+            return _refused(state, FollowerError.REF_NOT_REPRESENTABLE,
+                            f"{name}={getattr(msg, name)!r} cannot be sent to the DSP; REFS dropped")
+    if state.mode != p.Mode.BRIDGE:
+        return Decision(state, detail=f"REFS ignored in mode {state.mode}")
+    return Decision(state, (p.SetRefs(ref_altura=msg.ref_altura, error_longitudinal=msg.error_longitudinal,
+                                      error_lateral=msg.error_lateral, ref_heading=msg.ref_heading,
+                                      ref_rpm_motor=msg.ref_rpm_motor),), detail="bridge references")
+
+
+def on_telemetry(state: FollowerState, telemetry: p.Telemetry) -> FollowerState:
+    """Keep the current heading; adopt the DSP's mode until a CONTROL_MODO has set one (module restart)."""
+    heading = telemetry.heading if telemetry.heading is not None else (
+        telemetry.attitude.yaw if telemetry.attitude is not None else None)
+    new = state if heading is None or not math.isfinite(heading) else replace(state, heading_deg=heading)
+    if not new.mode_from_command and telemetry.status is not None:
+        new = replace(new, mode=telemetry.status.mode)
+    return new
+
+
+def on_dsp_error(state: FollowerState, report: DspErrorReport, module: str, *, restore_mode: bool = False,
+                 mode_before: int | None = None) -> Decision:
+    """A DSP error that affects the tasks ordered from above → forwarded on ERROR as 1000 + code.
+
+    Those are failures of this module's own batches and the faults in :data:`FORWARDED_FAULTS`. When the failed
+    batch was a mode change (``restore_mode``), ``mode_before`` is restored: the DSP did not change mode.
+    """
+    own = report.sender == module
+    if not own and not (report.sender == "" and report.code in FORWARDED_FAULTS):
+        return Decision(state)
+    new = replace(state, mode=mode_before) if own and restore_mode else state
+    return Decision(new, errors=(FORWARDED_DSP_ERROR_BASE + report.code,),
+                    detail=f"DSP error {report.name} ({report.code}) {report.command} {report.detail}".strip())
