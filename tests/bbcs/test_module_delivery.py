@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -109,3 +110,21 @@ def test_sigterm_exits_zero_and_token_disappears(processes, router, sessions, tm
         assert records(rec)[-1] == {"event": "stop"}
     finally:
         sub.undeclare()
+
+
+def test_schema_query_lists_slots_with_ranges(processes, router, sessions, tmp_path):
+    s = sessions()
+    probe, _ = start_probe(processes, router, tmp_path)
+    wait_alive(s, "r1", "probe")
+    replies = [r.ok for r in s.get(keys.schema_key("r1", "probe"), timeout=5) if r.ok is not None]
+    assert len(replies) == 1
+    doc = json.loads(replies[0].payload.to_string())
+    assert set(doc["slots"]) == {"datos", "state", "fast", "error", "control_entrada"}
+    state = doc["slots"]["state"]
+    assert (state["direction"], state["kind"], state["safety"]) == ("in", "state", "safe")
+    assert doc["slots"]["fast"]["safety"] == "unsafe" and doc["slots"]["datos"]["kind"] == "stream"
+    props = state["schema"]["$defs"]["ProbeMsg"]["properties"]
+    assert props["value"]["minimum"] == -10.0 and props["value"]["maximum"] == 10.0
+    assert props["level"]["exclusiveMaximum"] == 3
+    assert doc["control"]["routes"] == {"slot_entrada_datos": "datos"}
+    assert stop_process(probe) == 0
