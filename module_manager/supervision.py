@@ -253,7 +253,7 @@ class Supervisor:
 
     def _kill(self, reason: str, *, graceful: bool, failure: bool) -> list[Action]:
         self._kill_counts_as_failure = self._kill_counts_as_failure or failure
-        if self._kill_sent and graceful:
+        if self._kill_sent:
             return []
         self._kill_sent = True
         if failure:

@@ -5,12 +5,17 @@ Frames (all right-handed; see docs/vision.md):
 - ENU: local level frame of ``geodesy.LocalFrame`` (x east, y north, z up).
 - NED: x north, y east, z down. ``ENU_FROM_NED`` swaps x/y and negates z (it is its own inverse).
 - body (FRD): x forward, y right, z down. ``R_ned_body = Rz(yaw) Ry(pitch) Rx(roll)`` (aerospace ZYX).
-- gimbal: x along the optical axis, y image right, z image down. ``R_body_gimbal = Rz(pan) Ry(-tilt)``,
-  so pan is applied first (about body z), then tilt (depression, about the panned y axis).
+- mount (the frame the pan & tilt angles are measured in), one of:
+  body-fixed: the body frame, ``R_ned_mount = R_ned_body``;
+  stabilised: the body frame with roll and pitch compensated, ``R_ned_mount = Rz(yaw)``, so pan is measured
+  from the heading and tilt from the horizon (what the DSP simulator's pan & tilt does).
+- gimbal: x along the optical axis, y image right, z image down. ``R_mount_gimbal = Rz(pan) Ry(tilt)``:
+  pan first (about the mount's z, down: positive turns right), then tilt (about the panned y axis: positive
+  raises the optical axis, so tilt is the elevation and -90 is straight down).
 - optical: x image right, y image down, z along the optical axis (the usual pinhole convention).
   ``GIMBAL_FROM_OPTICAL`` maps optical axes onto gimbal axes.
 
-A vector v_optical becomes v_enu = ENU_FROM_NED @ R_ned_body @ R_body_gimbal @ GIMBAL_FROM_OPTICAL @ v_optical.
+v_enu = ENU_FROM_NED @ R_ned_mount @ R_mount_gimbal @ GIMBAL_FROM_OPTICAL @ v_optical.
 The camera's centre of projection is at the aircraft position (no lever arm).
 """
 
@@ -52,9 +57,9 @@ def ned_from_body(roll_deg: float, pitch_deg: float, yaw_deg: float) -> NDArray[
     return rot_z(math.radians(yaw_deg)) @ rot_y(math.radians(pitch_deg)) @ rot_x(math.radians(roll_deg))
 
 
-def body_from_optical(gimbal: Gimbal) -> NDArray[np.float64]:
-    """Optical -> body rotation for the pan & tilt angles."""
-    return rot_z(math.radians(gimbal.pan)) @ rot_y(-math.radians(gimbal.tilt)) @ GIMBAL_FROM_OPTICAL
+def mount_from_optical(gimbal: Gimbal) -> NDArray[np.float64]:
+    """Optical -> mount rotation for the pan & tilt angles."""
+    return rot_z(math.radians(gimbal.pan)) @ rot_y(math.radians(gimbal.tilt)) @ GIMBAL_FROM_OPTICAL
 
 
 def enu_from_body(pose: AircraftPose) -> NDArray[np.float64]:
@@ -62,9 +67,16 @@ def enu_from_body(pose: AircraftPose) -> NDArray[np.float64]:
     return ENU_FROM_NED @ ned_from_body(pose.roll, pose.pitch, pose.yaw)
 
 
-def enu_from_optical(pose: AircraftPose, gimbal: Gimbal) -> NDArray[np.float64]:
+def enu_from_mount(pose: AircraftPose, stabilised: bool) -> NDArray[np.float64]:
+    """Mount -> ENU rotation: the whole attitude for a body-fixed mount, the heading only if stabilised."""
+    if stabilised:
+        return ENU_FROM_NED @ rot_z(math.radians(pose.yaw))
+    return enu_from_body(pose)
+
+
+def enu_from_optical(pose: AircraftPose, gimbal: Gimbal, stabilised: bool) -> NDArray[np.float64]:
     """Optical -> ENU rotation: the full chain from a pixel ray to the local level frame."""
-    return enu_from_body(pose) @ body_from_optical(gimbal)
+    return enu_from_mount(pose, stabilised) @ mount_from_optical(gimbal)
 
 
 @dataclass(frozen=True)
@@ -73,11 +85,14 @@ class CameraModel:
 
     Pixel (u, v) = (column, row) and integer coordinates are pixel *centres*, so the principal point is
     ((width-1)/2, (height-1)/2). ``hfov_deg`` is the horizontal field of view across the full width.
+    ``stabilised`` says how the pan & tilt unit is mounted (see the module docstring): True (default, as the
+    DSP simulator models it) = angles relative to heading and horizon; False = relative to the airframe.
     """
 
     width: int = 640
     height: int = 480
     hfov_deg: float = 60.0
+    stabilised: bool = True
 
     def __post_init__(self) -> None:
         if self.width < 2 or self.height < 2:
@@ -164,22 +179,25 @@ def pixel_to_enu(
     max_range: float = math.inf,
 ) -> NDArray[np.float64] | None:
     """Geolocate one pixel: ENU ground point seen at ``uv``, or None if its ray misses the ground."""
-    ray = enu_from_optical(pose, gimbal) @ camera.pixel_rays(uv[0], uv[1])
+    ray = enu_from_optical(pose, gimbal, camera.stabilised) @ camera.pixel_rays(uv[0], uv[1])
     point = intersect_ground(position_enu, ray, ground_up, max_range)
     return None if np.isnan(point).any() else point
 
 
-def pointing_angles(pose: AircraftPose, position_enu: ArrayLike, target_enu: ArrayLike) -> Gimbal:
+def pointing_angles(
+    pose: AircraftPose, position_enu: ArrayLike, target_enu: ArrayLike, *, stabilised: bool = True
+) -> Gimbal:
     """The inverse: pan & tilt that put ``target_enu`` on the optical axis, seen from ``position_enu``.
 
-    Pan is in [-180, 180], tilt in [-90, 90]. Straight below (pan undefined) gives pan 0.
+    Pan is in [-180, 180], tilt in [-90, 90]. Straight below (pan undefined) gives pan 0, tilt -90.
+    ``stabilised`` must match the mount (``CameraModel.stabilised``).
     """
     los_enu = np.asarray(target_enu, dtype=np.float64) - np.asarray(position_enu, dtype=np.float64)
     if not np.any(los_enu):
         raise ValueError("target coincides with the camera position")
-    b = enu_from_body(pose).T @ los_enu
-    pan = math.degrees(math.atan2(b[1], b[0]))
-    tilt = math.degrees(math.atan2(b[2], math.hypot(b[0], b[1])))
+    m = enu_from_mount(pose, stabilised).T @ los_enu  # line of sight in the mount frame (FRD-like)
+    pan = math.degrees(math.atan2(m[1], m[0]))
+    tilt = math.degrees(math.atan2(-m[2], math.hypot(m[0], m[1])))
     return Gimbal(pan=wrap_deg(pan), tilt=max(-90.0, min(90.0, tilt)))
 
 
@@ -188,5 +206,5 @@ def enu_to_pixel(
 ) -> NDArray[np.float64]:
     """Project ENU points (..., 3) to pixels (..., 2); NaN for points behind the camera."""
     rel = np.asarray(points_enu, dtype=np.float64) - np.asarray(position_enu, dtype=np.float64)
-    optical = rel @ enu_from_optical(pose, gimbal)  # row vectors: (R.T @ p).T == p.T @ R
+    optical = rel @ enu_from_optical(pose, gimbal, camera.stabilised)  # row vectors: (R.T @ p).T == p.T @ R
     return camera.project(optical)

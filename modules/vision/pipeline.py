@@ -102,7 +102,7 @@ class VisionPipeline:
             lon=float(lon),
             alt=float(alt),
             range_m=float(np.linalg.norm(point - position)),
-            pointing=pointing_angles(pose, position, point),
+            pointing=pointing_angles(pose, position, point, stabilised=cfg.camera.stabilised),
         )
 
     def process(self, frame: Frame, pose: AircraftPose, gimbal: Gimbal) -> VisionResult:

@@ -44,9 +44,10 @@ class AircraftPose:
 class Gimbal:
     """Pan & tilt angles in degrees, with the DATOS_PT ranges.
 
-    ``pan`` turns the camera about the body z (down) axis, positive to the right (clockwise seen from above),
-    0 = straight ahead. ``tilt`` is the depression of the optical axis below the body x-y plane: 0 = level,
-    +90 = straight down (nadir), negative = above the body plane.
+    ``pan`` turns the camera about the mount's z (down) axis, positive to the right (clockwise seen from
+    above), 0 = straight ahead. ``tilt`` is the elevation of the optical axis above the mount's x-y plane:
+    0 = level, -90 = straight down (nadir), positive = looking up. The mount is the airframe or, for a
+    stabilised unit, the heading-and-horizon frame (``geometry`` module docstring).
     """
 
     pan: float

@@ -136,7 +136,7 @@ class SimulatedCamera(CameraSource):
         discs = [(*tg.position(t), tg.radius_m, tg.colour) for tg in self.targets]
         rgb = render_view(
             self.camera,
-            enu_from_optical(self._pose, self._gimbal),
+            enu_from_optical(self._pose, self._gimbal, self.camera.stabilised),
             position,
             self.ground_alt - self.world.alt0,
             self.texture,

@@ -299,7 +299,10 @@ class DspMachine:
             else:
                 heading = st.heading
             self._hold_heading = heading
-            return self._approach(wp.local, min(self.speed_cmd, vpar.max_speed), vpar.max_climb), heading, rpm
+            speed = min(self.speed_cmd, vpar.max_speed)
+            if self.mode == p.Mode.PATH_AUTO_HEADING:  # turn toward the waypoint before speeding up
+                speed *= max(0.1, math.cos(math.radians(wrap_deg(heading - st.heading))))
+            return self._approach(wp.local, speed, vpar.max_climb), heading, rpm
         if self.mode == p.Mode.TAKE_OFF and not self.manoeuvre_stopped:
             target = np.array([self._hold_point[0], self._hold_point[1], par.takeoff_height])
             return self._approach(target, vpar.max_speed, par.takeoff_speed), self._hold_heading, rpm

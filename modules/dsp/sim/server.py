@@ -229,6 +229,7 @@ class DspSimulator:
         return self.line_baud is not None and self.line_baud != self.baud
 
     def _on_rx(self, data: bytes) -> None:
+        self._check_baud()  # the PC sets its speed before it writes: never decode bytes sent at a wrong rate
         if self.baud_mismatch:
             data = garble(data, self._rng, self.baud / self.line_baud)  # type: ignore[operator]
         if self.rx_faults is not None:

@@ -9,7 +9,7 @@ import pytest
 
 from modules.vision.detect import DetectorConfig, detect
 from modules.vision.geodesy import LocalFrame
-from modules.vision.geometry import enu_to_pixel, pointing_angles
+from modules.vision.geometry import CameraModel, enu_to_pixel, pointing_angles
 from modules.vision.pose import Gimbal
 from modules.vision.scene import CircularTarget, GroundTexture, LinearTarget
 from modules.vision.sim_camera import SimulatedCamera
@@ -50,11 +50,13 @@ def test_read_before_state_is_none_and_render_needs_state():
         ((-25.0, 30.0, 30.0), dict(roll=2.0, pitch=5.0, yaw=100.0)),
     ],
 )
-def test_target_appears_where_projection_says(where, attitude):
+@pytest.mark.parametrize("stabilised", [True, False])
+def test_target_appears_where_projection_says(where, attitude, stabilised):
     target = LinearTarget(start=(12.0, 6.0), radius_m=1.5)
-    cam = make_camera([target], noise_sigma=6.0)
-    cam.set_state_enu(where, Gimbal(pan=0.0, tilt=90.0), **attitude)
-    aim = pointing_angles(cam.pose, position(cam), cam.targets_enu(0.0)[0] + [3.0, -2.0, 0.0])
+    cam = make_camera([target], noise_sigma=6.0, camera=CameraModel(stabilised=stabilised))
+    cam.set_state_enu(where, Gimbal(pan=0.0, tilt=-90.0), **attitude)
+    near = cam.targets_enu(0.0)[0] + [3.0, -2.0, 0.0]
+    aim = pointing_angles(cam.pose, position(cam), near, stabilised=stabilised)
     cam.set_state(cam.pose, aim)  # look near (not exactly at) the target
     frame = cam.read()
     expected = enu_to_pixel(cam.camera, cam.pose, aim, position(cam), cam.targets_enu(frame.timestamp)[0])
@@ -67,7 +69,7 @@ def test_pointing_with_the_inverse_angles_centres_the_target():
     clock = Clock(2.0)
     target = CircularTarget(centre=(5.0, 40.0), orbit_m=15.0, period_s=20.0, radius_m=1.5)
     cam = make_camera([target], clock=clock, noise_sigma=6.0)
-    cam.set_state_enu((0.0, 0.0, 100.0), Gimbal(pan=0.0, tilt=45.0), yaw=30.0)
+    cam.set_state_enu((0.0, 0.0, 100.0), Gimbal(pan=0.0, tilt=-45.0), yaw=30.0)
     for now in (2.0, 7.0, 12.5):
         clock.now = now
         aim = pointing_angles(cam.pose, position(cam), cam.targets_enu(now)[0])
@@ -79,7 +81,7 @@ def test_pointing_with_the_inverse_angles_centres_the_target():
 def test_targets_move_with_the_clock():
     clock = Clock(0.0)
     cam = make_camera([LinearTarget(start=(0.0, 0.0), velocity=(2.0, 0.0), radius_m=1.5)], clock=clock)
-    cam.set_state_enu((0.0, 0.0, 60.0), Gimbal(pan=0.0, tilt=90.0))
+    cam.set_state_enu((0.0, 0.0, 60.0), Gimbal(pan=0.0, tilt=-90.0))
     x0 = detect(cam.read().image, DetectorConfig()).x
     clock.now = 2.0  # moved 4 m east = right in the image
     frame = cam.read()
@@ -93,21 +95,21 @@ def test_rendering_is_deterministic_from_the_seed():
     a = make_camera([LinearTarget(start=(3.0, 3.0))], noise_sigma=5.0)
     b = make_camera([LinearTarget(start=(3.0, 3.0))], noise_sigma=5.0)
     for cam in (a, b):
-        cam.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=20.0, tilt=60.0), yaw=5.0)
+        cam.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=20.0, tilt=-60.0), yaw=5.0)
     np.testing.assert_array_equal(a.read().image, b.read().image)
     c = SimulatedCamera(WORLD, texture=GroundTexture(seed=99), clock=Clock(), epoch=0.0)
-    c.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=20.0, tilt=60.0), yaw=5.0)
+    c.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=20.0, tilt=-60.0), yaw=5.0)
     a2 = make_camera([])
-    a2.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=20.0, tilt=60.0), yaw=5.0)
+    a2.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=20.0, tilt=-60.0), yaw=5.0)
     assert not np.array_equal(a2.read().image, c.read().image)
 
 
 def test_target_free_views_give_no_detection():
     cam = make_camera([], noise_sigma=8.0)
     for where, g in [
-        ((0, 0, 30), Gimbal(pan=0, tilt=90)),
-        ((50, -20, 150), Gimbal(pan=45, tilt=20)),
-        ((0, 0, 100), Gimbal(pan=0, tilt=-30)),
+        ((0, 0, 30), Gimbal(pan=0, tilt=-90)),
+        ((50, -20, 150), Gimbal(pan=45, tilt=-20)),
+        ((0, 0, 100), Gimbal(pan=0, tilt=30)),
     ]:
         cam.set_state_enu(where, g)
         assert detect(cam.read().image, DetectorConfig()) is None
@@ -115,7 +117,7 @@ def test_target_free_views_give_no_detection():
 
 def test_looking_up_sees_only_sky_and_grey_mode():
     cam = make_camera([], grey=True)
-    cam.set_state_enu((0.0, 0.0, 100.0), Gimbal(pan=0.0, tilt=-60.0))
+    cam.set_state_enu((0.0, 0.0, 100.0), Gimbal(pan=0.0, tilt=60.0))
     img = cam.read().image
     assert img.shape == (480, 640) and img.dtype == np.uint8
     assert np.ptp(img) == 0
@@ -127,14 +129,14 @@ def test_bright_target_is_found_in_grey_frames():
     cam = make_camera(
         [LinearTarget(start=(0.0, 0.0), radius_m=1.5, colour=(255, 255, 255))], grey=True, noise_sigma=6.0
     )
-    cam.set_state_enu((0.0, 0.0, 70.0), Gimbal(pan=0.0, tilt=90.0))
+    cam.set_state_enu((0.0, 0.0, 70.0), Gimbal(pan=0.0, tilt=-90.0))
     det = detect(cam.read().image, DetectorConfig(threshold=200))
     assert np.hypot(det.x - 319.5, det.y - 239.5) < 1.0
 
 
 def test_close_and_argument_checks():
     cam = make_camera([])
-    cam.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=0.0, tilt=90.0))
+    cam.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=0.0, tilt=-90.0))
     with cam:
         assert cam.read() is not None
     assert cam.closed and cam.read() is None

@@ -1,0 +1,660 @@
+"""The Module Manager at run time: router first, then simulators and modules, supervised; routes, modes,
+tasks, robot state and the MRI on the bus.
+
+Threads: the *main* thread runs :meth:`Manager.run` — it spawns (the parent-death signal is tied to the forking
+thread), reaps children, ticks the supervisors. Zenoh callbacks update state under one lock; MRI queries are
+served by one thread of their own, so a request that waits for a module's acknowledgement never blocks the
+callbacks that bring it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import zenoh
+
+from bbcs import keys
+from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
+from bbcs.module import Heartbeat
+from bbcs.robot import RobotTelemetry
+from bbcs.routing import RouteAck
+from bbcs.session import SessionConfig, open_session
+from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
+from module_manager import mri
+from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
+from module_manager.process import Child, free_port, stop_children, wait_tcp
+from module_manager.supervision import Kill, Phase, Spawn, Supervisor
+from module_manager.tasks import Changes, TaskBook
+
+ROOT = Path(__file__).resolve().parents[1]
+ACK_TIMEOUT_S = 5.0
+MAX_ERRORS = 32
+_PLACEHOLDER = re.compile(r"\{(port:[A-Za-z0-9_]+|python|manifest_dir|conf|robot)\}")
+
+
+class LaunchError(RuntimeError):
+    """Something the manager needs before modules can start failed (router, a simulator's readiness)."""
+
+
+class Expander:
+    """Fills ``{port:NAME}`` (a free 127.0.0.1 port per name), ``{python}``, ``{manifest_dir}``, ``{conf}``,
+    ``{robot}`` in commands, parameters and endpoints."""
+
+    def __init__(self, manifest: Manifest) -> None:
+        self.ports: dict[str, int] = {}
+        self.fixed = {"python": sys.executable, "manifest_dir": str(manifest.dir), "conf": str(manifest.conf),
+                      "robot": manifest.robot}
+
+    def __call__(self, text: str) -> str:
+        def sub(m: re.Match[str]) -> str:
+            name = m.group(1)
+            if name.startswith("port:"):
+                port = self.ports.get(name[5:])
+                if port is None:
+                    port = self.ports[name[5:]] = free_port()
+                return str(port)
+            return self.fixed[name]
+        return _PLACEHOLDER.sub(sub, text)
+
+
+class _Module:
+    """Run-time record of one module: its supervisor, process, routes, last ack/error."""
+
+    def __init__(self, info: ModuleInfo, sup: Supervisor) -> None:
+        self.info = info
+        self.sup = sup
+        self.child: Child | None = None
+        self.run_count = 0
+        self.routes = dict(info.routes)
+        self.control: Publisher[Any] | None = None
+        self.last_ack: RouteAck | None = None
+        self.last_error: int | None = None
+        self.kill_deadline: float | None = None
+        self.shown = ""
+
+
+def tcp_endpoint(endpoint: str) -> tuple[str, int] | None:
+    """``tcp/host:port`` → (host to connect to, port); None for other protocols."""
+    proto, _, addr = endpoint.partition("/")
+    if proto not in ("tcp", "tls") or ":" not in addr:
+        return None
+    host, _, port = addr.rpartition(":")
+    host = host.strip("[]")
+    if host in ("0.0.0.0", "", "::"):
+        host = "127.0.0.1"
+    return host, int(port.split("#")[0])
+
+
+class Manager:
+    """Launch and supervise one robot from a checked manifest."""
+
+    def __init__(self, manifest: Manifest, *, listen: list[str] | None = None, log_dir: Path | None = None,
+                 out: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        self.m = manifest
+        self.expand = Expander(manifest)
+        self.listen = [self.expand(e) for e in (listen or manifest.raw.bus.listen)]
+        self.log_dir = log_dir
+        self.out = out or (lambda line: print(line, flush=True))
+        self.clock = clock
+        self.lock = threading.RLock()
+        self.changed = threading.Condition(self.lock)
+        self.stop_event = threading.Event()
+        self.modules = {name: _Module(info, Supervisor(info.policy, needs_ack=bool(info.inputs)))
+                        for name, info in manifest.modules.items()}
+        self.tasks = TaskBook(manifest.tasks)
+        self.modes: dict[str, dict[str, int] | None] = {
+            name: (msgspec.to_builtins(m.initial) if m.initial is not None else None)
+            for name, m in manifest.modes.items()}
+        self.telemetry: RobotTelemetry | None = None
+        self.errors: deque[mri.ErrorEvent] = deque(maxlen=MAX_ERRORS)
+        self.router: Child | None = None
+        self.processes: dict[str, Child] = {}
+        self.session: zenoh.Session | None = None
+        self._entities: list[Any] = []
+        self._publishers: list[Publisher[Any]] = []
+        self._mode_pubs: dict[str, Publisher[Any]] = {}
+        self._state_pub: Publisher[mri.RobotState] | None = None
+        self._mri_thread: threading.Thread | None = None
+        self._state_dirty = True
+        self.t0 = clock()
+        self.all_up_at: float | None = None
+        self._ack_decode = msgspec.msgpack.Decoder(RouteAck).decode
+        self._beat_decode = msgspec.msgpack.Decoder(Heartbeat).decode
+        connect = list(manifest.raw.bus.connect)
+        if not connect:
+            first = next((tcp_endpoint(e) for e in self.listen if tcp_endpoint(e)), None)
+            if first is None:
+                raise LaunchError("bus.listen has no tcp endpoint and bus.connect is empty: "
+                                  "the manager cannot tell its modules where the router is")
+            connect = [f"tcp/{first[0]}:{first[1]}"]
+        self.bus = SessionConfig(mode="client", connect=connect)
+
+    # ------------------------------------------------------------------------------------------ start-up
+
+    def child_env(self, extra: dict[str, str]) -> dict[str, str]:
+        env = dict(os.environ)
+        paths = [str(p) for p in self.m.pythonpath] + [str(ROOT)]
+        if env.get("PYTHONPATH"):
+            paths.append(env["PYTHONPATH"])
+        env["PYTHONPATH"] = os.pathsep.join(paths)
+        env.update({k: self.expand(v) for k, v in extra.items()})
+        return env
+
+    def start_router(self) -> None:
+        argv = [sys.executable, "-m", "bbcs.router"]
+        for e in self.listen:
+            argv += ["--listen", e]
+        if self.m.raw.bus.zenoh_config:
+            argv += ["--config", str(self.m.dir / self.m.raw.bus.zenoh_config)]
+        t = self.clock()
+        self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir)
+        host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))
+        if not wait_tcp(host, port, self.m.raw.bus.ready_timeout_s, lambda: self.router.poll() is None):
+            raise LaunchError(f"the router did not listen on {host}:{port} within "
+                              f"{self.m.raw.bus.ready_timeout_s:g} s (exit {self.router.poll()})")
+        self.out(f"  router      listening on {', '.join(self.listen)} ({self.clock() - t:.2f} s)")
+
+    def start_processes(self) -> None:
+        for name, spec in self.m.raw.processes.items():
+            t = self.clock()
+            argv = [self.expand(a) for a in spec.command]
+            ready = spec.ready
+            child = Child(name, argv, self.child_env(spec.env), cwd=str(self.m.dir), log_dir=self.log_dir,
+                          watch_stdout=ready.kind == "stdout")
+            self.processes[name] = child
+            if ready.kind == "tcp":
+                ok = wait_tcp(self.expand(ready.host), int(self.expand(ready.port)), ready.timeout_s,
+                              lambda c=child: c.poll() is None)
+            elif ready.kind == "stdout":
+                ok = child.wait_line(ready.pattern, ready.timeout_s)
+            else:
+                ok = child.poll() is None
+            if not ok:
+                raise LaunchError(f"process {name} ({' '.join(argv)}) not ready within {ready.timeout_s:g} s "
+                                  f"(ready: {ready.kind}; exit {child.poll()})")
+            self.out(f"  {name:<11} ready, pid {child.pid} ({self.clock() - t:.2f} s)")
+
+    def open_bus(self) -> None:
+        s = self.session = open_session(self.bus)
+        robot = self.m.robot
+        self._entities.append(s.liveliness().declare_subscriber(keys.alive_pattern(robot), self._on_alive,
+                                                                history=True))
+        for name, mod in self.modules.items():
+            info = mod.info
+            self._entities.append(s.declare_subscriber(
+                keys.route_ack_key(robot, name), lambda smp, n=name: self._on_ack(n, _bytes(smp))))
+            self._entities.append(s.declare_subscriber(
+                keys.heartbeat_key(robot, name), lambda smp, n=name: self._on_beat(n, _bytes(smp))))
+            if info.error_slot and info.error_type is not None:
+                decode = msgspec.msgpack.Decoder(info.error_type).decode
+                field = info.error_type.__struct_fields__[0]
+                self._entities.append(s.declare_subscriber(
+                    keys.slot_key(robot, name, info.error_slot),
+                    lambda smp, n=name, d=decode, f=field: self._on_error(n, d, f, smp)))
+            if info.control_type is not None:
+                spec = SlotSpec(info.control_slot, info.control_type, Direction.OUT, Kind.STATE, Safety.SAFE)
+                mod.control = Publisher(s, keys.slot_key(robot, name, info.control_slot), spec)
+                self._publishers.append(mod.control)
+                self._publish_control(mod)
+        for name, mode in self.m.modes.items():
+            spec = SlotSpec(name, mode.type, Direction.OUT, Kind.STATE, Safety.SAFE)
+            pub = self._mode_pubs[name] = Publisher(s, keys.slot_key(robot, MANAGER_MODULE, name), spec)
+            self._publishers.append(pub)
+            if mode.initial is not None:
+                pub.publish(mode.initial)
+        number = self.m.raw.robot.telemetry_slot
+        if number is not None:
+            tdecode = msgspec.msgpack.Decoder(RobotTelemetry).decode
+            self._entities.append(s.declare_subscriber(self.m.slot_table.slots[number].key(robot),
+                                                       lambda smp: self._on_telemetry(tdecode, smp)))
+        self._state_pub = Publisher(s, mri.mri_key(robot, mri.STATE),
+                                    SlotSpec("state", mri.RobotState, Direction.OUT, Kind.STATE, Safety.SAFE))
+        self._publishers.append(self._state_pub)
+        queryable = s.declare_queryable(keys.manager_key(robot) + "/*")
+        self._entities.append(queryable)
+        self._mri_thread = threading.Thread(target=self._serve_mri, args=(queryable,), name="mri", daemon=True)
+        self._mri_thread.start()
+
+    # ------------------------------------------------------------------------------------------ bus events
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            robot, name = keys.parse_alive_key(str(sample.key_expr))
+        except Exception:
+            return
+        mod = self.modules.get(name)
+        if mod is None or robot != self.m.robot:
+            return
+        with self.lock:
+            if mod.sup.running:
+                mod.sup.liveliness(self.clock(), sample.kind == zenoh.SampleKind.PUT)
+                self._touch()
+
+    def _on_ack(self, name: str, payload: bytes) -> None:
+        try:
+            ack = self._ack_decode(payload)
+        except msgspec.MsgspecError:
+            return
+        with self.lock:
+            mod = self.modules[name]
+            if ack.restart_count != mod.run_count - 1:
+                return  # from an earlier run of the module
+            mod.last_ack = ack
+            matches = ack.accepted and all(ack.routes.get(i) == n for i, n in mod.routes.items())
+            mod.sup.routes_acknowledged(self.clock(), matches)
+            self._touch()
+
+    def _on_beat(self, name: str, payload: bytes) -> None:
+        try:
+            beat = self._beat_decode(payload)
+        except msgspec.MsgspecError:
+            return
+        with self.lock:
+            mod = self.modules[name]
+            if mod.child is not None and beat.pid == mod.child.pid:
+                mod.sup.heartbeat(self.clock())
+
+    def _on_error(self, name: str, decode: Callable[[bytes], Any], field: str, sample: zenoh.Sample) -> None:
+        try:
+            code = int(getattr(decode(_bytes(sample)), field))
+        except msgspec.MsgspecError:
+            return
+        with self.lock:
+            self.modules[name].last_error = code
+            self.errors.append(mri.ErrorEvent(module=name, code=code, stamp=time.time()))
+            self._touch()
+
+    def _on_telemetry(self, decode: Callable[[bytes], RobotTelemetry], sample: zenoh.Sample) -> None:
+        try:
+            value = decode(_bytes(sample))
+        except msgspec.MsgspecError:
+            return
+        with self.lock:
+            self.telemetry = value
+
+    def _touch(self) -> None:
+        self._state_dirty = True
+        self.changed.notify_all()
+
+    # ------------------------------------------------------------------------------------------ supervision
+
+    def _spawn(self, mod: _Module, action: Spawn) -> None:
+        info = mod.info
+        ctx = ModuleContext(robot=self.m.robot, module=info.name, bus=self.bus, slot_table=self.m.slot_table,
+                            routes=dict(mod.routes), conf=str(self.m.conf),
+                            params={k: self.expand(v) for k, v in info.spec.params.items()},
+                            restart_count=action.restart_count)
+        env = self.child_env(info.spec.env)
+        env[CONTEXT_ENV] = encode_context(ctx)
+        now = self.clock()
+        mod.run_count = action.restart_count + 1
+        mod.last_ack = None
+        mod.kill_deadline = None
+        try:
+            mod.child = Child(info.name, [sys.executable, "-m", info.spec.entry], env, cwd=str(self.m.dir),
+                              log_dir=self.log_dir)
+        except OSError as exc:
+            mod.child = None
+            mod.sup.spawn_failed(now, f"cannot start: {exc}")
+            return
+        mod.sup.spawned(now)
+        if self.all_up_at is None:
+            self.out(f"  {info.name:<11} starting, pid {mod.child.pid}")
+
+    def _perform(self, mod: _Module, actions: list[Spawn | Kill]) -> None:
+        for action in actions:
+            if isinstance(action, Spawn):
+                self._spawn(mod, action)
+            elif mod.child is not None:
+                if action.graceful:
+                    mod.child.signal(signal.SIGTERM)
+                    mod.kill_deadline = self.clock() + self.m.stop_grace_s
+                else:
+                    mod.child.signal(signal.SIGKILL)
+
+    def step(self) -> None:
+        """Reap exits, tick every supervisor, escalate overdue stops; publish the state when it changed."""
+        with self.lock:
+            now = self.clock()
+            for mod in self.modules.values():
+                child = mod.child
+                if child is not None:
+                    code = child.poll()
+                    if code is not None:
+                        child.close()
+                        mod.child = None
+                        mod.sup.exited(now, code)
+                        self._touch()
+                    elif mod.kill_deadline is not None and now > mod.kill_deadline:
+                        child.signal(signal.SIGKILL)
+                        mod.kill_deadline = None
+                actions = mod.sup.tick(now)
+                if actions:
+                    self._perform(mod, actions)
+                    self._touch()
+            self._report_changes()
+            if self.all_up_at is None and all(m.sup.phase is Phase.UP for m in self.modules.values()):
+                self.all_up_at = now
+                self.out(f"all {len(self.modules)} modules up in {now - self.t0:.2f} s")
+                self.print_status()
+
+    def _report_changes(self) -> None:
+        for name, mod in self.modules.items():
+            line = self._status_line(name, mod)
+            shown = f"{mod.sup.state}|{mod.sup.reason}|{mod.sup.unreachable}"
+            if shown != mod.shown:
+                mod.shown = shown
+                if self.all_up_at is not None or mod.sup.phase in (Phase.FAILED, Phase.RESTARTING):
+                    self.out(line)
+
+    def _status_line(self, name: str, mod: _Module) -> str:
+        sup = mod.sup
+        state = sup.state + (" (unreachable)" if sup.unreachable else "")
+        routes = " ".join(f"{i}={n}" for i, n in mod.routes.items()) or "-"
+        pid = mod.child.pid if mod.child is not None else "-"
+        tail = f"  {sup.reason}" if sup.reason else ""
+        return f"  {name:<14} {state:<11} pid {pid!s:<7} restarts {sup.restarts}  routes {routes}{tail}"
+
+    def print_status(self) -> None:
+        with self.lock:
+            for name, mod in self.modules.items():
+                self.out(self._status_line(name, mod))
+            for name, child in self.processes.items():
+                code = child.poll()
+                self.out(f"  {name:<14} {'running' if code is None else f'exited {code}':<11} pid {child.pid}")
+
+    def module_status(self, name: str) -> mri.ModuleStatus:
+        mod = self.modules[name]
+        sup = mod.sup
+        reason = sup.reason + ("; unreachable (liveliness lost)" if sup.unreachable else "")
+        return mri.ModuleStatus(name=name, state=sup.state, pid=mod.child.pid if mod.child else None,  # type: ignore[arg-type]
+                                restarts=sup.restarts, last_exit=sup.last_exit, reason=reason.lstrip("; "),
+                                routes=dict(mod.routes), task_types=list(mod.info.spec.task_types),
+                                last_error=mod.last_error)
+
+    def robot_state(self) -> mri.RobotState:
+        with self.lock:
+            return mri.RobotState(robot=self.m.robot, kind=self.m.kind, stamp=time.time(), telemetry=self.telemetry,
+                                  modules=[self.module_status(n) for n in self.modules], tasks=self.tasks.active(),
+                                  errors=list(self.errors))
+
+    # ------------------------------------------------------------------------------------------ main loop
+
+    def run(self, *, once_up: bool = False, status_interval: float = 0.0) -> int:
+        """Start everything, supervise until ``stop_event``; stop every child. Exit code for the CLI."""
+        self.out(f"cromat launch: robot {self.m.robot} ({self.m.kind}), {len(self.modules)} modules, "
+                 f"manifest {self.m.path}")
+        code = 0
+        try:
+            self.start_router()
+            self.open_bus()
+            self.start_processes()
+            with self.lock:
+                now = self.clock()
+                for mod in self.modules.values():
+                    mod.sup.start(now)
+            next_state = next_status = self.clock()
+            while not self.stop_event.is_set():
+                self.step()
+                now = self.clock()
+                if self._state_dirty or now >= next_state:
+                    self._state_dirty = False
+                    next_state = now + self.m.raw.robot.state_period_s
+                    if self._state_pub is not None:
+                        self._state_pub.publish(self.robot_state())
+                if status_interval > 0 and now >= next_status and self.all_up_at is not None:
+                    if next_status > self.t0:
+                        self.print_status()
+                    next_status = now + status_interval
+                if once_up and self.all_up_at is not None:
+                    break
+                if once_up and all(m.sup.phase in (Phase.UP, Phase.FAILED, Phase.STOPPED)
+                                   for m in self.modules.values()) and self.all_up_at is None:
+                    self.out("not every module came up")
+                    code = 1
+                    break
+                self.stop_event.wait(0.02)
+        except LaunchError as exc:
+            self.out(f"cromat launch: {exc}")
+            code = 1
+        finally:
+            self.shutdown()
+        return code
+
+    def shutdown(self) -> None:
+        """Stop modules (reverse manifest order), then processes, then the bus, then the router."""
+        with self.lock:
+            for mod in self.modules.values():
+                mod.sup.stop(self.clock(), "manager shutting down")
+            children = [m.child for m in reversed(list(self.modules.values())) if m.child is not None]
+        if children:
+            self.out(f"stopping {len(children)} modules")
+        stop_children(children, self.m.stop_grace_s)
+        with self.lock:
+            for mod in self.modules.values():
+                if mod.child is not None:
+                    mod.sup.exited(self.clock(), mod.child.poll() or 0)
+                    mod.child = None
+        stop_children(list(reversed(list(self.processes.values()))), self.m.stop_grace_s)
+        for entity in reversed(self._entities):
+            try:
+                entity.undeclare()
+            except Exception:  # already gone with a closed session: nothing left to release
+                pass
+        self._entities.clear()
+        for pub in self._publishers:
+            pub.close()
+        if self._mri_thread is not None:
+            self._mri_thread.join(2.0)
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        if self.router is not None:
+            stop_children([self.router], self.m.stop_grace_s)
+            self.router = None
+        self.out("stopped")
+
+    # ------------------------------------------------------------------------------------------ routing
+
+    def _control_value(self, mod: _Module) -> msgspec.Struct:
+        assert mod.info.control_type is not None
+        return mod.info.control_type(**{f: mod.routes[i] for f, i in mod.info.control_fields.items()})
+
+    def _publish_control(self, mod: _Module) -> None:
+        if mod.control is not None:
+            mod.control.publish(self._control_value(mod))
+
+    def apply_routes(self, changes: dict[tuple[str, str], int]) -> tuple[bool, str]:
+        """Check every route, then publish the changed modules' CONTROL_ENTRADA and wait for their RouteAcks.
+
+        All or nothing: a route to a missing slot or a slot of another type refuses the whole change.
+        """
+        with self.lock:
+            for (name, slot), number in changes.items():
+                mod = self.modules.get(name)
+                if mod is None:
+                    return False, f"no module {name!r} in robot {self.m.robot!r}"
+                if slot not in mod.info.inputs:
+                    known = ", ".join(sorted(mod.info.inputs)) or "none"
+                    return False, f"module {name!r} has no routed input {slot!r} (routed inputs: {known})"
+                why = route_problem(self.m.slot_table, mod.info.inputs[slot], number)
+                if why:
+                    return False, f"{name}.{slot} -> {number} refused, old route kept: {why}"
+            touched: dict[str, dict[str, int]] = {}
+            for (name, slot), number in changes.items():
+                mod = self.modules[name]
+                if mod.routes[slot] != number:
+                    touched.setdefault(name, dict(mod.routes))
+                    mod.routes[slot] = number
+            waiting = []
+            for name in touched:
+                mod = self.modules[name]
+                mod.sup.routes_changed()
+                self._publish_control(mod)
+                if mod.sup.phase in (Phase.STARTING, Phase.UP):
+                    waiting.append(name)
+            self._touch()
+        problems = []
+        for name in waiting:
+            ok, why = self._wait_ack(name)
+            if not ok:
+                problems.append(f"{name}: {why}")
+                with self.lock:  # the module kept its old routes: so does the manager, and says so on the bus
+                    mod = self.modules[name]
+                    mod.routes = touched[name]
+                    self._publish_control(mod)
+        return (not problems), "; ".join(problems)
+
+    def _wait_ack(self, name: str) -> tuple[bool, str]:
+        end = self.clock() + ACK_TIMEOUT_S
+        with self.lock:
+            mod = self.modules[name]
+            wanted = {f: mod.routes[i] for f, i in mod.info.control_fields.items()}
+            while True:
+                ack = mod.last_ack
+                if ack is not None and ack.request == wanted:
+                    if ack.accepted:
+                        return True, ""
+                    return False, f"refused by the module: {ack.reason}"
+                left = end - self.clock()
+                if left <= 0 or not mod.sup.running:
+                    return False, f"no route acknowledgement within {ACK_TIMEOUT_S:g} s (module {mod.sup.state})"
+                self.changed.wait(min(left, 0.1))
+
+    def publish_mode(self, slot: str, value: dict[str, int]) -> None:
+        mode = self.m.modes[slot]
+        struct = msgspec.convert(value, mode.type)
+        self._mode_pubs[slot].publish(struct)
+        with self.lock:
+            self.modes[slot] = dict(value)
+
+    def apply_changes(self, changes: Changes) -> tuple[bool, str]:
+        ok, why = self.apply_routes(dict(changes.routes))
+        for slot, value in changes.modes.items():
+            if value is not None:
+                self.publish_mode(slot, value)
+        return ok, why
+
+    # ------------------------------------------------------------------------------------------ MRI
+
+    def _serve_mri(self, queryable: Any) -> None:
+        try:
+            for query in queryable:
+                try:
+                    reply = self.handle_mri(str(query.key_expr).rsplit("/", 1)[-1],
+                                            query.payload.to_bytes() if query.payload is not None else b"")
+                except Exception as exc:  # a bug must still produce an answer, not a silent timeout
+                    reply = mri.MriReply(ok=False, reason=f"internal error: {type(exc).__name__}: {exc}")
+                try:
+                    query.reply(query.key_expr, mri.encode(reply))
+                except Exception:  # the querier gave up or the session is closing
+                    pass
+        except zenoh.ZError:
+            pass
+
+    def handle_mri(self, verb: str, payload: bytes) -> mri.MriReply:
+        """Answer one MRI request: every request gets a reply, ok or with the reason it was refused."""
+        try:
+            req = mri.decode_request(payload)
+        except msgspec.MsgspecError as exc:
+            return mri.MriReply(ok=False, reason=f"unreadable {verb} request: {exc}")
+        expected = {"modules": (mri.ListModules,), "routes": (mri.ListRoutes,), "route": (mri.SwapRoute,),
+                    "module": (mri.ModuleCommand,), "task": (mri.SetTask, mri.EndTask), "tasks": (mri.ListTasks,),
+                    "mode": (mri.SetModuleMode,)}.get(verb)
+        if expected is None:
+            return mri.MriReply(ok=False, reason=f"unknown MRI verb {verb!r}; known: {', '.join(mri.VERBS)}")
+        if not isinstance(req, expected):
+            return mri.MriReply(ok=False, reason=f"verb {verb!r} takes {' or '.join(t.__name__ for t in expected)}, "
+                                                 f"not {type(req).__name__}")
+        if isinstance(req, mri.ListModules):
+            with self.lock:
+                return mri.MriReply(ok=True, data=mri.ModuleList(
+                    robot=self.m.robot, modules=[self.module_status(n) for n in self.modules]))
+        if isinstance(req, mri.ListRoutes):
+            return mri.MriReply(ok=True, data=self.route_list())
+        if isinstance(req, mri.SwapRoute):
+            ok, why = self.apply_routes({(req.module, req.input): req.slot})
+            return mri.MriReply(ok=ok, reason=why, data=self.route_list())
+        if isinstance(req, mri.ModuleCommand):
+            return self.module_command(req)
+        if isinstance(req, mri.ListTasks):
+            return mri.MriReply(ok=True, data=self.task_list())
+        if isinstance(req, mri.SetTask | mri.EndTask):
+            return self.task_request(req)
+        assert isinstance(req, mri.SetModuleMode)
+        slot = next((n for n, m in self.m.modes.items() if m.module == req.module), None)
+        if slot is None:
+            return mri.MriReply(ok=False, reason=f"no mode slot drives module {req.module!r}")
+        try:
+            self.publish_mode(slot, req.mode)
+        except msgspec.ValidationError as exc:
+            return mri.MriReply(ok=False, reason=f"mode for {req.module!r} refused: {exc}")
+        return mri.MriReply(ok=True)
+
+    def route_list(self) -> mri.RouteList:
+        with self.lock:
+            return mri.RouteList(routes={n: dict(m.routes) for n, m in self.modules.items() if m.routes},
+                                 slots={k: f"{r.module}/{r.slot}" for k, r in self.m.slot_table.slots.items()})
+
+    def task_list(self) -> mri.TaskList:
+        with self.lock:
+            return mri.TaskList(active=self.tasks.active(), available={n: t.type for n, t in self.m.tasks.items()})
+
+    def module_command(self, req: mri.ModuleCommand) -> mri.MriReply:
+        with self.lock:
+            mod = self.modules.get(req.module)
+            if mod is None:
+                return mri.MriReply(ok=False, reason=f"no module {req.module!r} in robot {self.m.robot!r}")
+            now = self.clock()
+            if req.action == "stop":
+                self._perform(mod, mod.sup.stop(now))
+                done = (Phase.STOPPED,)
+            elif req.action == "start":
+                mod.sup.start(now)
+                done = (Phase.UP, Phase.FAILED)
+            else:
+                self._perform(mod, mod.sup.restart(now))
+                done = (Phase.UP, Phase.FAILED)
+            self._touch()
+            end = now + mod.info.policy.start_timeout_s + self.m.stop_grace_s
+            while mod.sup.phase not in done and self.clock() < end and not self.stop_event.is_set():
+                self.changed.wait(0.05)
+            status = self.module_status(req.module)
+            ok = mod.sup.phase in done and mod.sup.phase is not Phase.FAILED
+        return mri.MriReply(ok=ok, reason="" if ok else f"module {req.module} is {status.state}: {status.reason}",
+                            data=status)
+
+    def task_request(self, req: mri.SetTask | mri.EndTask) -> mri.MriReply:
+        with self.lock:
+            routes = {(n, i): v for n, m in self.modules.items() for i, v in m.routes.items()}
+            modes = dict(self.modes)
+            try:
+                if isinstance(req, mri.SetTask):
+                    if req.name not in self.m.tasks:
+                        known = ", ".join(self.m.tasks) or "none"
+                        return mri.MriReply(ok=False, reason=f"unknown task {req.name!r} (tasks: {known})")
+                    changes = self.tasks.start(req.name, req.params, time.time(), routes, modes)
+                else:
+                    if req.task_type not in self.m.task_types:
+                        return mri.MriReply(ok=False, reason=f"unknown task type {req.task_type!r}")
+                    changes = self.tasks.end(req.task_type)
+            except KeyError:
+                return mri.MriReply(ok=False, reason=f"no {getattr(req, 'task_type', '')} task is running",
+                                    data=self.task_list())
+            self._touch()
+        ok, why = self.apply_changes(changes)
+        return mri.MriReply(ok=ok, reason=why, data=self.task_list())
+
+
+def _bytes(sample: zenoh.Sample) -> bytes:
+    return sample.payload.to_bytes()

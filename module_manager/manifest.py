@@ -1,0 +1,507 @@
+"""The launch manifest (``bbcs_conf/*.toml``): decoded into typed structs and checked before anything starts.
+
+Every mistake is a :class:`ManifestError` naming the file, the key (``modules.pan_tilt.routes.datos``), the
+line where it can be found, and the reason. The format is documented in docs/manifest.md.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import re
+import sys
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import msgspec
+
+from bbcs import keys
+from bbcs.codec import resolve_type, type_name
+from bbcs.conf import ConfError, load_conf
+from bbcs.errors import InvalidNameError
+from bbcs.robot import RobotTelemetry
+from bbcs.routing import IGNORE, SlotRef, SlotTable
+from module_manager.supervision import Policy
+
+MANAGER_MODULE = "manager"
+"""Module chunk of the manager's own slots (mode slots): ``cromat/<robot>/manager/<slot>``."""
+
+NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
+Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+
+
+class ManifestError(Exception):
+    """A manifest is unreadable or wrong: ``file:line: key: reason``."""
+
+    def __init__(self, message: str, *, path: str, key: str = "", line: int | None = None) -> None:
+        self.message = message
+        self.path = path
+        self.key = key
+        self.line = line
+        super().__init__(str(self))
+
+    def __str__(self) -> str:
+        where = self.path + (f":{self.line}" if self.line is not None else "")
+        return f"{where}: {self.key + ': ' if self.key else ''}{self.message}"
+
+
+class _Section(msgspec.Struct, kw_only=True, forbid_unknown_fields=True, frozen=True):
+    """Base of manifest sections: unknown keys are errors (a typo must not be ignored silently)."""
+
+
+class RobotSection(_Section):
+    name: str
+    kind: str
+    conf: str
+    """The robot .conf file, relative to the manifest."""
+    task_types: list[str] = msgspec.field(default_factory=lambda: ["perception", "movement", "pan_tilt"])
+    telemetry_slot: int | None = None
+    """Slot number carrying bbcs.robot:RobotTelemetry, folded into the robot state."""
+    state_period_s: Positive = 1.0
+
+
+class BusSection(_Section):
+    listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    """Endpoints of the robot router (``cromat launch`` starts it first)."""
+    connect: list[str] = msgspec.field(default_factory=list)
+    """Where the manager and modules connect; empty: derived from the first tcp ``listen`` endpoint."""
+    zenoh_config: str | None = None
+    """Zenoh JSON5 file for the router (access control, TLS), relative to the manifest."""
+    ready_timeout_s: Positive = 10.0
+
+
+class SupervisionSection(_Section):
+    restart: Literal["never", "on-failure", "always"] = "on-failure"
+    backoff_s: Positive = 0.5
+    backoff_max_s: Positive = 8.0
+    intensity: Annotated[int, msgspec.Meta(ge=0)] = 5
+    period_s: Positive = 10.0
+    start_timeout_s: Positive = 20.0
+    stop_grace_s: Positive = 5.0
+    watchdog_s: NonNeg = 10.0
+    unreachable_debounce_s: NonNeg = 1.0
+
+
+class SlotDef(_Section):
+    number: Annotated[int, msgspec.Meta(ge=0)]
+    module: str
+    slot: str
+    type: str
+    robot: str | None = None
+
+
+class ModuleDef(_Section):
+    entry: str
+    """Python module run as ``python -m <entry>``."""
+    cls: str = msgspec.field(name="class")
+    """``package.module:Class`` of the bbcs Module subclass (its inputs, CONTROL_ENTRADA and ERROR slot)."""
+    params: dict[str, str] = msgspec.field(default_factory=dict)
+    """Module parameters (``ModuleContext.params``); placeholders such as ``{port:dsp}`` are expanded."""
+    routes: dict[str, int] = msgspec.field(default_factory=dict)
+    task_types: list[str] = msgspec.field(default_factory=list)
+    env: dict[str, str] = msgspec.field(default_factory=dict)
+    restart: Literal["never", "on-failure", "always"] | None = None
+    backoff_s: Positive | None = None
+    backoff_max_s: Positive | None = None
+    intensity: Annotated[int, msgspec.Meta(ge=0)] | None = None
+    period_s: Positive | None = None
+    start_timeout_s: Positive | None = None
+    watchdog_s: NonNeg | None = None
+
+
+class ReadyDef(_Section):
+    kind: Literal["none", "tcp", "stdout"] = "none"
+    port: str = ""
+    """``tcp``: the port to find open on ``host`` (placeholders allowed)."""
+    host: str = "127.0.0.1"
+    pattern: str = ""
+    """``stdout``: the first stdout line containing this text (empty: the first line)."""
+    timeout_s: Positive = 10.0
+
+
+class ProcessDef(_Section):
+    command: list[str]
+    ready: ReadyDef = msgspec.field(default_factory=ReadyDef)
+    env: dict[str, str] = msgspec.field(default_factory=dict)
+
+
+class ModeDef(_Section):
+    slot: str
+    type: str
+    module: str
+    """The module this mode slot drives (``SetModuleMode.module``)."""
+    initial: dict[str, int] | None = None
+
+
+class TaskDef(_Section):
+    type: str
+    routes: dict[str, int] = msgspec.field(default_factory=dict)
+    """``module.input`` → slot number."""
+    modes: dict[str, dict[str, int]] = msgspec.field(default_factory=dict)
+    """mode slot name → mode struct fields."""
+
+
+class ManifestFile(_Section):
+    robot: RobotSection
+    bus: BusSection = msgspec.field(default_factory=BusSection)
+    supervision: SupervisionSection = msgspec.field(default_factory=SupervisionSection)
+    pythonpath: list[str] = msgspec.field(default_factory=list)
+    slot: list[SlotDef] = msgspec.field(default_factory=list)
+    modules: dict[str, ModuleDef] = msgspec.field(default_factory=dict)
+    processes: dict[str, ProcessDef] = msgspec.field(default_factory=dict)
+    mode: list[ModeDef] = msgspec.field(default_factory=list)
+    tasks: dict[str, TaskDef] = msgspec.field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ModuleInfo:
+    """What the manager knows about one module once its class is imported."""
+
+    name: str
+    spec: ModuleDef
+    policy: Policy
+    control_type: type[msgspec.Struct] | None
+    control_slot: str
+    control_fields: dict[str, str]
+    """CONTROL_ENTRADA field → input slot."""
+    inputs: dict[str, str]
+    """routed input slot → struct type name."""
+    routes: dict[str, int]
+    """initial route of every routed input (-1 where the manifest gives none)."""
+    error_slot: str | None
+    error_type: type[msgspec.Struct] | None
+
+
+@dataclass(frozen=True)
+class ModeSlot:
+    name: str
+    type: type[msgspec.Struct]
+    module: str
+    initial: msgspec.Struct | None
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """A checked manifest: everything the manager needs, with types resolved."""
+
+    path: Path
+    raw: ManifestFile
+    robot: str
+    kind: str
+    conf: Path
+    slot_table: SlotTable
+    modules: dict[str, ModuleInfo]
+    modes: dict[str, ModeSlot]
+    tasks: dict[str, TaskDef]
+    task_types: tuple[str, ...]
+    stop_grace_s: float
+    pythonpath: tuple[Path, ...]
+
+    @property
+    def dir(self) -> Path:
+        return self.path.parent
+
+
+# ---------------------------------------------------------------------------------------------- loading
+
+
+def load_manifest(path: str | Path) -> Manifest:
+    """Read, decode and check a manifest; ManifestError on the first mistake (nothing is started here)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ManifestError(f"cannot read manifest: {exc.strerror or exc}", path=str(p)) from exc
+    return parse_manifest(text, p)
+
+
+def parse_manifest(text: str, path: Path) -> Manifest:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+)", str(exc))
+        raise ManifestError(f"not valid TOML: {exc}", path=str(path),
+                            line=int(m.group(1)) if m else None) from exc
+    try:
+        raw = msgspec.convert(data, ManifestFile)
+    except msgspec.ValidationError as exc:
+        text_exc = str(exc)
+        where = text_exc.rpartition(" - at `")[2].rstrip("`") if " - at `" in text_exc else "$"
+        msg = text_exc.partition(" - at `")[0]
+        key = where.removeprefix("$").lstrip(".")
+        if msg.startswith("Object contains unknown field"):
+            unknown = msg.split("`")[1]
+            key = f"{key}.{unknown}" if key else unknown
+            msg = "unknown key (see docs/manifest.md for the keys allowed here)"
+        elif msg.startswith("Object missing required field"):
+            missing = msg.split("`")[1]
+            key = f"{key}.{missing}" if key else missing
+            msg = "required key missing"
+        raise ManifestError(msg, path=str(path), key=_dotted(key), line=_locate(text, _dotted(key))) from exc
+    return _Checker(text, path, raw).check()
+
+
+def _dotted(key: str) -> str:
+    """``modules.x[0]`` → ``modules.x.0`` (msgspec paths to TOML-ish keys)."""
+    return re.sub(r"\[(\d+)\]", r".\1", key)
+
+
+def _locate(text: str, key: str) -> int | None:
+    """Best-effort line of ``key`` (dotted path) in the TOML text; None when it cannot be found."""
+    if not key:
+        return None
+    parts = key.split(".")
+    lines = text.splitlines()
+    header = re.compile(r"^\s*\[\[?\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+    table: list[str] = []
+    counts: dict[str, int] = {}
+    best: int | None = None
+    for i, line in enumerate(lines, 1):
+        m = header.match(line)
+        if m:
+            name = m.group(1).replace('"', "")
+            table = name.split(".")
+            if line.lstrip().startswith("[["):
+                counts[name] = counts.get(name, -1) + 1
+                table = [*table, str(counts[name])]
+            if table == parts[: len(table)]:
+                best = i
+                if table == parts:
+                    return i
+            continue
+        rest = parts[len(table):] if table == parts[: len(table)] else None
+        if rest:
+            first = rest[0]
+            if re.match(rf'^\s*"?{re.escape(first)}"?\s*=', line):
+                return i
+            if len(rest) > 1 and re.match(rf'^\s*"?{re.escape(first)}"?\s*\.', line):
+                return i
+    if best is None and parts:
+        for i, line in enumerate(lines, 1):
+            if re.match(rf'^\s*"?{re.escape(parts[-1])}"?\s*=', line):
+                return i
+    return best
+
+
+class _Checker:
+    """Cross-checks after decoding: names, files, types, slot numbers, routes, modes, tasks."""
+
+    def __init__(self, text: str, path: Path, raw: ManifestFile) -> None:
+        self.text = text
+        self.path = path
+        self.raw = raw
+
+    def fail(self, key: str, message: str) -> ManifestError:
+        return ManifestError(message, path=str(self.path), key=key, line=_locate(self.text, key))
+
+    def name(self, value: str, key: str, what: str) -> None:
+        try:
+            keys.validate_name(value, what)
+        except InvalidNameError as exc:
+            raise self.fail(key, str(exc)) from None
+
+    def type_(self, name: str, key: str) -> type[msgspec.Struct]:
+        try:
+            return resolve_type(name)
+        except LookupError as exc:
+            raise self.fail(key, str(exc)) from None
+
+    def check(self) -> Manifest:
+        raw = self.raw
+        base = self.path.parent
+        pythonpath = tuple((base / p).resolve() for p in raw.pythonpath)
+        for p in pythonpath:
+            if str(p) not in sys.path:
+                sys.path.insert(0, str(p))
+        self.name(raw.robot.name, "robot.name", "robot name")
+        conf = (base / raw.robot.conf).resolve()
+        if not conf.is_file():
+            raise self.fail("robot.conf", f"robot .conf file {conf} does not exist")
+        try:
+            load_conf(conf)
+        except ConfError as exc:
+            raise self.fail("robot.conf", f"the robot .conf is malformed: {exc}") from None
+        if raw.bus.zenoh_config is not None and not (base / raw.bus.zenoh_config).is_file():
+            raise self.fail("bus.zenoh_config", f"Zenoh config file {base / raw.bus.zenoh_config} does not exist")
+        if not raw.bus.listen:
+            raise self.fail("bus.listen", "the router needs at least one listen endpoint")
+        task_types = tuple(raw.robot.task_types)
+        table = self.slot_table()
+        modes = self.modes(table)
+        modules = {name: self.module(name, spec, table, task_types) for name, spec in raw.modules.items()}
+        for name, proc in raw.processes.items():
+            self.name(name, f"processes.{name}", "process name")
+            if name in modules or name == MANAGER_MODULE:
+                raise self.fail(f"processes.{name}", "a process must not share its name with a module")
+            if not proc.command:
+                raise self.fail(f"processes.{name}.command", "empty command")
+            if proc.ready.kind == "tcp" and not proc.ready.port:
+                raise self.fail(f"processes.{name}.ready.port", "ready kind 'tcp' needs a port")
+        for mname, mode in modes.items():
+            if mode.module not in modules:
+                raise self.fail(f"mode.{mname}.module", f"mode slot {mname!r} drives unknown module {mode.module!r}")
+        self.telemetry(table)
+        tasks = {name: self.task(name, t, table, modules, modes, task_types) for name, t in raw.tasks.items()}
+        return Manifest(path=self.path.resolve(), raw=raw, robot=raw.robot.name, kind=raw.robot.kind, conf=conf,
+                        slot_table=table, modules=modules, modes=modes, tasks=tasks, task_types=task_types,
+                        stop_grace_s=raw.supervision.stop_grace_s, pythonpath=pythonpath)
+
+    def slot_table(self) -> SlotTable:
+        seen: dict[int, int] = {}
+        rows: dict[int, SlotRef] = {}
+        for i, s in enumerate(self.raw.slot):
+            key = f"slot.{i}"
+            if s.number in seen:
+                raise self.fail(f"{key}.number", f"slot number {s.number} is defined twice "
+                                                 f"(first as slot[{seen[s.number]}])")
+            seen[s.number] = i
+            self.name(s.module, f"{key}.module", "module name")
+            self.name(s.slot, f"{key}.slot", "slot name")
+            if s.robot is not None:
+                self.name(s.robot, f"{key}.robot", "robot name")
+            cls = self.type_(s.type, f"{key}.type")
+            rows[s.number] = SlotRef(module=s.module, slot=s.slot, type=type_name(cls), robot=s.robot)
+        return SlotTable(robot=self.raw.robot.name, slots=rows)
+
+    def modes(self, table: SlotTable) -> dict[str, ModeSlot]:
+        out: dict[str, ModeSlot] = {}
+        for i, m in enumerate(self.raw.mode):
+            key = f"mode.{i}"
+            self.name(m.slot, f"{key}.slot", "slot name")
+            if m.slot in out:
+                raise self.fail(f"{key}.slot", f"mode slot {m.slot!r} is defined twice")
+            cls = self.type_(m.type, f"{key}.type")
+            number = table.number_of(MANAGER_MODULE, m.slot)
+            if number is not None and table.slots[number].type != type_name(cls):
+                raise self.fail(f"{key}.type", f"slot {number} ({MANAGER_MODULE}/{m.slot}) is declared as "
+                                               f"{table.slots[number].type} in the slot table, not {type_name(cls)}")
+            initial = None if m.initial is None else self.convert(m.initial, cls, f"{key}.initial")
+            out[m.slot] = ModeSlot(name=m.slot, type=cls, module=m.module, initial=initial)
+        return out
+
+    def convert(self, value: dict[str, int], cls: type[msgspec.Struct], key: str) -> msgspec.Struct:
+        try:
+            return msgspec.convert(value, cls)
+        except msgspec.ValidationError as exc:
+            raise self.fail(key, f"not a valid {cls.__name__}: {exc}") from None
+
+    def module(self, name: str, spec: ModuleDef, table: SlotTable, task_types: tuple[str, ...]) -> ModuleInfo:
+        key = f"modules.{name}"
+        self.name(name, key, "module name")
+        if name == MANAGER_MODULE:
+            raise self.fail(key, f"{MANAGER_MODULE!r} is the manager's own module name")
+        if not _entry_exists(spec.entry):
+            raise self.fail(f"{key}.entry", f"unknown module entry point {spec.entry!r}: no such Python module "
+                                            "(or package without __main__)")
+        from bbcs.module import Module  # the manager stands on bbcs; imported here to keep load cheap
+
+        cls: Any = self._class(spec.cls, f"{key}.class")
+        if not (isinstance(cls, type) and issubclass(cls, Module)):
+            raise self.fail(f"{key}.class", f"{spec.cls!r} is not a bbcs Module subclass")
+        for i, t in enumerate(spec.task_types):
+            if t not in task_types:
+                raise self.fail(f"{key}.task_types.{i}", f"unknown task type {t!r}; robot.task_types: "
+                                                         f"{', '.join(task_types)}")
+        control = cls.control
+        fields = dict(control.routes) if control is not None else {}
+        inputs = {slot: type_name(cls._inputs[slot].type) for slot in fields.values()}
+        routes = {slot: IGNORE for slot in inputs}
+        for slot, number in spec.routes.items():
+            rkey = f"{key}.routes.{slot}"
+            if slot not in inputs:
+                known = ", ".join(sorted(inputs)) or "none"
+                raise self.fail(rkey, f"{name} has no routed input {slot!r} (routed inputs: {known})")
+            reason = route_problem(table, inputs[slot], number)
+            if reason:
+                raise self.fail(rkey, reason)
+            routes[slot] = number
+        error_slot = cls.error_slot
+        error_type = cls._outputs[error_slot].type if error_slot else None
+        s = self.raw.supervision
+        policy = Policy(
+            restart=spec.restart or s.restart, backoff_s=spec.backoff_s or s.backoff_s,
+            backoff_max_s=spec.backoff_max_s or s.backoff_max_s,
+            intensity=s.intensity if spec.intensity is None else spec.intensity,
+            period_s=spec.period_s or s.period_s, start_timeout_s=spec.start_timeout_s or s.start_timeout_s,
+            watchdog_s=s.watchdog_s if spec.watchdog_s is None else spec.watchdog_s,
+            unreachable_debounce_s=s.unreachable_debounce_s)
+        return ModuleInfo(name=name, spec=spec, policy=policy,
+                          control_type=control.type if control is not None else None,
+                          control_slot=control.slot if control is not None else "control_entrada",
+                          control_fields=fields, inputs=inputs, routes=routes, error_slot=error_slot,
+                          error_type=error_type)
+
+    def _class(self, name: str, key: str) -> Any:
+        module_name, sep, qualname = name.partition(":")
+        if not sep:
+            raise self.fail(key, f"{name!r} must be written 'package.module:Class'")
+        try:
+            obj: Any = importlib.import_module(module_name)
+        except Exception as exc:
+            raise self.fail(key, f"cannot import {module_name!r}: {exc}") from None
+        for part in qualname.split("."):
+            obj = getattr(obj, part, None)
+            if obj is None:
+                raise self.fail(key, f"module {module_name!r} has no {qualname!r}")
+        return obj
+
+    def telemetry(self, table: SlotTable) -> None:
+        number = self.raw.robot.telemetry_slot
+        if number is None:
+            return
+        ref = table.slots.get(number)
+        if ref is None:
+            raise self.fail("robot.telemetry_slot", f"slot {number} is not in the slot table")
+        if ref.type != type_name(RobotTelemetry):
+            raise self.fail("robot.telemetry_slot", f"slot {number} carries {ref.type}, "
+                                                    f"not {type_name(RobotTelemetry)}")
+
+    def task(self, name: str, t: TaskDef, table: SlotTable, modules: dict[str, ModuleInfo],
+             modes: dict[str, ModeSlot], task_types: tuple[str, ...]) -> TaskDef:
+        key = f"tasks.{name}"
+        if t.type not in task_types:
+            raise self.fail(f"{key}.type", f"unknown task type {t.type!r}; robot.task_types: {', '.join(task_types)}")
+        for target, number in t.routes.items():
+            rkey = f"{key}.routes.{target}"
+            module, _, slot = target.partition(".")
+            info = modules.get(module)
+            if info is None or slot not in info.inputs:
+                raise self.fail(rkey, f"{target!r} is not a routed input 'module.input' of this manifest")
+            reason = route_problem(table, info.inputs[slot], number)
+            if reason:
+                raise self.fail(rkey, reason)
+        for slot, value in t.modes.items():
+            mode = modes.get(slot)
+            if mode is None:
+                raise self.fail(f"{key}.modes.{slot}", f"unknown mode slot {slot!r}")
+            self.convert(value, mode.type, f"{key}.modes.{slot}")
+        return t
+
+
+def route_problem(table: SlotTable, input_type: str, number: int) -> str:
+    """Why ``number`` cannot feed an input of ``input_type`` ("" when it can): missing slot or other type."""
+    if number == IGNORE:
+        return ""
+    ref = table.slots.get(number)
+    if ref is None:
+        return f"slot {number} is not in the slot table"
+    if ref.type != input_type:
+        return f"slot {number} ({ref.module}/{ref.slot}) carries {ref.type}, the input needs {input_type}"
+    return ""
+
+
+def _entry_exists(entry: str) -> bool:
+    try:
+        spec = importlib.util.find_spec(entry)
+    except (ImportError, ValueError):
+        return False
+    if spec is None:
+        return False
+    if spec.submodule_search_locations is not None:
+        try:
+            return importlib.util.find_spec(f"{entry}.__main__") is not None
+        except (ImportError, ValueError):
+            return False
+    return True

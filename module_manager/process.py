@@ -1,0 +1,145 @@
+"""Child processes of the manager: spawned so that none outlives it, stopped TERM-then-KILL, readiness checks.
+
+Every child stays in the manager's process group (Ctrl+C in a terminal reaches all of them) and asks the kernel
+for SIGTERM when its parent dies (``prctl(PR_SET_PDEATHSIG)``), so a SIGKILLed manager leaves no orphan.
+The parent-death signal fires when the *thread* that forked the child ends: the manager spawns from its main
+thread only.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import socket
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO
+
+PR_SET_PDEATHSIG = 1
+
+try:
+    _libc: ctypes.CDLL | None = ctypes.CDLL(None, use_errno=True)
+except OSError:  # not Linux/glibc: no parent-death signal, the process group still covers Ctrl+C
+    _libc = None
+
+
+def _child_setup(parent: int) -> None:
+    """Runs in the child between fork and exec: die with the parent."""
+    if _libc is not None:
+        _libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+
+class Child:
+    """One started process, its output handling and how it ended."""
+
+    def __init__(self, name: str, argv: list[str], env: dict[str, str], cwd: str | None = None,
+                 log_dir: Path | None = None, watch_stdout: bool = False) -> None:
+        self.name = name
+        self.argv = argv
+        self._log: IO[bytes] | None = None
+        out: int | IO[bytes] | None = None
+        if log_dir is not None:
+            log_dir.mkdir(parents=True, exist_ok=True)
+            self._log = (log_dir / f"{name}.log").open("ab")
+            out = self._log
+        parent = os.getpid()
+        self.first_lines: list[str] = []
+        self._line_seen = threading.Condition()
+        self.proc = subprocess.Popen(argv, env=env, cwd=cwd, stdin=subprocess.DEVNULL,
+                                     stdout=subprocess.PIPE if watch_stdout else out,
+                                     stderr=out, preexec_fn=lambda: _child_setup(parent))
+        self.pid = self.proc.pid
+        self.started = time.monotonic()
+        self._reader: threading.Thread | None = None
+        if watch_stdout:
+            self._reader = threading.Thread(target=self._pump, name=f"stdout-{name}", daemon=True)
+            self._reader.start()
+
+    def _pump(self) -> None:
+        """Keep stdout flowing (to the log or ours) and remember the first lines for readiness checks."""
+        assert self.proc.stdout is not None
+        for raw in self.proc.stdout:
+            line = raw.decode(errors="replace").rstrip("\n")
+            with self._line_seen:
+                if len(self.first_lines) < 100:
+                    self.first_lines.append(line)
+                self._line_seen.notify_all()
+            if self._log is not None:
+                self._log.write(raw)
+                self._log.flush()
+        with self._line_seen:
+            self._line_seen.notify_all()
+
+    def wait_line(self, pattern: str, timeout_s: float) -> bool:
+        """True once a stdout line containing ``pattern`` (any line if empty) was printed."""
+        end = time.monotonic() + timeout_s
+        with self._line_seen:
+            while True:
+                if any(pattern in line for line in self.first_lines):
+                    return True
+                left = end - time.monotonic()
+                if left <= 0 or self.proc.poll() is not None:
+                    return any(pattern in line for line in self.first_lines)
+                self._line_seen.wait(min(left, 0.1))
+
+    def poll(self) -> int | None:
+        return self.proc.poll()
+
+    def signal(self, sig: int) -> None:
+        if self.proc.poll() is None:
+            try:
+                self.proc.send_signal(sig)
+            except ProcessLookupError:
+                pass
+
+    def close(self) -> None:
+        if self._reader is not None:
+            self._reader.join(1.0)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        if self._log is not None:
+            self._log.close()
+
+
+def stop_children(children: list[Child], grace_s: float, on_stopped: Callable[[Child, int], None] | None = None
+                  ) -> None:
+    """SIGTERM each (in the order given), wait up to ``grace_s`` for all, SIGKILL the rest, reap everything."""
+    for child in children:
+        child.signal(signal.SIGTERM)
+    end = time.monotonic() + grace_s
+    pending = [c for c in children]
+    while pending and time.monotonic() < end:
+        pending = [c for c in pending if c.poll() is None]
+        if pending:
+            time.sleep(0.02)
+    for child in pending:
+        child.signal(signal.SIGKILL)
+    for child in children:
+        code = child.proc.wait()
+        if on_stopped is not None:
+            on_stopped(child, code)
+        child.close()
+
+
+def wait_tcp(host: str, port: int, timeout_s: float, alive: Callable[[], bool] = lambda: True) -> bool:
+    """True once something accepts TCP connections on host:port (False at the deadline or if ``alive`` fails)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and alive():
+        try:
+            with socket.create_connection((host, port), timeout=0.2):
+                return True
+        except OSError:
+            time.sleep(0.02)
+    return False
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]

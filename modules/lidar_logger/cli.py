@@ -1,0 +1,176 @@
+"""``cromat lidar``: run the logger, read a log, georeference a log into a PLY point cloud.
+
+    cromat lidar run --mtig-port /dev/ttyUSB1 --ldmrs-host 192.168.0.1 --vehicle CB5000 --duration 20 --binary
+    cromat lidar run --conf bbcs_conf/uav1.conf              (settings from the LIDAR: logger group)
+    cromat lidar read Scan_Y2010_M09_D10_H07M30S07 [--npz scans.npz] [--json]
+    cromat lidar georef Scan_Y2010_M09_D10_H07M30S07 --out cloud.ply [--ascii]
+
+Exit codes: 0 finished (duration or Ctrl+C), 3 stopped because the scanner went silent, 1 error, 2 usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from bbcs.conf import ConfError
+from modules.lidar_logger.clock import SYSTEM_CLOCK, ScaledClock
+from modules.lidar_logger.config import VEHICLES, load_lidar_conf, read_config_file, vehicle_key
+from modules.lidar_logger.georef import GeorefError, Mounting, georeference
+from modules.lidar_logger.logdata import LogFormatError, load_log
+from modules.lidar_logger.logger import LidarLogger, LoggerSettings
+from modules.lidar_logger.ply import write_ply
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cromat lidar", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    run = sub.add_parser("run", help="acquire: MTi-G + LD-MRS into one log folder per run")
+    run.add_argument("--conf", help="robot .conf with a 'LIDAR: logger { ... }' group")
+    run.add_argument("--mtig-port", help="MTi-G serial port or pyserial URL")
+    run.add_argument("--mtig-baud", type=int)
+    run.add_argument("--ldmrs-host", help="LD-MRS IP address")
+    run.add_argument("--ldmrs-port", type=int)
+    run.add_argument("--vehicle", help=f"chooses the GPS lever arm: {', '.join(VEHICLES)}")
+    run.add_argument("--duration", type=float, metavar="MIN", help="minutes of measuring (0 = until stopped)")
+    run.add_argument("--event-timeout", type=float, metavar="S", help="stop after S seconds without a scan")
+    run.add_argument("--out", help="folder that receives Scan_<date>/")
+    run.add_argument("--binary", action="store_true", default=None, help="also write the compact binary log")
+    run.add_argument("--mounting", type=float, nargs=6, metavar=("ROLL", "PITCH", "YAW", "X", "Y", "Z"),
+                     help="scanner in the MTi-G body frame (deg, m); default 0 90 0 0 0 0 (looking down)")
+    run.add_argument("--sync-scanner-clock", action="store_true", default=None,
+                     help="set the LD-MRS clock from the MTi-G UTC before measuring")
+    run.add_argument("--time-scale", type=float, default=1.0, help=argparse.SUPPRESS)
+    run.add_argument("--quiet", action="store_true", help="no progress lines")
+
+    read = sub.add_parser("read", help="load a text or binary log, print a summary, export .npz")
+    read.add_argument("log", help="run folder, LogFile_<date>, or LogFile_<date>.scans.bin")
+    read.add_argument("--npz", help="write every array to this .npz")
+    read.add_argument("--json", action="store_true", help="summary as JSON")
+
+    geo = sub.add_parser("georef", help="georeference valid points into a local ENU frame, write a PLY")
+    geo.add_argument("log", help="run folder, LogFile_<date>, or LogFile_<date>.scans.bin")
+    geo.add_argument("--out", required=True, help="PLY file to write")
+    geo.add_argument("--ascii", action="store_true", help="ASCII PLY instead of binary little-endian")
+    geo.add_argument("--mounting", type=float, nargs=6, metavar=("ROLL", "PITCH", "YAW", "X", "Y", "Z"),
+                     help="scanner mounting; default: the run's ConfigFile")
+    geo.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"))
+    geo.add_argument("--position-ref", choices=("imu", "antenna"), help="what the logged LLA is the position of")
+    geo.add_argument("--time-align", choices=("auto", "on", "off"), default="auto",
+                     help="move the IMU along its velocity to each point's time (needs scanner clock on UTC)")
+    geo.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"),
+                     help="ENU origin; default: the first valid pose")
+    return p
+
+
+def _run(args: argparse.Namespace) -> int:
+    conf = load_lidar_conf(args.conf) if args.conf else None
+    vehicle = args.vehicle or (conf.vehicle if conf else None)
+    if vehicle is None:
+        raise ValueError("say which vehicle (--vehicle or VEHICLE in the .conf): it chooses the lever arm")
+    vehicle = vehicle_key(vehicle)
+    mtig_port = args.mtig_port or (conf.mtig_port if conf else None)
+    host = args.ldmrs_host or (conf.ldmrs_host if conf else None)
+    if not mtig_port or not host:
+        raise ValueError("need --mtig-port and --ldmrs-host (or MTIG_PORT / LDMRS_HOST in the .conf)")
+    duration_min = args.duration if args.duration is not None else (conf.duration_min if conf else 0.0)
+    mounting = Mounting(*args.mounting) if args.mounting else (conf.mounting_struct if conf else Mounting())
+    lever = conf.lever_arm_m if conf and vehicle_key(conf.vehicle) == vehicle else VEHICLES[vehicle]
+    settings = LoggerSettings(
+        mtig_port=mtig_port, ldmrs_host=host,
+        ldmrs_port=args.ldmrs_port or (conf.ldmrs_port if conf else 12002),
+        mtig_baud=args.mtig_baud or (conf.mtig_baud if conf else 115200),
+        out_dir=Path(args.out or (conf.out_dir if conf else ".")),
+        duration_s=duration_min * 60.0 if duration_min > 0 else None,
+        event_timeout_s=args.event_timeout or (conf.event_timeout_s if conf else 15.0),
+        binary=bool(args.binary if args.binary is not None else (conf.binary_log if conf else False)),
+        vehicle=vehicle, lever_arm=lever, mounting=mounting,
+        sync_scanner_clock=bool(args.sync_scanner_clock if args.sync_scanner_clock is not None
+                                else (conf.sync_scanner_clock if conf else False)),
+        progress=not args.quiet,
+    )
+    clock = SYSTEM_CLOCK if args.time_scale == 1.0 else ScaledClock(args.time_scale)
+    logger = LidarLogger(settings, clock=clock)
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    for sig in previous:
+        signal.signal(sig, lambda *_: logger.request_stop("signal"))
+    try:
+        summary = logger.run()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return summary.exit_code
+
+
+def _read(args: argparse.Namespace) -> int:
+    log = load_log(args.log)
+    info = log.summary()
+    if args.npz:
+        info["npz"] = str(log.save_npz(args.npz))
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        for key, value in info.items():
+            print(f"{key}: {value}")
+    return 0
+
+
+def _run_config(log_path: Path) -> dict[str, str]:
+    """The ConfigFile of the run a log belongs to, or {} when there is none."""
+    folder = log_path if log_path.is_dir() else log_path.parent
+    found = sorted(folder.glob("ConfigFile_*"))
+    return read_config_file(found[0]) if found else {}
+
+
+def _georef(args: argparse.Namespace) -> int:
+    path = Path(args.log)
+    log = load_log(path)
+    cfg = _run_config(path)
+    if args.mounting:
+        mounting = Mounting(*args.mounting)
+    elif "mounting_pitch_deg" in cfg:
+        mounting = Mounting(*(float(cfg[f"mounting_{k}"]) for k in
+                              ("roll_deg", "pitch_deg", "yaw_deg", "x_m", "y_m", "z_m")))
+    else:
+        mounting = Mounting()
+    lever = tuple(args.lever_arm) if args.lever_arm else tuple(
+        float(cfg.get(f"lever_arm_{k}_m", 0.0)) for k in "xyz")
+    position_ref = args.position_ref or cfg.get("position_reference", "imu")
+    align = {"auto": None, "on": True, "off": False}[args.time_align]
+    result = georeference(log, mounting, lever_arm=lever, position_ref=position_ref, time_align=align,
+                          origin_lla=np.array(args.origin) if args.origin else None)
+    o = result.origin_lla
+    idx = result.point_index
+    write_ply(args.out, result.enu, ascii=args.ascii,
+              scalars={"intensity": log.echo_width[idx].astype(np.float32),
+                       "layer": log.layer[idx].astype(np.uint8)},
+              comments=[f"cromat lidar georef of {log.source}",
+                        f"frame ENU metres: x east, y north, z up; origin lat {o[0]:.9f} lon {o[1]:.9f} h {o[2]:.4f}",
+                        f"time_aligned {int(result.time_aligned)}; intensity = echo width (m)"])
+    print(f"{len(idx)} points -> {args.out} (skipped {result.skipped_invalid_points} flagged points, "
+          f"{result.skipped_invalid_pose} points without a valid pose; time aligned: {result.time_aligned})")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        return {"run": _run, "read": _read, "georef": _georef}[args.cmd](args)
+    except (ConfError, LogFormatError, GeorefError, OSError) as exc:
+        print(f"cromat lidar {args.cmd}: {exc}", file=sys.stderr)
+        return 1
+    except ValueError as exc:
+        print(f"cromat lidar {args.cmd}: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+

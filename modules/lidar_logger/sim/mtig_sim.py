@@ -1,0 +1,216 @@
+"""MTi-G simulator on a pseudo-terminal, speaking the exact Xbus bytes of a real device.
+
+``MTiGDevice`` is the device's logic (pure: frames in, frames out, time given); ``MTiGSimulator`` puts it on a
+pty whose slave path the driver opens like ``/dev/ttyUSB0``. Like the real unit it powers up in measurement
+state streaming its default output (calibrated data + quaternion + sample counter at 100 Hz), so a driver
+must find its GoToConfig acknowledgement among MTData frames. Configuration messages are acknowledged (MID+1),
+unknown ones answered with Error 0x04, ReqData with MTData of the configured layout, and the status byte
+follows the world's timeline 0 → 5 → 7.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import struct
+import threading
+import tty
+from dataclasses import dataclass, field
+
+from modules.lidar_logger.mtdata import (
+    MODE_CALIB,
+    MODE_ORIENT,
+    SET_TS_SAMPLE_COUNTER,
+    MTDataError,
+    encode_pose_payload,
+    layout,
+)
+from modules.lidar_logger.sim.world import World
+from modules.lidar_logger.xbus import MID, Frame, FrameParser, ack_of, build_frame
+
+DEFAULT_MODE = MODE_CALIB | MODE_ORIENT
+DEFAULT_SETTINGS = SET_TS_SAMPLE_COUNTER
+DEFAULT_DEVICE_ID = 0x00500123
+"""An MTi-G device id (type nibble 0x005)."""
+ERR_INVALID_MESSAGE = 0x04
+ERR_INVALID_PARAMETER = 0x21
+
+
+@dataclass
+class MTiGDevice:
+    world: World
+    device_id: int = DEFAULT_DEVICE_ID
+    state: str = "measurement"
+    mode: int = DEFAULT_MODE
+    settings: int = DEFAULT_SETTINGS
+    skip_factor: int = 0
+    period: int = 1152
+    """Sample period in 1/115200 s (1152 = 100 Hz)."""
+    lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scenario: int = 1
+    sample_counter: int = 0
+    received: list[tuple[float, int, bytes]] = field(default_factory=list)
+    """(clock time, MID, data) of every message received."""
+    poses_sent: list[tuple[float, object]] = field(default_factory=list)
+    """(clock time, Pose) of every MTData answering a ReqData."""
+
+    def _mtdata(self, t: float, record: bool) -> bytes:
+        pose = self.world.true_pose(t)
+        payload = encode_pose_payload(pose, self.mode, self.settings, self.sample_counter)
+        self.sample_counter = (self.sample_counter + 1) & 0xFFFF
+        if record:
+            self.poses_sent.append((t, pose))
+        return build_frame(MID.MTDATA, payload)
+
+    def handle(self, frame: Frame, t: float) -> list[bytes]:
+        """Answer one frame received at clock time ``t``."""
+        mid, data = frame.mid, frame.data
+        self.received.append((t, mid, data))
+
+        def ack(payload: bytes = b"") -> list[bytes]:
+            return [build_frame(ack_of(mid), payload)]
+
+        def error(code: int) -> list[bytes]:
+            return [build_frame(MID.ERROR, bytes((code,)))]
+
+        if mid == MID.GOTO_CONFIG:
+            self.state = "config"
+            return ack()
+        if mid == MID.GOTO_MEASUREMENT:
+            self.state = "measurement"
+            return ack()
+        if mid == MID.REQ_DATA:
+            return [self._mtdata(t, record=True)]
+        if mid == MID.REQ_DID:
+            return ack(struct.pack(">I", self.device_id))
+        if self.state != "config":
+            return error(ERR_INVALID_MESSAGE)
+        if mid == MID.SET_OUTPUT_MODE:
+            if not data:
+                return ack(struct.pack(">H", self.mode))
+            if len(data) != 2:
+                return error(ERR_INVALID_PARAMETER)
+            self.mode = struct.unpack(">H", data)[0]
+            return ack()
+        if mid == MID.SET_OUTPUT_SETTINGS:
+            if not data:
+                return ack(struct.pack(">I", self.settings))
+            if len(data) != 4:
+                return error(ERR_INVALID_PARAMETER)
+            self.settings = struct.unpack(">I", data)[0]
+            return ack()
+        if mid == MID.SET_OUTPUT_SKIP_FACTOR:
+            if len(data) != 2:
+                return error(ERR_INVALID_PARAMETER)
+            self.skip_factor = struct.unpack(">H", data)[0]
+            return ack()
+        if mid == MID.SET_PERIOD:
+            if len(data) != 2:
+                return error(ERR_INVALID_PARAMETER)
+            self.period = struct.unpack(">H", data)[0]
+            return ack()
+        if mid == MID.SET_GPS_LEVER_ARM:
+            if len(data) != 12:
+                return error(ERR_INVALID_PARAMETER)
+            self.lever_arm = struct.unpack(">3f", data)
+            return ack()
+        if mid == MID.SET_SCENARIO:
+            if len(data) != 2:
+                return error(ERR_INVALID_PARAMETER)
+            self.scenario = struct.unpack(">H", data)[0]
+            return ack()
+        if mid == MID.REQ_DATA_LENGTH:
+            try:
+                return [build_frame(MID.DATA_LENGTH, struct.pack(">H", layout(self.mode, self.settings).length))]
+            except MTDataError:
+                return error(ERR_INVALID_PARAMETER)
+        return error(ERR_INVALID_MESSAGE)
+
+    def stream_interval(self) -> float | None:
+        """Clock seconds between unrequested MTData frames; None when the device only answers ReqData."""
+        if self.state != "measurement" or self.skip_factor == 0xFFFF:
+            return None
+        return self.period * (self.skip_factor + 1) / 115200.0
+
+    def stream(self, t: float) -> bytes:
+        return self._mtdata(t, record=False)
+
+    def first_status_time(self, status: int) -> float | None:
+        """Clock time of the first ReqData answered with this status byte."""
+        for t, pose in self.poses_sent:
+            if pose.status == status:  # type: ignore[attr-defined]
+                return t
+        return None
+
+
+class MTiGSimulator:
+    """The device on a pty, served by a thread. ``port`` is the path a driver opens."""
+
+    def __init__(self, world: World, **device_kwargs) -> None:
+        self.world = world
+        self.device = MTiGDevice(world, **device_kwargs)
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.port = os.ttyname(self._slave)
+        self.parser = FrameParser()
+        self.dropped_writes = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> MTiGSimulator:
+        self._thread = threading.Thread(target=self._serve, name="mtig-sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self) -> MTiGSimulator:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _write(self, data: bytes) -> None:
+        try:
+            os.write(self._master, data)
+        except BlockingIOError:
+            self.dropped_writes += 1  # nobody reads the port: a real UART would overrun too
+
+    def _serve(self) -> None:
+        clock = self.world.clock
+        next_stream: float | None = None
+        while not self._stop.is_set():
+            interval = self.device.stream_interval()
+            now = clock.now()
+            if interval is None:
+                next_stream = None
+                timeout = 0.05
+            else:
+                if next_stream is None:
+                    next_stream = now
+                timeout = min(0.05, max(0.0, clock.wall(next_stream - now)))
+            ready, _, _ = select.select([self._master], [], [], timeout)
+            if ready:
+                try:
+                    chunk = os.read(self._master, 4096)
+                except (BlockingIOError, OSError):
+                    chunk = b""
+                for frame in self.parser.feed(chunk):
+                    for reply in self.device.handle(frame, clock.now()):
+                        self._write(reply)
+            if next_stream is not None and self.device.stream_interval() is not None:
+                now = clock.now()
+                if now >= next_stream:
+                    self._write(self.device.stream(now))
+                    next_stream += interval
+                    if next_stream < now:  # fell behind: skip samples rather than send a burst
+                        next_stream = now + interval

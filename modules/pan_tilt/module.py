@@ -1,0 +1,81 @@
+"""The pan & tilt process (SPEC §3.2): CONTROL_ENTRADA, CONTROL_MODO, DATOS in; ERROR out; DSP commands out.
+
+The decisions are in :mod:`modules.pan_tilt.logic`; this class wires them to the bus. CONTROL_MODO and DATOS are
+routed inputs: CONTROL_ENTRADA_PT names the slot numbers they are read from (-1: ignored). The DSP's telemetry
+gives the pan & tilt mode in force when the module (re)starts; the DSP's error reports about this module's own
+batches are forwarded on ERROR.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import msgspec
+
+from bbcs import keys
+from bbcs.errors import BusErrorCode
+from bbcs.module import Control, Module
+from bbcs.slots import InputSlot, OutputSlot, Safety
+from modules.dsp import bus as dsp_bus
+from modules.dsp import protocol as p
+from modules.pan_tilt import logic
+from modules.pan_tilt.dsp_link import DspCommander
+from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ErrorPT, ModoFuncionamientoPT
+from modules.telemetry.feed import Feed
+
+
+class PanTiltModule(Module):
+    name: ClassVar[str] = "pan_tilt"
+    slots = (
+        InputSlot("control_modo", ModoFuncionamientoPT),
+        InputSlot("datos", DatosPT, safety=Safety.UNSAFE),
+        OutputSlot("error", ErrorPT),
+    )
+    control = Control(ControlEntradaPT, {"slot_entrada_control_modos": "control_modo",
+                                         "slot_entrada_datos": "datos"})
+    error_slot = "error"
+
+    def on_start(self) -> None:
+        assert self.session is not None
+        self.state = logic.PanTiltState()
+        dsp = self.context.params.get("dsp", dsp_bus.MODULE)
+        self.dsp = DspCommander(self.session, self.robot, self.module, dsp)
+        self.feeds = [
+            Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT), p.Telemetry,
+                 self._on_telemetry, self.lock, newest_only=True),
+            Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.ERRORS_SLOT), dsp_bus.DspErrorReport,
+                 self._on_dsp_error, self.lock, newest_only=False),
+        ]
+
+    def on_stop(self) -> None:
+        for feed in getattr(self, "feeds", ()):
+            feed.close()
+        if hasattr(self, "dsp"):
+            self.dsp.close()
+
+    def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
+        """Out-of-range fields get the documented per-field code; undecodable data keep the bus's MALFORMED."""
+        code = super().error_code_for(slot, field, error)
+        if code == BusErrorCode.OUT_OF_RANGE:
+            return logic.field_code(slot, field) or code
+        return code
+
+    def _apply(self, decision: logic.Decision) -> None:
+        self.state = decision.state
+        for code in decision.errors:
+            self.report_error(code, decision.detail)
+        if decision.commands:
+            self.dsp.send(decision.commands)
+            self.log.debug("%s: %d command(s)", decision.detail, len(decision.commands))
+
+    def on_control_modo(self, msg: ModoFuncionamientoPT) -> None:
+        self._apply(logic.on_control_modo(self.state, msg))
+
+    def on_datos(self, msg: DatosPT) -> None:
+        self._apply(logic.on_datos(self.state, msg))
+
+    def _on_telemetry(self, t: p.Telemetry) -> None:
+        self.state = logic.on_telemetry(self.state, t)
+
+    def _on_dsp_error(self, report: dsp_bus.DspErrorReport) -> None:
+        self._apply(logic.on_dsp_error(self.state, report, self.module))

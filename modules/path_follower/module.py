@@ -1,0 +1,141 @@
+"""The path follower / bridge process (SPEC §3.3): CONTROL_ENTRADA, CONTROL_MODO, HEADING, VELOCIDAD, DATOS,
+REFS in; ERROR out; DSP commands out.
+
+The decisions are in :mod:`modules.path_follower.logic`; this class wires them to the bus. CONTROL_MODO,
+HEADING, VELOCIDAD and DATOS are routed by CONTROL_ENTRADA_SEG_CAM (-1: ignored); REFS is read on this module's
+own ``refs`` key. MAX_SPEED comes from the robot .conf (``--conf``): without it the module does not start.
+DSP errors about this module's batches, and DSP faults that stop ordered tasks, are forwarded on ERROR.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import msgspec
+
+from bbcs import keys
+from bbcs.conf import ConfError, load_conf
+from bbcs.errors import BusErrorCode
+from bbcs.module import Control, Module
+from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
+from modules.dsp import bus as dsp_bus
+from modules.dsp import protocol as p
+from modules.pan_tilt.dsp_link import DspCommander
+from modules.path_follower import logic
+from modules.path_follower.structs import (
+    ControlEntradaSegCam,
+    ControlModoSegCam,
+    DatosSegCam,
+    ErrorSegCam,
+    HeadingSegCam,
+    RefsSegCam,
+    SpeedSegCam,
+)
+from modules.telemetry.feed import Feed
+
+MODE_BATCH_MEMORY = 256
+"""How many recent mode-change batches are remembered to undo the mode if the DSP refuses one."""
+
+
+def load_max_speed(conf_path: str | None) -> float:
+    """MAX_SPEED (m/s) of the robot .conf; ConfError (file, line) when missing or not a positive number."""
+    if not conf_path:
+        raise ConfError("the path follower needs the robot .conf (--conf) for MAX_SPEED", path="<none>")
+    doc = load_conf(conf_path)
+    text = doc.require("MAX_SPEED")
+    entry = doc.entries["MAX_SPEED"]
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and 0.0 < value <= p.MAX_SPEED_LIMIT):
+        raise ConfError(f"key 'MAX_SPEED': {text!r} is not a speed in (0, {p.MAX_SPEED_LIMIT}] m/s",
+                        path=doc.path, line=entry.line, column=entry.column)
+    return value
+
+
+class PathFollowerModule(Module):
+    name: ClassVar[str] = "path_follower"
+    slots = (
+        InputSlot("control_modo", ControlModoSegCam),
+        InputSlot("heading", HeadingSegCam, safety=Safety.UNSAFE),
+        InputSlot("velocidad", SpeedSegCam, safety=Safety.UNSAFE),
+        InputSlot("datos", DatosSegCam, kind=Kind.STREAM),
+        InputSlot("refs", RefsSegCam, safety=Safety.UNSAFE),
+        OutputSlot("error", ErrorSegCam),
+    )
+    control = Control(ControlEntradaSegCam, {"slot_entrada_control_modos": "control_modo",
+                                             "slot_entrada_heading": "heading",
+                                             "slot_entrada_speed": "velocidad",
+                                             "slot_entrada_datos": "datos"})
+    error_slot = "error"
+
+    def __init__(self, context) -> None:  # type: ignore[no-untyped-def]
+        super().__init__(context)
+        self.max_speed = load_max_speed(context.conf)
+
+    def on_start(self) -> None:
+        assert self.session is not None
+        self.state = logic.FollowerState()
+        self._mode_batches: dict[int, int | None] = {}
+        dsp = self.context.params.get("dsp", dsp_bus.MODULE)
+        self.dsp = DspCommander(self.session, self.robot, self.module, dsp)
+        self.feeds = [
+            Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT), p.Telemetry,
+                 self._on_telemetry, self.lock, newest_only=True),
+            Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.ERRORS_SLOT), dsp_bus.DspErrorReport,
+                 self._on_dsp_error, self.lock, newest_only=False),
+        ]
+
+    def on_stop(self) -> None:
+        for feed in getattr(self, "feeds", ()):
+            feed.close()
+        if hasattr(self, "dsp"):
+            self.dsp.close()
+
+    def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
+        """Out-of-range fields get the documented per-field code; undecodable data keep the bus's MALFORMED."""
+        code = super().error_code_for(slot, field, error)
+        if code == BusErrorCode.OUT_OF_RANGE:
+            return logic.field_code(slot, field) or code
+        return code
+
+    def _apply(self, decision: logic.Decision) -> int | None:
+        self.state = decision.state
+        for code in decision.errors:
+            self.report_error(code, decision.detail)
+        batch = self.dsp.send(decision.commands)
+        if batch is not None:
+            self.log.debug("%s: batch %d, %d command(s)", decision.detail, batch, len(decision.commands))
+        return batch
+
+    def on_control_modo(self, msg: ControlModoSegCam) -> None:
+        before = self.state.mode
+        decision = logic.on_control_modo(self.state, msg)
+        batch = self._apply(decision)
+        if batch is not None and msg.modo_o_comando == logic.MODE_CHANGE:
+            self._mode_batches[batch] = before
+            while len(self._mode_batches) > MODE_BATCH_MEMORY:
+                del self._mode_batches[next(iter(self._mode_batches))]
+
+    def on_heading(self, msg: HeadingSegCam) -> None:
+        self._apply(logic.on_heading(self.state, msg))
+
+    def on_velocidad(self, msg: SpeedSegCam) -> None:
+        self._apply(logic.on_velocidad(self.state, msg, self.max_speed))
+
+    def on_datos(self, msg: DatosSegCam) -> None:
+        self._apply(logic.on_datos(self.state, msg))
+
+    def on_refs(self, msg: RefsSegCam) -> None:
+        self._apply(logic.on_refs(self.state, msg))
+
+    def _on_telemetry(self, t: p.Telemetry) -> None:
+        self.state = logic.on_telemetry(self.state, t)
+
+    def _on_dsp_error(self, report: dsp_bus.DspErrorReport) -> None:
+        own_mode_batch = report.sender == self.module and report.batch_id in self._mode_batches
+        before = self._mode_batches.pop(report.batch_id, None) if own_mode_batch else None
+        self._apply(logic.on_dsp_error(self.state, report, self.module, restore_mode=own_mode_batch,
+                                       mode_before=before))

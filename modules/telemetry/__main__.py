@@ -1,0 +1,5 @@
+"""``python -m modules.telemetry``."""
+
+from modules.telemetry.module import TelemetryModule
+
+raise SystemExit(TelemetryModule.main())

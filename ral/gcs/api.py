@@ -1,0 +1,229 @@
+"""The ground-station Python API: everything ``cromat gcs`` does, for scripts and other programs.
+
+A :class:`Gcs` is one Zenoh client session to a robot router (plain TCP, TLS with a client certificate, or a
+Zenoh config file). With ``link=True`` it also holds a liveliness token and sends heartbeats, so the robots'
+link-loss failsafe counts it as a ground station; one-shot commands leave it off.
+
+Errors: :class:`Unreachable` when the router cannot be reached or refuses the credentials, :class:`NoReply`
+when no robot answers (not running, or this identity is not allowed to ask), :class:`GcsError` otherwise.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import msgspec
+import zenoh
+import zenoh.ext
+
+from bbcs import keys
+from bbcs.errors import SessionError
+from bbcs.session import SessionConfig, TlsConfig, open_session
+from module_manager import mri
+from ral import gri
+
+HEARTBEAT_S = 0.5
+
+
+class GcsError(RuntimeError):
+    pass
+
+
+class Unreachable(GcsError):
+    """The robot router could not be reached, or it refused this station's credentials."""
+
+
+class NoReply(GcsError):
+    """Nothing answered: the robot is not running, or access control dropped the request."""
+
+
+def session_config(connect: list[str] | None = None, *, ca: str | None = None, cert: str | None = None,
+                   key: str | None = None, config_file: str | None = None,
+                   connect_timeout_s: float = 5.0) -> SessionConfig:
+    """A client configuration: ``connect`` endpoints (``tls/HOST:PORT`` needs ``ca`` and usually cert+key)."""
+    endpoints = connect or ["tcp/127.0.0.1:7447"]
+    tls = None
+    if any(e.startswith("tls/") for e in endpoints) or ca:
+        if not ca:
+            raise GcsError("a tls/ endpoint needs --ca (the CA that signed the robot router's certificate)")
+        if bool(cert) != bool(key):
+            raise GcsError("--cert and --key go together")
+        tls = TlsConfig(root_ca=ca, cert=cert, key=key, mtls=bool(cert))
+    return SessionConfig(mode="client", connect=endpoints, tls=tls, config_file=config_file,
+                         connect_timeout_s=connect_timeout_s)
+
+
+class Subscription:
+    """A live feed (state or events); ``close()`` undeclares it (also on ``with`` exit)."""
+
+    def __init__(self, entity: Any) -> None:
+        self._entity = entity
+
+    def close(self) -> None:
+        if self._entity is not None:
+            self._entity.undeclare()
+            self._entity = None
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+
+class Gcs:
+    """One ground station's connection to the robots behind one router."""
+
+    def __init__(self, config: SessionConfig, *, name: str = "gcs", link: bool = False,
+                 timeout_s: float = 5.0) -> None:
+        self.name = keys.validate_name(name, "GCS name")
+        self.timeout_s = timeout_s
+        try:
+            self.session = open_session(config)
+        except SessionError as exc:
+            raise Unreachable(f"cannot reach the robot router ({', '.join(config.connect)}), or it refused "
+                              f"this station's credentials: {exc}") from None
+        self._closed = False
+        self._stop = threading.Event()
+        self._token: Any = None
+        self._beat: threading.Thread | None = None
+        self._subs: list[Subscription] = []
+        if link:
+            self._token = self.session.liveliness().declare_token(gri.gcs_alive_key(self.name))
+            self._hb_pub = self.session.declare_publisher(gri.gcs_heartbeat_key(self.name))
+            self._beat = threading.Thread(target=self._heartbeat, name="gcs.heartbeat", daemon=True)
+            self._beat.start()
+
+    def _heartbeat(self) -> None:
+        seq = 0
+        while not self._stop.is_set():
+            seq += 1
+            self._hb_pub.put(gri.encode(gri.GcsHeartbeat(gcs=self.name, seq=seq, stamp=time.time())))
+            self._stop.wait(HEARTBEAT_S)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        if self._beat is not None:
+            self._beat.join(2.0)
+            self._hb_pub.undeclare()
+        for sub in self._subs:
+            sub.close()
+        if self._token is not None:
+            self._token.undeclare()
+        self.session.close()
+
+    def __enter__(self) -> Gcs:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------ discovery and state
+
+    def robots(self, timeout_s: float | None = None) -> list[str]:
+        """Robots whose RAL holds a liveliness token now."""
+        found = set()
+        for reply in self.session.liveliness().get(f"{keys.ROOT}/*/@alive/ral",
+                                                   timeout=timeout_s or self.timeout_s):
+            if reply.ok is not None:
+                found.add(keys.parse_alive_key(str(reply.ok.key_expr))[0])
+        return sorted(found)
+
+    def watch(self, robot: str, callback: Callable[[gri.GriState], None]) -> Subscription:
+        """Call ``callback`` with every GRI state of ``robot`` (``*``: every robot), the last one first."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                callback(gri.decode_state(sample.payload.to_bytes()))
+            except msgspec.MsgspecError:
+                return
+
+        sub = Subscription(zenoh.ext.declare_advanced_subscriber(
+            self.session, gri.state_key(robot), on_sample,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)))
+        self._subs.append(sub)
+        return sub
+
+    def events(self, robot: str, callback: Callable[[gri.GriEvent], None]) -> Subscription:
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                callback(gri.decode_event(sample.payload.to_bytes()))
+            except msgspec.MsgspecError:
+                return
+
+        sub = Subscription(self.session.declare_subscriber(gri.events_key(robot), on_sample))
+        self._subs.append(sub)
+        return sub
+
+    def state(self, robot: str, timeout_s: float | None = None) -> gri.GriState:
+        """The robot's current GRI state (NoReply if none arrives in time)."""
+        got: list[gri.GriState] = []
+        ready = threading.Event()
+
+        def keep(state: gri.GriState) -> None:
+            got.append(state)
+            ready.set()
+
+        with self.watch(robot, keep) as sub:
+            ready.wait(timeout_s or self.timeout_s)
+            self._subs.remove(sub)
+        if not got:
+            raise NoReply(f"no state from robot {robot!r} within {timeout_s or self.timeout_s:g} s: "
+                          "is its RAL running, and may this station read it?")
+        return got[-1]
+
+    def errors(self, robot: str) -> list[gri.ErrorRecord]:
+        return self.state(robot).errors
+
+    # ------------------------------------------------------------ tasks
+
+    def send(self, robot: str, request: gri.TaskRequest, timeout_s: float | None = None) -> gri.TaskReply:
+        """Submit one task request; the reply says accepted, or rejected and why."""
+        wait = timeout_s or self.timeout_s
+        for reply in self.session.get(gri.task_key(robot), payload=gri.encode(request), timeout=wait):
+            if reply.ok is None:
+                continue
+            try:
+                return gri.decode_reply(reply.ok.payload.to_bytes())
+            except msgspec.MsgspecError as exc:
+                raise GcsError(f"unreadable task reply from robot {robot!r}: {exc}") from None
+        raise NoReply(f"no answer from robot {robot!r} to {gri.kind_of(request)} within {wait:g} s: the robot "
+                      "is not running or unreachable, or this station's identity may not submit tasks")
+
+    def abort(self, robot: str) -> gri.TaskReply:
+        return self.send(robot, gri.Abort())
+
+    # ------------------------------------------------------------ modules (MRI, read-only plus route swaps)
+
+    def _mri(self, robot: str, verb: str, request: msgspec.Struct) -> mri.MriReply:
+        try:
+            reply = mri.call(self.session, robot, verb, request, self.timeout_s)
+        except mri.MriError as exc:
+            raise NoReply(f"{exc} (or this station may not ask it)") from None
+        if not reply.ok:
+            raise GcsError(f"robot {robot!r} refused {verb}: {reply.reason}")
+        return reply
+
+    def modules(self, robot: str) -> mri.ModuleList:
+        data = self._mri(robot, "modules", mri.ListModules()).data
+        if not isinstance(data, mri.ModuleList):
+            raise GcsError(f"robot {robot!r}: the manager's module list is missing")
+        return data
+
+    def routes(self, robot: str) -> mri.RouteList:
+        data = self._mri(robot, "routes", mri.ListRoutes()).data
+        if not isinstance(data, mri.RouteList):
+            raise GcsError(f"robot {robot!r}: the manager's route list is missing")
+        return data
+
+    def route(self, robot: str, module: str, input: str, slot: int) -> mri.RouteList:
+        """Swap ``module``'s ``input`` to slot number ``slot`` (-1: ignore); the routes after the swap."""
+        data = self._mri(robot, "route", mri.SwapRoute(module=module, input=input, slot=slot)).data
+        if not isinstance(data, mri.RouteList):
+            raise GcsError(f"robot {robot!r}: no route list in the swap reply")
+        return data

@@ -1,0 +1,95 @@
+"""Bus modules used by the module-manager tests: a recording sink with one routed input, and a source."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Annotated
+
+import msgspec
+
+from bbcs.module import Control, Module
+from bbcs.slots import InputSlot, Kind, OutputSlot
+
+
+class ProbeMsg(msgspec.Struct, frozen=True, kw_only=True):
+    source: str
+    seq: int
+
+
+class OtherMsg(msgspec.Struct, frozen=True, kw_only=True):
+    """A struct of another type: routing a ProbeMsg input to it must be refused."""
+
+    value: float
+
+
+class SinkControl(msgspec.Struct, frozen=True, kw_only=True):
+    slot_entrada_datos: Annotated[int, msgspec.Meta(ge=-1)] = -1
+    slot_entrada_modo: Annotated[int, msgspec.Meta(ge=-1)] = -1
+
+
+class SinkMode(msgspec.Struct, frozen=True, kw_only=True):
+    mode: Annotated[int, msgspec.Meta(ge=0, le=2)]
+
+
+class SinkError(msgspec.Struct, frozen=True, kw_only=True):
+    error_sink: int
+
+
+class Sink(Module):
+    """Records every datum and route switch as JSON lines to ``params['record']``.
+
+    ``params['crash']``: ``always`` exits with status 3 right after joining the bus (a module that always crashes).
+    """
+
+    name = "sink"
+    slots = (
+        InputSlot("datos", ProbeMsg, kind=Kind.STREAM),
+        InputSlot("modo", SinkMode),
+        OutputSlot("error", SinkError),
+    )
+    control = Control(SinkControl, {"slot_entrada_datos": "datos", "slot_entrada_modo": "modo"})
+    error_slot = "error"
+
+    def on_start(self) -> None:
+        if self.context.params.get("crash") == "always":
+            os._exit(3)
+        record = self.context.params.get("record")
+        self.record = Path(record).open("a", buffering=1) if record else None
+        self._write({"event": "start", "restart": self.restart_count, "routes": self.routes})
+
+    def on_stop(self) -> None:
+        self._write({"event": "stop"})
+        if self.record is not None:
+            self.record.close()
+
+    def _write(self, row: dict) -> None:
+        if self.record is not None:
+            self.record.write(json.dumps({"module": self.module, **row}) + "\n")
+
+    def on_datos(self, msg: ProbeMsg) -> None:
+        self._write({"slot": "datos", "source": msg.source, "seq": msg.seq})
+
+    def on_modo(self, msg: SinkMode) -> None:
+        self._write({"slot": "modo", "mode": msg.mode})
+        if msg.mode == 2:
+            self.report_error(142, "mode 2 asked: reported as an error code for the robot state")
+
+    def on_route_change(self, routes: dict[str, int]) -> None:
+        self._write({"event": "route", "routes": routes})
+
+
+class Source(Module):
+    """Publishes ProbeMsg(source=<instance name>) on ``datos`` every ``params['period_ms']`` (default 10)."""
+
+    name = "source"
+    slots = (OutputSlot("datos", ProbeMsg, kind=Kind.STREAM),)
+
+    def on_start(self) -> None:
+        self.seq = 0
+        self.tick_period = float(self.context.params.get("period_ms", "10")) / 1000
+
+    def on_tick(self) -> None:
+        self.seq += 1
+        self.publish("datos", ProbeMsg(source=self.module, seq=self.seq))

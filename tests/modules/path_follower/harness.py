@@ -1,0 +1,128 @@
+"""Test harness for the UAV modules: start one as a process on a real router and watch the bus around it.
+
+``Watch`` records, from the bus, every DSP command batch sent to ``cromat/<robot>/dsp/commands``, every code on
+the module's ERROR slot and every route acknowledgement. ``Source`` publishes what another module would.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import threading
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from bbcs import keys
+from bbcs.codec import type_name
+from bbcs.routing import RouteAck, SlotRef, SlotTable
+from bbcs.slots import Kind, OutputSlot, Publisher, Safety
+from bbcs.testing import Processes, wait_until
+from modules.dsp.bus import DspCommands
+from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ErrorPT, ModoFuncionamientoPT
+from modules.path_follower.structs import (
+    ControlEntradaSegCam,
+    ControlModoSegCam,
+    DatosSegCam,
+    ErrorSegCam,
+    HeadingSegCam,
+    SpeedSegCam,
+)
+
+ROOT = Path(__file__).resolve().parents[3]
+CONF = ROOT / "bbcs_conf" / "uav1.conf"
+ROBOT = "r1"
+
+# slot numbers of the test robot's table: who else publishes what
+TABLE = {
+    1: ("gcs", "modo", ControlModoSegCam), 2: ("gcs", "heading", HeadingSegCam),
+    3: ("gcs", "speed", SpeedSegCam), 4: ("planner", "path", DatosSegCam), 5: ("vision", "path", DatosSegCam),
+    10: ("gcs", "pt_modo", ModoFuncionamientoPT), 11: ("vision_a", "datos_pt", DatosPT),
+    12: ("vision_b", "datos_pt", DatosPT),
+}
+FOLLOWER_ROUTES = ControlEntradaSegCam(slot_entrada_control_modos=1, slot_entrada_heading=2, slot_entrada_speed=3,
+                                       slot_entrada_datos=4)
+ERROR_TYPES = {"path_follower": (ErrorSegCam, "error_seg_cam"), "pan_tilt": (ErrorPT, "error_pan_tilt")}
+
+
+def write_table(tmp_path: Path) -> Path:
+    path = tmp_path / "slots.json"
+    path.write_bytes(msgspec.json.encode(SlotTable(robot=ROBOT, slots={
+        n: SlotRef(module=m, slot=s, type=type_name(t)) for n, (m, s, t) in TABLE.items()})))
+    return path
+
+
+def start_module(processes: Processes, router: int, tmp_path: Path, module: str, *routes: str) -> subprocess.Popen:
+    args = ["-m", f"modules.{module}", "--robot", ROBOT, "--connect", f"tcp/127.0.0.1:{router}",
+            "--slot-table", str(write_table(tmp_path)), "--conf", str(CONF)]
+    for r in routes:
+        args += ["--route", r]
+    return processes.start(args)
+
+
+class Watch:
+    """What the module under test did, as seen on the bus."""
+
+    def __init__(self, session: Any, module: str) -> None:
+        self.cond = threading.Condition()
+        self.batches: list[DspCommands] = []
+        self.errors: list[int] = []
+        self.acks: list[RouteAck] = []
+        self.alive = threading.Event()
+        etype, efield = ERROR_TYPES[module]
+        dec_b = msgspec.msgpack.Decoder(DspCommands).decode
+        dec_e = msgspec.msgpack.Decoder(etype).decode
+        dec_a = msgspec.msgpack.Decoder(RouteAck).decode
+
+        def keep(target: list, value: Any) -> None:
+            with self.cond:
+                target.append(value)
+                self.cond.notify_all()
+
+        self.subs = [
+            session.declare_subscriber(keys.slot_key(ROBOT, "dsp", "commands"),
+                                       lambda s: keep(self.batches, dec_b(s.payload.to_bytes()))),
+            session.declare_subscriber(keys.slot_key(ROBOT, module, "error"),
+                                       lambda s: keep(self.errors, getattr(dec_e(s.payload.to_bytes()), efield))),
+            session.declare_subscriber(keys.route_ack_key(ROBOT, module),
+                                       lambda s: keep(self.acks, dec_a(s.payload.to_bytes()))),
+            session.liveliness().declare_subscriber(keys.alive_key(ROBOT, module), lambda s: self.alive.set(),
+                                                    history=True),
+        ]
+
+    def commands(self, sender: str | None = None) -> list[Any]:
+        with self.cond:
+            return [c for b in self.batches if sender in (None, b.sender) for c in b.commands]
+
+    def wait_alive(self) -> None:
+        assert self.alive.wait(20), "the module never became alive"
+
+    def wait_for(self, predicate, what: str, deadline_s: float = 10.0) -> None:
+        wait_until(predicate, deadline_s, what)
+
+    def close(self) -> None:
+        for sub in self.subs:
+            sub.undeclare()
+
+
+class Source:
+    """Publishes as module/slot with the QoS of its kind."""
+
+    def __init__(self, session: Any, module: str, slot: str, typ: type, *, kind: Kind = Kind.STATE,
+                 safety: Safety = Safety.SAFE) -> None:
+        self.pub = Publisher(session, keys.slot_key(ROBOT, module, slot), OutputSlot(slot, typ, kind=kind,
+                                                                                     safety=safety))
+
+    def send(self, value: Any) -> None:
+        self.pub.publish(value)
+
+    def send_raw(self, payload: bytes) -> None:
+        self.pub.publish_raw(payload)
+
+    def close(self) -> None:
+        self.pub.close()
+
+
+def control_source(session: Any, module: str) -> Source:
+    typ = ControlEntradaSegCam if module == "path_follower" else ControlEntradaPT
+    return Source(session, module, "control_entrada", typ)

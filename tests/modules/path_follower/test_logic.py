@@ -1,0 +1,222 @@
+"""Path follower decisions: every row of SPEC §3.3's table, HEADING/VELOCIDAD/DATOS/REFS, every range bound."""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+import pytest
+
+from bbcs.codec import field_of
+from modules.dsp import protocol as p
+from modules.dsp.bus import DspErrorReport
+from modules.path_follower import logic
+from modules.path_follower.logic import FollowerError, FollowerState
+from modules.path_follower.structs import (
+    ControlEntradaSegCam,
+    ControlModoSegCam,
+    DatoPuntoSegCam,
+    DatosSegCam,
+    HeadingSegCam,
+    RefsSegCam,
+    SpeedSegCam,
+)
+
+PT = DatoPuntoSegCam(latitud=37.4118, longitud=-6.0024, altura=20.0)
+REFS = RefsSegCam(ref_altura=20.0, error_longitudinal=1.0, error_lateral=-1.0, ref_heading=0.5, ref_rpm_motor=1500)
+
+
+def mode(m: int) -> ControlModoSegCam:
+    return ControlModoSegCam(modo_o_comando=0, modo_de_funcionamiento=m)
+
+
+def path(n: int) -> DatosSegCam:
+    return DatosSegCam(n_points=n, puntos=[PT] * n)
+
+
+def test_abort_empties_both_queues():
+    s = FollowerState(mode=0, path=(PT, PT))
+    d = logic.on_control_modo(s, ControlModoSegCam(modo_o_comando=1, numero_de_comando=0))
+    assert d.commands == (p.Abort(),) and d.errors == ()
+    assert d.state.path == () and d.state.mode == 0
+
+
+def test_mode_0_sets_mode_and_enables_tracking():
+    d = logic.on_control_modo(FollowerState(), mode(0))
+    assert d.commands == (p.SetMode(mode=p.Mode.PATH_AUTO_HEADING), p.SetTracking(enable=True))
+    assert d.state.mode == 0
+
+
+def test_mode_1_sends_current_heading_with_mode_and_enables_tracking():
+    d = logic.on_control_modo(FollowerState(heading_deg=123.5), mode(1))
+    assert d.commands == (p.SetHeading(heading_deg=pytest.approx(123.5)), p.SetMode(mode=p.Mode.PATH_GIVEN_HEADING),
+                          p.SetTracking(enable=True))
+    assert d.state.mode == 1
+
+
+def test_mode_1_without_a_known_heading_is_refused():
+    s = FollowerState(mode=0)
+    d = logic.on_control_modo(s, mode(1))
+    assert d.commands == () and d.errors == (FollowerError.HEADING_UNKNOWN,) and d.state == s
+
+
+def test_mode_2_disables_tracking_and_invalidates():
+    d = logic.on_control_modo(FollowerState(mode=0, path=(PT,)), mode(2))
+    assert d.commands == (p.SetMode(mode=p.Mode.SEMI_AUTOMATIC), p.SetTracking(enable=False), p.InvalidatePath())
+    assert d.state.path == ()
+
+
+def test_mode_3_answers_an_error_and_changes_nothing():
+    s = FollowerState(mode=0, path=(PT,))
+    d = logic.on_control_modo(s, mode(3))
+    assert d.commands == () and d.errors == (FollowerError.ONBOARD_FOLLOWER_NOT_BUILT,) and d.state == s
+
+
+@pytest.mark.parametrize("m", [4, 5])
+def test_take_off_and_landing(m):
+    d = logic.on_control_modo(FollowerState(mode=0, path=(PT,)), mode(m))
+    assert d.commands == (p.SetTracking(enable=False), p.InvalidatePath(), p.SetMode(mode=p.Mode(m)))
+    assert d.state.mode == m and d.state.path == ()
+
+
+def test_mode_6_bridge():
+    d = logic.on_control_modo(FollowerState(), mode(6))
+    assert d.commands == (p.SetMode(mode=p.Mode.BRIDGE),)
+
+
+def test_heading_only_in_mode_1_in_degrees():
+    for m in (None, 0, 2, 3, 4, 5, 6):
+        assert logic.on_heading(FollowerState(mode=m), HeadingSegCam(heading=1.0)).commands == ()
+    d = logic.on_heading(FollowerState(mode=1), HeadingSegCam(heading=-math.pi / 2))
+    assert d.commands == (p.SetHeading(heading_deg=-90.0),)
+    assert logic.on_heading(FollowerState(mode=1), HeadingSegCam(heading=-math.pi)).commands[0].heading_deg == -180
+
+
+@pytest.mark.parametrize("m", [None, 0, 1, 2, 4, 5, 6])
+def test_speed_always_sent(m):
+    d = logic.on_velocidad(FollowerState(mode=m), SpeedSegCam(speed=8.0), max_speed=8.0)
+    assert d.commands == (p.SetSpeed(speed=8.0),)
+
+
+@pytest.mark.parametrize("speed", [8.0001, math.inf])
+def test_speed_above_max_refused(speed):
+    d = logic.on_velocidad(FollowerState(mode=0), SpeedSegCam(speed=speed), max_speed=8.0)
+    assert d.commands == () and d.errors == (FollowerError.SPEED_ABOVE_MAX,)
+
+
+@pytest.mark.parametrize("m", [0, 1])
+def test_datos_in_modes_0_and_1_sends_every_waypoint(m):
+    pts = [DatoPuntoSegCam(latitud=37.0 + i / 1e4, longitud=-6.0, altura=10.0 + i) for i in range(3)]
+    d = logic.on_datos(FollowerState(mode=m), DatosSegCam(n_points=3, puntos=pts))
+    assert d.commands == tuple(p.AddWaypoint(lat=q.latitud, lon=q.longitud, alt=q.altura) for q in pts)
+    assert d.state.path == tuple(pts)
+
+
+@pytest.mark.parametrize("m", [None, 2, 4, 5, 6])
+def test_datos_ignored_in_other_modes(m):
+    d = logic.on_datos(FollowerState(mode=m), path(2))
+    assert d.commands == () and d.errors == ()
+
+
+@pytest.mark.parametrize("n,count", [(3, 2), (1, 2), (2, 0)])
+def test_datos_count_mismatch_rejects_the_whole_message(n, count):
+    d = logic.on_datos(FollowerState(mode=0), DatosSegCam(n_points=n, puntos=[PT] * count))
+    assert d.commands == () and d.errors == (FollowerError.N_POINTS_MISMATCH,)
+
+
+def test_datos_one_bad_altitude_rejects_the_whole_message():
+    pts = [PT, DatoPuntoSegCam(latitud=1.0, longitud=1.0, altura=math.nan), PT]
+    d = logic.on_datos(FollowerState(mode=0), DatosSegCam(n_points=3, puntos=pts))
+    assert d.commands == () and d.errors == (FollowerError.ALTURA_NOT_REPRESENTABLE,)
+
+
+def test_datos_longer_than_the_dsp_queue_is_refused():
+    assert len(logic.on_datos(FollowerState(mode=0), path(512)).commands) == 512
+    d = logic.on_datos(FollowerState(mode=0), path(513))
+    assert d.commands == () and d.errors == (FollowerError.PATH_TOO_LONG,)
+
+
+def test_refs_only_in_mode_6_as_they_are():
+    for m in (None, 0, 1, 2, 3, 4, 5):
+        assert logic.on_refs(FollowerState(mode=m), REFS).commands == ()
+    d = logic.on_refs(FollowerState(mode=6), REFS)
+    assert d.commands == (p.SetRefs(ref_altura=20.0, error_longitudinal=1.0, error_lateral=-1.0, ref_heading=0.5,
+                                    ref_rpm_motor=1500.0),)
+
+
+@pytest.mark.parametrize("field", ["ref_altura", "error_longitudinal", "error_lateral"])
+def test_refs_not_representable(field):
+    d = logic.on_refs(FollowerState(mode=6), msgspec.structs.replace(REFS, **{field: math.inf}))
+    assert d.commands == () and d.errors == (FollowerError.REF_NOT_REPRESENTABLE,)
+
+
+def test_telemetry_gives_heading_and_mode_until_commanded():
+    t = p.Telemetry(time_ms=0, heading=42.0,
+                    status=p.DspStatus(mode=0, tracking=True, path_valid=True, airborne=True, queue_length=3))
+    s = logic.on_telemetry(FollowerState(), t)
+    assert s.heading_deg == 42.0 and s.mode == 0
+    s = logic.on_control_modo(s, mode(6)).state
+    assert logic.on_telemetry(s, t).mode == 6
+
+
+def test_dsp_errors_forwarded_and_refused_mode_undone():
+    s = FollowerState(mode=6, mode_from_command=True)
+    own = DspErrorReport(code=3, name="NOT_CONFIGURED", detail="", sender="path_follower", batch_id=7)
+    d = logic.on_dsp_error(s, own, "path_follower", restore_mode=True, mode_before=2)
+    assert d.errors == (1003,) and d.state.mode == 2
+    fault = DspErrorReport(code=int(p.ErrorCode.GPS_LOST), name="GPS_LOST", detail="")
+    assert logic.on_dsp_error(s, fault, "path_follower").errors == (1006,)
+    rx = DspErrorReport(code=int(p.ErrorCode.RX_ERRORS), name="RX_ERRORS", detail="")
+    assert logic.on_dsp_error(s, rx, "path_follower").errors == ()
+    other = DspErrorReport(code=2, name="WRONG_MODE", detail="", sender="pan_tilt")
+    assert logic.on_dsp_error(s, other, "path_follower").errors == ()
+
+
+# every range bound: (slot, struct, base, field path, in-range bound, just outside, code)
+DP = {"latitud": 0.0, "longitud": 0.0, "altura": 0.0}
+CM = {"modo_o_comando": 0}
+RF = {"ref_altura": 0.0, "error_longitudinal": 0.0, "error_lateral": 0.0, "ref_heading": 0.0, "ref_rpm_motor": 0.0}
+E = FollowerError
+BOUNDS = [
+    *[("control_entrada", ControlEntradaSegCam, {}, f, -1, -2, E.CONTROL_ENTRADA_OUT_OF_RANGE)
+      for f in ("slot_entrada_control_modos", "slot_entrada_heading", "slot_entrada_speed", "slot_entrada_datos")],
+    ("control_modo", ControlModoSegCam, CM, "modo_o_comando", 0, -1, E.MODO_O_COMANDO_OUT_OF_RANGE),
+    ("control_modo", ControlModoSegCam, CM, "modo_o_comando", 1, 2, E.MODO_O_COMANDO_OUT_OF_RANGE),
+    ("control_modo", ControlModoSegCam, CM, "modo_de_funcionamiento", 0, -1, E.MODE_OUT_OF_RANGE),
+    ("control_modo", ControlModoSegCam, CM, "modo_de_funcionamiento", 6, 7, E.MODE_OUT_OF_RANGE),
+    ("control_modo", ControlModoSegCam, CM, "numero_de_comando", 0, -1, E.COMMAND_OUT_OF_RANGE),
+    ("control_modo", ControlModoSegCam, CM, "numero_de_comando", 0, 1, E.COMMAND_OUT_OF_RANGE),
+    ("heading", HeadingSegCam, {}, "heading", -math.pi, math.nextafter(-math.pi, -4), E.HEADING_OUT_OF_RANGE),
+    ("heading", HeadingSegCam, {}, "heading", math.nextafter(math.pi, 0), math.pi, E.HEADING_OUT_OF_RANGE),
+    ("velocidad", SpeedSegCam, {}, "speed", 0.0, -1e-9, E.SPEED_OUT_OF_RANGE),
+    ("datos", DatosSegCam, {"puntos": [DP]}, "n_points", 1, 0, E.N_POINTS_OUT_OF_RANGE),
+    ("datos", DatosSegCam, {"puntos": [DP]}, "n_points", 2**32 - 1, 2**32, E.N_POINTS_OUT_OF_RANGE),
+    ("refs", RefsSegCam, RF, "ref_heading", -math.pi, math.nextafter(-math.pi, -4), E.REF_HEADING_OUT_OF_RANGE),
+    ("refs", RefsSegCam, RF, "ref_heading", math.nextafter(math.pi, 0), math.pi, E.REF_HEADING_OUT_OF_RANGE),
+    ("refs", RefsSegCam, RF, "ref_rpm_motor", 0.0, -1e-9, E.REF_RPM_OUT_OF_RANGE),
+    ("refs", RefsSegCam, RF, "ref_rpm_motor", 1800.0, 1800.001, E.REF_RPM_OUT_OF_RANGE),
+]
+POINT_BOUNDS = [
+    ("latitud", -90.0, -90.001, E.LATITUD_OUT_OF_RANGE), ("latitud", 90.0, 90.001, E.LATITUD_OUT_OF_RANGE),
+    ("longitud", -180.0, -180.001, E.LONGITUD_OUT_OF_RANGE), ("longitud", 180.0, 180.001, E.LONGITUD_OUT_OF_RANGE),
+]
+
+
+@pytest.mark.parametrize("slot,typ,base,field,inside,outside,code", BOUNDS)
+def test_every_range_bound(slot, typ, base, field, inside, outside, code):
+    dec = msgspec.msgpack.Decoder(typ)
+    assert getattr(dec.decode(msgspec.msgpack.encode({**base, field: inside})), field) == inside
+    with pytest.raises(msgspec.ValidationError) as info:
+        dec.decode(msgspec.msgpack.encode({**base, field: outside}))
+    assert logic.field_code(slot, field_of(info.value)) == code
+
+
+@pytest.mark.parametrize("field,inside,outside,code", POINT_BOUNDS)
+def test_every_waypoint_bound_in_any_point_rejects_the_whole_message(field, inside, outside, code):
+    dec = msgspec.msgpack.Decoder(DatosSegCam)
+    good = dec.decode(msgspec.msgpack.encode({"n_points": 3, "puntos": [DP, {**DP, field: inside}, DP]}))
+    assert getattr(good.puntos[1], field) == inside
+    with pytest.raises(msgspec.ValidationError) as info:
+        dec.decode(msgspec.msgpack.encode({"n_points": 3, "puntos": [DP, {**DP, field: outside}, DP]}))
+    assert field_of(info.value) == f"$.puntos[1].{field}"
+    assert logic.field_code("datos", field_of(info.value)) == code
