@@ -237,7 +237,7 @@ class DspMachine:
 
     @property
     def time_ms(self) -> int:
-        return int(self.time_s * 1000.0) & 0xFFFFFFFF
+        return round(self.time_s * 1000.0) & 0xFFFFFFFF
 
     @property
     def following(self) -> bool:
@@ -316,7 +316,10 @@ class DspMachine:
             return self._approach(self.bridge_target, vpar.max_speed, vpar.max_climb), heading, self.bridge_rpm
         if self.mode == p.Mode.SEMI_AUTOMATIC and not st.airborne:
             rpm = 0.0
-        return self._approach(self._hold_point, vpar.max_speed, vpar.max_climb), self._hold_heading, rpm
+        heading = self._hold_heading
+        if self.mode == p.Mode.PATH_GIVEN_HEADING and self.heading_ref is not None:
+            heading = self.heading_ref  # mode 1 holds the given heading also while it is not following
+        return self._approach(self._hold_point, vpar.max_speed, vpar.max_climb), heading, rpm
 
     def _pan_tilt(self, dt: float) -> None:
         st = self.vehicle.state

@@ -12,7 +12,6 @@ messages, messages sent in pieces.
 
 from __future__ import annotations
 
-import os
 import select
 import socket
 import struct
@@ -337,6 +336,3 @@ class LdmrsSimulator:
         if client is not None:
             client.close()
 
-
-def pid_note() -> str:
-    return f"pid {os.getpid()}"

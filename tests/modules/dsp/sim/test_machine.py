@@ -156,15 +156,18 @@ def test_mode_0_flies_the_waypoints_in_order_facing_each() -> None:
     closest = [math.inf] * 3
     speeds = []
     heading_errors = []
+    reached, reached_at = 0, 0.0
     for _ in range(round(90 / DT)):
         d.m.step(DT)
         st = d.m.vehicle.state
+        if d.m.waypoints_reached != reached:
+            reached, reached_at = d.m.waypoints_reached, d.m.time_s
         speeds.append(st.ground_speed)
         for i, t in enumerate(targets):
             closest[i] = min(closest[i], float(np.linalg.norm(t - st.pos)))
         if d.m.queue:
             to_go = d.m.queue[0].local - st.pos
-            if math.hypot(to_go[0], to_go[1]) > 10 and st.ground_speed > 2:
+            if math.hypot(to_go[0], to_go[1]) > 10 and d.m.time_s - reached_at > 3.0:  # turned by now
                 bearing = math.degrees(math.atan2(to_go[1], to_go[0]))
                 heading_errors.append(abs((st.heading - bearing + 180) % 360 - 180))
     assert max(heading_errors) < 10  # faces the next waypoint whenever it is on its way
