@@ -85,7 +85,7 @@ class Module:
     control: ClassVar[Control | None] = None
     error_slot: ClassVar[str | None] = None
     """Name of the output slot that carries error codes (its struct has exactly one int field)."""
-    tick_period: ClassVar[float | None] = None
+    tick_period: float | None = None
     """Call ``on_tick`` this often from the main loop (None: never)."""
 
     _inputs: ClassVar[dict[str, SlotSpec[Any]]]

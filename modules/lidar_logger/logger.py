@@ -29,8 +29,8 @@ from modules.lidar_logger.ldmrs import LdmrsClient, LdmrsError, ScannerConfig
 from modules.lidar_logger.ldmrs_proto import Cmd
 from modules.lidar_logger.ldmrs_scan import Scan, layer_elevation_deg
 from modules.lidar_logger.logdata import ScanRecord
-from modules.lidar_logger.mtig import MTiG, MTiGError, PoseSample, PoseSource
 from modules.lidar_logger.mtdata import Pose, utc_to_posix
+from modules.lidar_logger.mtig import MTiG, MTiGError, PoseSample, PoseSource
 from modules.lidar_logger.textlog import TextLogWriter, date_stamp
 
 STOP_REPLY_TIMEOUT_S = 2.0

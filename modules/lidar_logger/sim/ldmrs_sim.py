@@ -208,16 +208,17 @@ class LdmrsDevice:
         layers_per = np.where(angles > TWO_LAYER_ABOVE_TICKS, 2, 4)
         angle = np.repeat(angles, layers_per)
         layer = np.concatenate([np.arange(k) for k in layers_per]).astype(np.int64)
+        rng = self._rng
+        returns = rng.random(len(angle)) < self.options.return_fraction
+        angle, layer = angle[returns], layer[returns]
         t_beam = t_start + self.sweep * (s_t - angle) / (s_t - e_t)
         h = np.radians(angle / TICKS_PER_DEGREE)
         el = np.radians(layer_elevation_deg(layer))
         dirs = np.stack((np.cos(el) * np.cos(h), np.cos(el) * np.sin(h), np.sin(el)), axis=-1)
         origins, world_dirs = self.world.beam_geometry(t_beam, dirs)
         dist = self.world.terrain.ray_cast(origins, world_dirs, self.options.max_range)
-        rng = self._rng
         dist_cm = np.rint(np.nan_to_num(dist, nan=0.0) * 100.0)
         keep = np.isfinite(dist) & (dist_cm >= 1) & (dist_cm <= 0xFFFF)
-        keep &= rng.random(len(angle)) < self.options.return_fraction
         angle, layer, dist_cm = angle[keep], layer[keep], dist_cm[keep].astype(np.int64)
         n = len(angle)
         u = rng.random(n)

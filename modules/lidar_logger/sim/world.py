@@ -25,7 +25,14 @@ from modules.lidar_logger.geodesy import (
     matrix_to_euler,
 )
 from modules.lidar_logger.georef import Mounting
-from modules.lidar_logger.mtdata import STATUS_GPS_FIX, STATUS_SELFTEST_OK, STATUS_XKF_VALID, Pose, UtcTime, utc_from_posix
+from modules.lidar_logger.mtdata import (
+    STATUS_GPS_FIX,
+    STATUS_SELFTEST_OK,
+    STATUS_XKF_VALID,
+    Pose,
+    UtcTime,
+    utc_from_posix,
+)
 
 SEED_UTC_START = 1284103800.0
 """2010-09-10T07:30:00Z, the day of the seed's Figure 44 flights."""
@@ -56,12 +63,23 @@ class Terrain:
         gn = abs(self.slope_n) + sum(amp * 2 * math.pi / ln for amp, _, ln in self.waves)
         return math.hypot(ge, gn)
 
+    def gradient(self, e: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(∂h/∂e, ∂h/∂n)."""
+        ge = np.full(np.shape(e), self.slope_e)
+        gn = np.full(np.shape(n), self.slope_n)
+        for amp, le, ln in self.waves:
+            ke, kn = 2 * np.pi / le, 2 * np.pi / ln
+            ge = ge + amp * ke * np.cos(ke * e) * np.cos(kn * n)
+            gn = gn - amp * kn * np.sin(ke * e) * np.sin(kn * n)
+        return ge, gn
+
     def ray_cast(self, origins: np.ndarray, dirs: np.ndarray, max_range: float) -> np.ndarray:
         """Distance along each unit ray to the terrain (NaN when it misses within ``max_range``).
 
-        f(s) = z(s) − h(x(s), y(s)) is strictly decreasing on a ray with d_z + max_slope·|d_xy| < 0, so its
-        single root is found by bisection to well below a micrometre; other rays are first bracketed by
-        marching in 0.5 m steps.
+        f(s) = z(s) − h(x(s), y(s)) is strictly decreasing on a ray with d_z + max_slope·|d_xy| < 0, so it
+        has one root in [0, max_range] when f(0) > 0 > f(max_range); other rays are first bracketed by
+        marching in 0.5 m steps. The root is polished by Newton steps kept inside the bracket (bisection
+        when a step would leave it) until |f| < 1e-9 m.
         """
         o = np.asarray(origins, dtype=np.float64)
         d = np.asarray(dirs, dtype=np.float64)
@@ -73,28 +91,38 @@ class Terrain:
         n = len(o)
         lo = np.zeros(n)
         hi = np.full(n, float(max_range))
+        above = f(lo) > 0
         monotone = d[:, 2] + self.max_slope * np.hypot(d[:, 0], d[:, 1]) < 0
-        hit = f(hi) < 0
-        hit &= f(lo) > 0
-        steep = np.nonzero(~monotone & (f(lo) > 0))[0]
+        hit = above & monotone & (f(hi) < 0)
+        steep = np.nonzero(above & ~monotone)[0]
         if len(steep):
             grid = np.arange(0.0, max_range + 0.5, 0.5)
             found = np.zeros(len(steep), dtype=bool)
             for a, b in zip(grid[:-1], grid[1:], strict=True):
-                below = f(np.full(len(steep), b), steep) < 0
-                new = below & ~found
-                lo[steep[new]], hi[steep[new]] = a, b
+                below = (f(np.full(len(steep), b), steep) < 0) & ~found
+                lo[steep[below]], hi[steep[below]] = a, b
                 found |= below
             hit[steep] = found
         rows = np.nonzero(hit)[0]
         lo_r, hi_r = lo[rows], hi[rows]
-        for _ in range(50):
-            mid = 0.5 * (lo_r + hi_r)
-            above = f(mid, rows) > 0
-            lo_r = np.where(above, mid, lo_r)
-            hi_r = np.where(above, hi_r, mid)
+        o_r, d_r = o[rows], d[rows]
+        s = 0.5 * (lo_r + hi_r)
+        for _ in range(60):
+            p = o_r + d_r * s[:, None]
+            fs = p[:, 2] - self.height(p[:, 0], p[:, 1])
+            if not len(fs) or np.max(np.abs(fs)) < 1e-9:
+                break
+            pos = fs > 0
+            lo_r = np.where(pos, s, lo_r)
+            hi_r = np.where(pos, hi_r, s)
+            ge, gn = self.gradient(p[:, 0], p[:, 1])
+            slope = d_r[:, 2] - ge * d_r[:, 0] - gn * d_r[:, 1]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                step = s - fs / slope
+            inside = (step > lo_r) & (step < hi_r)
+            s = np.where(inside, step, 0.5 * (lo_r + hi_r))
         out = np.full(n, np.nan)
-        out[rows] = 0.5 * (lo_r + hi_r)
+        out[rows] = s
         return out
 
 

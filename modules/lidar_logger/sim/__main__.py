@@ -1,0 +1,56 @@
+"""Run both simulators as one process (they share the world and its clock).
+
+    python -m modules.lidar_logger.sim [--time-scale 1] [--port 0] [--xkf-valid-at 2] ...
+
+Prints one JSON line ``{"mtig_port": "/dev/pts/N", "ldmrs_host": "127.0.0.1", "ldmrs_port": P, ...}`` then
+serves until SIGINT or SIGTERM, and prints what it did as a second JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+
+from modules.lidar_logger.clock import ScaledClock
+from modules.lidar_logger.sim.ldmrs_sim import LdmrsOptions, LdmrsSimulator
+from modules.lidar_logger.sim.mtig_sim import MTiGSimulator
+from modules.lidar_logger.sim.world import SEED_UTC_START, Flight, World
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m modules.lidar_logger.sim", description=__doc__.split("\n\n")[0])
+    p.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per wall second")
+    p.add_argument("--port", type=int, default=0, help="LD-MRS TCP port on 127.0.0.1 (0 = any free port)")
+    p.add_argument("--utc-start", type=float, default=SEED_UTC_START, help="UTC (POSIX s) at simulation start")
+    p.add_argument("--gps-fix-at", type=float, default=1.0, help="status 0 -> 5 at this simulated time (s)")
+    p.add_argument("--xkf-valid-at", type=float, default=2.0, help="status 5 -> 7 at this simulated time (s)")
+    p.add_argument("--speed", type=float, default=20.0, help="m/s")
+    p.add_argument("--height", type=float, default=90.0, help="flight height above the terrain origin (m)")
+    p.add_argument("--return-fraction", type=float, default=1.0, help="share of beams that return an echo")
+    p.add_argument("--silent-after", type=float, help="stop sending scans this many s after StartMeasure")
+    p.add_argument("--seed", type=int, default=1)
+    args = p.parse_args(argv)
+
+    world = World(clock=ScaledClock(args.time_scale), utc_start=args.utc_start,
+                  flight=Flight(speed=args.speed, height=args.height),
+                  gps_fix_at=args.gps_fix_at, xkf_valid_at=args.xkf_valid_at)
+    options = LdmrsOptions(return_fraction=args.return_fraction, silent_after=args.silent_after, seed=args.seed)
+    done = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: done.set())
+    with MTiGSimulator(world) as imu, LdmrsSimulator(world, options, port=args.port) as lidar:
+        print(json.dumps({"mtig_port": imu.port, "ldmrs_host": lidar.host, "ldmrs_port": lidar.port,
+                          "time_scale": args.time_scale}), flush=True)
+        while not done.wait(0.2):
+            pass
+        print(json.dumps({"scans_sent": len(lidar.device.sent_scans), "ldmrs_commands": len(lidar.device.commands),
+                          "mtig_messages": len(imu.device.received), "poses_sent": len(imu.device.poses_sent)}),
+              flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,186 @@
+"""The vision module process: camera frames + robot telemetry → target point (pan & tilt) and a short path.
+
+Thin on purpose: every decision is in :class:`~modules.vision.pipeline.VisionPipeline`. This process reads the
+aircraft pose and the pan & tilt angles from the telemetry module, grabs a frame at the camera rate, runs the
+pipeline, and publishes only when the pipeline says so (target FOUND and geolocated):
+
+| slot | dir | kind | struct |
+| --- | --- | --- | --- |
+| ``telemetry`` | in (peer ``telemetry``) | unsafe state | :class:`bbcs.robot.RobotTelemetry` |
+| ``target`` | out | unsafe state | :class:`modules.pan_tilt.structs.DatosPT` (mode 1 target point + pointing angles) |
+| ``path`` | out | safe stream | :class:`modules.path_follower.structs.DatosSegCam` (short path over the target) |
+| ``status`` | out | unsafe state | :class:`VisionStatus` (track state, confidence, counters, lost-target state) |
+| ``error`` | out | safe state | :class:`ErrorVision` |
+
+Parameters (manifest ``params`` or ``--param``): ``camera`` = ``sim`` (default) | ``folder:PATH`` |
+``v4l2:DEVICE``; ``rate`` frames/s (10); ``ground_alt`` metres (0); ``path_period`` s between paths (2);
+simulated scene: ``target_east``, ``target_north`` (m from the first telemetry position), ``target_ve``,
+``target_vn`` (m/s), ``target_radius`` (m), ``noise`` (grey levels).
+"""
+
+from __future__ import annotations
+
+import time
+from enum import IntEnum
+
+import msgspec
+
+from bbcs.module import Module
+from bbcs.robot import RobotTelemetry
+from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
+from modules.pan_tilt.structs import DatosPT
+from modules.path_follower.structs import DatoPuntoSegCam, DatosSegCam
+from modules.vision.geodesy import LocalFrame
+from modules.vision.geometry import CameraModel
+from modules.vision.pipeline import VisionConfig, VisionPipeline, VisionResult
+from modules.vision.pose import AircraftPose, Gimbal
+from modules.vision.scene import LinearTarget
+from modules.vision.sim_camera import SimulatedCamera
+from modules.vision.source import CameraSource
+
+
+class VisionErrorCode(IntEnum):
+    """Codes on the vision ERROR slot (docs/error_codes.md)."""
+
+    CAMERA_FAILED = 300
+    """The camera source raised or ended; no frame is processed until it delivers again."""
+    BAD_TELEMETRY = 301
+    """Telemetry gave a pose or gimbal angles the geometry refuses (e.g. non-finite); the frame is skipped."""
+
+
+class VisionStatus(msgspec.Struct, frozen=True, kw_only=True):
+    """What the vision module is doing, published every frame."""
+
+    state: str
+    """``lost``, ``tentative`` or ``found``; ``waiting`` until the first telemetry arrives."""
+    confidence: float = 0.0
+    frames: int = 0
+    detections: int = 0
+    published: int = 0
+    target_lat: float | None = None
+    target_lon: float | None = None
+    frame_stamp: float = 0.0
+
+
+class ErrorVision(msgspec.Struct, frozen=True, kw_only=True):
+    error_vision: int
+
+
+def pose_and_gimbal(t: RobotTelemetry) -> tuple[AircraftPose, Gimbal] | None:
+    """The pose and pan & tilt angles a frame needs, or None while telemetry lacks them."""
+    if t.position is None or t.pan_deg is None or t.tilt_deg is None:
+        return None
+    att = t.attitude
+    yaw = att.yaw if att is not None else (t.heading_deg or 0.0)
+    pose = AircraftPose(t.position.lat, t.position.lon, t.position.alt,
+                        att.roll if att else 0.0, att.pitch if att else 0.0, yaw)
+    return pose, Gimbal(pan=t.pan_deg, tilt=t.tilt_deg)
+
+
+def target_datum(result: VisionResult) -> DatosPT:
+    """DATOS_PT for the pan & tilt's mode 1 (target point), with the pointing angles for mode 0."""
+    fix = result.target
+    assert fix is not None
+    return DatosPT(ref_pan=fix.pointing.pan, ref_tilt=fix.pointing.tilt, latitud=fix.lat, longitud=fix.lon,
+                   altura=fix.alt)
+
+
+def path_datum(result: VisionResult) -> DatosSegCam:
+    """The trajectory as a DATOS stream message (n_points + points)."""
+    assert result.trajectory is not None
+    points = [DatoPuntoSegCam(latitud=float(lat), longitud=float(lon), altura=float(alt))
+              for lat, lon, alt in result.trajectory]
+    return DatosSegCam(n_points=len(points), puntos=points)
+
+
+class Vision(Module):
+    name = "vision"
+    slots = (
+        InputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE, peer="telemetry"),
+        OutputSlot("target", DatosPT, safety=Safety.UNSAFE),
+        OutputSlot("path", DatosSegCam, kind=Kind.STREAM),
+        OutputSlot("status", VisionStatus, safety=Safety.UNSAFE),
+        OutputSlot("error", ErrorVision),
+    )
+    error_slot = "error"
+
+    def __init__(self, context) -> None:  # type: ignore[no-untyped-def]
+        super().__init__(context)
+        p = context.params
+        self.rate = float(p.get("rate", "10"))
+        if not 0.1 <= self.rate <= 200:
+            raise ValueError(f"vision: rate {self.rate} frames/s outside [0.1, 200]")
+        self.tick_period = 1.0 / self.rate
+        self.ground_alt = float(p.get("ground_alt", "0"))
+        self.path_period = float(p.get("path_period", "2"))
+        self.camera_spec = p.get("camera", "sim")
+        self.pipeline = VisionPipeline(VisionConfig(camera=CameraModel(), ground_alt=self.ground_alt))
+        self.latest: RobotTelemetry | None = None
+        self.source: CameraSource | None = None
+        self._last_path = 0.0
+        self._camera_failed = False
+
+    def _open_source(self, first: RobotTelemetry) -> CameraSource:
+        kind, _, arg = self.camera_spec.partition(":")
+        if kind == "folder":
+            from modules.vision.folder_camera import FolderCamera
+            return FolderCamera(arg, rate_hz=self.rate, loop=True)
+        if kind == "v4l2":
+            from modules.vision.v4l2_camera import V4L2Camera
+            return V4L2Camera(arg or 0)
+        if kind != "sim":
+            raise ValueError(f"vision: unknown camera {self.camera_spec!r} (sim | folder:PATH | v4l2:DEVICE)")
+        assert first.position is not None
+        p = self.context.params
+        world = LocalFrame(first.position.lat, first.position.lon, self.ground_alt)
+        target = LinearTarget(start=(float(p.get("target_east", "20")), float(p.get("target_north", "0"))),
+                              velocity=(float(p.get("target_ve", "0")), float(p.get("target_vn", "0"))),
+                              radius_m=float(p.get("target_radius", "2.0")))
+        return SimulatedCamera(world, camera=self.pipeline.config.camera, ground_alt=self.ground_alt,
+                               targets=[target], noise_sigma=float(p.get("noise", "2")))
+
+    def on_telemetry(self, value: RobotTelemetry) -> None:
+        self.latest = value
+
+    def on_tick(self) -> None:
+        telemetry = self.latest
+        state = None if telemetry is None else pose_and_gimbal(telemetry)
+        if state is None:
+            self.publish("status", VisionStatus(state="waiting"))
+            return
+        pose, gimbal = state
+        if self.source is None:
+            self.source = self._open_source(telemetry)
+        if isinstance(self.source, SimulatedCamera):
+            self.source.set_state(pose, gimbal)
+        try:
+            frame = self.source.read()
+        except Exception as exc:
+            if not self._camera_failed:
+                self.report_error(VisionErrorCode.CAMERA_FAILED, f"camera {self.camera_spec}: {exc}")
+            self._camera_failed = True
+            return
+        if frame is None:
+            return
+        self._camera_failed = False
+        try:
+            result = self.pipeline.process(frame, pose, gimbal)
+        except ValueError as exc:
+            self.report_error(VisionErrorCode.BAD_TELEMETRY, f"frame {frame.seq} skipped: {exc}")
+            return
+        if result.publish:
+            self.publish("target", target_datum(result))
+            now = time.monotonic()
+            if now - self._last_path >= self.path_period:
+                self.publish("path", path_datum(result))
+                self._last_path = now
+        det = result.detection
+        fix = result.target
+        self.publish("status", VisionStatus(
+            state=result.state.value, confidence=det.confidence if det else 0.0, frames=self.pipeline.frames,
+            detections=self.pipeline.detections, published=self.pipeline.published,
+            target_lat=fix.lat if fix else None, target_lon=fix.lon if fix else None, frame_stamp=frame.timestamp))
+
+    def on_stop(self) -> None:
+        if self.source is not None:
+            self.source.close()

@@ -1,0 +1,232 @@
+"""``cromat launch`` as a real process tree: comes up, stops with nothing left, restarts, gives up, routes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from bbcs import keys
+from bbcs.session import local_client, open_session
+from bbcs.testing import wait_until
+from module_manager import mri
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from launch_support import Launch, group_members, write_manifest  # noqa: E402
+
+UP = "all 3 modules up"
+
+
+@pytest.fixture
+def launch(tmp_path):
+    started: list[Launch] = []
+
+    def make(*extra: str, edit=None) -> Launch:
+        launch = Launch(write_manifest(tmp_path, edit=edit), tmp_path, *extra)
+        started.append(launch)
+        return launch
+
+    try:
+        yield make
+    finally:
+        for launch in started:
+            launch.cleanup()
+
+
+@pytest.fixture
+def client():
+    opened = []
+
+    def make(port: int):
+        s = open_session(local_client(port))
+        opened.append(s)
+        return s
+
+    try:
+        yield make
+    finally:
+        for s in opened:
+            s.close()
+
+
+def sink_records(tmp_path: Path) -> list[dict]:
+    path = tmp_path / "sink.jsonl"
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.endswith("}")]
+
+
+def modules(session, robot: str = "r1") -> dict[str, mri.ModuleStatus]:
+    reply = mri.call(session, robot, "modules", mri.ListModules())
+    assert reply.ok and isinstance(reply.data, mri.ModuleList)
+    return {m.name: m for m in reply.data.modules}
+
+
+def test_comes_up_and_sigterm_leaves_no_process(launch):
+    la = launch()
+    la.wait_line(UP)
+    up = [line.split()[0] for line in la.lines if line.split()[1:2] == ["up"]]
+    assert sorted(up) == ["sink", "src_a", "src_b"], "one status line per module once up"
+    assert len(group_members(la.pgid)) >= 5, "manager, router and three modules"
+    assert la.stop(signal.SIGTERM) == 0
+    wait_until(lambda: group_members(la.pgid) == [], 10, "every child of the launch gone")
+
+
+def test_ctrl_c_to_the_process_group_leaves_no_process(launch):
+    la = launch()
+    la.wait_line(UP)
+    os.killpg(la.pgid, signal.SIGINT)  # what a terminal does on Ctrl+C
+    assert la.stop(signal.SIGINT) == 0
+    wait_until(lambda: group_members(la.pgid) == [], 10, "every child of the launch gone")
+
+
+def test_manager_sigkilled_leaves_no_orphan(launch):
+    la = launch()
+    la.wait_line(UP)
+    assert len(group_members(la.pgid)) >= 5
+    la.proc.kill()
+    la.proc.wait(10)
+    wait_until(lambda: group_members(la.pgid) == [], 15, "children to die with the manager (PR_SET_PDEATHSIG)")
+
+
+def test_kill9_module_is_restarted_with_its_current_routing(launch, client, tmp_path):
+    la = launch()
+    la.wait_line(UP)
+    s = client(la.port)
+    swap = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=2))
+    assert swap.ok, swap.reason
+    before = modules(s)["sink"]
+    assert before.state == "up" and before.pid is not None
+    os.kill(before.pid, signal.SIGKILL)
+    wait_until(lambda: (m := modules(s)["sink"]).state == "up" and m.pid != before.pid, 30, "sink restarted and up")
+    after = modules(s)["sink"]
+    assert after.restarts == 1
+    assert after.last_exit == -signal.SIGKILL
+    assert after.routes == {"datos": 2, "modo": 3}
+    starts = [r for r in sink_records(tmp_path) if r.get("event") == "start"]
+    assert starts[-1] == {"module": "sink", "event": "start", "restart": 1, "routes": {"datos": 2, "modo": 3}}
+    n = len(sink_records(tmp_path))
+    wait_until(lambda: any(r.get("slot") == "datos" for r in sink_records(tmp_path)[n:]), 10, "data after restart")
+    assert {r["source"] for r in sink_records(tmp_path)[n:] if r.get("slot") == "datos"} == {"src_b"}
+    la.wait_line("restarts 1")
+    assert la.stop() == 0
+
+
+def add_crasher(text: str) -> str:
+    return text + """
+[modules.crasher]
+entry = "mm_sink"
+class = "mm_modules:Sink"
+params = { crash = "always" }
+backoff_s = 0.05
+intensity = 2
+period_s = 60.0
+"""
+
+
+def test_always_crashing_module_is_failed_others_keep_running(launch, client, tmp_path):
+    la = launch(edit=add_crasher)
+    la.wait_line("intensity exceeded", 60)
+    s = client(la.port)
+    status = modules(s)
+    assert status["crasher"].state == "failed"
+    assert status["crasher"].restarts == 2
+    assert status["crasher"].last_exit == 3
+    assert "intensity" in status["crasher"].reason
+    assert all(status[n].state == "up" for n in ("src_a", "src_b", "sink"))
+    states: list[mri.RobotState] = []
+    got = threading.Event()
+    decode = msgspec.msgpack.Decoder(mri.RobotState).decode
+
+    def on_state(sample) -> None:
+        states.append(decode(sample.payload.to_bytes()))
+        got.set()
+
+    sub = s.declare_subscriber(keys.manager_key("r1", "state"), on_state)
+    try:
+        assert got.wait(10), "robot state published periodically"
+        state = states[-1]
+        assert state.robot == "r1" and state.kind == "test"
+        assert {m.name: m.state for m in state.modules}["crasher"] == "failed"
+    finally:
+        sub.undeclare()
+    n = len(sink_records(tmp_path))
+    wait_until(lambda: len(sink_records(tmp_path)) > n + 5, 10, "the sink still handling data")
+    assert la.stop() == 0
+
+
+def test_swap_route_through_mri_while_data_flow(launch, client, tmp_path):
+    la = launch()
+    la.wait_line(UP)
+    s = client(la.port)
+    wait_until(lambda: any(r.get("source") == "src_a" for r in sink_records(tmp_path)), 10, "data from src_a")
+    for bad, why in ((4, "carries"), (99, "not in the slot table")):
+        reply = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=bad))
+        assert not reply.ok and why in reply.reason and "old route kept" in reply.reason
+        assert isinstance(reply.data, mri.RouteList) and reply.data.routes["sink"]["datos"] == 1
+    reply = mri.call(s, "r1", "route", mri.SwapRoute(module="nosuch", input="datos", slot=2))
+    assert not reply.ok and "nosuch" in reply.reason
+    reply = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=2))
+    assert reply.ok, reply.reason
+    assert isinstance(reply.data, mri.RouteList) and reply.data.routes["sink"]["datos"] == 2
+    records = sink_records(tmp_path)
+    switch = max(i for i, r in enumerate(records) if r.get("event") == "route" and r["routes"]["datos"] == 2)
+    wait_until(lambda: sum(r.get("source") == "src_b" for r in sink_records(tmp_path)) > 10, 10, "data from src_b")
+    after = [r["source"] for r in sink_records(tmp_path)[switch:] if r.get("slot") == "datos"]
+    assert set(after) == {"src_b"}, "only the new source is used after the acknowledged switch"
+    assert "src_a" in {r.get("source") for r in records[:switch]}
+    assert la.stop() == 0
+
+
+def test_tasks_modes_and_robot_state_errors(launch, client, tmp_path):
+    la = launch()
+    la.wait_line(UP)
+    s = client(la.port)
+    tasks = mri.call(s, "r1", "tasks", mri.ListTasks())
+    assert tasks.ok and tasks.data.available == {"follow_b": "perception", "ignore_all": "perception"}
+    reply = mri.call(s, "r1", "task", mri.SetTask(name="follow_b"))
+    assert reply.ok, reply.reason
+    assert [t.name for t in reply.data.active] == ["follow_b"]
+    routes = mri.call(s, "r1", "routes", mri.ListRoutes()).data
+    assert routes.routes["sink"]["datos"] == 2
+    wait_until(lambda: {"module": "sink", "slot": "modo", "mode": 1} in sink_records(tmp_path), 10, "task mode 1")
+    reply = mri.call(s, "r1", "task", mri.SetTask(name="ignore_all"))
+    assert reply.ok and [t.name for t in reply.data.active] == ["ignore_all"], "replaces the task of its type"
+    assert mri.call(s, "r1", "routes", mri.ListRoutes()).data.routes["sink"]["datos"] == -1
+    reply = mri.call(s, "r1", "task", mri.EndTask(task_type="perception"))
+    assert reply.ok and reply.data.active == []
+    assert mri.call(s, "r1", "routes", mri.ListRoutes()).data.routes["sink"]["datos"] == 1, "routes restored"
+    wait_until(lambda: [r for r in sink_records(tmp_path) if r.get("slot") == "modo"][-1]["mode"] == 0, 10,
+               "mode restored to the one before the first task")
+    reply = mri.call(s, "r1", "task", mri.EndTask(task_type="perception"))
+    assert not reply.ok and "no perception task" in reply.reason
+    assert not mri.call(s, "r1", "task", mri.SetTask(name="nosuch")).ok
+    bad = mri.call(s, "r1", "mode", mri.SetModuleMode(module="sink", mode={"mode": 7}))
+    assert not bad.ok and "refused" in bad.reason
+    assert mri.call(s, "r1", "mode", mri.SetModuleMode(module="sink", mode={"mode": 2})).ok
+    wait_until(lambda: modules(s)["sink"].last_error == 142, 10, "the sink's error code in the module status")
+    wrong = mri.call(s, "r1", "modules", mri.ListRoutes())
+    assert not wrong.ok and "ListModules" in wrong.reason
+    assert la.stop() == 0
+
+
+def test_module_stop_start_restart_through_mri(launch, client):
+    la = launch()
+    la.wait_line(UP)
+    s = client(la.port)
+    reply = mri.call(s, "r1", "module", mri.ModuleCommand(module="src_a", action="stop"), timeout_s=15)
+    assert reply.ok and reply.data.state == "stopped"
+    assert modules(s)["src_a"].pid is None
+    reply = mri.call(s, "r1", "module", mri.ModuleCommand(module="src_a", action="start"), timeout_s=30)
+    assert reply.ok and reply.data.state == "up"
+    pid = reply.data.pid
+    reply = mri.call(s, "r1", "module", mri.ModuleCommand(module="src_a", action="restart"), timeout_s=30)
+    assert reply.ok and reply.data.state == "up" and reply.data.pid != pid
+    assert reply.data.restarts == 0, "operator restarts are not failures"
+    assert la.stop() == 0
