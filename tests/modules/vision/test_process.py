@@ -46,7 +46,8 @@ def test_vision_process_geolocates_the_simulated_target(processes, router, sessi
     dt, dp, ds = (msgspec.msgpack.Decoder(t).decode for t in (DatosPT, DatosSegCam, VisionStatus))
     subs = [s.declare_subscriber(keys.slot_key("r1", "vision", "target"),
                                  lambda m: targets.append(dt(m.payload.to_bytes()))),
-            s.declare_subscriber(keys.slot_key("r1", "vision", "path"), lambda m: paths.append(dp(m.payload.to_bytes()))),
+            s.declare_subscriber(keys.slot_key("r1", "vision", "path"),
+                                 lambda m: paths.append(dp(m.payload.to_bytes()))),
             s.declare_subscriber(keys.slot_key("r1", "vision", "status"),
                                  lambda m: states.append(ds(m.payload.to_bytes()).state))]
     pub = Publisher(s, keys.slot_key("r1", "telemetry", "telemetry"),
