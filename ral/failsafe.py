@@ -73,8 +73,11 @@ class LinkMonitor:
         self.last_heartbeat = now if self.last_heartbeat is None else max(self.last_heartbeat, now)
 
     def link_ok(self, now: float) -> bool:
-        return (bool(self.tokens) and self.last_heartbeat is not None
-                and now - self.last_heartbeat <= self.config.heartbeat_timeout_s)
+        return (
+            bool(self.tokens)
+            and self.last_heartbeat is not None
+            and now - self.last_heartbeat <= self.config.heartbeat_timeout_s
+        )
 
     def update(self, now: float) -> list[LinkEvent]:
         """Advance the machine to ``now``; the returned events are what the RAL reports (and does)."""
@@ -103,13 +106,22 @@ class LinkMonitor:
                 self.lost_since = None
                 self.ok_since = None
                 if was == "failsafe":
-                    return [LinkEvent("link_regained", f"failsafe '{cfg.action}' stays in force until a new task")]
-                return [LinkEvent("link_regained", "link back before the failsafe timeout; mission unchanged")]
+                    return [
+                        LinkEvent("link_regained", f"failsafe '{cfg.action}' stays in force until a new task")
+                    ]
+                return [
+                    LinkEvent("link_regained", "link back before the failsafe timeout; mission unchanged")
+                ]
             return []
         self.ok_since = None
         assert self.lost_since is not None
         if self.state == "lost" and now - self.lost_since >= cfg.loss_timeout_s:
             self.state = "failsafe"
-            return [LinkEvent("failsafe", f"no ground station for {now - self.lost_since:.1f} s: {cfg.action}",
-                              action=cfg.action)]
+            return [
+                LinkEvent(
+                    "failsafe",
+                    f"no ground station for {now - self.lost_since:.1f} s: {cfg.action}",
+                    action=cfg.action,
+                )
+            ]
         return []

@@ -4,7 +4,7 @@
 | --- | --- |
 | ``cromat/<robot>/@ral/state``  | :class:`GriState`, safe state (a late joiner gets the last one) |
 | ``cromat/<robot>/@ral/events`` | :class:`GriEvent`, safe stream |
-| ``cromat/<robot>/@ral/task``   | queryable: payload a :data:`TaskRequest` (msgpack), reply a :class:`TaskReply` |
+| ``cromat/<robot>/@ral/task``   | queryable: a :data:`TaskRequest` (msgpack) in, a :class:`TaskReply` out |
 | ``cromat/@gcs/<name>``         | liveliness token of a ground station holding a link |
 | ``cromat/@gcs/<name>/heartbeat`` | :class:`GcsHeartbeat` from that ground station |
 
@@ -188,8 +188,19 @@ class GriState(msgspec.Struct, frozen=True, kw_only=True):
 
 
 EventKind = Literal[
-    "task_accepted", "task_rejected", "task_completed", "task_cancelled", "task_replaced", "task_failed",
-    "aborted", "link_up", "link_lost", "failsafe", "link_regained", "manager_lost", "manager_back",
+    "task_accepted",
+    "task_rejected",
+    "task_completed",
+    "task_cancelled",
+    "task_replaced",
+    "task_failed",
+    "aborted",
+    "link_up",
+    "link_lost",
+    "failsafe",
+    "link_regained",
+    "manager_lost",
+    "manager_back",
 ]
 
 

@@ -1,4 +1,4 @@
-"""The RAL process (``python -m ral``): serves the GRI and turns tasks into MRI requests to the Module Manager.
+"""The RAL process (``python -m ral``): serves the GRI, turns tasks into MRI requests to the manager.
 
 It is a bbcs :class:`~bbcs.module.Module` named ``ral`` so the manager launches and supervises it like any
 other module. Its own output slots carry the data a task needs (the manifest's task map routes the robot's
@@ -74,7 +74,9 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
         names = {k.removeprefix("task."): v for k, v in params.items() if k.startswith("task.")}
         unknown = set(plain) - set(cls.__struct_fields__)
         if unknown:
-            raise ValueError(f"unknown RAL parameter(s) {sorted(unknown)}; known: {', '.join(cls.__struct_fields__)}")
+            raise ValueError(
+                f"unknown RAL parameter(s) {sorted(unknown)}; known: {', '.join(cls.__struct_fields__)}"
+            )
         try:
             cfg = msgspec.convert(plain, cls, strict=False)
         except msgspec.ValidationError as exc:
@@ -97,19 +99,31 @@ class Ral(Module):
         super().__init__(context)
         self.cfg, names = RalConfig.from_params(context.params)
         self.clock = clock
-        self.queue = TaskQueue(context.robot, QueueConfig(
-            position_tolerance_m=self.cfg.position_tolerance_m, altitude_tolerance_m=self.cfg.altitude_tolerance_m,
-            settle_s=self.cfg.settle_s, max_range_m=self.cfg.max_range_m), task_names=names)
-        self.link = LinkMonitor(FailsafeConfig(
-            loss_timeout_s=self.cfg.failsafe_timeout_s, heartbeat_timeout_s=self.cfg.heartbeat_timeout_s,
-            regain_s=self.cfg.regain_s, action=self.cfg.failsafe_action))
+        self.queue = TaskQueue(
+            context.robot,
+            QueueConfig(
+                position_tolerance_m=self.cfg.position_tolerance_m,
+                altitude_tolerance_m=self.cfg.altitude_tolerance_m,
+                settle_s=self.cfg.settle_s,
+                max_range_m=self.cfg.max_range_m,
+            ),
+            task_names=names,
+        )
+        self.link = LinkMonitor(
+            FailsafeConfig(
+                loss_timeout_s=self.cfg.failsafe_timeout_s,
+                heartbeat_timeout_s=self.cfg.heartbeat_timeout_s,
+                regain_s=self.cfg.regain_s,
+                action=self.cfg.failsafe_action,
+            )
+        )
         self._jobs: queue.Queue[Any] = queue.Queue()
         self._bus_lock = threading.Lock()
         self._manager_state: mri.RobotState | None = None
         self._manager_seen = 0.0
         self._manager_new = False
         self._manager_up = False
-        self._errors: deque[gri.ErrorRecord] = deque(maxlen=MAX_ERRORS)
+        self._error_log: deque[gri.ErrorRecord] = deque(maxlen=MAX_ERRORS)
         self._ral_entities: list[Any] = []
         self._worker: threading.Thread | None = None
         self._state_pub: Publisher[gri.GriState] | None = None
@@ -122,14 +136,23 @@ class Ral(Module):
     def on_start(self) -> None:
         s = self.session
         assert s is not None
-        self._state_pub = Publisher(s, gri.state_key(self.robot),
-                                    SlotSpec("state", gri.GriState, Direction.OUT, Kind.STATE, Safety.SAFE))
-        self._event_pub = Publisher(s, gri.events_key(self.robot),
-                                    SlotSpec("events", gri.GriEvent, Direction.OUT, Kind.STREAM, Safety.SAFE))
+        self._state_pub = Publisher(
+            s,
+            gri.state_key(self.robot),
+            SlotSpec("state", gri.GriState, Direction.OUT, Kind.STATE, Safety.SAFE),
+        )
+        self._event_pub = Publisher(
+            s,
+            gri.events_key(self.robot),
+            SlotSpec("events", gri.GriEvent, Direction.OUT, Kind.STREAM, Safety.SAFE),
+        )
         self._ral_entities = [
             zenoh.ext.declare_advanced_subscriber(
-                s, mri.mri_key(self.robot, mri.STATE), self._on_manager_state,
-                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)),
+                s,
+                mri.mri_key(self.robot, mri.STATE),
+                self._on_manager_state,
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            ),
             s.liveliness().declare_subscriber(gri.gcs_alive_key("*"), self._on_gcs_token, history=True),
             s.declare_subscriber(gri.gcs_heartbeat_key("*"), self._on_gcs_heartbeat),
             s.declare_queryable(gri.task_key(self.robot), self._jobs.put),
@@ -174,16 +197,27 @@ class Ral(Module):
             self.link.heartbeat(self.clock())
 
     def emit(self, kind: str, *, task_id: int = 0, task_type: str = "", detail: str = "") -> None:
-        event = gri.GriEvent(robot=self.robot, stamp=self.clock(), kind=kind,  # type: ignore[arg-type]
-                             task_id=task_id, task_type=task_type, detail=detail)
+        event = gri.GriEvent(
+            robot=self.robot,
+            stamp=self.clock(),
+            kind=kind,  # type: ignore[arg-type]
+            task_id=task_id,
+            task_type=task_type,
+            detail=detail,
+        )
         self.log.info("event %s %s %s", kind, task_type, detail)
         if self._event_pub is not None:
             with self._bus_lock:
                 self._event_pub.publish(event)
 
     def _emit_end(self, info: gri.TaskInfo) -> None:
-        kind = {"completed": "task_completed", "cancelled": "task_cancelled", "replaced": "task_replaced",
-                "aborted": "aborted", "failed": "task_failed"}[info.status]
+        kind = {
+            "completed": "task_completed",
+            "cancelled": "task_cancelled",
+            "replaced": "task_replaced",
+            "aborted": "aborted",
+            "failed": "task_failed",
+        }[info.status]
         self.emit(kind, task_id=info.id, task_type=info.task_type, detail=info.detail or info.kind)
 
     # ------------------------------------------------------------ main loop
@@ -215,20 +249,43 @@ class Ral(Module):
     def _publish_state(self, now: float) -> None:
         ms = self._manager_state
         tel = ms.telemetry if ms else None
-        errors = [gri.ErrorRecord(source=e.module, code=e.code, stamp=e.stamp) for e in (ms.errors if ms else [])]
-        errors = sorted([*errors, *self._errors], key=lambda e: e.stamp)[-MAX_ERRORS:]
+        errors = [
+            gri.ErrorRecord(source=e.module, code=e.code, stamp=e.stamp) for e in (ms.errors if ms else [])
+        ]
+        errors = sorted([*errors, *self._error_log], key=lambda e: e.stamp)[-MAX_ERRORS:]
         state = gri.GriState(
-            robot=self.robot, kind=(ms.kind if ms and ms.kind else self.cfg.kind), stamp=now,
-            position=tel.position if tel else None, attitude=tel.attitude if tel else None,
-            velocity=tel.velocity if tel else None, heading_deg=tel.heading_deg if tel else None,
-            mode=tel.mode if tel else None, mode_name=tel.mode_name if tel else "",
-            airborne=tel.airborne if tel else None, waypoints_queued=tel.waypoints_queued if tel else None,
-            pan_deg=tel.pan_deg if tel else None, tilt_deg=tel.tilt_deg if tel else None,
-            home=self.queue.home, tasks=self.queue.tasks(), available=dict(self.queue.available),
-            modules=[gri.ModuleHealth(name=m.name, state=m.state, restarts=m.restarts, last_exit=m.last_exit,
-                                      reason=m.reason, last_error=m.last_error, routes=dict(m.routes))
-                     for m in (ms.modules if ms else [])],
-            errors=errors, link=self.link.state, manager_up=self._manager_up)
+            robot=self.robot,
+            kind=(ms.kind if ms and ms.kind else self.cfg.kind),
+            stamp=now,
+            position=tel.position if tel else None,
+            attitude=tel.attitude if tel else None,
+            velocity=tel.velocity if tel else None,
+            heading_deg=tel.heading_deg if tel else None,
+            mode=tel.mode if tel else None,
+            mode_name=tel.mode_name if tel else "",
+            airborne=tel.airborne if tel else None,
+            waypoints_queued=tel.waypoints_queued if tel else None,
+            pan_deg=tel.pan_deg if tel else None,
+            tilt_deg=tel.tilt_deg if tel else None,
+            home=self.queue.home,
+            tasks=self.queue.tasks(),
+            available=dict(self.queue.available),
+            modules=[
+                gri.ModuleHealth(
+                    name=m.name,
+                    state=m.state,
+                    restarts=m.restarts,
+                    last_exit=m.last_exit,
+                    reason=m.reason,
+                    last_error=m.last_error,
+                    routes=dict(m.routes),
+                )
+                for m in (ms.modules if ms else [])
+            ],
+            errors=errors,
+            link=self.link.state,
+            manager_up=self._manager_up,
+        )
         if self._state_pub is not None:
             with self._bus_lock:
                 self._state_pub.publish(state)
@@ -260,7 +317,9 @@ class Ral(Module):
 
     def _record_error(self, code: int, detail: str) -> None:
         with self.lock:
-            self._errors.append(gri.ErrorRecord(source="ral", code=int(code), stamp=self.clock(), detail=detail))
+            self._error_log.append(
+                gri.ErrorRecord(source="ral", code=int(code), stamp=self.clock(), detail=detail)
+            )
             self.report_error(int(code), detail)
 
     def _refresh_tasks(self) -> None:
@@ -298,8 +357,11 @@ class Ral(Module):
             return gri.TaskReply(accepted=False, reason=plan.reason)
         reply = self._mri("task", mri.SetTask(name=plan.name, params=plan.params))
         if reply is None or not reply.ok:
-            reason = ("Module Manager did not answer" if reply is None
-                      else f"Module Manager refused task {plan.name!r}: {reply.reason}")
+            reason = (
+                "Module Manager did not answer"
+                if reply is None
+                else f"Module Manager refused task {plan.name!r}: {reply.reason}"
+            )
             if reply is not None:
                 self._record_error(RalErrorCode.MRI_REFUSED, reason)
             self.emit("task_rejected", task_type=plan.task_type, detail=reason)
@@ -309,8 +371,12 @@ class Ral(Module):
         self._publish_data(plan)
         if replaced is not None:
             self._emit_end(replaced)
-        self.emit("task_accepted", task_id=info.id, task_type=info.task_type,
-                  detail=f"{info.kind} as {info.name}" + (" (failsafe)" if origin == "failsafe" else ""))
+        self.emit(
+            "task_accepted",
+            task_id=info.id,
+            task_type=info.task_type,
+            detail=f"{info.kind} as {info.name}" + (" (failsafe)" if origin == "failsafe" else ""),
+        )
         return gri.TaskReply(accepted=True, task_id=info.id, task_type=info.task_type)
 
     def _publish_data(self, plan: Plan) -> None:
@@ -326,7 +392,7 @@ class Ral(Module):
             self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
 
     def _abort(self) -> gri.TaskReply:
-        """The manifest's ``abort`` task if it has one (it stops motion at once), then end every other task."""
+        """The manifest's ``abort`` task if it has one (stops motion at once), then end the rest."""
         abort_name = self.queue.name_for("abort")
         abort_type = self.queue.available.get(abort_name)
         problems = []
@@ -378,8 +444,10 @@ class Ral(Module):
                 home = self.queue.home
                 tel = self.queue.telemetry
             if home is not None:
-                alt = max(home.alt + self.cfg.return_height_m,
-                          tel.position.alt if tel and tel.position else home.alt)
+                alt = max(
+                    home.alt + self.cfg.return_height_m,
+                    tel.position.alt if tel and tel.position else home.alt,
+                )
                 return gri.Goto(waypoints=[gri.Waypoint(lat=home.lat, lon=home.lon, alt=alt)])
             self.emit("failsafe", detail="return: take-off point unknown, holding instead")
         return gri.Hold()

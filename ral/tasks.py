@@ -36,7 +36,7 @@ class QueueConfig:
     position_tolerance_m: float = 3.0
     altitude_tolerance_m: float = 2.0
     settle_s: float = 2.0
-    """A path task may complete without the robot's waypoint queue having been seen non-empty only after this."""
+    """Without the waypoint queue seen non-empty, a path task may complete only after this."""
     max_range_m: float = 20_000.0
     """Waypoints farther than this from the robot's position (when known) are rejected."""
 
@@ -92,24 +92,35 @@ class TaskQueue:
             return Rejected("the robot's task list is unknown (Module Manager not answering)")
         task_type = self.available.get(name)
         if task_type is None:
-            return Rejected(f"robot {self.robot} has no task {name!r} for {kind} "
-                            f"(available: {', '.join(sorted(self.available)) or 'none'})")
+            return Rejected(
+                f"robot {self.robot} has no task {name!r} for {kind} "
+                f"(available: {', '.join(sorted(self.available)) or 'none'})"
+            )
         if isinstance(request, gri.Goto | gri.FollowPath):
             pos = self.telemetry.position if self.telemetry else None
             if pos is not None:
                 for i, wp in enumerate(request.waypoints):
                     d = distance_m(pos.lat, pos.lon, wp.lat, wp.lon)
                     if d > self.config.max_range_m:
-                        return Rejected(f"waypoint {i} is {d / 1000:.1f} km from the robot "
-                                        f"(max {self.config.max_range_m / 1000:g} km)")
+                        return Rejected(
+                            f"waypoint {i} is {d / 1000:.1f} km from the robot "
+                            f"(max {self.config.max_range_m / 1000:g} km)"
+                        )
         return Plan(kind, name, task_type, _params(request), request)
 
     # ------------------------------------------------------------ lifecycle
 
     def start(self, plan: Plan, now: float, origin: str = "gcs") -> tuple[gri.TaskInfo, gri.TaskInfo | None]:
         """Make ``plan`` the current task of its type; returns it and the task it replaced (if any)."""
-        info = gri.TaskInfo(id=self.next_id, kind=plan.kind, name=plan.name, task_type=plan.task_type,
-                            status="running", started=now, origin=origin)  # type: ignore[arg-type]
+        info = gri.TaskInfo(
+            id=self.next_id,
+            kind=plan.kind,
+            name=plan.name,
+            task_type=plan.task_type,
+            status="running",
+            started=now,
+            origin=origin,
+        )  # type: ignore[arg-type]
         self.next_id += 1
         old = self.current.pop(plan.task_type, None)
         replaced = _end(old.info, "replaced", now, f"replaced by task {info.id}") if old else None
@@ -120,7 +131,9 @@ class TaskQueue:
         self.current[plan.task_type] = running
         return info, replaced
 
-    def cancel(self, task_type: str, now: float, status: str = "cancelled", detail: str = "") -> gri.TaskInfo | None:
+    def cancel(
+        self, task_type: str, now: float, status: str = "cancelled", detail: str = ""
+    ) -> gri.TaskInfo | None:
         run = self.current.pop(task_type, None)
         return None if run is None else _end(run.info, status, now, detail)
 
@@ -160,8 +173,10 @@ class TaskQueue:
             if pos is None or tel.waypoints_queued not in (0, None):
                 return False
             last = req.waypoints[-1]
-            near = (distance_m(pos.lat, pos.lon, last.lat, last.lon) <= cfg.position_tolerance_m
-                    and abs(pos.alt - last.alt) <= cfg.altitude_tolerance_m)
+            near = (
+                distance_m(pos.lat, pos.lon, last.lat, last.lon) <= cfg.position_tolerance_m
+                and abs(pos.alt - last.alt) <= cfg.altitude_tolerance_m
+            )
             return near and (run.seen_queue or settled)
         if isinstance(req, gri.TakeOff):
             if pos is None or tel.airborne is False:

@@ -76,13 +76,16 @@ class _Layout:
             self.from_wire.append(_from_wire(kind, types[name]))
 
     def encode(self, msg: p.Message) -> bytes:
-        return self.struct.pack(*[conv(getattr(msg, name)) for name, conv in zip(self.names, self.to_wire)])
+        return self.struct.pack(*[conv(getattr(msg, name))
+                                  for name, conv in zip(self.names, self.to_wire, strict=True)])
 
     def decode(self, payload: bytes) -> p.Message:
         if len(payload) != self.size:
-            raise DspDecodeError(f"{self.cls.__name__}: payload of {len(payload)} bytes, expected {self.size}")
+            raise DspDecodeError(f"{self.cls.__name__}: payload of {len(payload)} bytes, "
+                                 f"expected {self.size}")
         values = self.struct.unpack(payload)
-        return self.cls(**{name: conv(v) for name, conv, v in zip(self.names, self.from_wire, values)})
+        pairs = zip(self.names, self.from_wire, values, strict=True)
+        return self.cls(**{name: conv(v) for name, conv, v in pairs})
 
 
 def _to_wire(kind: str, t: Any) -> Callable[[Any], Any]:
@@ -246,7 +249,7 @@ def _decode_telemetry(payload: bytes) -> p.Telemetry:
     values = layout.struct.unpack(payload)
     kwargs: dict[str, Any] = {}
     i = 2
-    for (attr, _, _, make), count in zip(layout.fields, layout.counts):
+    for (attr, _, _, make), count in zip(layout.fields, layout.counts, strict=True):
         kwargs[attr] = make(*values[i:i + count])
         i += count
     return p.Telemetry(time_ms=time_ms, **kwargs)

@@ -113,7 +113,8 @@ def dsp_config_from(doc: ConfDocument) -> DspConfig:
     except ValueError as exc:
         raise _error_at(doc, "TELEMETRY", f"key 'TELEMETRY': {exc}") from None
     return DspConfig(port=keys.port, baudrate=keys.baudrate, heli_type=_heli_type(doc, keys.heli_type),
-                     telemetry_mask=mask, telemetry_period_ms=keys.telemetry_period_ms, max_speed=keys.max_speed,
+                     telemetry_mask=mask, telemetry_period_ms=keys.telemetry_period_ms,
+                     max_speed=keys.max_speed,
                      ack_timeout_s=keys.ack_timeout_s, retries=keys.retries,
                      pid_groups=tuple(_pid(g) for g in doc.groups_of("PID")), source=doc.path)
 

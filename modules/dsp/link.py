@@ -60,10 +60,12 @@ class LinkStats(msgspec.Struct, frozen=True, kw_only=True):
 
 
 _COUNTERS = tuple(f for f in LinkStats.__struct_fields__ if f not in (
-    "frames_ok", "bytes_rx", "bytes_discarded", "bad_crc", "unknown_id", "bad_length", "oversize", "truncated"))
+    "frames_ok", "bytes_rx", "bytes_discarded", "bad_crc", "unknown_id", "bad_length", "oversize",
+    "truncated"))
 
 
-def open_port(url: str, baudrate: int, *, read_timeout: float = 0.02, exclusive: bool = True) -> serial.Serial:
+def open_port(url: str, baudrate: int, *, read_timeout: float = 0.02,
+              exclusive: bool = True) -> serial.Serial:
     """Open ``url`` with pyserial; DspLinkError saying plainly when it is missing, busy or not permitted."""
     try:
         return serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout, write_timeout=2.0,
@@ -323,7 +325,7 @@ class DspLink:
             log.exception("DSP %s callback failed", type(msg).__name__)
 
 
-# --- start-up sequence (SPEC §3) -----------------------------------------------------------------------------
+# --- start-up sequence (SPEC §3) ---------------------------------------------------------------------------
 
 
 def startup_commands(conf: DspConfig) -> list[p.Command]:

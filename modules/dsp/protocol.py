@@ -1,4 +1,4 @@
-"""The DSP protocol's vocabulary: message ids, enums, and one msgspec Struct per message (docs/dsp_protocol.md).
+"""The DSP protocol's vocabulary: message ids, enums, one msgspec Struct per message (docs/dsp_protocol.md).
 
 Ranges live in the types (``Annotated[..., Meta(...)]``) so the same limits drive ``check()`` — which the
 codec runs before encoding, so an out-of-range value is refused with a message naming the field — and any

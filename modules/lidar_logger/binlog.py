@@ -105,7 +105,8 @@ class BinaryLogWriter:
         rec["end_ntp"] = scan.end_ntp
         rec["first_point"] = self.points_written
         rec["n_points"] = scan.n_points
-        rec["utc_nano"], rec["utc_year"], rec["utc_month"], rec["utc_day"] = utc.nano, utc.year, utc.month, utc.day
+        rec["utc_nano"], rec["utc_year"], rec["utc_month"], rec["utc_day"] = (
+            utc.nano, utc.year, utc.month, utc.day)
         rec["utc_hour"], rec["utc_minute"], rec["utc_second"], rec["utc_flags"] = (
             utc.hour, utc.minute, utc.second, utc.flags)
         rec["euler"], rec["lla"], rec["vel"] = pose.euler, pose.lla, pose.vel
@@ -189,8 +190,9 @@ def read_binary_log(path: str | os.PathLike[str]) -> LidarLog:
     total = int(n_points.sum())
     points = points[:total]
     point_scan = point_scan_index(n_points)
-    offsets = time_offsets_us(points["angle"], scans["start_angle"][point_scan], scans["end_angle"][point_scan],
-                              scans["start_ntp"][point_scan], scans["end_ntp"][point_scan])
+    per_point = scans[point_scan]
+    offsets = time_offsets_us(points["angle"], per_point["start_angle"], per_point["end_angle"],
+                              per_point["start_ntp"], per_point["end_ntp"])
     flags = wire_to_seed(points["flags"]).astype(np.int64)
     pose_time = np.array([utc_to_posix(_utc(rec)) for rec in scans], dtype=np.float64)
     return LidarLog(
@@ -235,7 +237,8 @@ def iter_records(path: str | os.PathLike[str]) -> Iterator[ScanRecord]:
         scan = Scan(int(rec["scan_number"]), int(rec["scanner_status"]), 0, int(rec["start_ntp"]),
                     int(rec["end_ntp"]), 11520, int(rec["start_angle"]), int(rec["end_angle"]), (0,) * 6,
                     int(rec["scan_flags"]),
-                    make_points(p["layer"], p["echo"], p["flags"], p["angle"], p["distance"], p["echo_width"]))
+                    make_points(p["layer"], p["echo"], p["flags"], p["angle"], p["distance"],
+                                p["echo_width"]))
         pose = Pose(utc=_utc(rec), euler=tuple(float(v) for v in rec["euler"]),
                     lla=tuple(float(v) for v in rec["lla"]), vel=tuple(float(v) for v in rec["vel"]),
                     status=int(rec["status"]), valid=int(rec["valid"]))

@@ -61,7 +61,8 @@ def _parser() -> argparse.ArgumentParser:
     geo.add_argument("--mounting", type=float, nargs=6, metavar=("ROLL", "PITCH", "YAW", "X", "Y", "Z"),
                      help="scanner mounting; default: the run's ConfigFile")
     geo.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"))
-    geo.add_argument("--position-ref", choices=("imu", "antenna"), help="what the logged LLA is the position of")
+    geo.add_argument("--position-ref", choices=("imu", "antenna"),
+                     help="what the logged LLA is the position of")
     geo.add_argument("--time-align", choices=("auto", "on", "off"), default="auto",
                      help="move the IMU along its velocity to each point's time (needs scanner clock on UTC)")
     geo.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"),
@@ -151,7 +152,8 @@ def _georef(args: argparse.Namespace) -> int:
               scalars={"intensity": log.echo_width[idx].astype(np.float32),
                        "layer": log.layer[idx].astype(np.uint8)},
               comments=[f"cromat lidar georef of {log.source}",
-                        f"frame ENU metres: x east, y north, z up; origin lat {o[0]:.9f} lon {o[1]:.9f} h {o[2]:.4f}",
+                        "frame ENU metres: x east, y north, z up; "
+                        f"origin lat {o[0]:.9f} lon {o[1]:.9f} h {o[2]:.4f}",
                         f"time_aligned {int(result.time_aligned)}; intensity = echo width (m)"])
     print(f"{len(idx)} points -> {args.out} (skipped {result.skipped_invalid_points} flagged points, "
           f"{result.skipped_invalid_pose} points without a valid pose; time aligned: {result.time_aligned})")

@@ -1,4 +1,5 @@
-"""Logger configuration: the vehicle table (seed Table 12) and the ``LIDAR: logger { ... }`` group of a robot .conf.
+"""Logger configuration: the vehicle table (seed Table 12) and the ``LIDAR: logger { ... }`` group of a
+robot .conf.
 
 Example group (robot .conf, SPEC §4 format)::
 
@@ -43,7 +44,7 @@ def vehicle_key(name: str) -> str:
 
 
 class LidarConf(msgspec.Struct, frozen=True, kw_only=True, rename="upper", forbid_unknown_fields=True):
-    """The keys of the ``LIDAR: logger`` group (a config file, not a bus message, so unknown keys are errors)."""
+    """The keys of the ``LIDAR: logger`` group (a config file, not a bus message: unknown keys are errors)."""
 
     vehicle: str
     mtig_port: str | None = None
@@ -81,7 +82,7 @@ def load_lidar_conf(path: str | os.PathLike[str]) -> LidarConf:
 
 
 def read_config_file(path: str | os.PathLike[str]) -> dict[str, str]:
-    """Read a run's ``ConfigFile_<date>`` (flat ``key: value`` lines, ``#`` comments) written by the logger."""
+    """Read a run's ``ConfigFile_<date>`` (flat ``key: value`` lines, ``#`` comments)."""
     out: dict[str, str] = {}
     for line in Path(path).read_text(encoding="ascii").splitlines():
         line = line.split("#", 1)[0].strip()

@@ -52,7 +52,8 @@ def ecef_to_lla(xyz: np.ndarray, iterations: int = 8) -> np.ndarray:
 
 def ecef_from_enu(lat_deg: np.ndarray | float, lon_deg: np.ndarray | float) -> np.ndarray:
     """(..., 3, 3) rotation whose columns are the east, north, up unit vectors in ECEF."""
-    lat, lon = np.radians(np.asarray(lat_deg, dtype=np.float64)), np.radians(np.asarray(lon_deg, dtype=np.float64))
+    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
+    lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
     sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
     zero = np.zeros_like(sl)
     east = np.stack((-so, co, zero), axis=-1)

@@ -76,9 +76,9 @@ def clocks_synchronised(log: LidarLog) -> bool:
     return bool(np.all(np.isfinite(gap)) and np.all(gap < SYNC_LIMIT_S))
 
 
-def georeference(log: LidarLog, mounting: Mounting = Mounting(), *, lever_arm: tuple[float, float, float] = (0, 0, 0),
-                 position_ref: str = "imu", time_align: bool | None = None,
-                 origin_lla: np.ndarray | None = None) -> GeorefResult:
+def georeference(log: LidarLog, mounting: Mounting = Mounting(), *,
+                 lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0), position_ref: str = "imu",
+                 time_align: bool | None = None, origin_lla: np.ndarray | None = None) -> GeorefResult:
     if position_ref not in ("imu", "antenna"):
         raise GeorefError(f"position_ref must be 'imu' or 'antenna', not {position_ref!r}")
     pose_ok = log.valid == 1

@@ -241,9 +241,10 @@ class LdmrsClient:
         """Send a command and check its reply: none in time, or the error bit set, raises LdmrsError."""
         name = Cmd(cmd).name if cmd in Cmd._value2member_map_ else f"0x{cmd:04X}"
         what = name if param is None else f"{name} 0x{param:04X}"
-        reply = self.send_command(cmd, param, value).wait(self.reply_timeout if timeout is None else timeout)
+        timeout = self.reply_timeout if timeout is None else timeout
+        reply = self.send_command(cmd, param, value).wait(timeout)
         if reply is None:
-            reason = self.disconnected or f"no reply within {self.reply_timeout if timeout is None else timeout} s"
+            reason = self.disconnected or f"no reply within {timeout} s"
             raise LdmrsError(f"LD-MRS {what}: {reason}")
         if not reply.ok:
             raise LdmrsError(f"LD-MRS refused {what}" + (f" = {value}" if value is not None else ""))

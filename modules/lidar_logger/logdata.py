@@ -88,7 +88,7 @@ class LidarLog:
         }
 
     def save_npz(self, path: str | os.PathLike[str]) -> Path:
-        """Every array under its field name; plain ``np.load`` reads it back (docs/lidar_logger.md lists them)."""
+        """Every array under its field name; plain ``np.load`` reads it (docs/lidar_logger.md lists them)."""
         path = Path(path)
         arrays = {name: getattr(self, name) for name in _ARRAY_FIELDS}
         np.savez_compressed(path, **arrays)

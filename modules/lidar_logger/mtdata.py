@@ -1,4 +1,5 @@
-"""MTi-G legacy MTData (0x32) payloads: output mode/settings, block layout, decode and encode; the Pose struct.
+"""MTi-G legacy MTData (0x32) payloads: output mode/settings, block layout, decode and encode; the Pose
+struct.
 
 The payload is a fixed sequence of blocks, each present only if its output-mode bit is set, in the order of
 reference/protocols.md §1.3 (raw, GPS PVT, temperature, calibrated, orientation, auxiliary, position,
@@ -181,7 +182,7 @@ def encode_values(values: tuple[float, ...] | list[float], settings: int) -> byt
 # --- the Pose struct (Table 10 of the seed) ---
 
 class UtcTime(msgspec.Struct, frozen=True, kw_only=True):
-    """MTi-G UTC time (12 bytes on the wire); ``flags`` 1 = valid, 2 = time valid but date maybe not, 0 = invalid."""
+    """MTi-G UTC time (12 bytes on the wire); ``flags``: 1 valid, 2 time valid (date maybe not), 0 invalid."""
 
     nano: Annotated[int, msgspec.Meta(ge=0, le=999_999_999)]
     year: Annotated[int, msgspec.Meta(ge=0, le=65535)]
@@ -235,7 +236,8 @@ def utc_to_posix(utc: UtcTime) -> float:
 
 
 def encode_utc(utc: UtcTime) -> bytes:
-    return UTC_STRUCT.pack(utc.nano, utc.year, utc.month, utc.day, utc.hour, utc.minute, utc.second, utc.flags)
+    return UTC_STRUCT.pack(utc.nano, utc.year, utc.month, utc.day, utc.hour, utc.minute, utc.second,
+                           utc.flags)
 
 
 def decode_pose(data: bytes, mode: int, settings: int, lay: Layout | None = None) -> Pose:
@@ -298,7 +300,7 @@ def encode_pose_payload(pose: Pose, mode: int = POSE_MODE, settings: int = POSE_
 
 
 def _orientation_values(euler: tuple[float, float, float], count: int) -> tuple[float, ...]:
-    """Quaternion (q0..q3) of ZYX Euler angles in degrees; the only other orientation a device streams by default."""
+    """Quaternion (q0..q3) of ZYX Euler angles in degrees: the orientation a device streams by default."""
     if count != 4:
         raise MTDataError("only Euler and quaternion orientation are encoded")
     r, p, y = (math.radians(a) / 2 for a in euler)

@@ -42,7 +42,8 @@ from modules.lidar_logger.mtdata import UtcTime
 
 log = logging.getLogger("lidar_logger.textlog")
 
-POINT_HEADER = "Point num; Cartesian(x,y,z); EchoWidth; Flags; Channel; Subchannel; Offset (us); Valid; Segment;"
+POINT_HEADER = (
+    "Point num; Cartesian(x,y,z); EchoWidth; Flags; Channel; Subchannel; Offset (us); Valid; Segment;")
 POINT_FMT = "%d; %.8f,%.8f,%.8f; %.2f; %d; %d; %d; %d; %d; %d\n"
 _NTP_EPOCH = datetime(1900, 1, 1)
 
@@ -73,7 +74,8 @@ def format_scan(record: ScanRecord) -> str:
         f"ScanActiveTime (ms) {active_ms}\n"
         f"Flags {scan.scan_flags}\n"
         f"Points {scan.n_points}\n"
-        f"UTC Y{utc.year:04d} M{utc.month:02d} D{utc.day:02d} {utc.hour:02d}:{utc.minute:02d}:{utc.second:02d} "
+        f"UTC Y{utc.year:04d} M{utc.month:02d} D{utc.day:02d} "
+        f"{utc.hour:02d}:{utc.minute:02d}:{utc.second:02d} "
         f"m{utc.nano // 1_000_000:06d}\n"
         f"Euler [{e[0]:.8f},{e[1]:.8f},{e[2]:.8f}]\n"
         f"LLA [{p[0]:.8f},{p[1]:.8f},{p[2]:.8f}]\n"
@@ -97,7 +99,7 @@ def format_scan(record: ScanRecord) -> str:
 
 
 class TextLogWriter:
-    """Appends scans to ``LogFile_<date>``; flushed after every scan so a crash loses at most the scan in hand."""
+    """Appends scans to ``LogFile_<date>``, flushed after every scan: a crash loses at most one scan."""
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
@@ -162,7 +164,7 @@ def _vector(path: Path, line_no: int, text: str) -> list[float]:
 def _utc_time(path: Path, line_no: int, text: str) -> float:
     parts = text.split()
     try:
-        if len(parts) != 5 or parts[0][0] != "Y" or parts[1][0] != "M" or parts[2][0] != "D" or parts[4][0] != "m":
+        if len(parts) != 5 or [q[0] for q in (parts[0], parts[1], parts[2], parts[4])] != list("YMDm"):
             raise ValueError
         year, month, day = int(parts[0][1:]), int(parts[1][1:]), int(parts[2][1:])
         hour, minute, second = (int(x) for x in parts[3].split(":"))
@@ -174,8 +176,8 @@ def _utc_time(path: Path, line_no: int, text: str) -> float:
     return calendar.timegm((year, month, day, hour, minute, second, 0, 0, 0)) + ms / 1000.0
 
 
-_HEADER_KEYS = ("ScanStart", "ScanEnd", "ScanActiveTime (ms)", "Flags", "Points", "UTC", "Euler", "LLA", "Vel",
-                "Status", "Valid")
+_HEADER_KEYS = ("ScanStart", "ScanEnd", "ScanActiveTime (ms)", "Flags", "Points", "UTC", "Euler", "LLA",
+                "Vel", "Status", "Valid")
 
 
 def read_text_log(path: str | os.PathLike[str]) -> LidarLog:
@@ -217,7 +219,8 @@ def read_text_log(path: str | os.PathLike[str]) -> LidarLog:
             if pl.count(";") != 8 or pl.count(",") != 2:
                 raise _fail(path, start + k + 1, f"malformed point line {pl[:80]!r}")
         scans.append((
-            index, _scan_time(path, i + 2, vals[0]), _scan_time(path, i + 3, vals[1]), _int(path, i + 5, vals[3]),
+            index, _scan_time(path, i + 2, vals[0]), _scan_time(path, i + 3, vals[1]),
+            _int(path, i + 5, vals[3]),
             n, _utc_time(path, i + 7, vals[5]), _vector(path, i + 8, vals[6]), _vector(path, i + 9, vals[7]),
             _vector(path, i + 10, vals[8]), _int(path, i + 11, vals[9]), _int(path, i + 12, vals[10]),
         ))

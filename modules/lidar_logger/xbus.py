@@ -137,7 +137,8 @@ class FrameParser:
                 self.discarded_bytes += 1
                 pos += 1
                 continue
-            out.append(Frame(mid=buf[pos + 2], data=bytes(buf[pos + head:pos + head + length]), bid=buf[pos + 1]))
+            data = bytes(buf[pos + head:pos + head + length])
+            out.append(Frame(mid=buf[pos + 2], data=data, bid=buf[pos + 1]))
             self.frames += 1
             pos += total
         del buf[:pos]

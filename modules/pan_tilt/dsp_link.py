@@ -23,8 +23,11 @@ class DspCommander:
         self.sender = sender
         self.batches = 0
         self.commands = 0
-        self._pub = Publisher(session, keys.slot_key(robot, dsp, dsp_bus.COMMANDS_SLOT),
-                              OutputSlot(dsp_bus.COMMANDS_SLOT, DspCommands, kind=Kind.STREAM))
+        self._pub = Publisher(
+            session,
+            keys.slot_key(robot, dsp, dsp_bus.COMMANDS_SLOT),
+            OutputSlot(dsp_bus.COMMANDS_SLOT, DspCommands, kind=Kind.STREAM),
+        )
 
     def send(self, commands: Sequence[DspCommand]) -> int | None:
         """Send one batch; returns its id (None when there was nothing to send)."""

@@ -88,21 +88,33 @@ class Decision:
 def on_control_modo(state: PanTiltState, msg: ModoFuncionamientoPT) -> Decision:
     """CONTROL_MODO: passed to the DSP as it is."""
     mode = p.PanTiltMode(msg.modo_de_funcionamiento)
-    return Decision(PanTiltState(mode=int(mode), mode_from_command=True), (p.SetPanTiltMode(mode=mode),),
-                    detail=f"pan & tilt mode {mode.name}")
+    return Decision(
+        PanTiltState(mode=int(mode), mode_from_command=True),
+        (p.SetPanTiltMode(mode=mode),),
+        detail=f"pan & tilt mode {mode.name}",
+    )
 
 
 def on_datos(state: PanTiltState, msg: DatosPT) -> Decision:
     """DATOS: mode 0 → angle references, mode 1 → target point, mode 2 (or not yet known) → nothing."""
     if state.mode == p.PanTiltMode.ANGLES:
-        return Decision(state, (p.SetPanTiltAngles(pan_deg=msg.ref_pan, tilt_deg=msg.ref_tilt),),
-                        detail="angle references")
+        return Decision(
+            state,
+            (p.SetPanTiltAngles(pan_deg=msg.ref_pan, tilt_deg=msg.ref_tilt),),
+            detail="angle references",
+        )
     if state.mode == p.PanTiltMode.TARGET:
         if not representable(msg.altura):
-            return Decision(state, errors=(PanTiltError.ALTURA_NOT_REPRESENTABLE,),
-                            detail=f"altura {msg.altura!r} cannot be sent to the DSP; datum dropped")
-        return Decision(state, (p.SetPanTiltTarget(lat=msg.latitud, lon=msg.longitud, alt=msg.altura),),
-                        detail="target point")
+            return Decision(
+                state,
+                errors=(PanTiltError.ALTURA_NOT_REPRESENTABLE,),
+                detail=f"altura {msg.altura!r} cannot be sent to the DSP; datum dropped",
+            )
+        return Decision(
+            state,
+            (p.SetPanTiltTarget(lat=msg.latitud, lon=msg.longitud, alt=msg.altura),),
+            detail="target point",
+        )
     return Decision(state, detail=f"DATOS ignored in pan & tilt mode {state.mode}")
 
 
@@ -117,5 +129,8 @@ def on_dsp_error(state: PanTiltState, report: DspErrorReport, module: str) -> De
     """A refused or unacknowledged command of this module's own batch: forwarded on ERROR."""
     if report.sender != module:
         return Decision(state)
-    return Decision(state, errors=(FORWARDED_DSP_ERROR_BASE + report.code,),
-                    detail=f"DSP refused {report.command or 'a command'}: {report.name} {report.detail}")
+    return Decision(
+        state,
+        errors=(FORWARDED_DSP_ERROR_BASE + report.code,),
+        detail=f"DSP refused {report.command or 'a command'}: {report.name} {report.detail}",
+    )

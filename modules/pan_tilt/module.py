@@ -1,6 +1,7 @@
 """The pan & tilt process (SPEC §3.2): CONTROL_ENTRADA, CONTROL_MODO, DATOS in; ERROR out; DSP commands out.
 
-The decisions are in :mod:`modules.pan_tilt.logic`; this class wires them to the bus. CONTROL_MODO and DATOS are
+The decisions are in :mod:`modules.pan_tilt.logic`; this class wires them to the bus. CONTROL_MODO and DATOS
+are
 routed inputs: CONTROL_ENTRADA_PT names the slot numbers they are read from (-1: ignored). The DSP's telemetry
 gives the pan & tilt mode in force when the module (re)starts; the DSP's error reports about this module's own
 batches are forwarded on ERROR.
@@ -31,8 +32,9 @@ class PanTiltModule(Module):
         InputSlot("datos", DatosPT, safety=Safety.UNSAFE),
         OutputSlot("error", ErrorPT),
     )
-    control = Control(ControlEntradaPT, {"slot_entrada_control_modos": "control_modo",
-                                         "slot_entrada_datos": "datos"})
+    control = Control(
+        ControlEntradaPT, {"slot_entrada_control_modos": "control_modo", "slot_entrada_datos": "datos"}
+    )
     error_slot = "error"
 
     def on_start(self) -> None:
@@ -41,10 +43,22 @@ class PanTiltModule(Module):
         dsp = self.context.params.get("dsp", dsp_bus.MODULE)
         self.dsp = DspCommander(self.session, self.robot, self.module, dsp)
         self.feeds = [
-            Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT), p.Telemetry,
-                 self._on_telemetry, self.lock, newest_only=True),
-            Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.ERRORS_SLOT), dsp_bus.DspErrorReport,
-                 self._on_dsp_error, self.lock, newest_only=False),
+            Feed(
+                self.session,
+                keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT),
+                p.Telemetry,
+                self._on_telemetry,
+                self.lock,
+                newest_only=True,
+            ),
+            Feed(
+                self.session,
+                keys.slot_key(self.robot, dsp, dsp_bus.ERRORS_SLOT),
+                dsp_bus.DspErrorReport,
+                self._on_dsp_error,
+                self.lock,
+                newest_only=False,
+            ),
         ]
 
     def on_stop(self) -> None:
@@ -54,7 +68,7 @@ class PanTiltModule(Module):
             self.dsp.close()
 
     def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
-        """Out-of-range fields get the documented per-field code; undecodable data keep the bus's MALFORMED."""
+        """Out-of-range fields get the documented per-field code; undecodable data: MALFORMED."""
         code = super().error_code_for(slot, field, error)
         if code == BusErrorCode.OUT_OF_RANGE:
             return logic.field_code(slot, field) or code

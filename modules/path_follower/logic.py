@@ -31,9 +31,10 @@ MODE_CHANGE = 0
 COMMAND = 1
 ABORT = 0
 
-FORWARDED_FAULTS = frozenset({p.ErrorCode.GPS_LOST, p.ErrorCode.LOW_BATTERY, p.ErrorCode.ROTOR_RPM,
-                              p.ErrorCode.SENSOR_FAULT})
-"""Faults the DSP reports on its own that directly affect the tasks ordered from above (forwarded on ERROR)."""
+FORWARDED_FAULTS = frozenset(
+    {p.ErrorCode.GPS_LOST, p.ErrorCode.LOW_BATTERY, p.ErrorCode.ROTOR_RPM, p.ErrorCode.SENSOR_FAULT}
+)
+"""DSP faults (not answers to a command) that directly affect the tasks ordered from above: forwarded."""
 
 
 class FollowerError(IntEnum):
@@ -131,7 +132,9 @@ def on_control_modo(state: FollowerState, msg: ControlModoSegCam) -> Decision:
     """CONTROL_MODO: the abort command, or one row of SPEC §3.3's mode table."""
     if msg.modo_o_comando == COMMAND:
         if msg.numero_de_comando == ABORT:
-            return Decision(replace(state, path=()), (p.Abort(),), detail="abort: both waypoint queues emptied")
+            return Decision(
+                replace(state, path=()), (p.Abort(),), detail="abort: both waypoint queues emptied"
+            )
         return _refused(state, FollowerError.COMMAND_OUT_OF_RANGE, f"unknown command {msg.numero_de_comando}")
     mode = p.Mode(msg.modo_de_funcionamiento)
     new = replace(state, mode=int(mode), mode_from_command=True)
@@ -139,16 +142,22 @@ def on_control_modo(state: FollowerState, msg: ControlModoSegCam) -> Decision:
         cmds: tuple[DspCommand, ...] = (p.SetMode(mode=mode), p.SetTracking(enable=True))
     elif mode == p.Mode.PATH_GIVEN_HEADING:
         if state.heading_deg is None:
-            return _refused(state, FollowerError.HEADING_UNKNOWN,
-                            "mode 1 needs the current heading and no DSP telemetry has given it yet")
+            return _refused(
+                state,
+                FollowerError.HEADING_UNKNOWN,
+                "mode 1 needs the current heading and no DSP telemetry has given it yet",
+            )
         heading = p.heading_deg_from_rad(math.radians(state.heading_deg))
         cmds = (p.SetHeading(heading_deg=heading), p.SetMode(mode=mode), p.SetTracking(enable=True))
     elif mode == p.Mode.SEMI_AUTOMATIC:
         cmds = (p.SetMode(mode=mode), p.SetTracking(enable=False), p.InvalidatePath())
         new = replace(new, path=())
     elif mode == p.Mode.ONBOARD_FOLLOWER:
-        return _refused(state, FollowerError.ONBOARD_FOLLOWER_NOT_BUILT,
-                        "mode 3 (onboard path follower) is reserved and not built yet; mode unchanged")
+        return _refused(
+            state,
+            FollowerError.ONBOARD_FOLLOWER_NOT_BUILT,
+            "mode 3 (onboard path follower) is reserved and not built yet; mode unchanged",
+        )
     elif mode in (p.Mode.TAKE_OFF, p.Mode.LANDING):
         cmds = (p.SetTracking(enable=False), p.InvalidatePath(), p.SetMode(mode=mode))
         new = replace(new, path=())
@@ -167,8 +176,11 @@ def on_heading(state: FollowerState, msg: HeadingSegCam) -> Decision:
 def on_velocidad(state: FollowerState, msg: SpeedSegCam, max_speed: float) -> Decision:
     """VELOCIDAD: always sent, once checked against MAX_SPEED."""
     if not msg.speed <= max_speed:
-        return _refused(state, FollowerError.SPEED_ABOVE_MAX,
-                        f"speed {msg.speed!r} m/s above MAX_SPEED {max_speed} m/s; not sent")
+        return _refused(
+            state,
+            FollowerError.SPEED_ABOVE_MAX,
+            f"speed {msg.speed!r} m/s above MAX_SPEED {max_speed} m/s; not sent",
+        )
     return Decision(state, (p.SetSpeed(speed=msg.speed),), detail="speed")
 
 
@@ -178,54 +190,91 @@ def on_datos(state: FollowerState, msg: DatosSegCam, capacity: int = p.WAYPOINT_
     The whole message is checked first: a count that does not match, or any bad point, rejects all of it.
     """
     if msg.n_points != len(msg.puntos):
-        return _refused(state, FollowerError.N_POINTS_MISMATCH,
-                        f"n_points={msg.n_points} but {len(msg.puntos)} points; whole path rejected")
+        return _refused(
+            state,
+            FollowerError.N_POINTS_MISMATCH,
+            f"n_points={msg.n_points} but {len(msg.puntos)} points; whole path rejected",
+        )
     for i, pt in enumerate(msg.puntos):
         if not representable(pt.altura):
-            return _refused(state, FollowerError.ALTURA_NOT_REPRESENTABLE,
-                            f"point {i}: altura {pt.altura!r} cannot be sent to the DSP; whole path rejected")
+            return _refused(
+                state,
+                FollowerError.ALTURA_NOT_REPRESENTABLE,
+                f"point {i}: altura {pt.altura!r} cannot be sent to the DSP; whole path rejected",
+            )
     if state.mode not in (p.Mode.PATH_AUTO_HEADING, p.Mode.PATH_GIVEN_HEADING):
         return Decision(state, detail=f"DATOS ignored in mode {state.mode}")
     if msg.n_points > capacity:
-        return _refused(state, FollowerError.PATH_TOO_LONG,
-                        f"{msg.n_points} points exceed the DSP's waypoint queue ({capacity}); whole path rejected")
+        return _refused(
+            state,
+            FollowerError.PATH_TOO_LONG,
+            f"{msg.n_points} points exceed the DSP's waypoint queue ({capacity}); whole path rejected",
+        )
     cmds = tuple(p.AddWaypoint(lat=pt.latitud, lon=pt.longitud, alt=pt.altura) for pt in msg.puntos)
-    return Decision(replace(state, path=state.path + tuple(msg.puntos)), cmds, detail=f"{msg.n_points} waypoints")
+    return Decision(
+        replace(state, path=state.path + tuple(msg.puntos)), cmds, detail=f"{msg.n_points} waypoints"
+    )
 
 
 def on_refs(state: FollowerState, msg: RefsSegCam) -> Decision:
     """REFS: sent as they are in mode 6 only; ignored otherwise."""
     for name in ("ref_altura", "error_longitudinal", "error_lateral"):
         if not representable(getattr(msg, name)):
-            return _refused(state, FollowerError.REF_NOT_REPRESENTABLE,
-                            f"{name}={getattr(msg, name)!r} cannot be sent to the DSP; REFS dropped")
+            return _refused(
+                state,
+                FollowerError.REF_NOT_REPRESENTABLE,
+                f"{name}={getattr(msg, name)!r} cannot be sent to the DSP; REFS dropped",
+            )
     if state.mode != p.Mode.BRIDGE:
         return Decision(state, detail=f"REFS ignored in mode {state.mode}")
-    return Decision(state, (p.SetRefs(ref_altura=msg.ref_altura, error_longitudinal=msg.error_longitudinal,
-                                      error_lateral=msg.error_lateral, ref_heading=msg.ref_heading,
-                                      ref_rpm_motor=msg.ref_rpm_motor),), detail="bridge references")
+    return Decision(
+        state,
+        (
+            p.SetRefs(
+                ref_altura=msg.ref_altura,
+                error_longitudinal=msg.error_longitudinal,
+                error_lateral=msg.error_lateral,
+                ref_heading=msg.ref_heading,
+                ref_rpm_motor=msg.ref_rpm_motor,
+            ),
+        ),
+        detail="bridge references",
+    )
 
 
 def on_telemetry(state: FollowerState, telemetry: p.Telemetry) -> FollowerState:
     """Keep the current heading; adopt the DSP's mode until a CONTROL_MODO has set one (module restart)."""
-    heading = telemetry.heading if telemetry.heading is not None else (
-        telemetry.attitude.yaw if telemetry.attitude is not None else None)
+    heading = (
+        telemetry.heading
+        if telemetry.heading is not None
+        else (telemetry.attitude.yaw if telemetry.attitude is not None else None)
+    )
     new = state if heading is None or not math.isfinite(heading) else replace(state, heading_deg=heading)
     if not new.mode_from_command and telemetry.status is not None:
         new = replace(new, mode=telemetry.status.mode)
     return new
 
 
-def on_dsp_error(state: FollowerState, report: DspErrorReport, module: str, *, restore_mode: bool = False,
-                 mode_before: int | None = None) -> Decision:
+def on_dsp_error(
+    state: FollowerState,
+    report: DspErrorReport,
+    module: str,
+    *,
+    restore_mode: bool = False,
+    mode_before: int | None = None,
+) -> Decision:
     """A DSP error that affects the tasks ordered from above → forwarded on ERROR as 1000 + code.
 
-    Those are failures of this module's own batches and the faults in :data:`FORWARDED_FAULTS`. When the failed
-    batch was a mode change (``restore_mode``), ``mode_before`` is restored: the DSP did not change mode.
+    Those are failures of this module's own batches and the faults in :data:`FORWARDED_FAULTS`. When the
+    failed batch was a mode change (``restore_mode``), ``mode_before`` is restored: the DSP did not
+    change mode.
     """
     own = report.sender == module
     if not own and not (report.sender == "" and report.code in FORWARDED_FAULTS):
         return Decision(state)
     new = replace(state, mode=mode_before) if own and restore_mode else state
-    return Decision(new, errors=(FORWARDED_DSP_ERROR_BASE + report.code,),
-                    detail=f"DSP error {report.name} ({report.code}) {report.command} {report.detail}".strip())
+    return Decision(
+        new,
+        errors=(FORWARDED_DSP_ERROR_BASE + report.code,),
+        detail=f"DSP error {report.name} ({report.code}) {report.command} {report.detail}".strip(),
+    )

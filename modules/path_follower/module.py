@@ -2,7 +2,8 @@
 REFS in; ERROR out; DSP commands out.
 
 The decisions are in :mod:`modules.path_follower.logic`; this class wires them to the bus. CONTROL_MODO,
-HEADING, VELOCIDAD and DATOS are routed by CONTROL_ENTRADA_SEG_CAM (-1: ignored); REFS is read on this module's
+HEADING, VELOCIDAD and DATOS are routed by CONTROL_ENTRADA_SEG_CAM (-1: ignored); REFS is read on this
+module's
 own ``refs`` key. MAX_SPEED comes from the robot .conf (``--conf``): without it the module does not start.
 DSP errors about this module's batches, and DSP faults that stop ordered tasks, are forwarded on ERROR.
 """
@@ -50,8 +51,12 @@ def load_max_speed(conf_path: str | None) -> float:
     except ValueError:
         value = math.nan
     if not (math.isfinite(value) and 0.0 < value <= p.MAX_SPEED_LIMIT):
-        raise ConfError(f"key 'MAX_SPEED': {text!r} is not a speed in (0, {p.MAX_SPEED_LIMIT}] m/s",
-                        path=doc.path, line=entry.line, column=entry.column)
+        raise ConfError(
+            f"key 'MAX_SPEED': {text!r} is not a speed in (0, {p.MAX_SPEED_LIMIT}] m/s",
+            path=doc.path,
+            line=entry.line,
+            column=entry.column,
+        )
     return value
 
 
@@ -65,10 +70,15 @@ class PathFollowerModule(Module):
         InputSlot("refs", RefsSegCam, safety=Safety.UNSAFE),
         OutputSlot("error", ErrorSegCam),
     )
-    control = Control(ControlEntradaSegCam, {"slot_entrada_control_modos": "control_modo",
-                                             "slot_entrada_heading": "heading",
-                                             "slot_entrada_speed": "velocidad",
-                                             "slot_entrada_datos": "datos"})
+    control = Control(
+        ControlEntradaSegCam,
+        {
+            "slot_entrada_control_modos": "control_modo",
+            "slot_entrada_heading": "heading",
+            "slot_entrada_speed": "velocidad",
+            "slot_entrada_datos": "datos",
+        },
+    )
     error_slot = "error"
 
     def __init__(self, context) -> None:  # type: ignore[no-untyped-def]
@@ -82,10 +92,22 @@ class PathFollowerModule(Module):
         dsp = self.context.params.get("dsp", dsp_bus.MODULE)
         self.dsp = DspCommander(self.session, self.robot, self.module, dsp)
         self.feeds = [
-            Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT), p.Telemetry,
-                 self._on_telemetry, self.lock, newest_only=True),
-            Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.ERRORS_SLOT), dsp_bus.DspErrorReport,
-                 self._on_dsp_error, self.lock, newest_only=False),
+            Feed(
+                self.session,
+                keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT),
+                p.Telemetry,
+                self._on_telemetry,
+                self.lock,
+                newest_only=True,
+            ),
+            Feed(
+                self.session,
+                keys.slot_key(self.robot, dsp, dsp_bus.ERRORS_SLOT),
+                dsp_bus.DspErrorReport,
+                self._on_dsp_error,
+                self.lock,
+                newest_only=False,
+            ),
         ]
 
     def on_stop(self) -> None:
@@ -95,7 +117,7 @@ class PathFollowerModule(Module):
             self.dsp.close()
 
     def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
-        """Out-of-range fields get the documented per-field code; undecodable data keep the bus's MALFORMED."""
+        """Out-of-range fields get the documented per-field code; undecodable data: MALFORMED."""
         code = super().error_code_for(slot, field, error)
         if code == BusErrorCode.OUT_OF_RANGE:
             return logic.field_code(slot, field) or code
@@ -137,5 +159,8 @@ class PathFollowerModule(Module):
     def _on_dsp_error(self, report: dsp_bus.DspErrorReport) -> None:
         own_mode_batch = report.sender == self.module and report.batch_id in self._mode_batches
         before = self._mode_batches.pop(report.batch_id, None) if own_mode_batch else None
-        self._apply(logic.on_dsp_error(self.state, report, self.module, restore_mode=own_mode_batch,
-                                       mode_before=before))
+        self._apply(
+            logic.on_dsp_error(
+                self.state, report, self.module, restore_mode=own_mode_batch, mode_before=before
+            )
+        )

@@ -57,8 +57,14 @@ def to_robot_telemetry(t: p.Telemetry, stamp: float) -> tuple[RobotTelemetry, li
     fields: dict[str, object] = {}
     if t.status is not None:
         s = t.status
-        fields.update(mode=s.mode, mode_name=mode_name(s.mode), tracking=s.tracking, path_valid=s.path_valid,
-                      airborne=s.airborne, waypoints_queued=s.queue_length)
+        fields.update(
+            mode=s.mode,
+            mode_name=mode_name(s.mode),
+            tracking=s.tracking,
+            path_valid=s.path_valid,
+            airborne=s.airborne,
+            waypoints_queued=s.queue_length,
+        )
     if t.pan_tilt is not None:
         pt = t.pan_tilt
         if _finite(pt.pan, pt.tilt):
@@ -67,6 +73,7 @@ def to_robot_telemetry(t: p.Telemetry, stamp: float) -> tuple[RobotTelemetry, li
             dropped.append("pan_tilt")
     if t.error_code is not None:
         fields["error_code"] = t.error_code
-    out = RobotTelemetry(stamp=stamp, position=position, attitude=attitude, velocity=velocity,
-                         heading_deg=heading, **fields)  # type: ignore[arg-type]
+    out = RobotTelemetry(
+        stamp=stamp, position=position, attitude=attitude, velocity=velocity, heading_deg=heading, **fields
+    )  # type: ignore[arg-type]
     return out, dropped

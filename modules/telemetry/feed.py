@@ -21,10 +21,19 @@ JOIN_TIMEOUT_S = 2.0
 
 
 class Feed(Generic[T]):
-    """Subscribe ``key`` as ``type``; ``newest_only``: a RingChannel(1) (telemetry), else every sample in order."""
+    """Subscribe ``key`` as ``type``; ``newest_only``: a RingChannel(1) (telemetry), else all, in order."""
 
-    def __init__(self, session: zenoh.Session, key: str, type_: type[T], handler: Callable[[T], None],
-                 lock: Any, *, newest_only: bool, queue: int = 1024) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        type_: type[T],
+        handler: Callable[[T], None],
+        lock: Any,
+        *,
+        newest_only: bool,
+        queue: int = 1024,
+    ) -> None:
         self.key = key
         self.received = 0
         self.undecodable = 0

@@ -1,7 +1,8 @@
 """The telemetry process: subscribes the DSP process's telemetry, publishes RobotTelemetry for everyone.
 
 Output slot ``telemetry`` (unsafe state: only the newest value matters) is read by the Module Manager, the RAL
-and any module. It has no inputs of its own: the DSP telemetry key is fixed (``cromat/<robot>/dsp/telemetry``).
+and any module. It has no inputs of its own: the DSP telemetry key is fixed
+(``cromat/<robot>/dsp/telemetry``).
 """
 
 from __future__ import annotations
@@ -28,15 +29,22 @@ class TelemetryModule(Module):
         self.published = 0
         self.fields_dropped = 0
         dsp = self.context.params.get("dsp", dsp_bus.MODULE)
-        self.feed = Feed(self.session, keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT), p.Telemetry,
-                         self._on_dsp_telemetry, self.lock, newest_only=True)
+        self.feed = Feed(
+            self.session,
+            keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT),
+            p.Telemetry,
+            self._on_dsp_telemetry,
+            self.lock,
+            newest_only=True,
+        )
 
     def _on_dsp_telemetry(self, t: p.Telemetry) -> None:
         value, dropped = to_robot_telemetry(t, time.time())
         if dropped:
             self.fields_dropped += len(dropped)
-            self.log.warning("DSP telemetry: invalid %s dropped (%d so far)", ", ".join(dropped),
-                             self.fields_dropped)
+            self.log.warning(
+                "DSP telemetry: invalid %s dropped (%d so far)", ", ".join(dropped), self.fields_dropped
+            )
         self.publish("telemetry", value)
         self.published += 1
 

@@ -32,6 +32,10 @@ class GcsError(RuntimeError):
     pass
 
 
+class UsageError(GcsError):
+    """Options that cannot work (a tls/ endpoint without a CA, a certificate without its key)."""
+
+
 class Unreachable(GcsError):
     """The robot router could not be reached, or it refused this station's credentials."""
 
@@ -40,20 +44,31 @@ class NoReply(GcsError):
     """Nothing answered: the robot is not running, or access control dropped the request."""
 
 
-def session_config(connect: list[str] | None = None, *, ca: str | None = None, cert: str | None = None,
-                   key: str | None = None, config_file: str | None = None,
-                   connect_timeout_s: float = 5.0) -> SessionConfig:
+def session_config(
+    connect: list[str] | None = None,
+    *,
+    ca: str | None = None,
+    cert: str | None = None,
+    key: str | None = None,
+    config_file: str | None = None,
+    connect_timeout_s: float = 5.0,
+) -> SessionConfig:
     """A client configuration: ``connect`` endpoints (``tls/HOST:PORT`` needs ``ca`` and usually cert+key)."""
     endpoints = connect or ["tcp/127.0.0.1:7447"]
     tls = None
     if any(e.startswith("tls/") for e in endpoints) or ca:
         if not ca:
-            raise GcsError("a tls/ endpoint needs --ca (the CA that signed the robot router's certificate)")
+            raise UsageError("a tls/ endpoint needs --ca (the CA that signed the robot router's certificate)")
         if bool(cert) != bool(key):
-            raise GcsError("--cert and --key go together")
+            raise UsageError("--cert and --key go together")
         tls = TlsConfig(root_ca=ca, cert=cert, key=key, mtls=bool(cert))
-    return SessionConfig(mode="client", connect=endpoints, tls=tls, config_file=config_file,
-                         connect_timeout_s=connect_timeout_s)
+    return SessionConfig(
+        mode="client",
+        connect=endpoints,
+        tls=tls,
+        config_file=config_file,
+        connect_timeout_s=connect_timeout_s,
+    )
 
 
 class Subscription:
@@ -77,15 +92,18 @@ class Subscription:
 class Gcs:
     """One ground station's connection to the robots behind one router."""
 
-    def __init__(self, config: SessionConfig, *, name: str = "gcs", link: bool = False,
-                 timeout_s: float = 5.0) -> None:
+    def __init__(
+        self, config: SessionConfig, *, name: str = "gcs", link: bool = False, timeout_s: float = 5.0
+    ) -> None:
         self.name = keys.validate_name(name, "GCS name")
         self.timeout_s = timeout_s
         try:
             self.session = open_session(config)
         except SessionError as exc:
-            raise Unreachable(f"cannot reach the robot router ({', '.join(config.connect)}), or it refused "
-                              f"this station's credentials: {exc}") from None
+            raise Unreachable(
+                f"cannot reach the robot router ({', '.join(config.connect)}), or it refused "
+                f"this station's credentials: {exc}"
+            ) from None
         self._closed = False
         self._stop = threading.Event()
         self._token: Any = None
@@ -129,23 +147,30 @@ class Gcs:
     def robots(self, timeout_s: float | None = None) -> list[str]:
         """Robots whose RAL holds a liveliness token now."""
         found = set()
-        for reply in self.session.liveliness().get(f"{keys.ROOT}/*/@alive/ral",
-                                                   timeout=timeout_s or self.timeout_s):
+        for reply in self.session.liveliness().get(
+            f"{keys.ROOT}/*/@alive/ral", timeout=timeout_s or self.timeout_s
+        ):
             if reply.ok is not None:
                 found.add(keys.parse_alive_key(str(reply.ok.key_expr))[0])
         return sorted(found)
 
     def watch(self, robot: str, callback: Callable[[gri.GriState], None]) -> Subscription:
         """Call ``callback`` with every GRI state of ``robot`` (``*``: every robot), the last one first."""
+
         def on_sample(sample: zenoh.Sample) -> None:
             try:
                 callback(gri.decode_state(sample.payload.to_bytes()))
             except msgspec.MsgspecError:
                 return
 
-        sub = Subscription(zenoh.ext.declare_advanced_subscriber(
-            self.session, gri.state_key(robot), on_sample,
-            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)))
+        sub = Subscription(
+            zenoh.ext.declare_advanced_subscriber(
+                self.session,
+                gri.state_key(robot),
+                on_sample,
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            )
+        )
         self._subs.append(sub)
         return sub
 
@@ -173,8 +198,10 @@ class Gcs:
             ready.wait(timeout_s or self.timeout_s)
             self._subs.remove(sub)
         if not got:
-            raise NoReply(f"no state from robot {robot!r} within {timeout_s or self.timeout_s:g} s: "
-                          "is its RAL running, and may this station read it?")
+            raise NoReply(
+                f"no state from robot {robot!r} within {timeout_s or self.timeout_s:g} s: "
+                "is its RAL running, and may this station read it?"
+            )
         return got[-1]
 
     def errors(self, robot: str) -> list[gri.ErrorRecord]:
@@ -192,8 +219,10 @@ class Gcs:
                 return gri.decode_reply(reply.ok.payload.to_bytes())
             except msgspec.MsgspecError as exc:
                 raise GcsError(f"unreadable task reply from robot {robot!r}: {exc}") from None
-        raise NoReply(f"no answer from robot {robot!r} to {gri.kind_of(request)} within {wait:g} s: the robot "
-                      "is not running or unreachable, or this station's identity may not submit tasks")
+        raise NoReply(
+            f"no answer from robot {robot!r} to {gri.kind_of(request)} within {wait:g} s: the robot "
+            "is not running or unreachable, or this station's identity may not submit tasks"
+        )
 
     def abort(self, robot: str) -> gri.TaskReply:
         return self.send(robot, gri.Abort())

@@ -1,6 +1,7 @@
 """``cromat gcs``: the ground-station command line, a thin shell over :mod:`ral.gcs.api`.
 
-Exit codes: 0 done, 1 the robot rejected the request, 2 usage or file error, 3 unreachable or refused.
+Exit codes: 0 done, 1 the robot rejected or refused the request, 2 usage or file error, 3 unreachable, refused
+credentials, or no answer.
 """
 
 from __future__ import annotations
@@ -12,14 +13,18 @@ import time
 from typing import TextIO
 
 from ral import gri
-from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, session_config
+from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
 from ral.gcs.waypoints import WaypointFileError, load_waypoints
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cromat gcs", description="Ground control station for cromat robots.")
-    p.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help="robot router endpoint, e.g. tls/robot1:7447 (repeatable; default tcp/127.0.0.1:7447)")
+    p.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="robot router endpoint, e.g. tls/robot1:7447 (repeatable; default tcp/127.0.0.1:7447)",
+    )
     p.add_argument("--ca", help="CA certificate (PEM) that signed the router's certificate (tls/)")
     p.add_argument("--cert", help="this station's certificate (PEM) for mutual TLS")
     p.add_argument("--key", help="this station's private key (PEM)")
@@ -72,8 +77,11 @@ def task_request(args: argparse.Namespace) -> gri.TaskRequest:
 
     kind = args.kind
     if kind in ("goto", "follow_path"):
-        raw: dict = {"type": kind, "waypoints": [msgspec.to_builtins(w) for w in load_waypoints(args.file)],
-                     "speed": args.speed}
+        raw: dict = {
+            "type": kind,
+            "waypoints": [msgspec.to_builtins(w) for w in load_waypoints(args.file)],
+            "speed": args.speed,
+        }
     elif kind == "take_off":
         raw = {"type": kind, "height": args.height}
     elif kind == "look_at":
@@ -94,9 +102,11 @@ def format_state(s: gri.GriState) -> str:
     pos = f"{s.position.lat:.6f} {s.position.lon:.6f} {s.position.alt:.1f} m" if s.position else "unknown"
     tasks = ", ".join(f"{t.task_type}:{t.kind}#{t.id}" for t in s.tasks) or "none"
     mods = " ".join(f"{m.name}={m.state}" for m in s.modules) or "-"
-    return (f"{s.robot} [{s.kind or '?'}] pos {pos}  mode {s.mode_name or s.mode}  airborne {s.airborne}  "
-            f"wp {s.waypoints_queued}  link {s.link}  manager {'up' if s.manager_up else 'DOWN'}\n"
-            f"  tasks: {tasks}\n  modules: {mods}")
+    return (
+        f"{s.robot} [{s.kind or '?'}] pos {pos}  mode {s.mode_name or s.mode}  airborne {s.airborne}  "
+        f"wp {s.waypoints_queued}  link {s.link}  manager {'up' if s.manager_up else 'DOWN'}\n"
+        f"  tasks: {tasks}\n  modules: {mods}"
+    )
 
 
 def _print_reply(reply: gri.TaskReply, out: TextIO) -> int:
@@ -144,8 +154,14 @@ def _watch(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
 
 def run(args: argparse.Namespace, out: TextIO) -> int:
     request = task_request(args) if args.command == "task" else None
-    cfg = session_config(args.connect, ca=args.ca, cert=args.cert, key=args.key, config_file=args.config,
-                         connect_timeout_s=args.timeout)
+    cfg = session_config(
+        args.connect,
+        ca=args.ca,
+        cert=args.cert,
+        key=args.key,
+        config_file=args.config,
+        connect_timeout_s=args.timeout,
+    )
     with Gcs(cfg, name=args.name, link=args.command == "watch", timeout_s=args.timeout) as gcs:
         if args.command == "robots":
             for robot in gcs.robots():
@@ -166,9 +182,12 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             print(f"{'module':<16} {'state':<11} {'pid':>7} {'restarts':>8} {'exit':>5}  routes", file=out)
             for m in listing.modules:
                 routes = " ".join(f"{k}={v}" for k, v in sorted(m.routes.items())) or "-"
-                print(f"{m.name:<16} {m.state:<11} {m.pid or '-':>7} {m.restarts:>8} "
-                      f"{'-' if m.last_exit is None else m.last_exit:>5}  {routes}"
-                      + (f"  ({m.reason})" if m.reason else ""), file=out)
+                print(
+                    f"{m.name:<16} {m.state:<11} {m.pid or '-':>7} {m.restarts:>8} "
+                    f"{'-' if m.last_exit is None else m.last_exit:>5}  {routes}"
+                    + (f"  ({m.reason})" if m.reason else ""),
+                    file=out,
+                )
             return 0
         if args.command == "route":
             routes = gcs.route(args.robot, args.module, args.input, args.slot)
@@ -187,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return run(args, sys.stdout)
-    except WaypointFileError as exc:
+    except (WaypointFileError, UsageError) as exc:
         print(f"cromat gcs: {exc}", file=sys.stderr)
         return 2
     except (Unreachable, NoReply) as exc:

@@ -41,10 +41,14 @@ def load_csv(path: Path) -> list[gri.Waypoint]:
             names = [c.lower() for c in cells]
             if not points and order == (0, 1, 2) and set(names) & (_LAT | _LON | _ALT):
                 try:
-                    order = tuple(next(i for i, n in enumerate(names) if n in group)  # type: ignore[assignment]
-                                  for group in (_LAT, _LON, _ALT))
+                    order = tuple(
+                        next(i for i, n in enumerate(names) if n in group)  # type: ignore[assignment]
+                        for group in (_LAT, _LON, _ALT)
+                    )
                 except StopIteration:
-                    raise WaypointFileError(f"{path}:{lineno}: header must name lat, lon and alt columns") from None
+                    raise WaypointFileError(
+                        f"{path}:{lineno}: header must name lat, lon and alt columns"
+                    ) from None
                 continue
             if len(cells) < 3:
                 raise WaypointFileError(f"{path}:{lineno}: expected lat,lon,alt, got {len(cells)} column(s)")
@@ -62,11 +66,13 @@ def _coords(obj: dict, path: Path) -> list[list[float]]:
         return [obj["coordinates"]]
     if kind in ("LineString", "MultiPoint"):
         return list(obj["coordinates"])
-    raise WaypointFileError(f"{path}: GeoJSON {kind!r} is not a Point, LineString, MultiPoint or a Feature of them")
+    raise WaypointFileError(
+        f"{path}: GeoJSON {kind!r} is not a Point, LineString, MultiPoint or a Feature of them"
+    )
 
 
 def load_geojson(path: Path) -> list[gri.Waypoint]:
-    """GeoJSON positions are ``[lon, lat, alt]``; altitude is required (a waypoint without one is ambiguous)."""
+    """GeoJSON positions are ``[lon, lat, alt]``; altitude is required."""
     try:
         doc = json.loads(path.read_text())
     except json.JSONDecodeError as exc:

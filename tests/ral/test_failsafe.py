@@ -51,7 +51,7 @@ def test_token_loss_then_timeout_runs_the_action_once() -> None:
 def test_heartbeat_silence_counts_as_loss_even_with_a_token() -> None:
     m = linked()
     m.heartbeat(1.0)
-    assert m.update(3.0) == []          # 2.0 s since the last heartbeat: still up
+    assert m.update(3.0) == []  # 2.0 s since the last heartbeat: still up
     ev = m.update(3.1)
     assert kinds(ev) == ["link_lost"] and "heartbeat" in ev[0].detail
     assert kinds(m.update(13.1)) == ["failsafe"]
@@ -63,7 +63,7 @@ def test_regained_before_timeout_needs_hysteresis_and_runs_nothing() -> None:
     m.update(1.0)
     m.token("gcs", True)
     m.heartbeat(5.0)
-    assert m.update(5.0) == []          # link back, not yet for regain_s
+    assert m.update(5.0) == []  # link back, not yet for regain_s
     m.heartbeat(5.9)
     assert m.update(5.9) == []
     m.heartbeat(6.0)
@@ -80,7 +80,7 @@ def test_a_flapping_link_keeps_the_original_loss_time() -> None:
     m.heartbeat(5.0)
     m.update(5.0)
     m.token("gcs", False)
-    assert m.update(5.5) == []          # lost again before regain_s: still counting from 1.0
+    assert m.update(5.5) == []  # lost again before regain_s: still counting from 1.0
     assert kinds(m.update(11.0)) == ["failsafe"]
 
 

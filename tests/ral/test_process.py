@@ -7,19 +7,19 @@ admission and rejection, MRI requests sent, data slots published, events, comple
 
 from __future__ import annotations
 
+import sys
 import threading
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from pathlib import Path
 
 import msgspec
 import pytest
-import zenoh
 
 from bbcs import keys
 from bbcs.context import ModuleContext
 from bbcs.robot import GeoPoint, RobotTelemetry
 from bbcs.session import local_client, open_session
-from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from bbcs.testing import wait_until
 from module_manager import mri
 from modules.path_follower.structs import DatosSegCam
@@ -27,48 +27,8 @@ from ral import gri
 from ral.gcs.api import Gcs
 from ral.process import Ral
 
-ROBOT = "uav1"
-AVAILABLE = {"take_off": "movement", "land": "movement", "goto": "movement", "hold": "movement",
-             "abort": "movement", "look_at": "pan_tilt", "pan_tilt": "pan_tilt"}
-
-
-@dataclass
-class StandIn:
-    """Answers MRI queries; records every request."""
-
-    session: zenoh.Session
-    requests: list[msgspec.Struct] = field(default_factory=list)
-    refuse: str = ""
-    entities: list = field(default_factory=list)
-    state_pub: Publisher | None = None
-
-    def start(self) -> None:
-        for verb in ("tasks", "task"):
-            self.entities.append(self.session.declare_queryable(mri.mri_key(ROBOT, verb), self._answer))
-        self.state_pub = Publisher(self.session, mri.mri_key(ROBOT, mri.STATE),
-                                   SlotSpec("state", mri.RobotState, Direction.OUT, Kind.STATE, Safety.SAFE))
-
-    def _answer(self, query: zenoh.Query) -> None:
-        request = mri.decode_request(query.payload.to_bytes())
-        self.requests.append(request)
-        if isinstance(request, mri.SetTask) and self.refuse:
-            reply = mri.MriReply(ok=False, reason=self.refuse)
-        else:
-            reply = mri.MriReply(ok=True, data=mri.TaskList(active=[], available=AVAILABLE))
-        query.reply(query.key_expr, mri.encode(reply))
-
-    def telemetry(self, tel: RobotTelemetry) -> None:
-        assert self.state_pub is not None
-        self.state_pub.publish(mri.RobotState(robot=ROBOT, kind="uav", stamp=tel.stamp, telemetry=tel))
-
-    def set_tasks(self) -> list[mri.SetTask]:
-        return [r for r in self.requests if isinstance(r, mri.SetTask)]
-
-    def close(self) -> None:
-        for e in self.entities:
-            e.undeclare()
-        if self.state_pub is not None:
-            self.state_pub.close()
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from standin import ROBOT, StandIn  # noqa: E402
 
 
 @dataclass
@@ -89,8 +49,14 @@ def rig(router: int) -> Iterator[Rig]:
     manager_session = open_session(local_client(router))
     manager = StandIn(manager_session)
     manager.start()
-    params = {"failsafe_timeout_s": "0.6", "heartbeat_timeout_s": "0.5", "regain_s": "0.2",
-              "state_period_s": "0.05", "settle_s": "0", "failsafe_action": "hold"}
+    params = {
+        "failsafe_timeout_s": "0.6",
+        "heartbeat_timeout_s": "0.5",
+        "regain_s": "0.2",
+        "state_period_s": "0.05",
+        "settle_s": "0",
+        "failsafe_action": "hold",
+    }
     ral = Ral(ModuleContext(robot=ROBOT, module="ral", bus=local_client(router), params=params))
     thread = threading.Thread(target=ral.run, daemon=True)
     thread.start()
@@ -114,34 +80,51 @@ def rig(router: int) -> Iterator[Rig]:
 
 
 def ten_waypoints() -> gri.Goto:
-    return gri.Goto(waypoints=[gri.Waypoint(lat=37.41 + 0.0002 * i, lon=-6.0, alt=30.0) for i in range(10)],
-                    speed=4.0)
+    return gri.Goto(
+        waypoints=[gri.Waypoint(lat=37.41 + 0.0002 * i, lon=-6.0, alt=30.0) for i in range(10)], speed=4.0
+    )
 
 
 def test_goto_is_sent_to_the_manager_published_and_completed_from_telemetry(rig: Rig) -> None:
     paths: list[DatosSegCam] = []
-    sub = rig.gcs.session.declare_subscriber(keys.slot_key(ROBOT, "ral", "path"),
-                                             lambda s: paths.append(msgspec.msgpack.decode(
-                                                 s.payload.to_bytes(), type=DatosSegCam)))
+    sub = rig.gcs.session.declare_subscriber(
+        keys.slot_key(ROBOT, "ral", "path"),
+        lambda s: paths.append(msgspec.msgpack.decode(s.payload.to_bytes(), type=DatosSegCam)),
+    )
     try:
         task = ten_waypoints()
         reply = rig.gcs.send(ROBOT, task)
         assert reply.accepted and reply.task_type == "movement" and reply.task_id > 0
-        assert rig.manager.set_tasks()[-1] == mri.SetTask(name="goto", params={"n_points": "10", "speed": "4"})
+        assert rig.manager.set_tasks()[-1] == mri.SetTask(
+            name="goto", params={"n_points": "10", "speed": "4"}
+        )
         wait_until(lambda: len(paths) == 1, what="path on ral/path")
         assert paths[0].n_points == 10 and paths[0].puntos[-1].latitud == task.waypoints[-1].lat
-        wait_until(lambda: any(t.id == reply.task_id for s in rig.states[-3:] for t in s.tasks),
-                   what="task in the GRI state")
+        wait_until(
+            lambda: any(t.id == reply.task_id for s in rig.states[-3:] for t in s.tasks),
+            what="task in the GRI state",
+        )
         last = task.waypoints[-1]
-        rig.manager.telemetry(RobotTelemetry(stamp=1.0, position=GeoPoint(lat=37.41, lon=-6.0, alt=30.0),
-                                             waypoints_queued=9, airborne=True))
-        rig.manager.telemetry(RobotTelemetry(stamp=2.0, position=GeoPoint(lat=last.lat, lon=last.lon, alt=30.5),
-                                             waypoints_queued=0, airborne=True))
+        rig.manager.telemetry(
+            RobotTelemetry(
+                stamp=1.0, position=GeoPoint(lat=37.41, lon=-6.0, alt=30.0), waypoints_queued=9, airborne=True
+            )
+        )
+        rig.manager.telemetry(
+            RobotTelemetry(
+                stamp=2.0,
+                position=GeoPoint(lat=last.lat, lon=last.lon, alt=30.5),
+                waypoints_queued=0,
+                airborne=True,
+            )
+        )
         wait_until(lambda: "task_completed" in rig.kinds(), what="task_completed event")
         done = next(e for e in rig.events if e.kind == "task_completed")
         assert done.task_id == reply.task_id
-        wait_until(lambda: rig.states[-1].tasks == [] and rig.states[-1].position is not None,
-                   what="state without the task")
+        wait_until(
+            lambda: rig.states[-1].tasks == [] and rig.states[-1].position is not None,
+            what="state without the task",
+        )
     finally:
         sub.undeclare()
 
@@ -150,8 +133,13 @@ def test_bad_tasks_are_rejected_with_a_reason_and_change_nothing(rig: Rig) -> No
     out_of_range = gri.Goto(waypoints=[gri.Waypoint(lat=95.0, lon=0.0, alt=10.0)])
     reply = rig.gcs.send(ROBOT, out_of_range)
     assert not reply.accepted and "lat" in reply.reason and "<= 90" in reply.reason
-    unknown = [r for r in rig.gcs.session.get(gri.task_key(ROBOT), payload=msgspec.msgpack.encode(
-        {"type": "teleport"}), timeout=5.0) if r.ok is not None]
+    unknown = [
+        r
+        for r in rig.gcs.session.get(
+            gri.task_key(ROBOT), payload=msgspec.msgpack.encode({"type": "teleport"}), timeout=5.0
+        )
+        if r.ok is not None
+    ]
     assert len(unknown) == 1
     decoded = gri.decode_reply(unknown[0].ok.payload.to_bytes())
     assert not decoded.accepted and "teleport" in decoded.reason
@@ -166,7 +154,6 @@ def test_manager_refusal_is_passed_on(rig: Rig) -> None:
     rig.manager.refuse = "module pan_tilt is failed"
     reply = rig.gcs.send(ROBOT, gri.SetPanTilt(pan=10.0, tilt=-10.0))
     assert not reply.accepted and "module pan_tilt is failed" in reply.reason
-    import time; time.sleep(1); print(len(rig.states), rig.states[-1])
     wait_until(lambda: any(e.source == "ral" for e in rig.states[-1].errors), what="error in the GRI state")
 
 
@@ -198,7 +185,9 @@ def test_link_loss_runs_the_failsafe_and_regain_does_not_resume(rig: Rig) -> Non
         link.close()
     wait_until(lambda: "link_lost" in rig.kinds(), what="link_lost")
     wait_until(lambda: "failsafe" in rig.kinds(), what="failsafe event")
-    wait_until(lambda: rig.manager.set_tasks()[-1] == mri.SetTask(name="hold"), what="hold sent to the manager")
+    wait_until(
+        lambda: rig.manager.set_tasks()[-1] == mri.SetTask(name="hold"), what="hold sent to the manager"
+    )
     sent = len(rig.manager.set_tasks())
     assert any(t.kind == "hold" and t.origin == "failsafe" for t in rig.ral.queue.tasks())
     back = Gcs(local_client(rig.port), name="pilot", link=True)

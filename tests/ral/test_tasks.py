@@ -9,15 +9,29 @@ from bbcs.robot import GeoPoint, RobotTelemetry
 from ral import gri
 from ral.tasks import Plan, QueueConfig, Rejected, TaskQueue, distance_m
 
-AVAILABLE = {"take_off": "movement", "land": "movement", "goto": "movement", "hold": "movement",
-             "look_at": "pan_tilt", "pan_tilt": "pan_tilt", "abort": "movement"}
+AVAILABLE = {
+    "take_off": "movement",
+    "land": "movement",
+    "goto": "movement",
+    "hold": "movement",
+    "look_at": "pan_tilt",
+    "pan_tilt": "pan_tilt",
+    "abort": "movement",
+}
 HOME = GeoPoint(lat=37.41, lon=-6.0, alt=10.0)
 
 
-def tel(lat: float = 37.41, lon: float = -6.0, alt: float = 10.0, *, queued: int | None = 0,
-        airborne: bool | None = True) -> RobotTelemetry:
-    return RobotTelemetry(stamp=0.0, position=GeoPoint(lat=lat, lon=lon, alt=alt), waypoints_queued=queued,
-                          airborne=airborne)
+def tel(
+    lat: float = 37.41,
+    lon: float = -6.0,
+    alt: float = 10.0,
+    *,
+    queued: int | None = 0,
+    airborne: bool | None = True,
+) -> RobotTelemetry:
+    return RobotTelemetry(
+        stamp=0.0, position=GeoPoint(lat=lat, lon=lon, alt=alt), waypoints_queued=queued, airborne=airborne
+    )
 
 
 def queue(**cfg: float) -> TaskQueue:
@@ -27,7 +41,9 @@ def queue(**cfg: float) -> TaskQueue:
 
 
 def path(n: int = 3) -> gri.Goto:
-    return gri.Goto(waypoints=[gri.Waypoint(lat=37.41 + 0.0001 * i, lon=-6.0, alt=30.0) for i in range(1, n + 1)])
+    return gri.Goto(
+        waypoints=[gri.Waypoint(lat=37.41 + 0.0001 * i, lon=-6.0, alt=30.0) for i in range(1, n + 1)]
+    )
 
 
 def start(q: TaskQueue, task: gri.Task, now: float = 0.0) -> gri.TaskInfo:
@@ -45,7 +61,12 @@ def test_distance_is_metres() -> None:
 def test_admission_maps_kind_to_manifest_task_and_type() -> None:
     plan = queue().admit(path(10))
     assert isinstance(plan, Plan)
-    assert (plan.kind, plan.name, plan.task_type, plan.params) == ("goto", "goto", "movement", {"n_points": "10"})
+    assert (plan.kind, plan.name, plan.task_type, plan.params) == (
+        "goto",
+        "goto",
+        "movement",
+        {"n_points": "10"},
+    )
 
 
 def test_task_names_can_be_remapped() -> None:
@@ -70,7 +91,9 @@ def test_nothing_is_admitted_while_the_task_list_is_unknown() -> None:
 
 def test_far_waypoint_is_rejected() -> None:
     q = queue(max_range_m=1000.0)
-    far = gri.Goto(waypoints=[gri.Waypoint(lat=37.41, lon=-6.0, alt=20.0), gri.Waypoint(lat=37.5, lon=-6.0, alt=20.0)])
+    far = gri.Goto(
+        waypoints=[gri.Waypoint(lat=37.41, lon=-6.0, alt=20.0), gri.Waypoint(lat=37.5, lon=-6.0, alt=20.0)]
+    )
     result = q.admit(far)
     assert isinstance(result, Rejected) and "waypoint 1" in result.reason
 
@@ -105,7 +128,7 @@ def test_goto_completes_when_queue_empty_and_at_last_waypoint() -> None:
     task = path(3)
     info = start(q, task)
     last = task.waypoints[-1]
-    assert q.on_telemetry(tel(alt=10.0, queued=0), 0.1) == []              # not there yet
+    assert q.on_telemetry(tel(alt=10.0, queued=0), 0.1) == []  # not there yet
     assert q.on_telemetry(tel(alt=30.0, queued=3), 0.5) == []
     assert q.on_telemetry(tel(last.lat, last.lon, 30.0, queued=1), 5.0) == []  # there, queue not empty
     assert q.on_telemetry(tel(last.lat, last.lon, 35.0, queued=0), 5.5) == []  # too high
@@ -154,14 +177,17 @@ def test_home_follows_the_robot_on_the_ground_only() -> None:
     assert q.home == GeoPoint(lat=37.42, lon=-6.0, alt=12.0)
 
 
-@pytest.mark.parametrize("payload", [
-    {"type": "goto", "waypoints": [{"lat": 91.0, "lon": 0.0, "alt": 10.0}]},
-    {"type": "goto", "waypoints": []},
-    {"type": "pan_tilt", "pan": 0.0, "tilt": 95.0},
-    {"type": "take_off", "height": 0.0},
-    {"type": "teleport"},
-    {"pan": 1.0},
-])
+@pytest.mark.parametrize(
+    "payload",
+    [
+        {"type": "goto", "waypoints": [{"lat": 91.0, "lon": 0.0, "alt": 10.0}]},
+        {"type": "goto", "waypoints": []},
+        {"type": "pan_tilt", "pan": 0.0, "tilt": 95.0},
+        {"type": "take_off", "height": 0.0},
+        {"type": "teleport"},
+        {"pan": 1.0},
+    ],
+)
 def test_bad_requests_fail_at_decoding(payload: dict) -> None:
     with pytest.raises(msgspec.ValidationError):
         gri.decode_request(msgspec.msgpack.encode(payload))

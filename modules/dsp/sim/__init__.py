@@ -1,7 +1,7 @@
 """A simulated DSP: the protocol's far end, with a helicopter point-mass model, on a pty or TCP port.
 
-``DspMachine`` (pure state machine + vehicle, injected time step) does what a DSP does; ``DspSimulator`` puts it
-on a real transport; ``python -m modules.dsp.sim`` (``cromat dsp-sim``) runs it as its own process.
+``DspMachine`` (pure state machine + vehicle, injected time step) does what a DSP does; ``DspSimulator``
+puts it on a real transport; ``python -m modules.dsp.sim`` (``cromat dsp-sim``) runs it as its own process.
 """
 
 from modules.dsp.sim.faults import FaultInjector

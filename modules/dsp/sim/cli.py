@@ -58,7 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="cromat dsp-sim", description=__doc__.splitlines()[0])
     where = ap.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true", help="serve on a new pty pair (default)")
-    where.add_argument("--tcp", type=_host_port, metavar="HOST:PORT", help="serve on TCP (port 0: any free port)")
+    where.add_argument("--tcp", type=_host_port, metavar="HOST:PORT",
+                       help="serve on TCP (port 0: any free port)")
     ap.add_argument("--baud", type=int, default=921_600, help="the DSP's UART speed (default 921600)")
     ap.add_argument("--rate", type=float, default=50.0, help="physics steps per simulated second (50)")
     ap.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per wall second (1)")
@@ -75,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--fail", type=_failure, action="append", default=[], metavar="CODE@SECONDS",
                     help="raise DSP error CODE at simulated time SECONDS (repeatable)")
     ap.add_argument("--seed", type=int, help="random seed for faults")
-    ap.add_argument("--duration", type=float, default=0.0, help="exit after this many wall seconds (0: never)")
+    ap.add_argument("--duration", type=float, default=0.0,
+                    help="exit after this many wall seconds (0: never)")
     return ap
 
 

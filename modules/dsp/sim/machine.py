@@ -59,7 +59,7 @@ class HandleResult(NamedTuple):
 
 
 class DspMachine:
-    """Mode, tracking flag, waypoint queue, path validity, speed, heading, pan & tilt, errors, and the flight."""
+    """Mode, tracking flag, waypoint queue, path validity, speed, heading, pan & tilt, errors, the flight."""
 
     def __init__(self, params: DspParams | None = None, vehicle_params: VehicleParams | None = None) -> None:
         self.params = params or DspParams()
@@ -114,7 +114,7 @@ class DspMachine:
     # --- commands ------------------------------------------------------------------------------------------
 
     def handle(self, frame: Frame, link_time: float) -> HandleResult:
-        """Apply one received command frame; retransmissions within the window are answered, not re-applied."""
+        """Apply one received command frame; a retransmission within the window is answered, not redone."""
         key = (frame.msg_id, frame.seq, frame.payload)
         last = self._last_command
         if last is not None and last[0] == key and link_time - last[1] <= self.params.duplicate_window_s:
@@ -278,8 +278,8 @@ class DspMachine:
         par = self.params
         st = self.vehicle.state
         vpar = self.vehicle.params
-        rpm = ROTOR_FLIGHT_RPM if (self.heli_type is not None and (self.mode in FLIGHT_MODES or st.airborne)) \
-            else 0.0
+        spinning = self.heli_type is not None and (self.mode in FLIGHT_MODES or st.airborne)
+        rpm = ROTOR_FLIGHT_RPM if spinning else 0.0
         if self.following:
             wp = self.queue[0]
             d = wp.local - st.pos
@@ -313,7 +313,8 @@ class DspMachine:
             return self._approach(target, vpar.max_speed, par.land_speed), self._hold_heading, rpm
         if self.mode in BRIDGE_MODES and self.bridge_target is not None:
             heading = self.bridge_heading if self.bridge_heading is not None else self._hold_heading
-            return self._approach(self.bridge_target, vpar.max_speed, vpar.max_climb), heading, self.bridge_rpm
+            v_cmd = self._approach(self.bridge_target, vpar.max_speed, vpar.max_climb)
+            return v_cmd, heading, self.bridge_rpm
         if self.mode == p.Mode.SEMI_AUTOMATIC and not st.airborne:
             rpm = 0.0
         heading = self._hold_heading

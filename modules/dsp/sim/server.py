@@ -16,7 +16,6 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import IO
 
 import msgspec
@@ -154,7 +153,7 @@ class DspSimulator:
         if self._record is not None:
             self._record.close()
 
-    # --- observation -----------------------------------------------------------------------------------------
+    # --- observation ---------------------------------------------------------------------------------------
 
     @property
     def commands(self) -> list[RecordedCommand]:
@@ -177,7 +176,8 @@ class DspSimulator:
                 heading=st.heading, lat=float(lat), lon=float(lon), alt=float(alt),
                 local=(float(st.pos[0]), float(st.pos[1]), float(st.pos[2])), airborne=st.airborne,
                 error_code=m.error_code, heli_type=None if m.heli_type is None else int(m.heli_type),
-                pid_axes=tuple(sorted(int(a) for a in m.pids)), pt_mode=int(m.pt_mode), pan=m.pan, tilt=m.tilt,
+                pid_axes=tuple(sorted(int(a) for a in m.pids)), pt_mode=int(m.pt_mode), pan=m.pan,
+                tilt=m.tilt,
                 state_tx=m.state_tx, telemetry_mask=m.telemetry_mask)
 
     # --- the loop ----------------------------------------------------------------------------------------

@@ -26,13 +26,15 @@ TYPICAL_MASKS = (
 )
 
 
-def _random_telemetry(rng: np.random.Generator, mask: int) -> p.Telemetry:
+def random_telemetry(rng: np.random.Generator, mask: int) -> p.Telemetry:
+    """Telemetry with every field of ``mask`` filled with random (binary32-exact) values."""
     def f() -> float:
         return float(np.float32(rng.normal(0.0, 50.0)))
 
     fields: dict[str, object] = {}
     if mask & F.POSITION:
-        fields["position"] = p.Position(lat=int(rng.integers(-9e8, 9e8)) / 1e7, lon=int(rng.integers(-18e8, 18e8)) / 1e7,
+        fields["position"] = p.Position(lat=int(rng.integers(-9e8, 9e8)) / 1e7,
+                                        lon=int(rng.integers(-18e8, 18e8)) / 1e7,
                                         alt=f())
     if mask & F.ATTITUDE:
         fields["attitude"] = p.Attitude(roll=f(), pitch=f(), yaw=f())
@@ -47,7 +49,8 @@ def _random_telemetry(rng: np.random.Generator, mask: int) -> p.Telemetry:
                                        path_valid=bool(rng.integers(2)), airborne=bool(rng.integers(2)),
                                        queue_length=int(rng.integers(0, 512)))
     if mask & F.NAV:
-        fields["nav"] = p.NavTarget(lat=int(rng.integers(-9e5, 9e5)) / 1e4, lon=int(rng.integers(-18e5, 18e5)) / 1e4,
+        fields["nav"] = p.NavTarget(lat=int(rng.integers(-9e5, 9e5)) / 1e4,
+                                    lon=int(rng.integers(-18e5, 18e5)) / 1e4,
                                     alt=f(), distance=abs(f()))
     if mask & F.SPEED:
         fields["speed"] = p.SpeedInfo(commanded=abs(f()), ground=abs(f()))
@@ -60,22 +63,27 @@ def _random_telemetry(rng: np.random.Generator, mask: int) -> p.Telemetry:
     return p.Telemetry(time_ms=0, **fields)  # type: ignore[arg-type]
 
 
-def dsp_traffic(n: int, seed: int = 1, masks: Sequence[int] = TYPICAL_MASKS, templates: int = 256) -> list[bytes]:
-    """``n`` distinct DSP → PC frames: ~85 % telemetry (time_ms = frame index), ~12 % ACK, ~3 % ERROR."""
+def dsp_traffic(n: int, seed: int = 1, masks: Sequence[int] = TYPICAL_MASKS, templates: int = 256,
+                telemetry_share: float = 0.85) -> list[bytes]:
+    """``n`` distinct DSP → PC frames: telemetry (time_ms = frame index), then ACKs and a few ERRORs.
+
+    By default ~85 % telemetry, ~12 % ACK, ~3 % ERROR; ``telemetry_share=1`` gives telemetry only.
+    """
     rng = np.random.default_rng(seed)
-    payloads = [encode_payload(_random_telemetry(rng, masks[i % len(masks)])) for i in range(templates)]
+    payloads = [encode_payload(random_telemetry(rng, masks[i % len(masks)])) for i in range(templates)]
     kinds = rng.random(n)
     picks = rng.integers(0, templates, n)
     ack = struct.Struct("<BBH")
     err = struct.Struct("<IHB")
     frames: list[bytes] = []
     for i in range(n):
-        if kinds[i] < 0.85:
+        if kinds[i] < telemetry_share:
             payload = bytearray(payloads[picks[i]])
             struct.pack_into("<I", payload, 0, i & 0xFFFFFFFF)
             frames.append(build_frame(p.MsgId.TELEMETRY, i & 0xFF, bytes(payload)))
-        elif kinds[i] < 0.97:
-            frames.append(build_frame(p.MsgId.ACK, i & 0xFF, ack.pack(i & 0x3F, (i >> 6) & 0xFF, (i >> 14) & 0xFF)))
+        elif kinds[i] < telemetry_share + (1.0 - telemetry_share) * 0.8:
+            payload = ack.pack(i & 0x3F, (i >> 6) & 0xFF, (i >> 14) & 0xFF)
+            frames.append(build_frame(p.MsgId.ACK, i & 0xFF, payload))
         else:
             frames.append(build_frame(p.MsgId.ERROR, i & 0xFF, err.pack(i, 5, 0)))
     return frames
@@ -159,7 +167,7 @@ class Score:
 
 
 def score(frames: Sequence[bytes], intact: np.ndarray, received: Sequence[Frame]) -> Score:
-    """Match delivered frames to sent ones in order; anything unmatched is a damaged frame that got through."""
+    """Match delivered frames to sent ones in order; anything unmatched is a damaged frame that got in."""
     keys = [(f[3], f[4], f[5:-2]) for f in frames]
     recovered = np.zeros(len(frames), dtype=bool)
     bad = 0

@@ -21,10 +21,12 @@ from modules.lidar_logger.sim.world import SEED_UTC_START, Flight, World
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m modules.lidar_logger.sim", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m modules.lidar_logger.sim",
+                                description=__doc__.split("\n\n")[0])
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per wall second")
     p.add_argument("--port", type=int, default=0, help="LD-MRS TCP port on 127.0.0.1 (0 = any free port)")
-    p.add_argument("--utc-start", type=float, default=SEED_UTC_START, help="UTC (POSIX s) at simulation start")
+    p.add_argument("--utc-start", type=float, default=SEED_UTC_START,
+                   help="UTC (POSIX s) at simulation start")
     p.add_argument("--gps-fix-at", type=float, default=1.0, help="status 0 -> 5 at this simulated time (s)")
     p.add_argument("--xkf-valid-at", type=float, default=2.0, help="status 5 -> 7 at this simulated time (s)")
     p.add_argument("--speed", type=float, default=20.0, help="m/s")
@@ -37,7 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     world = World(clock=ScaledClock(args.time_scale), utc_start=args.utc_start,
                   flight=Flight(speed=args.speed, height=args.height),
                   gps_fix_at=args.gps_fix_at, xkf_valid_at=args.xkf_valid_at)
-    options = LdmrsOptions(return_fraction=args.return_fraction, silent_after=args.silent_after, seed=args.seed)
+    options = LdmrsOptions(return_fraction=args.return_fraction, silent_after=args.silent_after,
+                           seed=args.seed)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
@@ -46,9 +49,10 @@ def main(argv: list[str] | None = None) -> int:
                           "time_scale": args.time_scale}), flush=True)
         while not done.wait(0.2):
             pass
-        print(json.dumps({"scans_sent": len(lidar.device.sent_scans), "ldmrs_commands": len(lidar.device.commands),
-                          "mtig_messages": len(imu.device.received), "poses_sent": len(imu.device.poses_sent)}),
-              flush=True)
+        print(json.dumps({"scans_sent": len(lidar.device.sent_scans),
+                          "ldmrs_commands": len(lidar.device.commands),
+                          "mtig_messages": len(imu.device.received),
+                          "poses_sent": len(imu.device.poses_sent)}), flush=True)
     return 0
 
 

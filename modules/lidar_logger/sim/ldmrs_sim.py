@@ -1,4 +1,5 @@
-"""LD-MRS simulator: a TCP server on 127.0.0.1 speaking the scanner's exact bytes, scanning the world's terrain.
+"""LD-MRS simulator: a TCP server on 127.0.0.1 speaking the scanner's exact bytes, scanning the world's
+terrain.
 
 ``LdmrsDevice`` holds the scanner's logic (parameters, commands, scan generation by ray casting);
 ``LdmrsSimulator`` serves it on a socket. Each scan sweeps from the start to the end angle in 0.25° steps
@@ -121,7 +122,8 @@ class LdmrsDevice:
 
     def silent(self, t: float) -> bool:
         after = self.options.silent_after
-        return after is not None and self.measure_started_at is not None and t - self.measure_started_at >= after
+        started = self.measure_started_at
+        return after is not None and started is not None and t - started >= after
 
     # --- commands ---
 
@@ -142,7 +144,8 @@ class LdmrsDevice:
                 return refuse
             return ok + struct.pack("<HI", cmd.param, self.params[cmd.param])
         if cmd.cmd == Cmd.SET_PARAMETER:
-            if self.measuring or cmd.param is None or cmd.value is None or not self._valid(cmd.param, cmd.value):
+            if (self.measuring or cmd.param is None or cmd.value is None
+                    or not self._valid(cmd.param, cmd.value)):
                 return refuse
             self.params[cmd.param] = cmd.value
             return ok
@@ -192,7 +195,7 @@ class LdmrsDevice:
         """Finish the scan in progress: build it (if ``send`` and scans are switched on), start the next."""
         start = self._next_start
         self._next_start += self.period
-        if self._next_start + self.sweep < t:  # we fell behind by more than a scan: skip, like a lost rotation
+        if self._next_start + self.sweep < t:  # behind by more than a scan: skip, like a lost rotation
             self._next_start = t - self.sweep + self.period
         number = self.scan_number
         self.scan_number = (self.scan_number + 1) & 0xFFFF
@@ -223,7 +226,8 @@ class LdmrsDevice:
         n = len(angle)
         u = rng.random(n)
         dirt = u < self.options.dirt_fraction
-        clutter = (u >= self.options.dirt_fraction) & (u < self.options.dirt_fraction + self.options.clutter_fraction)
+        p_dirt, p_clutter = self.options.dirt_fraction, self.options.clutter_fraction
+        clutter = (u >= p_dirt) & (u < p_dirt + p_clutter)
         extra = dirt | clutter
         k = int(extra.sum())
         extra_dist = np.where(dirt[extra], rng.integers(30, 100, k), rng.integers(300, 2000, k))
@@ -239,7 +243,8 @@ class LdmrsDevice:
                              all_dist[order], width[order])
         flags = SCAN_RAIN_LABELED | (SCAN_REAR_MIRROR if number % 2 else 0)
         return Scan(number, SCANNER_STATUS_MEASURING, 0, self.scanner_ntp(t_start),
-                    self.scanner_ntp(t_start + self.sweep), TICKS_PER_ROTATION, s_t, e_t, (0,) * 6, flags, points)
+                    self.scanner_ntp(t_start + self.sweep), TICKS_PER_ROTATION, s_t, e_t, (0,) * 6, flags,
+                    points)
 
 
 class LdmrsSimulator:

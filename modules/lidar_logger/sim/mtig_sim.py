@@ -121,7 +121,8 @@ class MTiGDevice:
             return ack()
         if mid == MID.REQ_DATA_LENGTH:
             try:
-                return [build_frame(MID.DATA_LENGTH, struct.pack(">H", layout(self.mode, self.settings).length))]
+                length = layout(self.mode, self.settings).length
+                return [build_frame(MID.DATA_LENGTH, struct.pack(">H", length))]
             except MTDataError:
                 return error(ERR_INVALID_PARAMETER)
         return error(ERR_INVALID_MESSAGE)
@@ -178,6 +179,10 @@ class MTiGSimulator:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def inject(self, data: bytes) -> None:
+        """Put raw bytes on the line (line noise, a corrupt frame) as if the device had sent them."""
+        self._write(data)
 
     def _write(self, data: bytes) -> None:
         try:

@@ -40,7 +40,7 @@ SEED_UTC_START = 1284103800.0
 
 @dataclass(frozen=True)
 class Terrain:
-    """h(e, n) = base + slope_e·e + slope_n·n + Σ amp·sin(2π e/λe)·cos(2π n/λn), metres in the terrain frame."""
+    """h(e, n) = base + slope_e·e + slope_n·n + Σ amp·sin(2π e/λe)·cos(2π n/λn), metres, terrain frame."""
 
     base: float = 0.0
     slope_e: float = 0.03
@@ -119,8 +119,8 @@ class Terrain:
             slope = d_r[:, 2] - ge * d_r[:, 0] - gn * d_r[:, 1]
             with np.errstate(divide="ignore", invalid="ignore"):
                 step = s - fs / slope
-            inside = (step > lo_r) & (step < hi_r)
-            s = np.where(inside, step, 0.5 * (lo_r + hi_r))
+            inside = (step >= lo_r) & (step <= hi_r)
+            s = np.where(np.abs(fs) < 1e-9, s, np.where(inside, step, 0.5 * (lo_r + hi_r)))
         out = np.full(n, np.nan)
         out[rows] = s
         return out

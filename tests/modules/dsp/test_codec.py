@@ -41,15 +41,17 @@ COMMAND_STRATEGIES = {
     p.InvalidatePath: st.just(p.InvalidatePath()),
     p.SetHelicopterType: st.builds(p.SetHelicopterType, heli_type=st.sampled_from(p.HeliType)),
     p.SetPid: st.builds(
-        lambda axis, g, awu, sat: p.SetPid(axis=axis, kp=g[0], ki=g[1], kd=g[2], integral=g[3], reference=g[4],
-                                           offset=g[5], awu_min=min(awu), awu_max=max(awu), sat_low=min(sat),
-                                           sat_high=max(sat)),
-        st.sampled_from(p.Axis), st.tuples(*[finite] * 6), st.tuples(finite, finite), st.tuples(finite, finite)),
+        lambda axis, g, awu, sat: p.SetPid(axis=axis, kp=g[0], ki=g[1], kd=g[2], integral=g[3],
+                                           reference=g[4], offset=g[5], awu_min=min(awu), awu_max=max(awu),
+                                           sat_low=min(sat), sat_high=max(sat)),
+        st.sampled_from(p.Axis), st.tuples(*[finite] * 6), st.tuples(finite, finite),
+        st.tuples(finite, finite)),
     p.SetMode: st.builds(p.SetMode, mode=st.sampled_from(p.Mode)),
     p.SetHeading: st.builds(p.SetHeading, heading_deg=bounded(-180.0, 180.0, hi_open=True)),
     p.AddWaypoint: st.builds(p.AddWaypoint, lat=lat_grid, lon=lon_grid, alt=finite),
     p.SetRefs: st.builds(p.SetRefs, ref_altura=finite, error_longitudinal=finite, error_lateral=finite,
-                         ref_heading=bounded(-math.pi, math.pi, hi_open=True), ref_rpm_motor=bounded(0.0, 1800.0)),
+                         ref_heading=bounded(-math.pi, math.pi, hi_open=True),
+                         ref_rpm_motor=bounded(0.0, 1800.0)),
     p.SetPanTiltMode: st.builds(p.SetPanTiltMode, mode=st.sampled_from(p.PanTiltMode)),
     p.SetPanTiltAngles: st.builds(p.SetPanTiltAngles, pan_deg=bounded(-180.0, 180.0),
                                   tilt_deg=bounded(-90.0, 90.0)),
@@ -61,7 +63,8 @@ COMMAND_STRATEGIES = {
 telemetry = st.builds(
     p.Telemetry,
     time_ms=st.integers(0, 0xFFFFFFFF),
-    position=st.none() | st.builds(p.Position, lat=st.integers(-900_000_000, 900_000_000).map(lambda i: i / 1e7),
+    position=st.none() | st.builds(p.Position,
+                                   lat=st.integers(-900_000_000, 900_000_000).map(lambda i: i / 1e7),
                                    lon=st.integers(-1_800_000_000, 1_800_000_000).map(lambda i: i / 1e7),
                                    alt=finite),
     attitude=st.none() | st.builds(p.Attitude, roll=finite, pitch=finite, yaw=finite),
@@ -192,13 +195,15 @@ def test_out_of_range_refused_at_encode(msg: p.Message) -> None:
 def test_refusal_names_field_value_and_range() -> None:
     with pytest.raises(p.DspValueError, match=r"SetSpeed\.speed=31\.0 is out of range \[0\.0, 30\.0\]"):
         codec.encode(p.SetSpeed(speed=31.0), 0)
-    with pytest.raises(p.DspValueError, match=r"SetHeading\.heading_deg=180\.0 is out of range \[-180\.0, 180\.0\)"):
+    heading = r"SetHeading\.heading_deg=180\.0 is out of range \[-180\.0, 180\.0\)"
+    with pytest.raises(p.DspValueError, match=heading):
         codec.encode(p.SetHeading(heading_deg=180.0), 0)
 
 
 def test_bounds_survive_float32_rounding() -> None:
     """-π is a valid ref_heading but rounds below -π in binary32: the encoder nudges it inside."""
-    msg = p.SetRefs(ref_altura=0, error_longitudinal=0, error_lateral=0, ref_heading=-math.pi, ref_rpm_motor=0)
+    msg = p.SetRefs(ref_altura=0, error_longitudinal=0, error_lateral=0, ref_heading=-math.pi,
+                    ref_rpm_motor=0)
     back = codec.decode_payload(p.MsgId.SET_REFS, codec.encode_payload(msg))
     assert -math.pi <= back.ref_heading < math.pi  # type: ignore[attr-defined]
     p.check(back)  # the DSP's own range check accepts it

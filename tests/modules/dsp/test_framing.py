@@ -27,7 +27,8 @@ def test_clean_stream_every_frame_once() -> None:
 
 def test_stream_cut_at_every_byte_boundary_gives_the_same_frames() -> None:
     frames = dsp_traffic(12, seed=6)
-    stream = b"\x00\xa5garbage\xa5" + b"".join(f + b"\xa5\x5a" if i % 4 == 1 else f for i, f in enumerate(frames))
+    body = b"".join(f + b"\xa5\x5a" if i % 4 == 1 else f for i, f in enumerate(frames))  # stray sync pairs
+    stream = b"\x00\xa5garbage\xa5" + body
     whole = parser()
     expected = whole.feed(stream) + whole.flush_pending()
     assert len(expected) == len(frames)
@@ -50,7 +51,7 @@ def test_byte_by_byte_and_random_chunks_give_the_same_frames() -> None:
     cuts = sorted(set(rng.integers(0, len(stream), 300).tolist()))
     pr2 = parser()
     got2: list[Frame] = []
-    for a, b in zip([0, *cuts], [*cuts, len(stream)]):
+    for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True):
         got2 += pr2.feed(stream[a:b])
     assert got2 == got
 

@@ -64,9 +64,22 @@ def test_dsp_errors_of_own_batches_forwarded():
 
 # every range bound: (slot, struct, field, in-range bound, just outside, code)
 BOUNDS = [
-    ("control_entrada", ControlEntradaPT, "slot_entrada_control_modos", -1, -2,
-     PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE),
-    ("control_entrada", ControlEntradaPT, "slot_entrada_datos", -1, -2, PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE),
+    (
+        "control_entrada",
+        ControlEntradaPT,
+        "slot_entrada_control_modos",
+        -1,
+        -2,
+        PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE,
+    ),
+    (
+        "control_entrada",
+        ControlEntradaPT,
+        "slot_entrada_datos",
+        -1,
+        -2,
+        PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE,
+    ),
     ("control_modo", ModoFuncionamientoPT, "modo_de_funcionamiento", 0, -1, PanTiltError.MODE_OUT_OF_RANGE),
     ("control_modo", ModoFuncionamientoPT, "modo_de_funcionamiento", 2, 3, PanTiltError.MODE_OUT_OF_RANGE),
     ("datos", DatosPT, "ref_pan", -180.0, -180.001, PanTiltError.REF_PAN_OUT_OF_RANGE),

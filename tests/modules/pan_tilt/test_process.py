@@ -58,26 +58,52 @@ def angles(pan: float, tilt: float = 0.0) -> DatosPT:
 def test_modes_and_routing_between_two_sources(rig):
     proc, watch, src = rig
     step(watch, src["a"], angles(10), [], "mode unknown (DSP start-up: hold): nothing")
-    step(watch, src["modo"], ModoFuncionamientoPT(modo_de_funcionamiento=0),
-         [p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES)], "mode 0 as it is")
+    step(
+        watch,
+        src["modo"],
+        ModoFuncionamientoPT(modo_de_funcionamiento=0),
+        [p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES)],
+        "mode 0 as it is",
+    )
     step(watch, src["a"], angles(11, -5), [p.SetPanTiltAngles(pan_deg=11, tilt_deg=-5)], "A drives in mode 0")
     step(watch, src["b"], angles(99), [], "B is not selected")
     src["control"].send(ControlEntradaPT(slot_entrada_control_modos=10, slot_entrada_datos=12))
-    watch.wait_for(lambda: bool(watch.acks) and watch.acks[-1].routes == {"control_modo": 10, "datos": 12},
-                   "switch to B")
+    watch.wait_for(
+        lambda: bool(watch.acks) and watch.acks[-1].routes == {"control_modo": 10, "datos": 12}, "switch to B"
+    )
     step(watch, src["a"], angles(12), [], "A no longer selected")
     step(watch, src["b"], angles(-120, 45), [p.SetPanTiltAngles(pan_deg=-120, tilt_deg=45)], "B drives")
-    step(watch, src["modo"], ModoFuncionamientoPT(modo_de_funcionamiento=1),
-         [p.SetPanTiltMode(mode=p.PanTiltMode.TARGET)], "mode 1")
-    step(watch, src["b"], DatosPT(latitud=37.5, longitud=-6.1, altura=30.0),
-         [p.SetPanTiltTarget(lat=37.5, lon=-6.1, alt=30.0)], "target point in mode 1")
-    step(watch, src["modo"], ModoFuncionamientoPT(modo_de_funcionamiento=2),
-         [p.SetPanTiltMode(mode=p.PanTiltMode.HOLD)], "mode 2")
+    step(
+        watch,
+        src["modo"],
+        ModoFuncionamientoPT(modo_de_funcionamiento=1),
+        [p.SetPanTiltMode(mode=p.PanTiltMode.TARGET)],
+        "mode 1",
+    )
+    step(
+        watch,
+        src["b"],
+        DatosPT(latitud=37.5, longitud=-6.1, altura=30.0),
+        [p.SetPanTiltTarget(lat=37.5, lon=-6.1, alt=30.0)],
+        "target point in mode 1",
+    )
+    step(
+        watch,
+        src["modo"],
+        ModoFuncionamientoPT(modo_de_funcionamiento=2),
+        [p.SetPanTiltMode(mode=p.PanTiltMode.HOLD)],
+        "mode 2",
+    )
     step(watch, src["b"], angles(5), [], "mode 2: nothing")
     src["control"].send(ControlEntradaPT(slot_entrada_control_modos=10, slot_entrada_datos=-1))
     watch.wait_for(lambda: watch.acks[-1].routes == {"control_modo": 10, "datos": -1}, "ignore DATOS")
-    step(watch, src["modo"], ModoFuncionamientoPT(modo_de_funcionamiento=0),
-         [p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES)], "mode 0 again")
+    step(
+        watch,
+        src["modo"],
+        ModoFuncionamientoPT(modo_de_funcionamiento=0),
+        [p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES)],
+        "mode 0 again",
+    )
     step(watch, src["a"], angles(1), [], "-1: A ignored")
     step(watch, src["b"], angles(2), [], "-1: B ignored")
     # a route to an unknown slot is refused and the old routes stay
@@ -106,8 +132,13 @@ BAD = [
 @pytest.mark.parametrize("target_mode", [0, 1])
 def test_every_out_of_range_datum(rig, target_mode):
     proc, watch, src = rig
-    step(watch, src["modo"], ModoFuncionamientoPT(modo_de_funcionamiento=target_mode),
-         [p.SetPanTiltMode(mode=p.PanTiltMode(target_mode))], f"mode {target_mode}")
+    step(
+        watch,
+        src["modo"],
+        ModoFuncionamientoPT(modo_de_funcionamiento=target_mode),
+        [p.SetPanTiltMode(mode=p.PanTiltMode(target_mode))],
+        f"mode {target_mode}",
+    )
     bad = [*BAD, *([("a", {"altura": float("inf")}, E.ALTURA_NOT_REPRESENTABLE)] if target_mode == 1 else [])]
     for i, (name, raw, code) in enumerate(bad):
         before = len(watch.commands())

@@ -1,6 +1,7 @@
 """Test harness for the UAV modules: start one as a process on a real router and watch the bus around it.
 
-``Watch`` records, from the bus, every DSP command batch sent to ``cromat/<robot>/dsp/commands``, every code on
+``Watch`` records, from the bus, every DSP command batch sent to ``cromat/<robot>/dsp/commands``, every code
+on
 the module's ERROR slot and every route acknowledgement. ``Source`` publishes what another module would.
 """
 
@@ -35,26 +36,49 @@ ROBOT = "r1"
 
 # slot numbers of the test robot's table: who else publishes what
 TABLE = {
-    1: ("gcs", "modo", ControlModoSegCam), 2: ("gcs", "heading", HeadingSegCam),
-    3: ("gcs", "speed", SpeedSegCam), 4: ("planner", "path", DatosSegCam), 5: ("vision", "path", DatosSegCam),
-    10: ("gcs", "pt_modo", ModoFuncionamientoPT), 11: ("vision_a", "datos_pt", DatosPT),
+    1: ("gcs", "modo", ControlModoSegCam),
+    2: ("gcs", "heading", HeadingSegCam),
+    3: ("gcs", "speed", SpeedSegCam),
+    4: ("planner", "path", DatosSegCam),
+    5: ("vision", "path", DatosSegCam),
+    10: ("gcs", "pt_modo", ModoFuncionamientoPT),
+    11: ("vision_a", "datos_pt", DatosPT),
     12: ("vision_b", "datos_pt", DatosPT),
 }
-FOLLOWER_ROUTES = ControlEntradaSegCam(slot_entrada_control_modos=1, slot_entrada_heading=2, slot_entrada_speed=3,
-                                       slot_entrada_datos=4)
+FOLLOWER_ROUTES = ControlEntradaSegCam(
+    slot_entrada_control_modos=1, slot_entrada_heading=2, slot_entrada_speed=3, slot_entrada_datos=4
+)
 ERROR_TYPES = {"path_follower": (ErrorSegCam, "error_seg_cam"), "pan_tilt": (ErrorPT, "error_pan_tilt")}
 
 
 def write_table(tmp_path: Path) -> Path:
     path = tmp_path / "slots.json"
-    path.write_bytes(msgspec.json.encode(SlotTable(robot=ROBOT, slots={
-        n: SlotRef(module=m, slot=s, type=type_name(t)) for n, (m, s, t) in TABLE.items()})))
+    path.write_bytes(
+        msgspec.json.encode(
+            SlotTable(
+                robot=ROBOT,
+                slots={n: SlotRef(module=m, slot=s, type=type_name(t)) for n, (m, s, t) in TABLE.items()},
+            )
+        )
+    )
     return path
 
 
-def start_module(processes: Processes, router: int, tmp_path: Path, module: str, *routes: str) -> subprocess.Popen:
-    args = ["-m", f"modules.{module}", "--robot", ROBOT, "--connect", f"tcp/127.0.0.1:{router}",
-            "--slot-table", str(write_table(tmp_path)), "--conf", str(CONF)]
+def start_module(
+    processes: Processes, router: int, tmp_path: Path, module: str, *routes: str
+) -> subprocess.Popen:
+    args = [
+        "-m",
+        f"modules.{module}",
+        "--robot",
+        ROBOT,
+        "--connect",
+        f"tcp/127.0.0.1:{router}",
+        "--slot-table",
+        str(write_table(tmp_path)),
+        "--conf",
+        str(CONF),
+    ]
     for r in routes:
         args += ["--route", r]
     return processes.start(args)
@@ -80,14 +104,20 @@ class Watch:
                 self.cond.notify_all()
 
         self.subs = [
-            session.declare_subscriber(keys.slot_key(ROBOT, "dsp", "commands"),
-                                       lambda s: keep(self.batches, dec_b(s.payload.to_bytes()))),
-            session.declare_subscriber(keys.slot_key(ROBOT, module, "error"),
-                                       lambda s: keep(self.errors, getattr(dec_e(s.payload.to_bytes()), efield))),
-            session.declare_subscriber(keys.route_ack_key(ROBOT, module),
-                                       lambda s: keep(self.acks, dec_a(s.payload.to_bytes()))),
-            session.liveliness().declare_subscriber(keys.alive_key(ROBOT, module), lambda s: self.alive.set(),
-                                                    history=True),
+            session.declare_subscriber(
+                keys.slot_key(ROBOT, "dsp", "commands"),
+                lambda s: keep(self.batches, dec_b(s.payload.to_bytes())),
+            ),
+            session.declare_subscriber(
+                keys.slot_key(ROBOT, module, "error"),
+                lambda s: keep(self.errors, getattr(dec_e(s.payload.to_bytes()), efield)),
+            ),
+            session.declare_subscriber(
+                keys.route_ack_key(ROBOT, module), lambda s: keep(self.acks, dec_a(s.payload.to_bytes()))
+            ),
+            session.liveliness().declare_subscriber(
+                keys.alive_key(ROBOT, module), lambda s: self.alive.set(), history=True
+            ),
         ]
 
     def commands(self, sender: str | None = None) -> list[Any]:
@@ -108,10 +138,19 @@ class Watch:
 class Source:
     """Publishes as module/slot with the QoS of its kind."""
 
-    def __init__(self, session: Any, module: str, slot: str, typ: type, *, kind: Kind = Kind.STATE,
-                 safety: Safety = Safety.SAFE) -> None:
-        self.pub = Publisher(session, keys.slot_key(ROBOT, module, slot), OutputSlot(slot, typ, kind=kind,
-                                                                                     safety=safety))
+    def __init__(
+        self,
+        session: Any,
+        module: str,
+        slot: str,
+        typ: type,
+        *,
+        kind: Kind = Kind.STATE,
+        safety: Safety = Safety.SAFE,
+    ) -> None:
+        self.pub = Publisher(
+            session, keys.slot_key(ROBOT, module, slot), OutputSlot(slot, typ, kind=kind, safety=safety)
+        )
 
     def send(self, value: Any) -> None:
         self.pub.publish(value)
@@ -126,3 +165,26 @@ class Source:
 def control_source(session: Any, module: str) -> Source:
     typ = ControlEntradaSegCam if module == "path_follower" else ControlEntradaPT
     return Source(session, module, "control_entrada", typ)
+
+
+class TelemetryStream:
+    """Publishes a DSP telemetry frame every ``period_s``, as the DSP process does (unsafe: newest wins)."""
+
+    def __init__(self, session: Any, frame: Any, period_s: float = 0.05) -> None:
+        from modules.dsp import protocol as p
+
+        self.source = Source(session, "dsp", "telemetry", p.Telemetry, safety=Safety.UNSAFE)
+        self.frame = frame
+        self._stop = threading.Event()
+        self._period = period_s
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self._period):
+            self.source.send(self.frame)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self.source.close()

@@ -1,4 +1,4 @@
-"""Path follower decisions: every row of SPEC §3.3's table, HEADING/VELOCIDAD/DATOS/REFS, every range bound."""
+"""Path follower decisions: each row of SPEC §3.3's table, HEADING/VELOCIDAD/DATOS/REFS, every range bound."""
 
 from __future__ import annotations
 
@@ -23,7 +23,9 @@ from modules.path_follower.structs import (
 )
 
 PT = DatoPuntoSegCam(latitud=37.4118, longitud=-6.0024, altura=20.0)
-REFS = RefsSegCam(ref_altura=20.0, error_longitudinal=1.0, error_lateral=-1.0, ref_heading=0.5, ref_rpm_motor=1500)
+REFS = RefsSegCam(
+    ref_altura=20.0, error_longitudinal=1.0, error_lateral=-1.0, ref_heading=0.5, ref_rpm_motor=1500
+)
 
 
 def mode(m: int) -> ControlModoSegCam:
@@ -49,8 +51,11 @@ def test_mode_0_sets_mode_and_enables_tracking():
 
 def test_mode_1_sends_current_heading_with_mode_and_enables_tracking():
     d = logic.on_control_modo(FollowerState(heading_deg=123.5), mode(1))
-    assert d.commands == (p.SetHeading(heading_deg=pytest.approx(123.5)), p.SetMode(mode=p.Mode.PATH_GIVEN_HEADING),
-                          p.SetTracking(enable=True))
+    assert d.commands == (
+        p.SetHeading(heading_deg=pytest.approx(123.5)),
+        p.SetMode(mode=p.Mode.PATH_GIVEN_HEADING),
+        p.SetTracking(enable=True),
+    )
     assert d.state.mode == 1
 
 
@@ -62,7 +67,11 @@ def test_mode_1_without_a_known_heading_is_refused():
 
 def test_mode_2_disables_tracking_and_invalidates():
     d = logic.on_control_modo(FollowerState(mode=0, path=(PT,)), mode(2))
-    assert d.commands == (p.SetMode(mode=p.Mode.SEMI_AUTOMATIC), p.SetTracking(enable=False), p.InvalidatePath())
+    assert d.commands == (
+        p.SetMode(mode=p.Mode.SEMI_AUTOMATIC),
+        p.SetTracking(enable=False),
+        p.InvalidatePath(),
+    )
     assert d.state.path == ()
 
 
@@ -89,7 +98,10 @@ def test_heading_only_in_mode_1_in_degrees():
         assert logic.on_heading(FollowerState(mode=m), HeadingSegCam(heading=1.0)).commands == ()
     d = logic.on_heading(FollowerState(mode=1), HeadingSegCam(heading=-math.pi / 2))
     assert d.commands == (p.SetHeading(heading_deg=-90.0),)
-    assert logic.on_heading(FollowerState(mode=1), HeadingSegCam(heading=-math.pi)).commands[0].heading_deg == -180
+    assert (
+        logic.on_heading(FollowerState(mode=1), HeadingSegCam(heading=-math.pi)).commands[0].heading_deg
+        == -180
+    )
 
 
 @pytest.mark.parametrize("m", [None, 0, 1, 2, 4, 5, 6])
@@ -140,8 +152,11 @@ def test_refs_only_in_mode_6_as_they_are():
     for m in (None, 0, 1, 2, 3, 4, 5):
         assert logic.on_refs(FollowerState(mode=m), REFS).commands == ()
     d = logic.on_refs(FollowerState(mode=6), REFS)
-    assert d.commands == (p.SetRefs(ref_altura=20.0, error_longitudinal=1.0, error_lateral=-1.0, ref_heading=0.5,
-                                    ref_rpm_motor=1500.0),)
+    assert d.commands == (
+        p.SetRefs(
+            ref_altura=20.0, error_longitudinal=1.0, error_lateral=-1.0, ref_heading=0.5, ref_rpm_motor=1500.0
+        ),
+    )
 
 
 @pytest.mark.parametrize("field", ["ref_altura", "error_longitudinal", "error_lateral"])
@@ -151,8 +166,11 @@ def test_refs_not_representable(field):
 
 
 def test_telemetry_gives_heading_and_mode_until_commanded():
-    t = p.Telemetry(time_ms=0, heading=42.0,
-                    status=p.DspStatus(mode=0, tracking=True, path_valid=True, airborne=True, queue_length=3))
+    t = p.Telemetry(
+        time_ms=0,
+        heading=42.0,
+        status=p.DspStatus(mode=0, tracking=True, path_valid=True, airborne=True, queue_length=3),
+    )
     s = logic.on_telemetry(FollowerState(), t)
     assert s.heading_deg == 42.0 and s.mode == 0
     s = logic.on_control_modo(s, mode(6)).state
@@ -175,11 +193,24 @@ def test_dsp_errors_forwarded_and_refused_mode_undone():
 # every range bound: (slot, struct, base, field path, in-range bound, just outside, code)
 DP = {"latitud": 0.0, "longitud": 0.0, "altura": 0.0}
 CM = {"modo_o_comando": 0}
-RF = {"ref_altura": 0.0, "error_longitudinal": 0.0, "error_lateral": 0.0, "ref_heading": 0.0, "ref_rpm_motor": 0.0}
+RF = {
+    "ref_altura": 0.0,
+    "error_longitudinal": 0.0,
+    "error_lateral": 0.0,
+    "ref_heading": 0.0,
+    "ref_rpm_motor": 0.0,
+}
 E = FollowerError
 BOUNDS = [
-    *[("control_entrada", ControlEntradaSegCam, {}, f, -1, -2, E.CONTROL_ENTRADA_OUT_OF_RANGE)
-      for f in ("slot_entrada_control_modos", "slot_entrada_heading", "slot_entrada_speed", "slot_entrada_datos")],
+    *[
+        ("control_entrada", ControlEntradaSegCam, {}, f, -1, -2, E.CONTROL_ENTRADA_OUT_OF_RANGE)
+        for f in (
+            "slot_entrada_control_modos",
+            "slot_entrada_heading",
+            "slot_entrada_speed",
+            "slot_entrada_datos",
+        )
+    ],
     ("control_modo", ControlModoSegCam, CM, "modo_o_comando", 0, -1, E.MODO_O_COMANDO_OUT_OF_RANGE),
     ("control_modo", ControlModoSegCam, CM, "modo_o_comando", 1, 2, E.MODO_O_COMANDO_OUT_OF_RANGE),
     ("control_modo", ControlModoSegCam, CM, "modo_de_funcionamiento", 0, -1, E.MODE_OUT_OF_RANGE),
@@ -191,14 +222,24 @@ BOUNDS = [
     ("velocidad", SpeedSegCam, {}, "speed", 0.0, -1e-9, E.SPEED_OUT_OF_RANGE),
     ("datos", DatosSegCam, {"puntos": [DP]}, "n_points", 1, 0, E.N_POINTS_OUT_OF_RANGE),
     ("datos", DatosSegCam, {"puntos": [DP]}, "n_points", 2**32 - 1, 2**32, E.N_POINTS_OUT_OF_RANGE),
-    ("refs", RefsSegCam, RF, "ref_heading", -math.pi, math.nextafter(-math.pi, -4), E.REF_HEADING_OUT_OF_RANGE),
+    (
+        "refs",
+        RefsSegCam,
+        RF,
+        "ref_heading",
+        -math.pi,
+        math.nextafter(-math.pi, -4),
+        E.REF_HEADING_OUT_OF_RANGE,
+    ),
     ("refs", RefsSegCam, RF, "ref_heading", math.nextafter(math.pi, 0), math.pi, E.REF_HEADING_OUT_OF_RANGE),
     ("refs", RefsSegCam, RF, "ref_rpm_motor", 0.0, -1e-9, E.REF_RPM_OUT_OF_RANGE),
     ("refs", RefsSegCam, RF, "ref_rpm_motor", 1800.0, 1800.001, E.REF_RPM_OUT_OF_RANGE),
 ]
 POINT_BOUNDS = [
-    ("latitud", -90.0, -90.001, E.LATITUD_OUT_OF_RANGE), ("latitud", 90.0, 90.001, E.LATITUD_OUT_OF_RANGE),
-    ("longitud", -180.0, -180.001, E.LONGITUD_OUT_OF_RANGE), ("longitud", 180.0, 180.001, E.LONGITUD_OUT_OF_RANGE),
+    ("latitud", -90.0, -90.001, E.LATITUD_OUT_OF_RANGE),
+    ("latitud", 90.0, 90.001, E.LATITUD_OUT_OF_RANGE),
+    ("longitud", -180.0, -180.001, E.LONGITUD_OUT_OF_RANGE),
+    ("longitud", 180.0, 180.001, E.LONGITUD_OUT_OF_RANGE),
 ]
 
 

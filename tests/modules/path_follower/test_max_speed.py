@@ -16,8 +16,15 @@ def test_max_speed_of_the_shipped_conf():
     assert load_max_speed(str(ROOT / "bbcs_conf" / "uav1.conf")) == 8.0
 
 
-@pytest.mark.parametrize("text,line", [("A: 1\nMAX_SPEED: fast\n", 2), ("MAX_SPEED: -3\n", 1),
-                                       ("MAX_SPEED: 31\n", 1), ("MAX_SPEED: [1, 2]\n", 1)])
+@pytest.mark.parametrize(
+    "text,line",
+    [
+        ("A: 1\nMAX_SPEED: fast\n", 2),
+        ("MAX_SPEED: -3\n", 1),
+        ("MAX_SPEED: 31\n", 1),
+        ("MAX_SPEED: [1, 2]\n", 1),
+    ],
+)
 def test_bad_max_speed_names_file_and_line(tmp_path, text, line):
     conf = tmp_path / "r.conf"
     conf.write_text(text)

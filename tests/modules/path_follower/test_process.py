@@ -1,7 +1,7 @@
-"""The path follower as a process on a real router: what reaches the DSP's command mailbox, what goes on ERROR.
+"""The path follower as a process on a real router: what reaches the DSP's mailbox, what goes on ERROR.
 
-The DSP's telemetry is published by the test (the far end of the bus); the DSP process itself is exercised by
-test_with_dsp.py.
+The DSP's telemetry is published by the test (the far end of the bus, at the DSP process's 20 Hz); the
+commands are observed on the DSP process's mailbox key, so nothing here needs the DSP process.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from bbcs.slots import Kind, Safety
 from bbcs.testing import stop_process
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import FOLLOWER_ROUTES, Source, Watch, control_source, start_module  # noqa: E402
+from harness import FOLLOWER_ROUTES, Source, TelemetryStream, Watch, control_source, start_module  # noqa: E402
 
 from modules.dsp import protocol as p  # noqa: E402
 from modules.path_follower.logic import FollowerError as E  # noqa: E402
@@ -43,15 +43,23 @@ def mode(m: int) -> ControlModoSegCam:
 def rig(processes, router, sessions, tmp_path):
     s = sessions()
     watch = Watch(s, "path_follower")
-    proc = start_module(processes, router, tmp_path, "path_follower", "control_modo=1", "heading=2",
-                        "velocidad=3", "datos=4")
+    proc = start_module(
+        processes, router, tmp_path, "path_follower", "control_modo=1", "heading=2", "velocidad=3", "datos=4"
+    )
     src = {
         "modo": Source(s, "gcs", "modo", ControlModoSegCam),
         "heading": Source(s, "gcs", "heading", HeadingSegCam, safety=Safety.UNSAFE),
         "speed": Source(s, "gcs", "speed", SpeedSegCam, safety=Safety.UNSAFE),
         "path": Source(s, "planner", "path", DatosSegCam, kind=Kind.STREAM),
         "refs": Source(s, "path_follower", "refs", RefsSegCam, safety=Safety.UNSAFE),
-        "telemetry": Source(s, "dsp", "telemetry", p.Telemetry, safety=Safety.UNSAFE),
+        "telemetry": TelemetryStream(
+            s,
+            p.Telemetry(
+                time_ms=1,
+                heading=45.0,
+                status=p.DspStatus(mode=2, tracking=False, path_valid=False, airborne=False, queue_length=0),
+            ),
+        ),
         "control": control_source(s, "path_follower"),
     }
     try:
@@ -75,45 +83,110 @@ def step(watch: Watch, source: Source, value, expected: list, what: str) -> None
 def test_mode_table_and_slot_gating(rig):
     proc, watch, src = rig
     # ignored before any mode is known (DSP start-up mode semi-automatic): heading, path, refs
-    src["telemetry"].send(p.Telemetry(time_ms=1, heading=45.0, status=p.DspStatus(
-        mode=2, tracking=False, path_valid=False, airborne=False, queue_length=0)))
     step(watch, src["speed"], SpeedSegCam(speed=8.0), [p.SetSpeed(speed=8.0)], "speed always (at MAX_SPEED)")
-    for name, value in [("heading", HeadingSegCam(heading=1.0)), ("path", DatosSegCam(n_points=1, puntos=[PT])),
-                        ("refs", RefsSegCam(ref_altura=1, error_longitudinal=0, error_lateral=0, ref_heading=0,
-                                            ref_rpm_motor=1500))]:
+    for name, value in [
+        ("heading", HeadingSegCam(heading=1.0)),
+        ("path", DatosSegCam(n_points=1, puntos=[PT])),
+        (
+            "refs",
+            RefsSegCam(
+                ref_altura=1, error_longitudinal=0, error_lateral=0, ref_heading=0, ref_rpm_motor=1500
+            ),
+        ),
+    ]:
         step(watch, src[name], value, [], f"{name} ignored in mode 2")
     step(watch, src["modo"], mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0")
     step(watch, src["heading"], HeadingSegCam(heading=1.0), [], "heading ignored in mode 0")
-    step(watch, src["path"], DatosSegCam(n_points=2, puntos=[PT, PT]),
-         [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)] * 2, "path in mode 0")
-    step(watch, src["modo"], mode(1), [p.SetHeading(heading_deg=pytest.approx(45.0)),
-                                       p.SetMode(mode=p.Mode(1)), p.SetTracking(enable=True)], "mode 1")
-    step(watch, src["heading"], HeadingSegCam(heading=-math.pi / 2), [p.SetHeading(heading_deg=-90.0)],
-         "heading in degrees in mode 1")
-    step(watch, src["path"], DatosSegCam(n_points=1, puntos=[PT]),
-         [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)], "path in mode 1")
-    step(watch, src["modo"], mode(2), [p.SetMode(mode=p.Mode(2)), p.SetTracking(enable=False), p.InvalidatePath()],
-         "mode 2")
+    step(
+        watch,
+        src["path"],
+        DatosSegCam(n_points=2, puntos=[PT, PT]),
+        [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)] * 2,
+        "path in mode 0",
+    )
+    step(
+        watch,
+        src["modo"],
+        mode(1),
+        [
+            p.SetHeading(heading_deg=pytest.approx(45.0)),
+            p.SetMode(mode=p.Mode(1)),
+            p.SetTracking(enable=True),
+        ],
+        "mode 1",
+    )
+    step(
+        watch,
+        src["heading"],
+        HeadingSegCam(heading=-math.pi / 2),
+        [p.SetHeading(heading_deg=-90.0)],
+        "heading in degrees in mode 1",
+    )
+    step(
+        watch,
+        src["path"],
+        DatosSegCam(n_points=1, puntos=[PT]),
+        [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)],
+        "path in mode 1",
+    )
+    step(
+        watch,
+        src["modo"],
+        mode(2),
+        [p.SetMode(mode=p.Mode(2)), p.SetTracking(enable=False), p.InvalidatePath()],
+        "mode 2",
+    )
     for m in (4, 5):
-        step(watch, src["modo"], mode(m), [p.SetTracking(enable=False), p.InvalidatePath(), p.SetMode(mode=p.Mode(m))],
-             f"mode {m}")
+        step(
+            watch,
+            src["modo"],
+            mode(m),
+            [p.SetTracking(enable=False), p.InvalidatePath(), p.SetMode(mode=p.Mode(m))],
+            f"mode {m}",
+        )
     step(watch, src["modo"], mode(6), [p.SetMode(mode=p.Mode(6))], "mode 6")
-    refs = RefsSegCam(ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500)
-    step(watch, src["refs"], refs, [p.SetRefs(ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25,
-                                              ref_rpm_motor=1500)], "refs as they are in mode 6")
+    refs = RefsSegCam(
+        ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500
+    )
+    step(
+        watch,
+        src["refs"],
+        refs,
+        [
+            p.SetRefs(
+                ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500
+            )
+        ],
+        "refs as they are in mode 6",
+    )
     step(watch, src["path"], DatosSegCam(n_points=1, puntos=[PT]), [], "path ignored in mode 6")
     step(watch, src["modo"], ControlModoSegCam(modo_o_comando=1, numero_de_comando=0), [p.Abort()], "abort")
     errors_before = len(watch.errors)
     step(watch, src["modo"], mode(3), [], "mode 3 sends nothing")
     assert watch.errors[errors_before:] == [E.ONBOARD_FOLLOWER_NOT_BUILT]
-    step(watch, src["refs"], refs, [p.SetRefs(ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25,
-                                              ref_rpm_motor=1500)], "mode 3 refused: still mode 6")
+    step(
+        watch,
+        src["refs"],
+        refs,
+        [
+            p.SetRefs(
+                ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500
+            )
+        ],
+        "mode 3 refused: still mode 6",
+    )
     assert all(b.sender == "path_follower" for b in watch.batches)
     assert stop_process(proc) == 0
 
 
 DP = {"latitud": 0.0, "longitud": 0.0, "altura": 0.0}
-RF = {"ref_altura": 0.0, "error_longitudinal": 0.0, "error_lateral": 0.0, "ref_heading": 0.0, "ref_rpm_motor": 0.0}
+RF = {
+    "ref_altura": 0.0,
+    "error_longitudinal": 0.0,
+    "error_lateral": 0.0,
+    "ref_heading": 0.0,
+    "ref_rpm_motor": 0.0,
+}
 NEXT_BELOW_MINUS_PI = math.nextafter(-math.pi, -4)
 BAD = [  # (source, raw datum, documented code): one per range bound of every struct
     ("modo", {"modo_o_comando": -1}, E.MODO_O_COMANDO_OUT_OF_RANGE),
@@ -147,9 +220,8 @@ BAD = [  # (source, raw datum, documented code): one per range bound of every st
 
 def test_every_out_of_range_datum_gives_its_code_and_nothing_reaches_the_dsp(rig):
     proc, watch, src = rig
-    src["telemetry"].send(p.Telemetry(time_ms=1, heading=0.0))
     step(watch, src["modo"], mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0")
-    # mode 0 accepts paths; mode 6 accepts refs: errors must not depend on the mode, so test refs in mode 6 too
+    # mode 0 accepts paths; mode 6 accepts refs: errors must not depend on the mode: refs tested in mode 6
     for i, (name, raw, code) in enumerate(BAD):
         if name == "refs" and i and BAD[i - 1][0] != "refs":
             step(watch, src["modo"], mode(6), [p.SetMode(mode=p.Mode(6))], "mode 6 for refs")
@@ -162,8 +234,13 @@ def test_every_out_of_range_datum_gives_its_code_and_nothing_reaches_the_dsp(rig
     assert len(watch.errors) == len(BAD)
     # the bad CONTROL_ENTRADA left the routes in force: the planner's path still arrives (back in mode 0)
     step(watch, src["modo"], mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0 again")
-    step(watch, src["path"], DatosSegCam(n_points=1, puntos=[PT]),
-         [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)], "routes kept")
+    step(
+        watch,
+        src["path"],
+        DatosSegCam(n_points=1, puntos=[PT]),
+        [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)],
+        "routes kept",
+    )
     assert not [a for a in watch.acks if not a.accepted]
     assert stop_process(proc) == 0
 

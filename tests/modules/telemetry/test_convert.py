@@ -11,11 +11,19 @@ from modules.dsp import protocol as p
 from modules.telemetry.convert import to_robot_telemetry
 
 FULL = p.Telemetry(
-    time_ms=1000, position=p.Position(lat=37.4, lon=-6.0, alt=22.0), attitude=p.Attitude(roll=1, pitch=2, yaw=3),
-    velocity=p.Velocity(vn=1, ve=2, vd=-0.5), angular_rate=p.AngularRate(p=0, q=0, r=0), heading=3.0,
+    time_ms=1000,
+    position=p.Position(lat=37.4, lon=-6.0, alt=22.0),
+    attitude=p.Attitude(roll=1, pitch=2, yaw=3),
+    velocity=p.Velocity(vn=1, ve=2, vd=-0.5),
+    angular_rate=p.AngularRate(p=0, q=0, r=0),
+    heading=3.0,
     status=p.DspStatus(mode=1, tracking=True, path_valid=True, airborne=True, queue_length=7),
-    nav=p.NavTarget(lat=0, lon=0, alt=0, distance=-1), speed=p.SpeedInfo(commanded=3, ground=2.9),
-    pan_tilt=p.PanTiltState(mode=0, pan=10.0, tilt=-5.0), error_code=4, engine=p.Engine(rotor_rpm=1500, battery_v=24))
+    nav=p.NavTarget(lat=0, lon=0, alt=0, distance=-1),
+    speed=p.SpeedInfo(commanded=3, ground=2.9),
+    pan_tilt=p.PanTiltState(mode=0, pan=10.0, tilt=-5.0),
+    error_code=4,
+    engine=p.Engine(rotor_rpm=1500, battery_v=24),
+)
 
 
 def test_every_field():
@@ -26,7 +34,13 @@ def test_every_field():
     assert (r.velocity.vn, r.velocity.ve, r.velocity.vd) == (1, 2, -0.5)
     assert r.heading_deg == 3.0 and r.stamp == 123.0
     assert (r.mode, r.mode_name, r.tracking, r.path_valid, r.airborne, r.waypoints_queued) == (
-        1, "PATH_GIVEN_HEADING", True, True, True, 7)
+        1,
+        "PATH_GIVEN_HEADING",
+        True,
+        True,
+        True,
+        7,
+    )
     assert (r.pan_deg, r.tilt_deg, r.pan_tilt_mode, r.error_code) == (10.0, -5.0, 0, 4)
     # what goes on the bus decodes with the struct's ranges
     assert msgspec.msgpack.decode(msgspec.msgpack.encode(r), type=RobotTelemetry) == r
@@ -39,8 +53,12 @@ def test_fields_not_in_the_mask_stay_none():
 
 
 def test_invalid_fields_dropped_and_named():
-    bad = msgspec.structs.replace(FULL, position=p.Position(lat=91.0, lon=0, alt=0), heading=math.nan,
-                                  attitude=p.Attitude(roll=math.inf, pitch=0, yaw=0))
+    bad = msgspec.structs.replace(
+        FULL,
+        position=p.Position(lat=91.0, lon=0, alt=0),
+        heading=math.nan,
+        attitude=p.Attitude(roll=math.inf, pitch=0, yaw=0),
+    )
     r, dropped = to_robot_telemetry(bad, 0.0)
     assert sorted(dropped) == ["attitude", "heading", "position"]
     assert r.position is None and r.heading_deg is None and r.attitude is None and r.velocity is not None

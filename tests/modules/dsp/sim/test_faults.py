@@ -49,7 +49,7 @@ def test_fault_stream_marks_exactly_the_damaged_frames() -> None:
     damaged = fault_stream(frames, corrupt=0.01, drop=0.0, garbage=0.0, seed=10)
     stream = damaged.stream
     pos = 0
-    for frame, ok in zip(frames, damaged.intact):
+    for frame, ok in zip(frames, damaged.intact, strict=True):
         piece = stream[pos:pos + len(frame)]
         assert (piece == frame) == bool(ok)
         pos += len(frame)

@@ -11,8 +11,8 @@ DT = 0.02
 
 
 def flying(**params: float) -> Vehicle:
-    v = Vehicle(VehicleParams(**params), VehicleState(pos=np.array([0.0, 0.0, 20.0]), rotor_rpm=ROTOR_FLIGHT_RPM))
-    return v
+    state = VehicleState(pos=np.array([0.0, 0.0, 20.0]), rotor_rpm=ROTOR_FLIGHT_RPM)
+    return Vehicle(VehicleParams(**params), state)
 
 
 def test_speed_climb_and_acceleration_limits() -> None:

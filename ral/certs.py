@@ -1,0 +1,193 @@
+"""``cromat certs DIR``: a CA and certificates for a robot router, ground stations and modules (openssl CLI).
+
+Each certificate's common name is the identity the router's access policy knows it by (``gcs``, ``ral``,
+``manager``, a module's instance name). The router's certificate carries the host names clients connect to
+(default ``localhost`` and ``127.0.0.1``). An existing CA in DIR is reused, so new identities can be added
+later. With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + access policy, see
+:mod:`ral.acl`) pointing at these files. Keys are written mode 0600 and must never be committed.
+
+The openssl commands are listed in docs/security.md. (The ``cryptography`` package is not a dependency; the
+openssl command-line tool is used.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import os
+import secrets
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from ral import acl
+
+CA = "ca"
+DEFAULT_HOSTS = ("localhost", "127.0.0.1")
+
+
+class CertError(RuntimeError):
+    pass
+
+
+def _openssl(*args: str) -> None:
+    exe = shutil.which("openssl")
+    if exe is None:
+        raise CertError("the openssl command is not installed (needed by cromat certs); see docs/security.md")
+    proc = subprocess.run([exe, *args], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise CertError(f"openssl {args[0]} failed: {proc.stderr.strip()}")
+
+
+def _new_key(path: Path) -> None:
+    _openssl("genpkey", "-algorithm", "EC", "-pkeyopt", "ec_paramgen_curve:P-256", "-out", str(path))
+    os.chmod(path, 0o600)
+
+
+def make_ca(directory: Path, name: str = "cromat-ca", days: int = 3650) -> tuple[Path, Path]:
+    """Create ``ca.key``/``ca.pem`` unless they exist; returns their paths."""
+    key, pem = directory / f"{CA}.key", directory / f"{CA}.pem"
+    if key.exists() and pem.exists():
+        return key, pem
+    _new_key(key)
+    _openssl(
+        "req",
+        "-x509",
+        "-new",
+        "-key",
+        str(key),
+        "-sha256",
+        "-days",
+        str(days),
+        "-subj",
+        f"/CN={name}",
+        "-addext",
+        "basicConstraints=critical,CA:TRUE",
+        "-addext",
+        "keyUsage=critical,keyCertSign,cRLSign",
+        "-out",
+        str(pem),
+    )
+    return key, pem
+
+
+def _san(hosts: list[str]) -> str:
+    parts = []
+    for host in hosts:
+        try:
+            ipaddress.ip_address(host)
+            parts.append(f"IP:{host}")
+        except ValueError:
+            parts.append(f"DNS:{host}")
+    return ",".join(parts)
+
+
+def make_leaf(
+    directory: Path, name: str, hosts: list[str] | None = None, days: int = 825
+) -> tuple[Path, Path]:
+    """``NAME.key``/``NAME.pem`` signed by the CA in ``directory``, CN=NAME, server+client use."""
+    ca_key, ca_pem = directory / f"{CA}.key", directory / f"{CA}.pem"
+    if not ca_key.exists():
+        raise CertError(f"{directory}: no CA (ca.key); create one first")
+    key, pem = directory / f"{name}.key", directory / f"{name}.pem"
+    _new_key(key)
+    with tempfile.TemporaryDirectory() as tmp:
+        csr, ext = Path(tmp) / "req.csr", Path(tmp) / "ext.cnf"
+        ext.write_text(
+            "basicConstraints=critical,CA:FALSE\n"
+            "keyUsage=critical,digitalSignature,keyEncipherment\n"
+            "extendedKeyUsage=serverAuth,clientAuth\n"
+            f"subjectAltName={_san(hosts or [name])}\n"
+        )
+        _openssl("req", "-new", "-key", str(key), "-subj", f"/CN={name}", "-out", str(csr))
+        _openssl(
+            "x509",
+            "-req",
+            "-in",
+            str(csr),
+            "-CA",
+            str(ca_pem),
+            "-CAkey",
+            str(ca_key),
+            "-set_serial",
+            f"0x{secrets.token_hex(16)}",
+            "-days",
+            str(days),
+            "-sha256",
+            "-extfile",
+            str(ext),
+            "-out",
+            str(pem),
+        )
+    return key, pem
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="cromat certs", description="Create a CA and TLS certificates for cromat."
+    )
+    p.add_argument("dir", help="output folder (created; an existing CA in it is reused)")
+    p.add_argument("--ca-name", default="cromat-ca", help="common name of a new CA")
+    p.add_argument(
+        "--router-host",
+        action="append",
+        metavar="HOST",
+        help="host name or IP the router is reached at (repeatable; default localhost, 127.0.0.1)",
+    )
+    p.add_argument("--gcs", action="append", metavar="NAME", help="ground-station identity (default: gcs)")
+    p.add_argument(
+        "--module",
+        action="append",
+        metavar="NAME",
+        help="module identity, its instance name (default: module)",
+    )
+    p.add_argument("--no-local", action="store_true", help="do not create the ral and manager identities")
+    p.add_argument("--days", type=int, default=825)
+    p.add_argument("--acl", metavar="FILE", help="also write the robot router's Zenoh config (mTLS + ACL)")
+    p.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="router TLS endpoint for --acl (default tls/0.0.0.0:7447)",
+    )
+    p.add_argument("--robot", default="*", help="robot name the --acl policy is for (default: any)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    out = Path(args.dir)
+    out.mkdir(parents=True, exist_ok=True)
+    gcs = args.gcs or ["gcs"]
+    modules = args.module or ["module"]
+    local = [] if args.no_local else ["ral", "manager"]
+    try:
+        make_ca(out, args.ca_name)
+        make_leaf(out, "router", args.router_host or list(DEFAULT_HOSTS), args.days)
+        for name in [*gcs, *local, *modules]:
+            make_leaf(out, name, None, args.days)
+        if args.acl:
+            cfg = acl.router_config(
+                listen=args.listen or ["tls/0.0.0.0:7447"],
+                ca=str((out / "ca.pem").resolve()),
+                cert=str((out / "router.pem").resolve()),
+                key=str((out / "router.key").resolve()),
+                robot=args.robot,
+                gcs=gcs,
+                modules=modules,
+            )
+            acl.write(cfg, Path(args.acl))
+    except (CertError, ValueError) as exc:
+        print(f"cromat certs: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"cromat certs: CA and certificates for router, {', '.join([*gcs, *local, *modules])} in {out}"
+        + (f"; router config {args.acl}" if args.acl else "")
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
