@@ -200,6 +200,8 @@ class Module:
                 self._running = True
                 for reader in list(self._readers.values()):
                     reader.gate.set()
+            # alive only now: everything declared, on_start done (its own subscriptions too), inputs flowing
+            self._entities.append(self.session.liveliness().declare_token(keys.alive_key(self.robot, self.module)))
             self._serve()
         finally:
             self._shutdown()
@@ -237,7 +239,6 @@ class Module:
                 self._readers[name] = self._make_reader(spec, spec.key(self.robot, self.module), IGNORE)
         initial = {slot: self.context.routes.get(slot, IGNORE) for slot in sorted(self._routed)}
         self._apply_routes(initial, request=initial, publish_ack=bool(self.context.routes))
-        self._entities.append(s.liveliness().declare_token(keys.alive_key(self.robot, self.module)))
 
     def _shutdown(self) -> None:
         if self._closed:

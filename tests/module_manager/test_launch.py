@@ -71,8 +71,10 @@ def modules(session, robot: str = "r1") -> dict[str, mri.ModuleStatus]:
 def test_comes_up_and_sigterm_leaves_no_process(launch):
     la = launch()
     la.wait_line(UP)
-    up = [line.split()[0] for line in la.lines if line.split()[1:2] == ["up"]]
-    assert sorted(up) == ["sink", "src_a", "src_b"], "one status line per module once up"
+    def up() -> list[str]:
+        return sorted(line.split()[0] for line in list(la.lines) if line.split()[1:2] == ["up"])
+
+    wait_until(lambda: up() == ["sink", "src_a", "src_b"], 10, "one status line per module once up")
     assert len(group_members(la.pgid)) >= 5, "manager, router and three modules"
     assert la.stop(signal.SIGTERM) == 0
     wait_until(lambda: group_members(la.pgid) == [], 10, "every child of the launch gone")

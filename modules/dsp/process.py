@@ -1,0 +1,190 @@
+"""The DSP process: the only owner of the serial port, between the bus and the DSP (modules/dsp/bus.py).
+
+Start-up (``on_start``, before any input is handled): read the robot .conf, open the port, run SPEC §3's
+start-up sequence. Any failure there ends the process with a clear message and exit code 3, so the Module
+Manager sees it and nothing half-configured flies.
+
+Then: command batches arriving on ``commands`` are queued and sent by one sender thread, in order, each
+acknowledged before the next; the first failure stops the rest of its batch and is reported on ``errors``
+with the sender's name and batch id. A batch holding ABORT jumps the queue: the batch being sent stops after
+its current command, every queued batch is dropped (reported as FLUSHED), then the ABORT goes out — SPEC's
+abort empties the waypoint queues of both the onboard computer and the DSP. DSP telemetry goes out on
+``telemetry``, DSP errors on ``errors``, link counters on ``link`` every second. If the port fails later the
+process stops with exit code 3 and the manager restarts it (which runs the start-up sequence again).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from typing import ClassVar
+
+from bbcs.conf import ConfError
+from bbcs.errors import BusErrorCode
+from bbcs.module import Module
+from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
+from modules.dsp import bus
+from modules.dsp import protocol as p
+from modules.dsp.config import DspConfig, load_dsp_config
+from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout, LinkErrorCode
+from modules.dsp.link import DspLink, LinkStats, open_link, startup
+
+EXIT_LINK_FAILED = 3
+
+
+class DspStartupError(RuntimeError):
+    """The .conf, the port or the start-up sequence failed: the process must not run."""
+
+
+class DspModule(Module):
+    name: ClassVar[str] = bus.MODULE
+    slots = (
+        InputSlot(bus.COMMANDS_SLOT, bus.DspCommands, kind=Kind.STREAM),
+        OutputSlot(bus.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
+        OutputSlot(bus.ERRORS_SLOT, bus.DspErrorReport),
+        OutputSlot(bus.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
+        OutputSlot("error", bus.DspModuleError),
+    )
+    error_slot = "error"
+    tick_period = 1.0
+    exit_code: ClassVar[int] = 0
+
+    # --- lifecycle ---------------------------------------------------------------------------------------
+
+    def on_start(self) -> None:
+        self.conf = self._load_conf()
+        self._queue: deque[bus.DspCommands] = deque()
+        self._cond = threading.Condition()
+        self._abort_generation = 0
+        self._sender_stop = False
+        try:
+            self.link: DspLink = open_link(self.conf, on_telemetry=self._on_telemetry, on_error=self._on_dsp_error)
+        except DspLinkError as exc:
+            self._fatal(LinkErrorCode.LINK_DOWN, str(exc))
+        try:
+            acks = startup(self.link, self.conf)
+        except (DspLinkError, p.DspValueError) as exc:
+            self.link.close()
+            self._fatal(LinkErrorCode.NO_ACK if isinstance(exc, DspTimeout) else LinkErrorCode.LINK_DOWN,
+                        f"DSP start-up sequence failed: {exc}")
+        self.log.info("DSP on %s: start-up sequence acknowledged (%d commands)", self.conf.port, len(acks))
+        self.publish(bus.LINK_SLOT, self.link.stats())
+        self._sender = threading.Thread(target=self._send_loop, name="dsp-sender", daemon=True)
+        self._sender.start()
+
+    def on_stop(self) -> None:
+        cond = getattr(self, "_cond", None)
+        if cond is not None:
+            with cond:
+                self._sender_stop = True
+                cond.notify_all()
+        link = getattr(self, "link", None)
+        if link is not None:
+            link.close()  # unblocks a sender waiting for an ACK
+        sender = getattr(self, "_sender", None)
+        if sender is not None:
+            sender.join(timeout=2.0)
+
+    def on_tick(self) -> None:
+        self.publish(bus.LINK_SLOT, self.link.stats())
+        failure = self.link.failure
+        if failure is not None and not self.stopping:
+            self.report_error(LinkErrorCode.LINK_DOWN, str(failure))
+            self._publish_report(LinkErrorCode.LINK_DOWN, str(failure))
+            type(self).exit_code = EXIT_LINK_FAILED
+            self.request_stop()
+
+    @classmethod
+    def main(cls, argv: list[str] | None = None) -> int:
+        """``python -m modules.dsp``: 0 after a clean stop, 2 bad arguments/bus, 3 DSP link or start-up failed."""
+        try:
+            code = super().main(argv)
+        except DspStartupError:
+            return EXIT_LINK_FAILED
+        return code or cls.exit_code
+
+    def _load_conf(self) -> DspConfig:
+        path = self.context.conf
+        if not path:
+            self._fatal(BusErrorCode.MALFORMED, "no robot .conf given (--conf FILE or the manager's context)")
+        try:
+            return load_dsp_config(path, port=self.context.params.get("port") or None)
+        except ConfError as exc:
+            self._fatal(BusErrorCode.MALFORMED, f"robot configuration: {exc}")
+        raise AssertionError("unreachable")
+
+    def _fatal(self, code: int, detail: str) -> None:
+        self.report_error(code, detail)
+        self.log.error("%s", detail)
+        raise DspStartupError(detail)
+
+    # --- commands ----------------------------------------------------------------------------------------
+
+    def on_commands(self, batch: bus.DspCommands) -> None:
+        """Check run-time limits, then queue the batch; an ABORT flushes what is queued and goes first."""
+        for cmd in batch.commands:
+            if isinstance(cmd, p.SetSpeed) and cmd.speed > self.conf.max_speed:
+                detail = (f"SetSpeed {cmd.speed} m/s exceeds MAX_SPEED {self.conf.max_speed} m/s of "
+                          f"{self.conf.source}; batch {batch.batch_id} of {batch.sender} not sent")
+                self.report_error(BusErrorCode.LIMIT_EXCEEDED, detail)
+                self._publish_report(LinkErrorCode.OVER_MAX_SPEED, detail, batch, "SetSpeed")
+                return
+        with self._cond:
+            if any(isinstance(cmd, p.Abort) for cmd in batch.commands):
+                flushed = list(self._queue)
+                self._queue.clear()
+                self._abort_generation += 1
+                self._queue.appendleft(batch)
+            else:
+                flushed = []
+                self._queue.append(batch)
+            self._cond.notify_all()
+        for old in flushed:
+            self._publish_report(LinkErrorCode.FLUSHED, f"batch flushed by an ABORT from {batch.sender}", old)
+
+    def _send_loop(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._queue or self._sender_stop)
+                if self._sender_stop:
+                    return
+                batch = self._queue.popleft()
+                generation = self._abort_generation
+            self._send_batch(batch, generation)
+
+    def _send_batch(self, batch: bus.DspCommands, generation: int) -> None:
+        for i, cmd in enumerate(batch.commands):
+            if self._abort_generation != generation and not isinstance(cmd, p.Abort):
+                self._publish_report(LinkErrorCode.FLUSHED, f"{len(batch.commands) - i} commands not sent: "
+                                                            f"flushed by an ABORT", batch, type(cmd).__name__)
+                return
+            name = type(cmd).__name__
+            try:
+                self.link.send(cmd)
+            except DspRejected as exc:
+                self._publish_report(exc.status, str(exc), batch, name)
+                return
+            except DspTimeout as exc:
+                self._publish_report(LinkErrorCode.NO_ACK, str(exc), batch, name)
+                return
+            except (DspLinkError, p.DspValueError) as exc:
+                self._publish_report(LinkErrorCode.LINK_DOWN if isinstance(exc, DspLinkError)
+                                     else BusErrorCode.OUT_OF_RANGE, str(exc), batch, name)
+                return
+
+    # --- DSP → bus ---------------------------------------------------------------------------------------
+
+    def _on_telemetry(self, telemetry: p.Telemetry) -> None:
+        self.publish(bus.TELEMETRY_SLOT, telemetry)
+
+    def _on_dsp_error(self, error: p.DspError) -> None:
+        self._publish_report(error.code, f"the DSP reported {p.error_name(error.code)} at {error.time_ms} ms")
+
+    def _publish_report(self, code: int, detail: str, batch: bus.DspCommands | None = None,
+                        command: str = "") -> None:
+        name = LinkErrorCode(code).name if code in LinkErrorCode._value2member_map_ else p.error_name(code)
+        if batch is not None:
+            self.log.warning("batch %d of %s: %s", batch.batch_id, batch.sender, detail)
+        self.publish(bus.ERRORS_SLOT, bus.DspErrorReport(
+            code=int(code), name=name, detail=detail, sender="" if batch is None else batch.sender,
+            batch_id=0 if batch is None else batch.batch_id, command=command))
