@@ -72,14 +72,16 @@ class SlotSpec(Generic[T]):
     safety: Safety = Safety.SAFE
     queue: int = DEFAULT_SAFE_QUEUE
     peer: str | None = None
-    """Another module of the same robot whose slot this one is bound to: an input reads that module's output
-    slot of the same name (e.g. ``dsp`` for ``telemetry``); an output writes into that module's input (a mailbox,
-    e.g. ``dsp`` for ``commands``). None: the slot lives under this module's own key."""
+    """Another module's slot this one is bound to, ``module`` (same slot name) or ``module/slot``: an input
+    reads that output (e.g. ``dsp/telemetry``); an output writes into that module's input, a mailbox (e.g.
+    ``dsp/commands``). None: the slot lives under this module's own key."""
 
     def __post_init__(self) -> None:
         keys.validate_name(self.name, "slot name")
         if self.peer is not None:
-            keys.validate_name(self.peer, "peer module name")
+            module, _, slot = self.peer.partition("/")
+            keys.validate_name(module, "peer module name")
+            keys.validate_name(slot or self.name, "peer slot name")
         if not (isinstance(self.type, type) and issubclass(self.type, msgspec.Struct)):
             raise SlotError(f"slot {self.name!r}: type must be a msgspec.Struct subclass, got {self.type!r}")
         if self.kind is Kind.STREAM and self.safety is Safety.UNSAFE:
@@ -93,7 +95,10 @@ class SlotSpec(Generic[T]):
 
     def key(self, robot: str, module: str) -> str:
         """Where this slot lives for ``module`` of ``robot`` (the peer's key when it has one)."""
-        return keys.slot_key(robot, self.peer or module, self.name)
+        if self.peer is None:
+            return keys.slot_key(robot, module, self.name)
+        peer_module, _, peer_slot = self.peer.partition("/")
+        return keys.slot_key(robot, peer_module, peer_slot or self.name)
 
     def describe(self) -> dict[str, Any]:
         """What the schema query returns for this slot."""

@@ -6,7 +6,7 @@ The DSP process (``python -m modules.dsp``) is the only owner of the serial port
 | --- | --- | --- | --- |
 | ``commands``  | in  | stream, safe   | :class:`DspCommands` — written by telemetry, pan_tilt, path_follower |
 | ``telemetry`` | out | state, unsafe  | :class:`modules.dsp.protocol.Telemetry` (fields the mask selects) |
-| ``errors``    | out | state, safe    | :class:`DspErrorReport` — DSP faults and refused/unacknowledged commands |
+| ``errors``    | out | stream, safe   | :class:`DspErrorReport` — DSP faults and refused/unacknowledged commands |
 | ``link``      | out | state, unsafe  | :class:`modules.dsp.link.LinkStats` |
 | ``error``     | out | state, safe    | :class:`DspModuleError` — bus-level error codes of the DSP process itself |
 
@@ -20,10 +20,12 @@ refuses them on ``commands``.
 
 from __future__ import annotations
 
-from typing import Annotated
+from collections.abc import Sequence
+from typing import Annotated, Any
 
 import msgspec
 
+from bbcs.slots import InputSlot, Kind, OutputSlot, Publisher, Safety
 from modules.dsp import protocol as p
 
 DspCommand = (
@@ -69,3 +71,38 @@ class DspModuleError(msgspec.Struct, frozen=True, kw_only=True):
     """The DSP process's ERROR slot: bus-level codes (bbcs.errors.BusErrorCode) and its own."""
 
     error_dsp: int
+
+
+def telemetry_input() -> Any:
+    """Input ``dsp_telemetry`` (handler ``on_dsp_telemetry``): the DSP's telemetry, newest value only."""
+    return InputSlot("dsp_telemetry", p.Telemetry, safety=Safety.UNSAFE,
+                     peer=f"{MODULE}/{TELEMETRY_SLOT}")
+
+
+def errors_input() -> Any:
+    """Input ``dsp_errors`` (handler ``on_dsp_errors``): the DSP's error reports, every one, in order."""
+    return InputSlot("dsp_errors", DspErrorReport, kind=Kind.STREAM, peer=f"{MODULE}/{ERRORS_SLOT}")
+
+
+def commands_output() -> Any:
+    """Output ``dsp_commands``: writes into the DSP process's command mailbox (``self.output("dsp_commands")``)."""
+    return OutputSlot("dsp_commands", DspCommands, kind=Kind.STREAM, peer=f"{MODULE}/{COMMANDS_SLOT}")
+
+
+class DspCommander:
+    """Numbers and sends one module's command batches through its ``commands`` output."""
+
+    def __init__(self, publisher: Publisher[DspCommands], sender: str) -> None:
+        self.sender = sender
+        self.batches = 0
+        self.commands = 0
+        self._pub = publisher
+
+    def send(self, commands: Sequence[DspCommand]) -> int | None:
+        """Send one batch; returns its id (None when there was nothing to send)."""
+        if not commands:
+            return None
+        self.batches += 1
+        self._pub.publish(DspCommands(sender=self.sender, commands=list(commands), batch_id=self.batches))
+        self.commands += len(commands)
+        return self.batches

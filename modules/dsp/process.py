@@ -58,7 +58,8 @@ class DspModule(Module):
         self._abort_generation = 0
         self._sender_stop = False
         try:
-            self.link: DspLink = open_link(self.conf, on_telemetry=self._on_telemetry, on_error=self._on_dsp_error)
+            self.link: DspLink = open_link(self.conf, on_telemetry=self._on_telemetry,
+                                           on_error=self._on_dsp_error)
         except DspLinkError as exc:
             self._fatal(LinkErrorCode.LINK_DOWN, str(exc))
         try:
@@ -96,7 +97,7 @@ class DspModule(Module):
 
     @classmethod
     def main(cls, argv: list[str] | None = None) -> int:
-        """``python -m modules.dsp``: 0 after a clean stop, 2 bad arguments/bus, 3 DSP link or start-up failed."""
+        """``python -m modules.dsp``: 0 after a clean stop, 2 bad arguments/bus, 3 link or start-up failed."""
         try:
             code = super().main(argv)
         except DspStartupError:

@@ -154,10 +154,7 @@ class LidarLogger:
                 summ.reason = self._stop_reason or "signal"
                 return summ
             summ.first_valid_pose_t = first.t
-            stamp = date_stamp(first.pose.utc)
-            summ.folder = make_run_folder(Path(s.out_dir), stamp)
-            self._say(f"valid pose; logging into {summ.folder}")
-
+            self._say("valid pose; configuring the LD-MRS")
             scanner = LdmrsClient(s.ldmrs_host, s.ldmrs_port)
             scanner.connect()
             status = scanner.get_status()
@@ -165,6 +162,8 @@ class LidarLogger:
                 scanner.set_time(self._utc_now())
             readback = scanner.configure(s.scanner)
 
+            stamp = date_stamp(first.pose.utc)
+            summ.folder = make_run_folder(Path(s.out_dir), stamp)
             base = summ.folder / f"LogFile_{stamp}"
             if s.text:
                 writers.append(TextLogWriter(base))
@@ -182,7 +181,7 @@ class LidarLogger:
             self._last_event = self.clock.now()
             scanner.start_measure()
             summ.measuring_started = True
-            self._say("scanner measuring")
+            self._say(f"scanner measuring; logging into {summ.folder}")
             summ.reason = self._write_loop(scanner, writers)
         except (MTiGError, LdmrsError, OSError, serial.SerialException, ValueError) as exc:
             summ.reason, summ.error = "error", str(exc)

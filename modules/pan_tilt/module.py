@@ -13,16 +13,13 @@ from typing import ClassVar
 
 import msgspec
 
-from bbcs import keys
 from bbcs.errors import BusErrorCode
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
 from modules.dsp import protocol as p
 from modules.pan_tilt import logic
-from modules.pan_tilt.dsp_link import DspCommander
 from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ErrorPT, ModoFuncionamientoPT
-from modules.telemetry.feed import Feed
 
 
 class PanTiltModule(Module):
@@ -31,6 +28,9 @@ class PanTiltModule(Module):
         InputSlot("control_modo", ModoFuncionamientoPT),
         InputSlot("datos", DatosPT, safety=Safety.UNSAFE),
         OutputSlot("error", ErrorPT),
+        dsp_bus.telemetry_input(),
+        dsp_bus.errors_input(),
+        dsp_bus.commands_output(),
     )
     control = Control(
         ControlEntradaPT, {"slot_entrada_control_modos": "control_modo", "slot_entrada_datos": "datos"}
@@ -40,32 +40,7 @@ class PanTiltModule(Module):
     def on_start(self) -> None:
         assert self.session is not None
         self.state = logic.PanTiltState()
-        dsp = self.context.params.get("dsp", dsp_bus.MODULE)
-        self.dsp = DspCommander(self.session, self.robot, self.module, dsp)
-        self.feeds = [
-            Feed(
-                self.session,
-                keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT),
-                p.Telemetry,
-                self._on_telemetry,
-                self.lock,
-                newest_only=True,
-            ),
-            Feed(
-                self.session,
-                keys.slot_key(self.robot, dsp, dsp_bus.ERRORS_SLOT),
-                dsp_bus.DspErrorReport,
-                self._on_dsp_error,
-                self.lock,
-                newest_only=False,
-            ),
-        ]
-
-    def on_stop(self) -> None:
-        for feed in getattr(self, "feeds", ()):
-            feed.close()
-        if hasattr(self, "dsp"):
-            self.dsp.close()
+        self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
 
     def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
         """Out-of-range fields get the documented per-field code; undecodable data: MALFORMED."""
@@ -88,8 +63,8 @@ class PanTiltModule(Module):
     def on_datos(self, msg: DatosPT) -> None:
         self._apply(logic.on_datos(self.state, msg))
 
-    def _on_telemetry(self, t: p.Telemetry) -> None:
+    def on_dsp_telemetry(self, t: p.Telemetry) -> None:
         self.state = logic.on_telemetry(self.state, t)
 
-    def _on_dsp_error(self, report: dsp_bus.DspErrorReport) -> None:
+    def on_dsp_errors(self, report: dsp_bus.DspErrorReport) -> None:
         self._apply(logic.on_dsp_error(self.state, report, self.module))

@@ -15,14 +15,12 @@ from typing import ClassVar
 
 import msgspec
 
-from bbcs import keys
 from bbcs.conf import ConfError, load_conf
 from bbcs.errors import BusErrorCode
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
 from modules.dsp import protocol as p
-from modules.pan_tilt.dsp_link import DspCommander
 from modules.path_follower import logic
 from modules.path_follower.structs import (
     ControlEntradaSegCam,
@@ -33,7 +31,6 @@ from modules.path_follower.structs import (
     RefsSegCam,
     SpeedSegCam,
 )
-from modules.telemetry.feed import Feed
 
 MODE_BATCH_MEMORY = 256
 """How many recent mode-change batches are remembered to undo the mode if the DSP refuses one."""
@@ -68,6 +65,9 @@ class PathFollowerModule(Module):
         InputSlot("velocidad", SpeedSegCam, safety=Safety.UNSAFE),
         InputSlot("datos", DatosSegCam, kind=Kind.STREAM),
         InputSlot("refs", RefsSegCam, safety=Safety.UNSAFE),
+        dsp_bus.telemetry_input(),
+        dsp_bus.errors_input(),
+        dsp_bus.commands_output(),
         OutputSlot("error", ErrorSegCam),
     )
     control = Control(
@@ -89,32 +89,7 @@ class PathFollowerModule(Module):
         assert self.session is not None
         self.state = logic.FollowerState()
         self._mode_batches: dict[int, int | None] = {}
-        dsp = self.context.params.get("dsp", dsp_bus.MODULE)
-        self.dsp = DspCommander(self.session, self.robot, self.module, dsp)
-        self.feeds = [
-            Feed(
-                self.session,
-                keys.slot_key(self.robot, dsp, dsp_bus.TELEMETRY_SLOT),
-                p.Telemetry,
-                self._on_telemetry,
-                self.lock,
-                newest_only=True,
-            ),
-            Feed(
-                self.session,
-                keys.slot_key(self.robot, dsp, dsp_bus.ERRORS_SLOT),
-                dsp_bus.DspErrorReport,
-                self._on_dsp_error,
-                self.lock,
-                newest_only=False,
-            ),
-        ]
-
-    def on_stop(self) -> None:
-        for feed in getattr(self, "feeds", ()):
-            feed.close()
-        if hasattr(self, "dsp"):
-            self.dsp.close()
+        self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
 
     def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
         """Out-of-range fields get the documented per-field code; undecodable data: MALFORMED."""
@@ -153,10 +128,10 @@ class PathFollowerModule(Module):
     def on_refs(self, msg: RefsSegCam) -> None:
         self._apply(logic.on_refs(self.state, msg))
 
-    def _on_telemetry(self, t: p.Telemetry) -> None:
+    def on_dsp_telemetry(self, t: p.Telemetry) -> None:
         self.state = logic.on_telemetry(self.state, t)
 
-    def _on_dsp_error(self, report: dsp_bus.DspErrorReport) -> None:
+    def on_dsp_errors(self, report: dsp_bus.DspErrorReport) -> None:
         own_mode_batch = report.sender == self.module and report.batch_id in self._mode_batches
         before = self._mode_batches.pop(report.batch_id, None) if own_mode_batch else None
         self._apply(

@@ -3,7 +3,7 @@
 import msgspec
 import pytest
 
-from bbcs.errors import SlotError
+from bbcs.errors import InvalidNameError, SlotError
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 
@@ -55,6 +55,9 @@ def test_stream_cannot_be_unsafe_and_peers_resolve():
     assert InputSlot("telemetry", Msg, peer="dsp").key("uav1", "telemetry") == "cromat/uav1/dsp/telemetry"
     assert OutputSlot("commands", Msg, peer="dsp").key("uav1", "pan_tilt") == "cromat/uav1/dsp/commands"
     assert OutputSlot("error", Err).key("uav1", "pan_tilt") == "cromat/uav1/pan_tilt/error"
+    assert InputSlot("dsp_telemetry", Msg, peer="dsp/telemetry").key("uav1", "x") == "cromat/uav1/dsp/telemetry"
+    with pytest.raises(InvalidNameError):
+        InputSlot("a", Msg, peer="dsp/te*")
 
 
 def test_a_valid_declaration_lists_its_slots():

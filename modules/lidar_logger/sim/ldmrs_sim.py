@@ -258,7 +258,8 @@ class LdmrsSimulator:
         self._listener.setblocking(False)
         self.host = host
         self.port = self._listener.getsockname()[1]
-        self.connections = 0
+        self.connected_at: list[float] = []
+        """Clock time of every accepted connection."""
         self.messages_sent = 0
         self._garbage_rng = np.random.default_rng(self.device.options.seed + 1)
         self._stop = threading.Event()
@@ -312,7 +313,7 @@ class LdmrsSimulator:
                     client.setblocking(True)
                     client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                     parser = MessageParser()
-                    self.connections += 1
+                    self.connected_at.append(clock.now())
                 now = clock.now()
                 while self.device.due(now):
                     self.device.take_scan(now, send=False)

@@ -57,7 +57,7 @@ def test_heading_roll_and_mounting_offsets() -> None:
     r = georeference(log, m)
     # yaw 90: body x points west; the mounting offset 0.5 m forward is 0.5 m west
     assert r.enu[0] == pytest.approx([-0.5, 0, -10.2], abs=1e-9)
-    # roll 30 (left wing up): straight-down body axis tilts towards the right = east
+    # roll 30 (left wing up, banking right): the belly axis swings left, i.e. west when heading north
     c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
     assert r.enu[1] == pytest.approx([-10.2 * s, 0.5, -10.2 * c], abs=1e-9)
 

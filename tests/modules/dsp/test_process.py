@@ -1,0 +1,174 @@
+"""The DSP process on a real router with the DSP simulator on a real pty: start-up first, command batches,
+limits, refusals, ABORT flushing, DSP errors forwarded, and clean failures (missing port, silent DSP)."""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import subprocess
+import threading
+import tty
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from bbcs import keys
+from bbcs.slots import Kind, OutputSlot, Publisher
+from bbcs.testing import stop_process
+from modules.dsp import bus
+from modules.dsp import protocol as p
+from modules.dsp.config import load_dsp_config
+from modules.dsp.errors import LinkErrorCode
+from modules.dsp.link import LinkStats, startup_commands
+
+from .conftest import UAV1, wait_for
+
+ROBOT = "r1"
+
+
+def start_sim(processes, *args: str) -> str:
+    proc = processes.start(["-m", "modules.dsp.sim", "--pty", *args], stdout=subprocess.PIPE, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], 15.0)
+    assert ready, "the simulator printed nothing"
+    return proc.stdout.readline().strip()
+
+
+def start_dsp(processes, router: int, port: str) -> subprocess.Popen:
+    args = ["-m", "modules.dsp", "--robot", ROBOT, "--connect", f"tcp/127.0.0.1:{router}", "--conf", str(UAV1),
+            "--param", f"port={port}"]
+    return processes.start(args, stderr=subprocess.PIPE, text=True)
+
+
+class Bus:
+    """The test's view of the DSP process's output slots, and a sender of command batches."""
+
+    def __init__(self, session) -> None:
+        self.telemetry: list[p.Telemetry] = []
+        self.reports: list[bus.DspErrorReport] = []
+        self.link: list[LinkStats] = []
+        self.lock = threading.Lock()
+        subs = []
+        for slot, typ, sink in ((bus.TELEMETRY_SLOT, p.Telemetry, self.telemetry),
+                                (bus.ERRORS_SLOT, bus.DspErrorReport, self.reports),
+                                (bus.LINK_SLOT, LinkStats, self.link)):
+            decode = msgspec.msgpack.Decoder(typ).decode
+            key = keys.slot_key(ROBOT, bus.MODULE, slot)
+            subs.append(session.declare_subscriber(
+                key, lambda s, d=decode, k=sink: self._add(k, d(s.payload.to_bytes()))))
+        self.subs = subs
+        self.pub = Publisher(session, keys.slot_key(ROBOT, bus.MODULE, bus.COMMANDS_SLOT),
+                             OutputSlot(bus.COMMANDS_SLOT, bus.DspCommands, kind=Kind.STREAM))
+        self.batches = 0
+
+    def _add(self, sink: list, value: object) -> None:
+        with self.lock:
+            sink.append(value)
+
+    def send(self, *commands: bus.DspCommand, sender: str = "tester") -> int:
+        self.batches += 1
+        self.pub.publish(bus.DspCommands(sender=sender, commands=list(commands), batch_id=self.batches))
+        return self.batches
+
+    def close(self) -> None:
+        self.pub.close()
+        for sub in self.subs:
+            sub.undeclare()
+
+
+@pytest.fixture
+def rig(processes, router, sessions, tmp_path: Path):
+    record = tmp_path / "dsp.jsonl"
+    pty = start_sim(processes, "--time-scale", "10", "--record", str(record), "--fail", "GPS_LOST@40")
+    view = Bus(sessions())
+    try:
+        proc = start_dsp(processes, router, pty)
+        wait_for(lambda: len(view.telemetry) > 5, "DSP telemetry on the bus", 20)
+        yield proc, view, record
+    finally:
+        view.close()
+
+
+def names(record: Path) -> list[str]:
+    return [json.loads(line)["name"] for line in record.read_text().splitlines()]
+
+
+def test_startup_first_then_batches_in_order(rig) -> None:
+    proc, view, record = rig
+    startup = [c.MSG_ID.name for c in startup_commands(load_dsp_config(UAV1))]
+    assert names(record) == startup  # nothing else before the start-up sequence, and all of it
+    view.send(p.SetSpeed(speed=3.0), p.SetMode(mode=p.Mode.TAKE_OFF))
+    view.send(p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES), p.SetPanTiltAngles(pan_deg=20, tilt_deg=-10))
+    wait_for(lambda: len(names(record)) == len(startup) + 4, "both batches at the DSP")
+    assert names(record)[len(startup):] == ["SET_SPEED", "SET_MODE", "SET_PT_MODE", "SET_PT_ANGLES"]
+    wait_for(lambda: view.telemetry[-1].status.mode == p.Mode.TAKE_OFF and view.telemetry[-1].status.airborne,
+             "taking off, seen in bus telemetry")
+    wait_for(lambda: bool(view.link) and view.link[-1].commands_acked >= len(startup) + 4, "link statistics")
+    assert not view.reports
+    assert proc.poll() is None
+
+
+def test_limits_and_refusals_are_reported_with_the_sender(rig) -> None:
+    _, view, record = rig
+    before = len(names(record))
+    batch = view.send(p.SetSpeed(speed=9.0), p.SetMode(mode=p.Mode.TAKE_OFF), sender="path_follower")
+    wait_for(lambda: len(view.reports) == 1, "the MAX_SPEED report")
+    r = view.reports[0]
+    assert (r.code, r.sender, r.batch_id, r.command) == (LinkErrorCode.OVER_MAX_SPEED, "path_follower", batch,
+                                                         "SetSpeed")
+    refs = p.SetRefs(ref_altura=30, error_longitudinal=1, error_lateral=0, ref_heading=0, ref_rpm_motor=1500)
+    batch = view.send(refs, p.SetMode(mode=p.Mode.TAKE_OFF), sender="pan_tilt")  # REFS outside bridge mode
+    wait_for(lambda: len(view.reports) == 2, "the refusal report")
+    r = view.reports[1]
+    expected = (p.ErrorCode.WRONG_MODE, "WRONG_MODE", "pan_tilt", batch, "SetRefs")
+    assert (r.code, r.name, r.sender, r.batch_id, r.command) == expected
+    assert names(record)[before:] == ["SET_REFS"]  # nothing after the refused command, nothing of batch 1
+
+
+def test_abort_flushes_queued_batches_and_the_dsp_queue(rig) -> None:
+    _, view, record = rig
+    home = (37.4117, -6.0025)
+    wps = [p.AddWaypoint(lat=home[0] + (i % 50) * 1e-4, lon=home[1], alt=40.0) for i in range(300)]
+    first, _, third = (view.send(*wps, sender="planner") for _ in range(3))
+    view.send(p.Abort(), sender="gcs")
+    wait_for(lambda: "ABORT" in names(record), "the ABORT at the DSP")
+    wait_for(lambda: any(r.batch_id == third and r.code == LinkErrorCode.FLUSHED for r in view.reports),
+             "the third batch reported flushed")
+    sent = names(record)
+    print(f"\n{sent.count('ADD_WAYPOINT')} of 900 waypoints sent before the ABORT")
+    assert sent.count("ADD_WAYPOINT") < 900 and sent[-1] == "ABORT"
+    wait_for(lambda: view.telemetry[-1].status.queue_length == 0 and not view.telemetry[-1].status.path_valid,
+             "the DSP's queue empty")
+    assert {r.sender for r in view.reports} == {"planner"} and first < third
+
+
+def test_dsp_errors_are_forwarded(rig) -> None:
+    _, view, _ = rig
+    wait_for(lambda: any(r.code == p.ErrorCode.GPS_LOST for r in view.reports), "GPS_LOST from the DSP", 15)
+    r = next(r for r in view.reports if r.code == p.ErrorCode.GPS_LOST)
+    assert r.name == "GPS_LOST" and r.sender == "" and "DSP reported" in r.detail
+
+
+def test_missing_port_exits_with_a_clear_error(processes, router) -> None:
+    proc = start_dsp(processes, router, "/dev/ttyDSP-missing")
+    assert proc.wait(20) == 3
+    assert "cannot open DSP port /dev/ttyDSP-missing: the port does not exist" in proc.stderr.read()
+
+
+def test_silent_dsp_exits_with_a_clear_error(processes, router) -> None:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        proc = start_dsp(processes, router, os.ttyname(slave))
+        assert proc.wait(20) == 3
+        err = proc.stderr.read()
+        assert "start-up sequence failed" in err and "no acknowledgement" in err and "SetSpeed" in err
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_stops_cleanly(rig) -> None:
+    proc, _, _ = rig
+    assert stop_process(proc) == 0
