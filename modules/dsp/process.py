@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from typing import ClassVar
+from typing import ClassVar, NoReturn
 
 from bbcs.conf import ConfError
 from bbcs.errors import BusErrorCode
@@ -41,7 +41,7 @@ class DspModule(Module):
     slots = (
         InputSlot(bus.COMMANDS_SLOT, bus.DspCommands, kind=Kind.STREAM),
         OutputSlot(bus.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
-        OutputSlot(bus.ERRORS_SLOT, bus.DspErrorReport),
+        OutputSlot(bus.ERRORS_SLOT, bus.DspErrorReport, kind=Kind.STREAM),
         OutputSlot(bus.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
         OutputSlot("error", bus.DspModuleError),
     )
@@ -112,9 +112,8 @@ class DspModule(Module):
             return load_dsp_config(path, port=self.context.params.get("port") or None)
         except ConfError as exc:
             self._fatal(BusErrorCode.MALFORMED, f"robot configuration: {exc}")
-        raise AssertionError("unreachable")
 
-    def _fatal(self, code: int, detail: str) -> None:
+    def _fatal(self, code: int, detail: str) -> NoReturn:
         self.report_error(code, detail)
         self.log.error("%s", detail)
         raise DspStartupError(detail)

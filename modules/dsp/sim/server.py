@@ -110,6 +110,7 @@ class DspSimulator:
         self._tx_seq = 0
         self._start_wall = clock()
         self._closed = False
+        self._running = False
         self.line_baud: int | None = None
         self.tx_frames = 0
         self.tx_bytes_lost = 0
@@ -132,6 +133,8 @@ class DspSimulator:
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
             self._close()
+        elif self._thread is None and not self._running:
+            self._close()  # never started: release the line and the record file now
 
     def _run_safely(self) -> None:
         try:
@@ -187,6 +190,7 @@ class DspSimulator:
         wall_dt = dt / self.time_scale
         next_tick = self._clock()
         next_baud_check = 0.0
+        self._running = True
         try:
             while not self._stop.is_set():
                 timeout = max(0.0, next_tick - self._clock())
@@ -213,6 +217,7 @@ class DspSimulator:
                 if now >= next_tick:  # could not keep up: let simulated time slip instead of spiralling
                     next_tick = now + wall_dt
         finally:
+            self._running = False
             if self._thread is None:
                 self._close()
 

@@ -247,14 +247,3 @@ def test_telemetry_mask_follows_the_fields_present() -> None:
     assert t.mask == p.TelemetryField.HEADING | p.TelemetryField.ERROR
     payload = codec.encode_payload(t)
     assert payload == struct.pack("<IIfH", 1, t.mask, 12.5, 3)
-
-
-def test_heading_conversion_and_field_names() -> None:
-    assert p.heading_deg_from_rad(math.pi / 2) == pytest.approx(90.0)
-    assert p.heading_deg_from_rad(-math.pi) == -180.0
-    assert p.heading_deg_from_rad(math.pi) == -180.0
-    assert p.heading_deg_from_rad(3 * math.pi / 2) == pytest.approx(-90.0)
-    assert p.parse_telemetry_fields(["position", " STATUS"]) == 0b100001
-    with pytest.raises(ValueError, match="unknown telemetry field 'altitude'"):
-        p.parse_telemetry_fields(["altitude"])
-    assert p.error_name(4) == "QUEUE_FULL" and p.error_name(77) == "UNKNOWN_77"

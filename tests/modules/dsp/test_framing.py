@@ -131,6 +131,15 @@ def test_buffer_stays_bounded_under_endless_garbage() -> None:
     assert [f.seq for f in pr.feed(bytes(200) + ack(8))] == [8]  # and it still finds the next real frame
 
 
+def test_reset_forgets_a_partial_frame() -> None:
+    pr = parser()
+    frame = ack(5)
+    assert pr.feed(frame[:6]) == []
+    pr.reset()
+    assert pr.buffered == 0 and pr.stats.bytes_discarded == 6
+    assert [f.seq for f in pr.feed(frame[6:] + ack(6))] == [6]
+
+
 def test_build_frame_refuses_what_cannot_be_sent() -> None:
     with pytest.raises(ValueError):
         build_frame(1, 0, bytes(p.MAX_PAYLOAD + 1))

@@ -290,3 +290,25 @@ def test_waypoint_goes_out_quantised_to_1e_4_degree(sim: DspSimulator) -> None:
     assert rec.fields == {"type": "AddWaypoint", "lat": 37.4123, "lon": -6.0026, "alt": 40.25}
     error_m = abs(37.41234567 - 37.4123) * METRES_PER_DEG
     assert error_m < 5.6  # half a step of 1e-4 degree
+
+
+def test_many_threads_share_one_link(sim: DspSimulator) -> None:
+    with DspLink(sim.endpoint.path) as link:  # type: ignore[attr-defined]
+        errors: list[BaseException] = []
+
+        def worker() -> None:
+            try:
+                for _ in range(25):
+                    link.ping()
+            except BaseException as exc:  # collected and asserted below
+                errors.append(exc)
+
+        threads = [threading.Thread(target=worker) for _ in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(10)
+        stats = link.stats()
+    assert not errors
+    assert stats.commands_acked == 100 and stats.stray_acks == 0 and stats.retries == 0
+    assert [c.name for c in sim.commands].count("PING") == 100

@@ -36,8 +36,8 @@ def start_sim(processes, *args: str) -> str:
 
 
 def start_dsp(processes, router: int, port: str) -> subprocess.Popen:
-    args = ["-m", "modules.dsp", "--robot", ROBOT, "--connect", f"tcp/127.0.0.1:{router}", "--conf", str(UAV1),
-            "--param", f"port={port}"]
+    args = ["-m", "modules.dsp", "--robot", ROBOT, "--connect", f"tcp/127.0.0.1:{router}",
+            "--conf", str(UAV1), "--param", f"port={port}"]
     return processes.start(args, stderr=subprocess.PIPE, text=True)
 
 

@@ -12,15 +12,43 @@ from modules.lidar_logger.mtdata import Pose, utc_from_posix
 from modules.lidar_logger.textlog import TextLogWriter, format_scan, read_text_log
 
 # The layout exactly as docs/lidar_logger.md gives it to users, written out independently of binlog.py.
-DOC_SCAN = np.dtype([
-    ("index", "<u4"), ("scan_number", "<u2"), ("scanner_status", "<u2"), ("scan_flags", "<u2"),
-    ("start_angle", "<i2"), ("end_angle", "<i2"), ("start_ntp", "<u8"), ("end_ntp", "<u8"),
-    ("first_point", "<u8"), ("n_points", "<u4"), ("utc_nano", "<u4"), ("utc_year", "<u2"), ("utc_month", "u1"),
-    ("utc_day", "u1"), ("utc_hour", "u1"), ("utc_minute", "u1"), ("utc_second", "u1"), ("utc_flags", "u1"),
-    ("euler", "<f8", (3,)), ("lla", "<f8", (3,)), ("vel", "<f8", (3,)), ("status", "u1"), ("valid", "u1"),
-])
-DOC_POINT = np.dtype([("angle", "<i2"), ("distance", "<u2"), ("echo_width", "<u2"), ("layer", "u1"),
-                      ("echo", "u1"), ("flags", "u1")])
+DOC_SCAN = np.dtype(
+    [
+        ("index", "<u4"),
+        ("scan_number", "<u2"),
+        ("scanner_status", "<u2"),
+        ("scan_flags", "<u2"),
+        ("start_angle", "<i2"),
+        ("end_angle", "<i2"),
+        ("start_ntp", "<u8"),
+        ("end_ntp", "<u8"),
+        ("first_point", "<u8"),
+        ("n_points", "<u4"),
+        ("utc_nano", "<u4"),
+        ("utc_year", "<u2"),
+        ("utc_month", "u1"),
+        ("utc_day", "u1"),
+        ("utc_hour", "u1"),
+        ("utc_minute", "u1"),
+        ("utc_second", "u1"),
+        ("utc_flags", "u1"),
+        ("euler", "<f8", (3,)),
+        ("lla", "<f8", (3,)),
+        ("vel", "<f8", (3,)),
+        ("status", "u1"),
+        ("valid", "u1"),
+    ]
+)
+DOC_POINT = np.dtype(
+    [
+        ("angle", "<i2"),
+        ("distance", "<u2"),
+        ("echo_width", "<u2"),
+        ("layer", "u1"),
+        ("echo", "u1"),
+        ("flags", "u1"),
+    ]
+)
 
 
 def records(n_scans: int = 6, seed: int = 3) -> list[ScanRecord]:
@@ -30,14 +58,36 @@ def records(n_scans: int = 6, seed: int = 3) -> list[ScanRecord]:
     for k in range(n_scans):
         n = int(rng.integers(0, 60))
         angle = np.sort(rng.integers(-800, 801, n) * 2)[::-1]
-        pts = make_points(rng.integers(0, 4, n), rng.integers(0, 2, n), rng.choice([0, 0, 0, 1, 2, 3, 8, 4], n),
-                          angle, rng.integers(1, 20000, n), rng.integers(0, 300, n))
+        pts = make_points(
+            rng.integers(0, 4, n),
+            rng.integers(0, 2, n),
+            rng.choice([0, 0, 0, 1, 2, 3, 8, 4], n),
+            angle,
+            rng.integers(1, 20000, n),
+            rng.integers(0, 300, n),
+        )
         start = t0 + 0.08 * k
-        scan = Scan(k, 0xB, 0, posix_to_ntp(start), posix_to_ntp(start + 0.0222), 11520, 1600, -1600, (0,) * 6,
-                    4 | (0x400 if k % 2 else 0), pts)
-        pose = Pose(utc=utc_from_posix(start + 0.03), euler=tuple(rng.uniform(-90, 90, 3)),
-                    lla=(37.4 + rng.uniform(0, 0.01), -6.0 + rng.uniform(0, 0.01), rng.uniform(50, 150)),
-                    vel=tuple(rng.uniform(-20, 20, 3)), status=7 if k != 2 else 5, valid=int(k != 2))
+        scan = Scan(
+            k,
+            0xB,
+            0,
+            posix_to_ntp(start),
+            posix_to_ntp(start + 0.0222),
+            11520,
+            1600,
+            -1600,
+            (0,) * 6,
+            4 | (0x400 if k % 2 else 0),
+            pts,
+        )
+        pose = Pose(
+            utc=utc_from_posix(start + 0.03),
+            euler=tuple(rng.uniform(-90, 90, 3)),
+            lla=(37.4 + rng.uniform(0, 0.01), -6.0 + rng.uniform(0, 0.01), rng.uniform(50, 150)),
+            vel=tuple(rng.uniform(-20, 20, 3)),
+            status=7 if k != 2 else 5,
+            valid=int(k != 2),
+        )
         out.append(ScanRecord(k + 1, scan, pose))
     return out
 
@@ -61,7 +111,7 @@ def test_plain_numpy_reads_the_documented_layout(tmp_path) -> None:
     assert DOC_SCAN.itemsize == 128 and DOC_POINT.itemsize == 9
     assert scans["index"].tolist() == [r.index for r in recs]
     for rec, s in zip(recs, scans, strict=True):
-        p = points[s["first_point"]:s["first_point"] + s["n_points"]]
+        p = points[s["first_point"] : s["first_point"] + s["n_points"]]
         assert p["angle"].tolist() == rec.scan.angle_ticks.tolist()
         assert p["distance"].tolist() == rec.scan.distance_cm.tolist()
         assert p["flags"].tolist() == rec.scan.wire_flags.tolist()
@@ -79,8 +129,20 @@ def test_text_regenerated_from_the_binary_log_is_byte_identical(tmp_path) -> Non
 def test_binary_and_text_load_to_the_same_arrays(tmp_path) -> None:
     base, binary = write_both(tmp_path, records(8))
     t, b = read_text_log(base), read_binary_log(binary.points_path)
-    for name in ("scan_index", "scan_flags", "n_points", "first_point", "status", "valid", "flags", "layer",
-                 "echo", "offset_us", "point_valid", "point_scan"):
+    for name in (
+        "scan_index",
+        "scan_flags",
+        "n_points",
+        "first_point",
+        "status",
+        "valid",
+        "flags",
+        "layer",
+        "echo",
+        "offset_us",
+        "point_valid",
+        "point_scan",
+    ):
         assert np.array_equal(getattr(t, name), getattr(b, name)), name
     assert np.abs(t.xyz - b.xyz).max() <= 5e-9
     assert np.abs(t.lla - b.lla).max() <= 5e-9 and np.abs(t.euler - b.euler).max() <= 5e-9

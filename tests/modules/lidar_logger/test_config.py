@@ -38,12 +38,15 @@ def test_group_is_read_and_typed(tmp_path) -> None:
     assert conf.mounting_struct.pitch == 90.0 and conf.mounting_struct.z == -0.15
 
 
-@pytest.mark.parametrize("bad, line, message", [
-    ("    VEHICLE: cessna\n", 2, "unknown vehicle"),
-    ("    VEHICLE: cb5000\n    LDMRS_PORT: 99999\n", 3, "LDMRS_PORT"),
-    ("    VEHICLE: cb5000\n    EVENT_TIMEOUT: 3\n", 3, "unknown key 'EVENT_TIMEOUT'"),
-    ("    VEHICLE: cb5000\n    MOUNTING: [0, 90]\n", 3, "MOUNTING"),
-])
+@pytest.mark.parametrize(
+    "bad, line, message",
+    [
+        ("    VEHICLE: cessna\n", 2, "unknown vehicle"),
+        ("    VEHICLE: cb5000\n    LDMRS_PORT: 99999\n", 3, "LDMRS_PORT"),
+        ("    VEHICLE: cb5000\n    EVENT_TIMEOUT: 3\n", 3, "unknown key 'EVENT_TIMEOUT'"),
+        ("    VEHICLE: cb5000\n    MOUNTING: [0, 90]\n", 3, "MOUNTING"),
+    ],
+)
 def test_errors_name_file_and_line(tmp_path, bad, line, message) -> None:
     path = tmp_path / "bad.conf"
     path.write_text("LIDAR: logger {\n" + bad + "}\n")

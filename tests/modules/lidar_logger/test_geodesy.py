@@ -25,7 +25,9 @@ def test_known_ecef_points() -> None:
 
 def test_lla_ecef_roundtrip() -> None:
     rng = np.random.default_rng(0)
-    lla = np.column_stack((rng.uniform(-89.9, 89.9, 1000), rng.uniform(-180, 180, 1000), rng.uniform(-500, 9000, 1000)))
+    lla = np.column_stack(
+        (rng.uniform(-89.9, 89.9, 1000), rng.uniform(-180, 180, 1000), rng.uniform(-500, 9000, 1000))
+    )
     back = ecef_to_lla(lla_to_ecef(lla))
     assert np.abs(back[:, :2] - lla[:, :2]).max() < 1e-10
     assert np.abs(back[:, 2] - lla[:, 2]).max() < 1e-6
@@ -43,12 +45,21 @@ def test_local_frames_are_rotations_with_the_right_axes() -> None:
 
 def test_euler_convention_of_the_mti_g() -> None:
     x, y = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
-    assert euler_to_matrix(np.array([0, 0, 90.0])) @ x == pytest.approx([0, 1, 0], abs=1e-12)  # yaw: north to west
-    assert euler_to_matrix(np.array([0, 90.0, 0])) @ x == pytest.approx([0, 0, -1], abs=1e-12)  # pitch: nose down
-    assert euler_to_matrix(np.array([90.0, 0, 0])) @ y == pytest.approx([0, 0, 1], abs=1e-12)  # roll: left wing up
+    assert euler_to_matrix(np.array([0, 0, 90.0])) @ x == pytest.approx(
+        [0, 1, 0], abs=1e-12
+    )  # yaw: north to west
+    assert euler_to_matrix(np.array([0, 90.0, 0])) @ x == pytest.approx(
+        [0, 0, -1], abs=1e-12
+    )  # pitch: nose down
+    assert euler_to_matrix(np.array([90.0, 0, 0])) @ y == pytest.approx(
+        [0, 0, 1], abs=1e-12
+    )  # roll: left wing up
     e = np.array([10.0, -20.0, 170.0])
-    expect = euler_to_matrix(np.array([0, 0, 170.0])) @ euler_to_matrix(np.array([0, -20.0, 0])) @ \
-        euler_to_matrix(np.array([10.0, 0, 0]))
+    expect = (
+        euler_to_matrix(np.array([0, 0, 170.0]))
+        @ euler_to_matrix(np.array([0, -20.0, 0]))
+        @ euler_to_matrix(np.array([10.0, 0, 0]))
+    )
     assert euler_to_matrix(e) == pytest.approx(expect)
 
 

@@ -43,18 +43,29 @@ def test_configure_sets_and_reads_back_the_seed_parameters(make_world, start_ldm
     sim = start_ldmrs(make_world(10.0))
     client = client_factory(sim.port)
     readback = client.configure(ScannerConfig())
-    assert readback == {"DATA_OUTPUT_FLAGS": 0xFFEE, "START_ANGLE": 1600, "END_ANGLE": (-1600) & 0xFFFF,
-                        "SCAN_FREQUENCY": 3200, "ANGULAR_RESOLUTION_TYPE": 1}
+    assert readback == {
+        "DATA_OUTPUT_FLAGS": 0xFFEE,
+        "START_ANGLE": 1600,
+        "END_ANGLE": (-1600) & 0xFFFF,
+        "SCAN_FREQUENCY": 3200,
+        "ANGULAR_RESOLUTION_TYPE": 1,
+    }
     assert sim.device.params[Param.SCAN_FREQUENCY] == 3200 and sim.device.period == pytest.approx(0.08)
     sets = [(c, p, v) for _, c, p, v in sim.device.commands if c == Cmd.SET_PARAMETER]
-    assert [p for _, p, _ in sets] == [Param.DATA_OUTPUT_FLAGS, Param.START_ANGLE, Param.END_ANGLE,
-                                       Param.SCAN_FREQUENCY, Param.ANGULAR_RESOLUTION_TYPE]
+    assert [p for _, p, _ in sets] == [
+        Param.DATA_OUTPUT_FLAGS,
+        Param.START_ANGLE,
+        Param.END_ANGLE,
+        Param.SCAN_FREQUENCY,
+        Param.ANGULAR_RESOLUTION_TYPE,
+    ]
     status = client.get_status()
     assert status.firmware == 0x2A31
 
 
-def test_angles_are_written_in_the_order_that_keeps_start_above_end(make_world, start_ldmrs,
-                                                                    client_factory) -> None:
+def test_angles_are_written_in_the_order_that_keeps_start_above_end(
+    make_world, start_ldmrs, client_factory
+) -> None:
     sim = start_ldmrs(make_world(10.0))
     sim.device.params[Param.END_ANGLE] = 1000
     client = client_factory(sim.port)
@@ -82,7 +93,9 @@ def test_config_values_are_checked_before_anything_is_sent() -> None:
         ScannerConfig(start_angle_deg=60.0)
 
 
-def test_scans_arrive_intact_through_garbage_and_split_messages(make_world, start_ldmrs, client_factory) -> None:
+def test_scans_arrive_intact_through_garbage_and_split_messages(
+    make_world, start_ldmrs, client_factory
+) -> None:
     sim = start_ldmrs(make_world(5.0), LdmrsOptions(garbage_every=3, split_sends=True, return_fraction=0.3))
     client = client_factory(sim.port)
     client.configure(ScannerConfig())
@@ -116,7 +129,9 @@ def test_unreachable_scanner() -> None:
         LdmrsClient("127.0.0.1", port, connect_timeout=1.0).connect()
 
 
-def test_a_lost_connection_is_reported_and_fails_waiting_commands(make_world, start_ldmrs, client_factory) -> None:
+def test_a_lost_connection_is_reported_and_fails_waiting_commands(
+    make_world, start_ldmrs, client_factory
+) -> None:
     sim = start_ldmrs(make_world(10.0), LdmrsOptions(silent_after=0.0, answer_when_silent=False))
     client = client_factory(sim.port, reply_timeout=5.0)
     client.start_measure()

@@ -23,20 +23,26 @@ from modules.lidar_logger.ldmrs_scan import Scan, encode_scan, make_points
 
 
 def scan_payload(n: int, number: int = 1) -> bytes:
-    pts = make_points(np.zeros(n, int), np.zeros(n, int), np.zeros(n, int), np.arange(n) * -8,
-                      np.full(n, 1234), np.full(n, 100))
+    pts = make_points(
+        np.zeros(n, int),
+        np.zeros(n, int),
+        np.zeros(n, int),
+        np.arange(n) * -8,
+        np.full(n, 1234),
+        np.full(n, 100),
+    )
     return encode_scan(Scan(number, 0, 0, 1 << 32, (1 << 32) + 1000, 11520, 1600, -1600, (0,) * 6, 4, pts))
 
 
 def test_header_matches_the_libsick_example() -> None:
     # LuxBase comment: GetStatus = AFFEC0C2 00000000 00000004 00 07 2010 00000000 00000000 0100 0000
     wire = pack_message(DataType.COMMAND, bytes.fromhex("01000000"), device_id=7)
-    assert wire == bytes.fromhex("AFFEC0C2" "00000000" "00000004" "00" "07" "2010" "0000000000000000" "01000000")
+    assert wire == bytes.fromhex("AFFEC0C2000000000000000400072010000000000000000001000000")
 
 
 def test_command_and_reply_payloads_are_little_endian() -> None:
     body = command_payload(Cmd.SET_PARAMETER, Param.START_ANGLE, 1600)
-    assert body == bytes.fromhex("1000" "0300" "0011" "40060000")
+    assert body == bytes.fromhex("10000300001140060000")
     cmd = parse_command(body)
     assert (cmd.cmd, cmd.param, cmd.value) == (Cmd.SET_PARAMETER, Param.START_ANGLE, 1600)
     assert parse_command(command_payload(Cmd.START_MEASURE)).param is None
@@ -106,8 +112,10 @@ def test_impossible_size_is_rejected_at_once() -> None:
 
 
 @settings(max_examples=100, deadline=None)
-@given(st.lists(st.tuples(st.integers(0, 40), st.binary(max_size=25)), min_size=1, max_size=6),
-       st.integers(1, 97))
+@given(
+    st.lists(st.tuples(st.integers(0, 40), st.binary(max_size=25)), min_size=1, max_size=6),
+    st.integers(1, 97),
+)
 def test_any_mix_of_scans_and_garbage_in_any_chunking(items, chunk) -> None:
     stream = b""
     expected = []
@@ -118,5 +126,5 @@ def test_any_mix_of_scans_and_garbage_in_any_chunking(items, chunk) -> None:
     parser = MessageParser()
     got = []
     for i in range(0, len(stream), chunk):
-        got += parser.feed(stream[i:i + chunk])
+        got += parser.feed(stream[i : i + chunk])
     assert [m.payload for m in got] == expected

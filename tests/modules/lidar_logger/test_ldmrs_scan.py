@@ -30,12 +30,28 @@ from modules.lidar_logger.ldmrs_scan import (
 
 
 def make_scan() -> Scan:
-    pts = make_points(layer=np.array([1, 0, 3, 2]), echo=np.array([0, 0, 1, 0]), flags=np.array([0, 2, 4, 8]),
-                      angle_ticks=np.array([1600, 1592, 0, -1600]), distance_cm=np.array([9037, 4000, 100, 65535]),
-                      echo_width_cm=np.array([124, 108, 0, 65535]))
+    pts = make_points(
+        layer=np.array([1, 0, 3, 2]),
+        echo=np.array([0, 0, 1, 0]),
+        flags=np.array([0, 2, 4, 8]),
+        angle_ticks=np.array([1600, 1592, 0, -1600]),
+        distance_cm=np.array([9037, 4000, 100, 65535]),
+        echo_width_cm=np.array([124, 108, 0, 65535]),
+    )
     start = posix_to_ntp(1284103855.25)
-    return Scan(1234, 0x000B, 17, start, start + int(0.0222 * 2**32), 11520, 1600, -1600,
-                (1, -2, 3, -4, 5, -6), 0x0404, pts)
+    return Scan(
+        1234,
+        0x000B,
+        17,
+        start,
+        start + int(0.0222 * 2**32),
+        11520,
+        1600,
+        -1600,
+        (1, -2, 3, -4, 5, -6),
+        0x0404,
+        pts,
+    )
 
 
 def test_encode_decode_roundtrip_and_header_fields() -> None:
@@ -77,14 +93,19 @@ def test_layers_are_0_8_degrees_apart_around_zero() -> None:
 def test_cartesian_points_in_the_scanner_frame() -> None:
     xyz = decode_scan(encode_scan(make_scan())).cartesian()
     d, h, e = 90.37, math.radians(50.0), math.radians(-0.4)
-    assert xyz[0] == pytest.approx([d * math.cos(e) * math.cos(h), d * math.cos(e) * math.sin(h), d * math.sin(e)])
+    assert xyz[0] == pytest.approx(
+        [d * math.cos(e) * math.cos(h), d * math.cos(e) * math.sin(h), d * math.sin(e)]
+    )
     assert xyz[2] == pytest.approx([math.cos(math.radians(1.2)), 0.0, math.sin(math.radians(1.2))])
     assert np.linalg.norm(xyz, axis=1) == pytest.approx([90.37, 40.0, 1.0, 655.35])
 
 
 def test_figure_42_points_sit_on_their_layers() -> None:
     # The seed's own example: channel 1 at -0.4 deg elevation, channel 0 at -1.2 deg.
-    for x, y, z, layer in [(0.05844890, 0.06843486, -0.00062831, 1), (0.02623660, 0.03018176, -0.00083770, 0)]:
+    for x, y, z, layer in [
+        (0.05844890, 0.06843486, -0.00062831, 1),
+        (0.02623660, 0.03018176, -0.00083770, 0),
+    ]:
         elevation = math.degrees(math.atan2(z, math.hypot(x, y)))
         assert elevation == pytest.approx(layer_elevation_deg(layer), abs=0.02)
 
@@ -106,7 +127,12 @@ def test_ntp_conversion() -> None:
 
 def test_flag_mapping_is_a_bijection_with_the_documented_values() -> None:
     assert wire_to_seed(np.array([0x00, 0x01, 0x02, 0x04, 0x08])).tolist() == [
-        0, FLAG_TRANSPARENT, FLAG_RAIN, FLAG_GROUND, FLAG_DIRT]
+        0,
+        FLAG_TRANSPARENT,
+        FLAG_RAIN,
+        FLAG_GROUND,
+        FLAG_DIRT,
+    ]
     every = np.arange(256, dtype=np.uint8)
     seed = wire_to_seed(every)
     assert len(set(seed.tolist())) == 256

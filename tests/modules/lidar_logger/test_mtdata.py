@@ -45,8 +45,14 @@ UTC = UtcTime(nano=77_000_000, year=2010, month=9, day=10, hour=7, minute=30, se
 
 
 def pose(status: int = 7, **kw) -> Pose:
-    base = dict(utc=UTC, euler=(-0.49730527, 0.7657041, -138.17576599), lla=(37.42611694, -6.00321293, 62.1961937),
-                vel=(-0.27509207, -0.05818643, 0.13713859), status=status, valid=1 if status == 7 else 0)
+    base = dict(
+        utc=UTC,
+        euler=(-0.49730527, 0.7657041, -138.17576599),
+        lla=(37.42611694, -6.00321293, 62.1961937),
+        vel=(-0.27509207, -0.05818643, 0.13713859),
+        status=status,
+        valid=1 if status == 7 else 0,
+    )
     base.update(kw)
     return Pose(**base)
 
@@ -58,8 +64,17 @@ def test_reference_layout_size() -> None:
 
 
 def test_every_block_counts_in_the_cmt_order() -> None:
-    lay = layout(MODE_RAW | MODE_RAWGPS | MODE_TEMP | MODE_CALIB | MODE_ORIENT | MODE_POSITION | MODE_VELOCITY
-                 | MODE_STATUS, SET_ORIENT_EULER | SET_CALIB_NO_MAG | SET_TS_SAMPLE_COUNTER | SET_TS_UTC)
+    lay = layout(
+        MODE_RAW
+        | MODE_RAWGPS
+        | MODE_TEMP
+        | MODE_CALIB
+        | MODE_ORIENT
+        | MODE_POSITION
+        | MODE_VELOCITY
+        | MODE_STATUS,
+        SET_ORIENT_EULER | SET_CALIB_NO_MAG | SET_TS_SAMPLE_COUNTER | SET_TS_UTC,
+    )
     assert lay.orient == 20 + 44 + 4 + 24
     assert lay.position == lay.orient + 12
     assert lay.velocity == lay.position + 12
@@ -70,13 +85,20 @@ def test_every_block_counts_in_the_cmt_order() -> None:
 
 
 def test_fixed_16_32_bytes_are_fraction_then_integer() -> None:
-    assert encode_values([1.5], SET_FORMAT_FP1632) == bytes.fromhex("80000000" "0001")
-    assert encode_values([-0.5], SET_FORMAT_FP1632) == bytes.fromhex("80000000" "FFFF")
+    assert encode_values([1.5], SET_FORMAT_FP1632) == bytes.fromhex("800000000001")
+    assert encode_values([-0.5], SET_FORMAT_FP1632) == bytes.fromhex("80000000FFFF")
     assert encode_values([2.0], SET_FORMAT_FP1220) == struct.pack(">i", 2 << 20)
 
 
-@pytest.mark.parametrize("fmt, tol", [(SET_FORMAT_FLOAT, 5e-6), (SET_FORMAT_FP1220, 1e-6),
-                                      (SET_FORMAT_FP1632, 3e-10), (SET_FORMAT_DOUBLE, 0.0)])
+@pytest.mark.parametrize(
+    "fmt, tol",
+    [
+        (SET_FORMAT_FLOAT, 5e-6),
+        (SET_FORMAT_FP1220, 1e-6),
+        (SET_FORMAT_FP1632, 3e-10),
+        (SET_FORMAT_DOUBLE, 0.0),
+    ],
+)
 def test_pose_roundtrip_in_every_data_format(fmt: int, tol: float) -> None:
     settings = SET_TS_UTC | SET_ORIENT_EULER | fmt
     p = pose(euler=(1.25, -0.5, 120.0), lla=(37.42611694, -6.00321293, 62.1961937), vel=(1.0, -2.0, 0.25))
@@ -128,14 +150,23 @@ def test_utc_conversions() -> None:
     back = utc_from_posix(t)
     assert (back.year, back.month, back.day, back.hour, back.minute, back.second) == (2010, 9, 10, 7, 30, 55)
     assert abs(back.nano - 77_000_000) < 1000
-    assert math.isnan(utc_to_posix(UtcTime(nano=0, year=0, month=0, day=0, hour=0, minute=0, second=0, flags=0)))
+    assert math.isnan(
+        utc_to_posix(UtcTime(nano=0, year=0, month=0, day=0, hour=0, minute=0, second=0, flags=0))
+    )
 
 
 @settings(max_examples=100, deadline=None)
-@given(st.floats(-180, 180), st.floats(-90, 90), st.floats(-180, 180), st.floats(-90, 90), st.floats(-180, 180),
-       st.floats(-500, 9000), st.floats(-99, 99))
+@given(
+    st.floats(-180, 180),
+    st.floats(-90, 90),
+    st.floats(-180, 180),
+    st.floats(-90, 90),
+    st.floats(-180, 180),
+    st.floats(-500, 9000),
+    st.floats(-99, 99),
+)
 def test_fixed_16_32_keeps_any_pose_to_a_nanodegree(r, p, y, lat, lon, alt, v) -> None:
     src = pose(euler=(r, p, y), lla=(lat, lon, alt), vel=(v, -v, v / 2))
     got = decode_pose(encode_pose_payload(src), POSE_MODE, POSE_SETTINGS)
     for a, b in zip((*got.euler, *got.lla, *got.vel), (*src.euler, *src.lla, *src.vel), strict=True):
-        assert abs(a - b) <= 2 ** -32
+        assert abs(a - b) <= 2**-32

@@ -38,9 +38,17 @@ def test_configure_sends_the_seed_sequence_past_streamed_data(make_world, start_
     time.sleep(0.05)  # the device streams its power-on output meanwhile
     dev.configure(VEHICLES["PILATUS_PORTER"])
     mids = [mid for _, mid, _ in sim.device.received]
-    assert mids == [MID.GOTO_CONFIG, MID.REQ_DID, MID.SET_OUTPUT_MODE, MID.SET_OUTPUT_SETTINGS,
-                    MID.SET_OUTPUT_SKIP_FACTOR, MID.SET_GPS_LEVER_ARM, MID.SET_SCENARIO, MID.REQ_DATA_LENGTH,
-                    MID.GOTO_MEASUREMENT]
+    assert mids == [
+        MID.GOTO_CONFIG,
+        MID.REQ_DID,
+        MID.SET_OUTPUT_MODE,
+        MID.SET_OUTPUT_SETTINGS,
+        MID.SET_OUTPUT_SKIP_FACTOR,
+        MID.SET_GPS_LEVER_ARM,
+        MID.SET_SCENARIO,
+        MID.REQ_DATA_LENGTH,
+        MID.GOTO_MEASUREMENT,
+    ]
     data = {mid: d for _, mid, d in sim.device.received}
     assert data[MID.SET_OUTPUT_MODE] == bytes.fromhex("0834")
     assert data[MID.SET_OUTPUT_SETTINGS] == bytes.fromhex("00000206")
@@ -63,7 +71,7 @@ def test_read_pose_returns_what_the_device_sent(make_world, start_mtig, driver_f
         _, sent = sim.device.poses_sent[-1]
         assert got.utc == sent.utc and got.status == sent.status == 7 and got.valid == 1
         for a, b in zip((*got.euler, *got.lla, *got.vel), (*sent.euler, *sent.lla, *sent.vel), strict=True):
-            assert abs(a - b) <= 2 ** -32
+            assert abs(a - b) <= 2**-32
 
 
 def test_status_goes_0_5_7_and_only_7_is_valid(make_world, start_mtig, driver_factory) -> None:
@@ -72,7 +80,9 @@ def test_status_goes_0_5_7_and_only_7_is_valid(make_world, start_mtig, driver_fa
     dev = driver_factory(sim.port)
     dev.configure(VEHICLES["CB5000"])
     seen: list[tuple[int, int]] = []
-    source = PoseSource(dev, period=0.02, clock=world.clock, on_pose=lambda p: seen.append((p.status, p.valid)))
+    source = PoseSource(
+        dev, period=0.02, clock=world.clock, on_pose=lambda p: seen.append((p.status, p.valid))
+    )
     source.start()
     try:
         first = source.wait_valid(threading.Event())
@@ -92,8 +102,9 @@ def test_an_error_message_from_the_device_raises(make_world, start_mtig, driver_
         dev.request(MID.SET_OUTPUT_MODE, bytes.fromhex("0834"))  # still in measurement state
 
 
-def test_a_device_that_ignored_the_settings_is_caught_by_the_length_check(make_world, start_mtig,
-                                                                          driver_factory) -> None:
+def test_a_device_that_ignored_the_settings_is_caught_by_the_length_check(
+    make_world, start_mtig, driver_factory
+) -> None:
     sim = start_mtig(make_world(10.0))
     dev = driver_factory(sim.port)
     dev.goto_config()

@@ -10,14 +10,22 @@ from modules.lidar_logger.ply import read_ply, write_ply
 
 def test_binary_header_and_body(tmp_path) -> None:
     xyz = np.array([[1.5, -2.25, 3.0], [100.0, 200.0, -5.5]])
-    path = write_ply(tmp_path / "c.ply", xyz, scalars={"intensity": np.array([0.5, 1.25], dtype=np.float32),
-                                                       "layer": np.array([0, 3], dtype=np.uint8)},
-                     comments=["origin lat 37 lon -6"])
+    path = write_ply(
+        tmp_path / "c.ply",
+        xyz,
+        scalars={
+            "intensity": np.array([0.5, 1.25], dtype=np.float32),
+            "layer": np.array([0, 3], dtype=np.uint8),
+        },
+        comments=["origin lat 37 lon -6"],
+    )
     raw = path.read_bytes()
     header, body = raw.split(b"end_header\n")
-    assert header.decode() == ("ply\nformat binary_little_endian 1.0\ncomment origin lat 37 lon -6\n"
-                               "element vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
-                               "property float intensity\nproperty uchar layer\n")
+    assert header.decode() == (
+        "ply\nformat binary_little_endian 1.0\ncomment origin lat 37 lon -6\n"
+        "element vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+        "property float intensity\nproperty uchar layer\n"
+    )
     assert len(body) == 2 * (4 * 4 + 1)
     rows = np.frombuffer(body, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("i", "<f4"), ("l", "u1")])
     assert rows["x"].tolist() == [1.5, 100.0] and rows["l"].tolist() == [0, 3]

@@ -47,7 +47,9 @@ def test_max_slope_bounds_the_gradient() -> None:
 
 
 def test_reported_pose_describes_the_true_aircraft() -> None:
-    world = World(flight=Flight(waypoints=((0.0, 0.0), (1000.0, 0.0)), speed=25.0, roll=2.0, pitch=-1.5, crab=3.0))
+    world = World(
+        flight=Flight(waypoints=((0.0, 0.0), (1000.0, 0.0)), speed=25.0, roll=2.0, pitch=-1.5, crab=3.0)
+    )
     t = 30.0
     pose = world.true_pose(t)
     assert pose.valid == 1 and pose.status == 7
@@ -57,9 +59,13 @@ def test_reported_pose_describes_the_true_aircraft() -> None:
     # Euler and velocity are in the local NWU frame at the aircraft, not the terrain frame
     ecef_nwu = ecef_from_nwu(pose.lla[0], pose.lla[1])
     terrain_from_ecef = world._ecef_from_terrain.T
-    assert terrain_from_ecef @ ecef_nwu @ euler_to_matrix(np.array(pose.euler)) == pytest.approx(rot[0], abs=1e-12)
+    assert terrain_from_ecef @ ecef_nwu @ euler_to_matrix(np.array(pose.euler)) == pytest.approx(
+        rot[0], abs=1e-12
+    )
     assert terrain_from_ecef @ ecef_nwu @ np.array(pose.vel) == pytest.approx(vel[0], abs=1e-9)
-    assert pose.euler[0] == pytest.approx(2.0, abs=0.01) and pose.euler[2] == pytest.approx(-90.0 - 3.0, abs=0.02)
+    assert pose.euler[0] == pytest.approx(2.0, abs=0.01) and pose.euler[2] == pytest.approx(
+        -90.0 - 3.0, abs=0.02
+    )
 
 
 def test_status_timeline_with_a_dropout() -> None:
@@ -70,8 +76,11 @@ def test_status_timeline_with_a_dropout() -> None:
 
 def test_scans_follow_the_configured_geometry() -> None:
     dev = LdmrsDevice(World(), LdmrsOptions(clutter_fraction=0.05, dirt_fraction=0.02, seed=4))
-    for param, value in ((Param.START_ANGLE, 1600), (Param.END_ANGLE, (-1600) & 0xFFFF),
-                         (Param.DATA_OUTPUT_FLAGS, 0xFFEE)):
+    for param, value in (
+        (Param.START_ANGLE, 1600),
+        (Param.END_ANGLE, (-1600) & 0xFFFF),
+        (Param.DATA_OUTPUT_FLAGS, 0xFFEE),
+    ):
         dev.handle_command(command_payload(Cmd.SET_PARAMETER, param, value), 0.0)
     dev.handle_command(command_payload(Cmd.START_MEASURE), 10.0)
     assert not dev.due(10.0) and dev.due(10.0 + 0.04 + dev.sweep)
@@ -89,11 +98,16 @@ def test_scans_follow_the_configured_geometry() -> None:
 
 
 def test_simulator_process_prints_its_ports_and_stops_on_sigterm() -> None:
-    proc = subprocess.Popen([sys.executable, "-m", "modules.lidar_logger.sim", "--time-scale", "5"],
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "modules.lidar_logger.sim", "--time-scale", "5"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         info = json.loads(proc.stdout.readline())
-        assert info["mtig_port"].startswith("/dev/") and info["ldmrs_host"] == "127.0.0.1" and info["ldmrs_port"]
+        assert (
+            info["mtig_port"].startswith("/dev/") and info["ldmrs_host"] == "127.0.0.1" and info["ldmrs_port"]
+        )
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=10)
         assert proc.returncode == 0 and "scans_sent" in json.loads(out.strip().splitlines()[-1])

@@ -19,17 +19,28 @@ def ntp(fraction: float) -> int:
     return (NTP_SEC << 32) | math.ceil(fraction * 2**32)
 
 
-POSE = Pose(utc=UtcTime(nano=77_654_321, year=2010, month=9, day=10, hour=7, minute=30, second=55, flags=1),
-            euler=(-0.49730527, 0.7657041, -138.17576599), lla=(37.42611694, -6.00321293, 62.1961937),
-            vel=(-0.27509207, -0.05818643, 0.13713859), status=7, valid=1)
+POSE = Pose(
+    utc=UtcTime(nano=77_654_321, year=2010, month=9, day=10, hour=7, minute=30, second=55, flags=1),
+    euler=(-0.49730527, 0.7657041, -138.17576599),
+    lla=(37.42611694, -6.00321293, 62.1961937),
+    vel=(-0.27509207, -0.05818643, 0.13713859),
+    status=7,
+    valid=1,
+)
 
 
 def record(index: int = 3, n: int = 3) -> ScanRecord:
-    pts = make_points(layer=np.array([1, 0, 3])[:n], echo=np.array([0, 0, 1])[:n], flags=np.array([0, 3, 8])[:n],
-                      angle_ticks=np.array([1600, 0, -1600])[:n], distance_cm=np.array([9037, 4000, 100])[:n],
-                      echo_width_cm=np.array([124, 108, 7])[:n])
-    return ScanRecord(index, Scan(77, 0xB, 0, ntp(0.178114), ntp(0.200396), 11520, 1600, -1600, (0,) * 6, 1028,
-                                  pts), POSE)
+    pts = make_points(
+        layer=np.array([1, 0, 3])[:n],
+        echo=np.array([0, 0, 1])[:n],
+        flags=np.array([0, 3, 8])[:n],
+        angle_ticks=np.array([1600, 0, -1600])[:n],
+        distance_cm=np.array([9037, 4000, 100])[:n],
+        echo_width_cm=np.array([124, 108, 7])[:n],
+    )
+    return ScanRecord(
+        index, Scan(77, 0xB, 0, ntp(0.178114), ntp(0.200396), 11520, 1600, -1600, (0,) * 6, 1028, pts), POSE
+    )
 
 
 def point(d: float, h_deg: float, e_deg: float) -> str:

@@ -13,7 +13,9 @@ def test_known_frames_match_the_reference_bytes() -> None:
     assert build_frame(MID.GOTO_MEASUREMENT) == bytes.fromhex("FAFF1000F1")
     assert build_frame(MID.REQ_DATA) == bytes.fromhex("FAFF3400CD")
     assert build_frame(MID.SET_OUTPUT_MODE, bytes.fromhex("0834")) == bytes.fromhex("FAFFD0020834F3")
-    assert build_frame(MID.SET_OUTPUT_SETTINGS, bytes.fromhex("00000005")) == bytes.fromhex("FAFFD2040000000526")
+    assert build_frame(MID.SET_OUTPUT_SETTINGS, bytes.fromhex("00000005")) == bytes.fromhex(
+        "FAFFD2040000000526"
+    )
 
 
 def test_length_254_is_normal_and_255_is_extended() -> None:
@@ -78,14 +80,22 @@ def test_frame_split_at_every_byte_boundary() -> None:
 
 
 @settings(max_examples=150, deadline=None)
-@given(st.lists(st.tuples(st.integers(0, 255), st.binary(max_size=600),
-                          st.binary(max_size=30).map(lambda b: b.replace(b"\xfa", b"\x00"))), max_size=8),
-       st.integers(1, 64))
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, 255),
+            st.binary(max_size=600),
+            st.binary(max_size=30).map(lambda b: b.replace(b"\xfa", b"\x00")),
+        ),
+        max_size=8,
+    ),
+    st.integers(1, 64),
+)
 def test_frames_between_garbage_without_preambles_are_all_recovered(items, chunk) -> None:
     stream = b"".join(junk + build_frame(mid, data) for mid, data, junk in items)
     parser = FrameParser()
     out = []
     for i in range(0, len(stream), chunk):
-        out += parser.feed(stream[i:i + chunk])
+        out += parser.feed(stream[i : i + chunk])
     assert [(f.mid, f.data) for f in out] == [(mid, data) for mid, data, _ in items]
     assert parser.bad_checksum == 0

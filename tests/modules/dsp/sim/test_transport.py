@@ -1,0 +1,67 @@
+"""The simulator's line ends: a pty the PC opens like a serial port, and a TCP port on 127.0.0.1."""
+
+from __future__ import annotations
+
+import select
+import socket
+
+import serial
+
+from modules.dsp.sim.transport import PtyEndpoint, TcpEndpoint
+
+
+def read_some(ep, fd: int, timeout: float = 2.0) -> bytes:
+    ready, _, _ = select.select([fd], [], [], timeout)
+    return ep.on_readable(fd) if ready else b""
+
+
+def test_pty_carries_every_byte_and_reports_the_pc_baud() -> None:
+    ep = PtyEndpoint(baud=921_600)
+    try:
+        assert ep.line_baud() == 921_600  # starts at the DSP's own speed
+        with serial.Serial(ep.path, 115_200, timeout=1.0) as port:
+            assert ep.line_baud() == 115_200
+            port.write(bytes(range(256)))
+            got = b""
+            while len(got) < 256:
+                chunk = read_some(ep, ep.fileno_list()[0])
+                assert chunk
+                got += chunk
+            assert got == bytes(range(256))
+            assert ep.write(bytes(range(255, -1, -1))) == 256
+            assert port.read(256) == bytes(range(255, -1, -1))
+    finally:
+        ep.close()
+
+
+def test_pty_write_never_blocks_without_a_reader() -> None:
+    ep = PtyEndpoint()
+    try:
+        written = sum(ep.write(bytes(1024)) for _ in range(2000))  # 2 MB into a line nobody drains
+        assert written < 2_000_000
+    finally:
+        ep.close()
+
+
+def test_tcp_one_client_at_a_time() -> None:
+    ep = TcpEndpoint("127.0.0.1", 0)
+    try:
+        assert ep.port > 0 and ep.line_baud() is None
+        assert ep.write(b"nobody") == 0
+        listener = ep.fileno_list()[0]
+        first = socket.create_connection(("127.0.0.1", ep.port))
+        read_some(ep, listener)
+        assert len(ep.fileno_list()) == 2
+        first.sendall(b"hello")
+        assert read_some(ep, ep.fileno_list()[1]) == b"hello"
+        second = socket.create_connection(("127.0.0.1", ep.port))
+        read_some(ep, listener)  # the new PC session replaces the old one
+        assert first.recv(10) == b""
+        assert ep.write(b"to-second") == 9
+        assert second.recv(20) == b"to-second"
+        second.close()
+        assert read_some(ep, ep.fileno_list()[1]) == b""
+        assert len(ep.fileno_list()) == 1
+        first.close()
+    finally:
+        ep.close()
