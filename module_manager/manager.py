@@ -559,6 +559,8 @@ class Manager:
                     query.reply(query.key_expr, mri.encode(reply))
                 except Exception:  # the querier gave up or the session is closing
                     pass
+                finally:
+                    query.drop()  # finalise now: a consolidating querier waits for the end of the query
         except zenoh.ZError:
             pass
 

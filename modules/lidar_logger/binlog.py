@@ -126,12 +126,20 @@ class BinaryLogWriter:
         self.bytes_written += SCAN_DTYPE.itemsize + POINT_DTYPE.itemsize * scan.n_points
 
     def close(self) -> None:
-        for f in (self._points, self._scans):
-            if f is not None:
+        """Flush both files to the medium and close them (closed even when a flush fails)."""
+        files = [f for f in (self._points, self._scans) if f is not None]
+        self._scans = self._points = None
+        failure: OSError | None = None
+        for f in files:
+            try:
                 f.flush()
                 os.fsync(f.fileno())
+            except OSError as exc:
+                failure = failure or exc
+            finally:
                 f.close()
-        self._scans = self._points = None
+        if failure is not None:
+            raise failure
 
 
 def _pair(path: Path) -> tuple[Path, Path]:

@@ -20,11 +20,12 @@ import numpy as np
 
 from bbcs.conf import ConfError
 from modules.lidar_logger.clock import SYSTEM_CLOCK, ScaledClock
-from modules.lidar_logger.config import VEHICLES, load_lidar_conf, read_config_file, vehicle_key
+from modules.lidar_logger.config import load_lidar_conf, merge_lidar_conf, read_config_file
 from modules.lidar_logger.georef import GeorefError, Mounting, georeference
 from modules.lidar_logger.logdata import LogFormatError, load_log
-from modules.lidar_logger.logger import LidarLogger, LoggerSettings
+from modules.lidar_logger.logger import LidarLogger
 from modules.lidar_logger.ply import write_ply
+from modules.lidar_logger.vehicles import VEHICLES
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -71,31 +72,13 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    conf = load_lidar_conf(args.conf) if args.conf else None
-    vehicle = args.vehicle or (conf.vehicle if conf else None)
-    if vehicle is None:
-        raise ValueError("say which vehicle (--vehicle or VEHICLE in the .conf): it chooses the lever arm")
-    vehicle = vehicle_key(vehicle)
-    mtig_port = args.mtig_port or (conf.mtig_port if conf else None)
-    host = args.ldmrs_host or (conf.ldmrs_host if conf else None)
-    if not mtig_port or not host:
-        raise ValueError("need --mtig-port and --ldmrs-host (or MTIG_PORT / LDMRS_HOST in the .conf)")
-    duration_min = args.duration if args.duration is not None else (conf.duration_min if conf else 0.0)
-    mounting = Mounting(*args.mounting) if args.mounting else (conf.mounting_struct if conf else Mounting())
-    lever = conf.lever_arm_m if conf and vehicle_key(conf.vehicle) == vehicle else VEHICLES[vehicle]
-    settings = LoggerSettings(
-        mtig_port=mtig_port, ldmrs_host=host,
-        ldmrs_port=args.ldmrs_port or (conf.ldmrs_port if conf else 12002),
-        mtig_baud=args.mtig_baud or (conf.mtig_baud if conf else 115200),
-        out_dir=Path(args.out or (conf.out_dir if conf else ".")),
-        duration_s=duration_min * 60.0 if duration_min > 0 else None,
-        event_timeout_s=args.event_timeout or (conf.event_timeout_s if conf else 15.0),
-        binary=bool(args.binary if args.binary is not None else (conf.binary_log if conf else False)),
-        vehicle=vehicle, lever_arm=lever, mounting=mounting,
-        sync_scanner_clock=bool(args.sync_scanner_clock if args.sync_scanner_clock is not None
-                                else (conf.sync_scanner_clock if conf else False)),
-        progress=not args.quiet,
-    )
+    conf = merge_lidar_conf(load_lidar_conf(args.conf) if args.conf else None, {
+        "vehicle": args.vehicle, "mtig_port": args.mtig_port, "mtig_baud": args.mtig_baud,
+        "ldmrs_host": args.ldmrs_host, "ldmrs_port": args.ldmrs_port, "duration_min": args.duration,
+        "event_timeout_s": args.event_timeout, "out_dir": args.out, "binary_log": args.binary,
+        "mounting": args.mounting, "sync_scanner_clock": args.sync_scanner_clock,
+    })
+    settings = conf.to_settings(progress=not args.quiet)
     clock = SYSTEM_CLOCK if args.time_scale == 1.0 else ScaledClock(args.time_scale)
     logger = LidarLogger(settings, clock=clock)
     previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -1,10 +1,10 @@
-"""Logger configuration: the vehicle table (seed Table 12) and the ``LIDAR: logger { ... }`` group of a
-robot .conf.
+"""Logger configuration: the ``LIDAR: logger { ... }`` group of a robot .conf, merged with command-line
+options or module params into LoggerSettings.
 
 Example group (robot .conf, SPEC §4 format)::
 
     LIDAR: logger {
-        VEHICLE: CB5000                 # or PILATUS_PORTER: chooses the MTi-G GPS lever arm
+        VEHICLE: CB5000         # or PILATUS_PORTER: the GPS lever arm (LEVER_ARM: [x, y, z] overrides)
         MTIG_PORT: /dev/ttyUSB1
         LDMRS_HOST: 192.168.0.1
         LDMRS_PORT: 12002
@@ -26,21 +26,10 @@ import msgspec
 
 from bbcs.conf import ConfError, load_conf
 from modules.lidar_logger.georef import Mounting
-
-VEHICLES: dict[str, tuple[float, float, float]] = {
-    "PILATUS_PORTER": (-0.45, -0.04, 0.0),
-    "CB5000": (-0.34, 0.01, 0.26),
-}
-"""GPS antenna relative to the MTi-G in its body frame, metres (seed Table 12)."""
+from modules.lidar_logger.logger import LoggerSettings
+from modules.lidar_logger.vehicles import VEHICLES, vehicle_key
 
 CONF_GROUP = ("LIDAR", "logger")
-
-
-def vehicle_key(name: str) -> str:
-    key = name.strip().upper().replace("-", "_").replace(" ", "_")
-    if key not in VEHICLES:
-        raise ValueError(f"unknown vehicle {name!r}; known: {', '.join(sorted(VEHICLES))}")
-    return key
 
 
 class LidarConf(msgspec.Struct, frozen=True, kw_only=True, rename="upper", forbid_unknown_fields=True):
@@ -68,10 +57,30 @@ class LidarConf(msgspec.Struct, frozen=True, kw_only=True, rename="upper", forbi
         return self.lever_arm if self.lever_arm is not None else VEHICLES[vehicle_key(self.vehicle)]
 
 
-def load_lidar_conf(path: str | os.PathLike[str]) -> LidarConf:
-    """Read the ``LIDAR: logger`` group; any problem is a ConfError with file and line."""
+    def to_settings(self, *, progress: bool = True) -> LoggerSettings:
+        """Logger settings from these values; a missing device address is a ValueError."""
+        if not self.mtig_port or not self.ldmrs_host:
+            raise ValueError("need the MTi-G port and the LD-MRS host (--mtig-port/--ldmrs-host, "
+                             "MTIG_PORT/LDMRS_HOST in the .conf, or module params)")
+        return LoggerSettings(
+            mtig_port=self.mtig_port, mtig_baud=self.mtig_baud, ldmrs_host=self.ldmrs_host,
+            ldmrs_port=self.ldmrs_port, out_dir=Path(self.out_dir),
+            duration_s=self.duration_min * 60.0 if self.duration_min > 0 else None,
+            event_timeout_s=self.event_timeout_s, binary=self.binary_log, vehicle=vehicle_key(self.vehicle),
+            lever_arm=self.lever_arm_m, mounting=self.mounting_struct,
+            sync_scanner_clock=self.sync_scanner_clock, progress=progress)
+
+
+def load_lidar_conf(path: str | os.PathLike[str], *, required: bool = True) -> LidarConf | None:
+    """Read the ``LIDAR: logger`` group; any problem is a ConfError with file and line. Without the group:
+    a ConfError, or None when not ``required``."""
     doc = load_conf(path)
-    group = doc.group(*CONF_GROUP)
+    groups = [g for g in doc.groups_of(CONF_GROUP[0]) if g.name == CONF_GROUP[1]]
+    if not groups:
+        if required:
+            raise ConfError(f"missing group '{CONF_GROUP[0]}: {CONF_GROUP[1]}'", path=str(path))
+        return None
+    group = groups[0]
     conf = group.to_struct(LidarConf)
     try:
         vehicle_key(conf.vehicle)
@@ -79,6 +88,23 @@ def load_lidar_conf(path: str | os.PathLike[str]) -> LidarConf:
         entry = group.entries["VEHICLE"]
         raise ConfError(str(exc), path=str(path), line=entry.line, column=entry.column) from None
     return conf
+
+
+def merge_lidar_conf(base: LidarConf | None, overrides: dict[str, object]) -> LidarConf:
+    """``base`` (from a .conf, or nothing) with ``overrides`` on top (field names; None = not given)."""
+    values = {} if base is None else msgspec.structs.asdict(base)
+    unknown = set(overrides) - set(LidarConf.__struct_fields__)
+    if unknown:
+        raise ValueError(f"unknown lidar setting(s): {', '.join(sorted(unknown))}")
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    if values.get("vehicle") is None:
+        raise ValueError("say which vehicle (--vehicle, VEHICLE in the .conf, or the vehicle param): "
+                         "it chooses the GPS lever arm")
+    vehicle_key(str(values["vehicle"]))
+    try:
+        return msgspec.convert({k.upper(): v for k, v in values.items()}, LidarConf, strict=False)
+    except msgspec.ValidationError as exc:
+        raise ValueError(f"lidar settings: {exc}") from None
 
 
 def read_config_file(path: str | os.PathLike[str]) -> dict[str, str]:

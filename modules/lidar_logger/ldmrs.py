@@ -136,6 +136,7 @@ class LdmrsClient:
         self.errors_warnings = 0
         self.last_error_warning: tuple[int, int, int, int] | None = None
         self.unexpected_replies = 0
+        self.handler_errors = 0
         self.disconnected: str | None = None
         self._sock: socket.socket | None = None
         self._send_lock = threading.Lock()
@@ -195,8 +196,12 @@ class LdmrsClient:
             handler = self.on_scan
             if handler is None:
                 self.scans_ignored += 1
-            else:
+                return
+            try:
                 handler(scan)
+            except Exception:  # a bug downstream must not silence the receiver
+                self.handler_errors += 1
+                log.exception("scan handler failed on scan %d", scan.scan_number)
         elif data_type == DataType.REPLY:
             reply = parse_reply(payload)
             with self._waiters_lock:

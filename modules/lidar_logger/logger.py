@@ -32,6 +32,7 @@ from modules.lidar_logger.logdata import ScanRecord
 from modules.lidar_logger.mtdata import Pose, utc_to_posix
 from modules.lidar_logger.mtig import MTiG, MTiGError, PoseSample, PoseSource
 from modules.lidar_logger.textlog import TextLogWriter, date_stamp
+from modules.lidar_logger.vehicles import VEHICLES
 
 STOP_REPLY_TIMEOUT_S = 2.0
 """Wall seconds to wait for the StopMeasure acknowledgement while still writing what arrives."""
@@ -50,7 +51,8 @@ class LoggerSettings:
     binary: bool = False
     text: bool = True
     vehicle: str = "CB5000"
-    lever_arm: tuple[float, float, float] = (-0.34, 0.01, 0.26)
+    lever_arm: tuple[float, float, float] = VEHICLES["CB5000"]
+    """GPS antenna in the body frame; the vehicle's Table 12 values unless a .conf gives LEVER_ARM."""
     mounting: Mounting = field(default_factory=Mounting)
     scanner: ScannerConfig = field(default_factory=ScannerConfig)
     pose_period_s: float = 0.02
@@ -120,6 +122,10 @@ class LidarLogger:
         self._stale = 0
         self._source: PoseSource | None = None
         self._buffer: TwoSlotBuffer[ScanRecord] = TwoSlotBuffer()
+        self._writers: list[TextLogWriter | BinaryLogWriter] = []
+        self._write_failed = False
+        self.state = "starting"
+        """starting → waiting_pose → configuring → measuring → stopping → finished"""
 
     # --- control ---
 
@@ -128,6 +134,18 @@ class LidarLogger:
         if self._stop_reason is None:
             self._stop_reason = reason
         self._stop.set()
+
+    @property
+    def log_bytes(self) -> int:
+        """Bytes written so far to the scan logs."""
+        return sum(w.bytes_written for w in self._writers)
+
+    @property
+    def scans_dropped(self) -> int:
+        return self._buffer.dropped
+
+    def latest_pose(self) -> PoseSample | None:
+        return self._source.latest() if self._source else None
 
     def _say(self, text: str) -> None:
         if self.s.progress:
@@ -139,13 +157,13 @@ class LidarLogger:
         s, summ = self.s, self.summary
         mtig: MTiG | None = None
         scanner: LdmrsClient | None = None
-        writers: list = []
         config_file: IO[str] | None = None
         try:
             mtig = MTiG(s.mtig_port, baudrate=s.mtig_baud)
             mtig.configure(s.lever_arm)
             self._source = PoseSource(mtig, period=s.pose_period_s, clock=self.clock, on_pose=self.on_pose)
             self._source.start()
+            self.state = "waiting_pose"
             self._say(f"MTi-G configured on {mtig.port_name}; waiting for a valid pose (status 7)")
             first = self._source.wait_valid(self._stop)
             if first is None:
@@ -154,6 +172,7 @@ class LidarLogger:
                 summ.reason = self._stop_reason or "signal"
                 return summ
             summ.first_valid_pose_t = first.t
+            self.state = "configuring"
             self._say("valid pose; configuring the LD-MRS")
             scanner = LdmrsClient(s.ldmrs_host, s.ldmrs_port)
             scanner.connect()
@@ -166,11 +185,11 @@ class LidarLogger:
             summ.folder = make_run_folder(Path(s.out_dir), stamp)
             base = summ.folder / f"LogFile_{stamp}"
             if s.text:
-                writers.append(TextLogWriter(base))
+                self._writers.append(TextLogWriter(base))
                 summ.text_path = base
             if s.binary:
                 binw = BinaryLogWriter(base)
-                writers.append(binw)
+                self._writers.append(binw)
                 summ.binary_paths = (binw.scans_path, binw.points_path)
             summ.config_path = summ.folder / f"ConfigFile_{stamp}"
             config_file = open(summ.config_path, "x", encoding="ascii")  # noqa: SIM115
@@ -181,13 +200,14 @@ class LidarLogger:
             self._last_event = self.clock.now()
             scanner.start_measure()
             summ.measuring_started = True
+            self.state = "measuring"
             self._say(f"scanner measuring; logging into {summ.folder}")
-            summ.reason = self._write_loop(scanner, writers)
+            summ.reason = self._write_loop(scanner)
         except (MTiGError, LdmrsError, OSError, serial.SerialException, ValueError) as exc:
             summ.reason, summ.error = "error", str(exc)
             self._say(f"ERROR: {exc}")
         finally:
-            self._finish(mtig, scanner, writers, config_file)
+            self._finish(mtig, scanner, config_file)
         return summ
 
     def _utc_now(self) -> float:
@@ -209,12 +229,12 @@ class LidarLogger:
             self._stale += 1
         self._buffer.put(ScanRecord(self._index, scan, pose))
 
-    def _write_one(self, writers: list, timeout: float) -> bool:
+    def _write_one(self, timeout: float) -> bool:
         record = self._buffer.take(timeout)
         if record is None:
             return False
         try:
-            for w in writers:
+            for w in self._writers:
                 w.write(record)
         finally:
             self._buffer.release()
@@ -222,7 +242,7 @@ class LidarLogger:
         self.summary.points_written += record.scan.n_points
         return True
 
-    def _write_loop(self, scanner: LdmrsClient, writers: list) -> str:
+    def _write_loop(self, scanner: LdmrsClient) -> str:
         s, clock = self.s, self.clock
         t_start = clock.now()
         wait = min(0.05, clock.wall(0.05))
@@ -230,7 +250,7 @@ class LidarLogger:
         last_progress = (t_start, 0)
         dropped_seen = 0
         while True:
-            self._write_one(writers, wait)
+            self._write_one(wait)
             now = clock.now()
             if self._stop.is_set():
                 return self._stop_reason or "signal"
@@ -246,42 +266,53 @@ class LidarLogger:
                 next_progress = wall + s.progress_period_s
                 rate = (self.summary.scans_written - last_progress[1]) / max(now - last_progress[0], 1e-9)
                 last_progress = (now, self.summary.scans_written)
-                self._progress(writers, rate)
+                self._progress(rate)
                 if self._buffer.dropped > dropped_seen:
                     dropped_seen = self._buffer.dropped
                     self._say(f"WARNING: the writer fell behind; {dropped_seen} scan(s) dropped so far")
 
-    def _progress(self, writers: list, rate: float) -> None:
+    def _progress(self, rate: float) -> None:
         sample = self._source.latest() if self._source else None
         pose = "none" if sample is None else (
             f"{'valid' if sample.pose.valid else 'INVALID'} (status {sample.pose.status})")
-        size = sum(w.bytes_written for w in writers) / 1e6
+        size = self.log_bytes / 1e6
         self._say(f"scans {self.summary.scans_written}  points {self.summary.points_written}  "
                   f"{rate:.1f} scans/s  log {size:.2f} MB  pose {pose}  dropped {self._buffer.dropped}")
 
-    def _finish(self, mtig: MTiG | None, scanner: LdmrsClient | None, writers: list,
-                config_file: IO[str] | None) -> None:
-        """Put the scanner in idle while still writing what arrives, close everything, record the outcome."""
+    def _write_safely(self, timeout: float) -> bool:
+        """``_write_one`` for the shutdown path: a failing disk is recorded once, the shutdown goes on."""
+        if self._write_failed:
+            return False
+        try:
+            return self._write_one(timeout)
+        except OSError as exc:
+            self._write_failed = True
+            self.summary.reason = "error"
+            self.summary.error = self.summary.error or f"writing the log: {exc}"
+            return False
+
+    def _finish(self, mtig: MTiG | None, scanner: LdmrsClient | None, config_file: IO[str] | None) -> None:
+        """Put the scanner in idle while still writing what arrives, close everything, record the outcome.
+
+        Each step runs whatever failed before it: a dead disk or a dead scanner must not keep the other
+        device running or a file open."""
         summ = self.summary
+        self.state = "stopping"
         if scanner is not None and summ.measuring_started:
             try:
                 pending = scanner.send_command(Cmd.STOP_MEASURE)
                 deadline = time.monotonic() + STOP_REPLY_TIMEOUT_S
                 while not pending.done and time.monotonic() < deadline:
-                    self._write_one(writers, 0.02)
-                reply = pending.reply
-                summ.stop_acknowledged = reply is not None and reply.ok
+                    if not self._write_safely(0.02) and self._write_failed:
+                        pending.wait(0.02)
+                summ.stop_acknowledged = pending.reply is not None and pending.reply.ok
                 if not summ.stop_acknowledged:
                     self._say("WARNING: the scanner did not acknowledge StopMeasure")
             except LdmrsError as exc:
                 self._say(f"WARNING: could not send StopMeasure: {exc}")
         self._buffer.close()
-        if writers:
-            try:
-                while self._write_one(writers, 0.0):
-                    pass
-            except OSError as exc:
-                summ.reason, summ.error = "error", summ.error or f"writing the log: {exc}"
+        while self._writers and self._write_safely(0.0):
+            continue
         if scanner is not None:
             scanner.close()
             summ.scans_received = self._index
@@ -294,7 +325,7 @@ class LidarLogger:
         summ.scans_dropped = self._buffer.dropped
         summ.scans_after_stop = self._buffer.refused_after_close
         summ.stale_pose_scans = self._stale
-        for w in writers:
+        for w in self._writers:
             try:
                 w.close()
             except OSError as exc:
@@ -304,10 +335,15 @@ class LidarLogger:
             else:
                 summ.binary_bytes = w.bytes_written
         if config_file is not None:
-            config_file.write(self._end_text())
-            config_file.flush()
-            os.fsync(config_file.fileno())
-            config_file.close()
+            try:
+                config_file.write(self._end_text())
+                config_file.flush()
+                os.fsync(config_file.fileno())
+            except OSError as exc:
+                summ.reason, summ.error = "error", summ.error or f"writing the ConfigFile: {exc}"
+            finally:
+                config_file.close()
+        self.state = "finished"
         self._say(f"stopped ({summ.reason}{': ' + summ.error if summ.error else ''}): "
                   f"{summ.scans_written} scans, {summ.points_written} points written, "
                   f"{summ.scans_dropped} dropped")

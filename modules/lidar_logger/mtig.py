@@ -191,6 +191,7 @@ class PoseSource:
         self.samples = 0
         self.valid_samples = 0
         self.failures = 0
+        self.callback_errors = 0
         self.failed: str | None = None
 
     def start(self) -> None:
@@ -239,7 +240,10 @@ class PoseSource:
                     self.valid_samples += pose.valid
                     self._cond.notify_all()
                 if self.on_pose is not None:
-                    self.on_pose(pose)
+                    try:
+                        self.on_pose(pose)
+                    except Exception:  # a subscriber's failure must not stop the polling
+                        self.callback_errors += 1
             next_t += self.period
             now = self.clock.now()
             if next_t < now:

@@ -115,11 +115,14 @@ class TextLogWriter:
         self.bytes_written += len(text)
 
     def close(self) -> None:
-        if self._f is not None:
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
-            self._f = None
+        """Flush to the medium and close (closed even when the flush fails; the error is raised after)."""
+        f, self._f = self._f, None
+        if f is not None:
+            try:
+                f.flush()
+                os.fsync(f.fileno())
+            finally:
+                f.close()
 
 
 # --- reading ---

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -69,7 +70,7 @@ class Sink(Module):
             self.record.write(json.dumps({"module": self.module, **row}) + "\n")
 
     def on_datos(self, msg: ProbeMsg) -> None:
-        self._write({"slot": "datos", "source": msg.source, "seq": msg.seq})
+        self._write({"slot": "datos", "source": msg.source, "seq": msg.seq, "t": time.time()})
 
     def on_modo(self, msg: SinkMode) -> None:
         self._write({"slot": "modo", "mode": msg.mode})

@@ -13,6 +13,7 @@ import json
 import signal
 import sys
 import threading
+from pathlib import Path
 
 from modules.lidar_logger.clock import ScaledClock
 from modules.lidar_logger.sim.ldmrs_sim import LdmrsOptions, LdmrsSimulator
@@ -34,6 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--return-fraction", type=float, default=1.0, help="share of beams that return an echo")
     p.add_argument("--silent-after", type=float, help="stop sending scans this many s after StartMeasure")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--pty-link", help="also make this path a symlink to the MTi-G pty (a stable name)")
     args = p.parse_args(argv)
 
     world = World(clock=ScaledClock(args.time_scale), utc_start=args.utc_start,
@@ -45,10 +47,16 @@ def main(argv: list[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
     with MTiGSimulator(world) as imu, LdmrsSimulator(world, options, port=args.port) as lidar:
+        link = Path(args.pty_link) if args.pty_link else None
+        if link is not None:
+            link.unlink(missing_ok=True)
+            link.symlink_to(imu.port)
         print(json.dumps({"mtig_port": imu.port, "ldmrs_host": lidar.host, "ldmrs_port": lidar.port,
                           "time_scale": args.time_scale}), flush=True)
         while not done.wait(0.2):
             pass
+        if link is not None:
+            link.unlink(missing_ok=True)
         print(json.dumps({"scans_sent": len(lidar.device.sent_scans),
                           "ldmrs_commands": len(lidar.device.commands),
                           "mtig_messages": len(imu.device.received),

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from bbcs.conf import ConfError
-from modules.lidar_logger.config import VEHICLES, load_lidar_conf, read_config_file, vehicle_key
+from modules.lidar_logger.config import load_lidar_conf, read_config_file
+from modules.lidar_logger.vehicles import VEHICLES, vehicle_key
 
 ROBOT = """\
 ROBOT: uav1

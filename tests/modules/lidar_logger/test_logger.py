@@ -257,3 +257,29 @@ def test_a_missing_mti_g_port_is_an_error(tmp_path) -> None:
     settings = LoggerSettings(mtig_port=str(tmp_path / "ttyUSB9"), ldmrs_host="127.0.0.1", out_dir=tmp_path)
     summary = LidarLogger(settings, out=io.StringIO()).run()
     assert summary.reason == "error" and summary.exit_code == 1 and "ttyUSB9" in summary.error
+
+
+def test_a_failing_disk_ends_the_run_with_the_scanner_idle_and_files_closed(
+    make_world, start_mtig, start_ldmrs, tmp_path, monkeypatch
+) -> None:
+    from modules.lidar_logger import textlog
+
+    real_write = textlog.TextLogWriter.write
+    calls = []
+
+    def write(self, record):  # the SD card fills up after 10 scans
+        calls.append(record.index)
+        if len(calls) > 10:
+            raise OSError(28, "No space left on device")
+        real_write(self, record)
+
+    monkeypatch.setattr(textlog.TextLogWriter, "write", write)
+    world = make_world(10.0, gps_fix_at=0.2, xkf_valid_at=0.5)
+    imu = start_mtig(world)
+    lidar = start_ldmrs(world, LdmrsOptions(return_fraction=0.1))
+    summary = LidarLogger(settings_for(imu, lidar, tmp_path), clock=world.clock, out=io.StringIO()).run()
+    assert summary.reason == "error" and "No space left" in summary.error and summary.exit_code == 1
+    assert summary.stop_acknowledged and not lidar.device.measuring
+    assert read_text_log(summary.text_path).n_scans == 10
+    assert read_binary_log(summary.binary_paths[0]).n_scans >= 10
+    assert read_config_file(summary.config_path)["end_reason"] == "error"

@@ -10,9 +10,9 @@ import tty
 
 import pytest
 
-from modules.lidar_logger.config import VEHICLES
 from modules.lidar_logger.mtdata import POSE_MODE, POSE_SETTINGS
 from modules.lidar_logger.mtig import SCENARIO_AEROSPACE, MTiG, MTiGError, PoseSource
+from modules.lidar_logger.vehicles import VEHICLES
 from modules.lidar_logger.xbus import MID, build_frame
 
 

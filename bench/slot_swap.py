@@ -1,0 +1,128 @@
+"""Route swap latency: from sending the MRI ``route`` request to the first datum from the new source that the
+receiving module handles (p50/p99), against the round trip of a no-op MRI request measured in the same run.
+
+Runs the module-manager test robot (tests/module_manager/probe_robot.toml: two sources publishing every
+``--period-ms``, one sink recording what it handles with a timestamp) and swaps the sink between them.
+
+    python bench/slot_swap.py [--swaps 100] [--period-ms 1]
+
+Writes bench/results/slot_swap.json with summary keys ``swap_p50_ms`` and ``swap_p99_ms``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PROBE = ROOT / "tests" / "module_manager"
+sys.path.insert(0, str(ROOT))
+
+from bbcs.session import local_client, open_session  # noqa: E402
+from module_manager import mri  # noqa: E402
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def pct(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))]
+
+
+def records(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line.endswith("}")]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--swaps", type=int, default=100)
+    ap.add_argument("--period-ms", type=float, default=1.0, help="source publishing period")
+    args = ap.parse_args(argv)
+    work = Path(tempfile.mkdtemp(prefix="cromat-swap-"))
+    text = (PROBE / "probe_robot.toml").read_text()
+    text = text.replace('pythonpath = ["."]', f'pythonpath = ["{PROBE}"]')
+    text = text.replace('conf = "probe_robot.conf"', f'conf = "{PROBE / "probe_robot.conf"}"')
+    text = text.replace('period_ms = "5"', f'period_ms = "{args.period_ms:g}"')
+    manifest = work / "robot.toml"
+    manifest.write_text(text)
+    port = free_port()
+    env = dict(os.environ, PYTHONPATH=str(ROOT), CROMAT_LOG="WARNING")
+    proc = subprocess.Popen([sys.executable, "-m", "module_manager.cli", str(manifest), "--listen",
+                             f"tcp/127.0.0.1:{port}"], cwd=str(ROOT), env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+    session = None
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if "all 3 modules up" in line:
+                break
+        else:
+            raise SystemExit("the probe robot did not come up")
+        session = open_session(local_client(port))
+        rec = work / "sink.jsonl"
+        noop, swaps, acks = [], [], []
+        slot = 1
+        for _ in range(args.swaps):
+            t0 = time.perf_counter()
+            mri.call(session, "r1", "routes", mri.ListRoutes())
+            noop.append((time.perf_counter() - t0) * 1000)
+            slot = 2 if slot == 1 else 1
+            want = "src_b" if slot == 2 else "src_a"
+            n = len(records(rec))
+            sent = time.time()
+            t0 = time.perf_counter()
+            reply = mri.call(session, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=slot))
+            acks.append((time.perf_counter() - t0) * 1000)
+            if not reply.ok:
+                raise SystemExit(f"swap refused: {reply.reason}")
+            first = None
+            deadline = time.monotonic() + 5
+            while first is None and time.monotonic() < deadline:
+                first = next((r for r in records(rec)[n:] if r.get("source") == want), None)
+                if first is None:
+                    time.sleep(0.005)
+            if first is None:
+                raise SystemExit("no datum from the new source after a swap")
+            swaps.append((first["t"] - sent) * 1000)
+            time.sleep(0.02)
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        proc.wait(30)
+        if proc.stdout is not None:
+            proc.stdout.close()
+    p50, p99 = statistics.median(swaps), pct(swaps, 99)
+    print(f"{'measure (ms)':<46} {'p50':>7} {'p99':>7} {'max':>7}")
+    print(f"{'MRI route swap -> first new-source datum used':<46} {p50:7.2f} {p99:7.2f} {max(swaps):7.2f}")
+    print(f"{'MRI route swap -> acknowledged reply':<46} {statistics.median(acks):7.2f} {pct(acks, 99):7.2f} "
+          f"{max(acks):7.2f}")
+    print(f"{'baseline: MRI no-op (routes) round trip':<46} {statistics.median(noop):7.2f} {pct(noop, 99):7.2f} "
+          f"{max(noop):7.2f}")
+    out = ROOT / "bench" / "results" / "slot_swap.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({
+        "swaps": args.swaps, "source_period_ms": args.period_ms,
+        "swap_ms": [round(v, 3) for v in swaps], "ack_ms": [round(v, 3) for v in acks],
+        "noop_mri_ms": [round(v, 3) for v in noop],
+        "baseline_noop_p50_ms": round(statistics.median(noop), 3),
+        "summary": {"swap_p50_ms": round(p50, 3), "swap_p99_ms": round(p99, 3)}}, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,114 @@
+"""The lidar logger as a bus module: one acquisition run per process, the pose and progress on the bus.
+
+Slots (``cromat/<robot>/lidar_logger/...``):
+- ``pose`` — unsafe state, ``mtdata.Pose``: every MTi-G sample (about 50 Hz), ``valid`` per the status byte;
+  other modules (vision, the ground station) read the newest one.
+- ``status`` — unsafe state, ``LidarStatus``: what the run is doing, once a second and at the end.
+- ``error`` — safe state, ``LidarError``: 100 = the run ended on an error (the log says which).
+
+Settings come from the robot .conf (``LIDAR: logger`` group, ``--conf``) with module params on top
+(``--param vehicle=CB5000 --param mtig_port=/dev/ttyUSB1 --param mounting=0,90,0,0,0,0`` ...; names as the
+group's keys in lower case). The run starts when the module starts; SIGTERM/SIGINT ends it cleanly (scanner
+to idle, files closed) and then the module. A run that ends by itself (duration, silent scanner, error)
+leaves the module up with its final status until it is stopped, so a supervisor does not start a new
+flight log by restarting it.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Annotated, ClassVar, Literal
+
+import msgspec
+
+from bbcs.context import ModuleContext
+from bbcs.module import Module
+from bbcs.slots import OutputSlot, Safety
+from modules.lidar_logger.config import LidarConf, load_lidar_conf, merge_lidar_conf
+from modules.lidar_logger.logger import LidarLogger
+from modules.lidar_logger.mtdata import Pose
+
+LIDAR_RUN_FAILED = 100
+"""ERROR code: the acquisition run stopped on a device, file or configuration error."""
+LIST_PARAMS = ("mounting", "lever_arm")
+
+Count = Annotated[int, msgspec.Meta(ge=0)]
+
+
+class LidarStatus(msgspec.Struct, frozen=True, kw_only=True):
+    """Progress of the acquisition run (the progress line of ``cromat lidar run``, on the bus)."""
+
+    state: Literal["starting", "waiting_pose", "configuring", "measuring", "stopping", "finished"]
+    run: str
+    """``Scan_<date>`` folder name once it exists, else empty."""
+    scans_written: Count
+    points_written: Count
+    scans_dropped: Count
+    log_bytes: Count
+    pose_status: Annotated[int, msgspec.Meta(ge=-1, le=255)]
+    """Status byte of the newest MTi-G sample, -1 before the first."""
+    end_reason: Literal["", "duration", "timeout", "signal", "error"]
+
+
+class LidarError(msgspec.Struct, frozen=True, kw_only=True):
+    error_lidar: int
+
+
+def conf_from_context(context: ModuleContext) -> LidarConf:
+    """The robot .conf's LIDAR group (if any) with the module params on top."""
+    base = load_lidar_conf(context.conf, required=False) if context.conf else None
+    overrides: dict[str, object] = {
+        key: (value.split(",") if key in LIST_PARAMS else value) for key, value in context.params.items()}
+    return merge_lidar_conf(base, overrides)
+
+
+class LidarLoggerModule(Module):
+    name: ClassVar[str] = "lidar_logger"
+    slots = (
+        OutputSlot("pose", Pose, safety=Safety.UNSAFE),
+        OutputSlot("status", LidarStatus, safety=Safety.UNSAFE),
+        OutputSlot("error", LidarError),
+    )
+    error_slot = "error"
+    tick_period = 1.0
+
+    def __init__(self, context: ModuleContext) -> None:
+        super().__init__(context)
+        # configuration errors surface here, before anything starts (Module.main exits 2 with the message)
+        settings = conf_from_context(context).to_settings(progress=True)
+        self.logger = LidarLogger(settings, on_pose=self._publish_pose)
+        self._thread = threading.Thread(target=self._acquire, name="lidar-run", daemon=True)
+
+    def on_start(self) -> None:
+        self._thread.start()
+
+    def on_tick(self) -> None:
+        self._publish_status()
+
+    def on_stop(self) -> None:
+        self.logger.request_stop("signal")
+        self._thread.join(timeout=30.0)
+
+    def _publish_pose(self, pose: Pose) -> None:
+        if not self.stopping:
+            self.publish("pose", pose)
+
+    def _acquire(self) -> None:
+        summary = self.logger.run()
+        if summary.reason == "error":
+            self.report_error(LIDAR_RUN_FAILED, summary.error or "acquisition failed")
+        if not self.stopping:
+            with self.lock:
+                self._publish_status()
+
+    def _publish_status(self) -> None:
+        summ, sample = self.logger.summary, self.logger.latest_pose()
+        finished = self.logger.state == "finished"
+        self.publish("status", LidarStatus(
+            state=self.logger.state,  # type: ignore[arg-type]
+            run=summ.folder.name if summ.folder else "",
+            scans_written=summ.scans_written, points_written=summ.points_written,
+            scans_dropped=self.logger.scans_dropped, log_bytes=self.logger.log_bytes,
+            pose_status=sample.pose.status if sample else -1,
+            end_reason=summ.reason if finished else "",  # type: ignore[arg-type]
+        ))
