@@ -188,8 +188,10 @@ def test_link_loss_runs_the_failsafe_and_regain_does_not_resume(rig: Rig) -> Non
     wait_until(
         lambda: rig.manager.set_tasks()[-1] == mri.SetTask(name="hold"), what="hold sent to the manager"
     )
+    # the stand-in sees the request before the RAL records the accepted task: wait for the record too
+    wait_until(lambda: any(t.kind == "hold" and t.origin == "failsafe" for t in rig.ral.queue.tasks()),
+               what="the failsafe hold recorded as the current task")
     sent = len(rig.manager.set_tasks())
-    assert any(t.kind == "hold" and t.origin == "failsafe" for t in rig.ral.queue.tasks())
     back = Gcs(local_client(rig.port), name="pilot", link=True)
     try:
         wait_until(lambda: "link_regained" in rig.kinds(), what="link_regained")
