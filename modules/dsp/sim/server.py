@@ -45,9 +45,11 @@ class RecordedCommand:
     fields: dict
     status: int
     duplicate: bool
+    t_mono: float = 0.0  # the host's CLOCK_MONOTONIC at reception: comparable across processes (latency benches)
 
     def as_json(self) -> str:
-        return json.dumps({"t": round(self.t_sim, 6), "wall": round(self.t_wall, 6), "seq": self.seq,
+        return json.dumps({"t": round(self.t_sim, 6), "wall": round(self.t_wall, 6), "mono": round(self.t_mono, 6),
+                           "seq": self.seq,
                            "id": self.msg_id, "name": self.name, "fields": self.fields, "status": self.status,
                            "status_name": p.error_name(self.status), "duplicate": self.duplicate})
 
@@ -250,7 +252,7 @@ class DspSimulator:
                 fields = {} if result.command is None else msgspec.to_builtins(result.command)
                 rec = RecordedCommand(t_sim=self.machine.time_s, t_wall=now - self._start_wall, seq=frame.seq,
                                       msg_id=frame.msg_id, name=message_name(frame.msg_id), fields=fields,
-                                      status=result.ack.status, duplicate=result.duplicate)
+                                      status=result.ack.status, duplicate=result.duplicate, t_mono=now)
                 self._commands.append(rec)
                 if self._record is not None:
                     self._record.write(rec.as_json() + "\n")
