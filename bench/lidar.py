@@ -52,7 +52,7 @@ def make_flight(n_scans: int, seed: int) -> list[ScanRecord]:
     while len(records) < n_scans:
         t += device.period
         while device.due(t):
-            scan = device.take_scan(t, send=True)
+            scan = device.take_scan(send=True)
             records.append(ScanRecord(len(records) + 1, scan, world.true_pose(t)))
     return records[:n_scans]
 

@@ -40,7 +40,7 @@ from modules.dsp import protocol as p  # noqa: E402
 from modules.pan_tilt.structs import ControlEntradaPT, ModoFuncionamientoPT  # noqa: E402
 from modules.vision.geodesy import LocalFrame  # noqa: E402
 from modules.vision.pipeline import VisionPipeline  # noqa: E402
-from modules.vision.pose import AircraftPose, Gimbal  # noqa: E402
+from modules.vision.pose import Gimbal  # noqa: E402
 from modules.vision.scene import LinearTarget  # noqa: E402
 from modules.vision.sim_camera import SimulatedCamera  # noqa: E402
 from modules.vision.source import Frame  # noqa: E402

@@ -90,6 +90,10 @@ class Hold(msgspec.Struct, frozen=True, kw_only=True, tag="hold"):
     """Stay where the robot is."""
 
 
+class Track(msgspec.Struct, frozen=True, kw_only=True, tag="track"):
+    """Perception: point the pan & tilt at what the robot's perception module tracks, until replaced."""
+
+
 class Abort(msgspec.Struct, frozen=True, kw_only=True, tag="abort"):
     """Stop every running task now (the robot holds); not queued, always handled first."""
 
@@ -100,9 +104,9 @@ class Cancel(msgspec.Struct, frozen=True, kw_only=True, tag="cancel"):
     task_type: str
 
 
-Task = TakeOff | Land | Goto | FollowPath | LookAt | SetPanTilt | Hold
+Task = TakeOff | Land | Goto | FollowPath | LookAt | SetPanTilt | Hold | Track
 """Tasks that occupy a task type until completed, replaced, cancelled or aborted."""
-TaskRequest = TakeOff | Land | Goto | FollowPath | LookAt | SetPanTilt | Hold | Abort | Cancel
+TaskRequest = TakeOff | Land | Goto | FollowPath | LookAt | SetPanTilt | Hold | Track | Abort | Cancel
 TASK_KINDS: tuple[str, ...] = tuple(t.__struct_config__.tag for t in Task.__args__)  # type: ignore[attr-defined]
 
 

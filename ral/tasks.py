@@ -19,7 +19,7 @@ from bbcs.robot import GeoPoint, RobotTelemetry
 from ral import gri
 
 EARTH_RADIUS_M = 6_371_000.0
-CONTINUOUS = frozenset({"look_at", "pan_tilt", "hold"})
+CONTINUOUS = frozenset({"look_at", "pan_tilt", "hold", "track"})
 """Kinds that keep their task type busy until replaced, cancelled or aborted (they never 'complete')."""
 
 

@@ -224,10 +224,11 @@ class LidarLogger:
         sample: PoseSample | None = self._source.latest() if self._source else None
         assert sample is not None  # measuring only starts after a valid pose
         pose = sample.pose
-        if pose.valid and self._last_event - sample.t > self.s.pose_stale_s:
+        stale = pose.valid == 1 and self._last_event - sample.t > self.s.pose_stale_s
+        if stale:
             pose = msgspec.structs.replace(pose, valid=0)
+        if self._buffer.put(ScanRecord(self._index, scan, pose)) and stale:
             self._stale += 1
-        self._buffer.put(ScanRecord(self._index, scan, pose))
 
     def _write_one(self, timeout: float) -> bool:
         record = self._buffer.take(timeout)

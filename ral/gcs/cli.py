@@ -44,6 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--height", type=float, default=10.0)
     kinds.add_parser("land")
     kinds.add_parser("hold")
+    kinds.add_parser("track", help="pan & tilt follows the perception module's target")
     for name in ("goto", "follow_path"):
         k = kinds.add_parser(name, help="waypoints from a CSV (lat,lon,alt) or GeoJSON file")
         k.add_argument("file")

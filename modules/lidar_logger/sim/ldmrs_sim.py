@@ -191,15 +191,15 @@ class LdmrsDevice:
     def next_due(self) -> float | None:
         return self._next_start + self.sweep if self.measuring else None
 
-    def take_scan(self, t: float, send: bool) -> Scan | None:
-        """Finish the scan in progress: build it (if ``send`` and scans are switched on), start the next."""
+    def take_scan(self, send: bool) -> Scan | None:
+        """Finish the scan in progress and start the next one; the scan is built when ``send``, scans are
+        switched on and the scanner is not silent at its end time. A late caller catches up scan by scan:
+        like the real scanner, no rotation is ever skipped, so counts depend on clock time only."""
         start = self._next_start
         self._next_start += self.period
-        if self._next_start + self.sweep < t:  # behind by more than a scan: skip, like a lost rotation
-            self._next_start = t - self.sweep + self.period
         number = self.scan_number
         self.scan_number = (self.scan_number + 1) & 0xFFFF
-        if not send or self.params[Param.DATA_OUTPUT_FLAGS] & OUTPUT_SCAN or self.silent(t):
+        if not send or self.params[Param.DATA_OUTPUT_FLAGS] & OUTPUT_SCAN or self.silent(start + self.sweep):
             return None
         scan = self._build(number, start)
         self.sent_scans.append(scan)
@@ -316,13 +316,18 @@ class LdmrsSimulator:
                     self.connected_at.append(clock.now())
                 now = clock.now()
                 while self.device.due(now):
-                    self.device.take_scan(now, send=False)
+                    self.device.take_scan(send=False)
                 continue
             due = self.device.next_due()
             now = clock.now()
             timeout = 0.05 if due is None else min(0.05, max(0.0, clock.wall(due - now)))
             try:
                 ready, _, _ = select.select([client], [], [], timeout)
+                now = clock.now()
+                while self.device.due(now):  # scans that ended before the commands below are read
+                    scan = self.device.take_scan(send=True)
+                    if scan is not None:
+                        self._send(client, DataType.SCAN, encode_scan(scan), now)
                 if ready:
                     chunk = client.recv(65536)
                     if not chunk:
@@ -332,11 +337,6 @@ class LdmrsSimulator:
                             reply = self.device.handle_command(msg.payload, clock.now())
                             if reply is not None:
                                 self._send(client, DataType.REPLY, reply, clock.now())
-                now = clock.now()
-                while self.device.due(now):
-                    scan = self.device.take_scan(now, send=True)
-                    if scan is not None:
-                        self._send(client, DataType.SCAN, encode_scan(scan), now)
             except OSError:
                 client.close()
                 client = None

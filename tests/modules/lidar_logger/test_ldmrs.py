@@ -158,4 +158,4 @@ def test_set_time_puts_the_scanner_clock_on_the_given_utc(make_world, start_ldmr
     client = client_factory(sim.port)
     target = world.utc(world.now()) + 1234.5
     client.set_time(target)
-    assert sim.device.clock_offset == pytest.approx(1234.5, abs=0.05)
+    assert sim.device.clock_offset == pytest.approx(1234.5, abs=0.5)  # minus the command's latency

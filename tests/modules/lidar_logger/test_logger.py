@@ -24,6 +24,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
+from bbcs.testing import wait_until
 from modules.lidar_logger.binlog import iter_records, read_binary_log
 from modules.lidar_logger.clock import ScaledClock
 from modules.lidar_logger.config import read_config_file
@@ -65,7 +66,7 @@ def flight(tmp_path_factory):
     try:
         out = io.StringIO()
         logger = LidarLogger(
-            settings_for(imu, lidar, tmp_path_factory.mktemp("flight"), duration_s=60.0),
+            settings_for(imu, lidar, tmp_path_factory.mktemp("flight"), duration_s=60.0, pose_stale_s=2.0),
             clock=world.clock,
             out=out,
         )
@@ -88,8 +89,10 @@ def test_the_flight_stops_on_duration_with_closed_complete_files(flight) -> None
     assert summary.text_path.stat().st_size == summary.text_bytes
     assert sum(p.stat().st_size for p in summary.binary_paths) == summary.binary_bytes
     assert "scans/s" in progress and "pose valid (status 7)" in progress
-    # 60 s at 12.5 Hz
-    assert 700 <= summary.scans_received <= 760
+    # 60 s at 12.5 Hz: every scan ending within 60 s of StartMeasure (the simulator never skips one)
+    assert summary.scans_received >= 749
+    log = read_text_log(summary.text_path)
+    assert log.end_time[-1] - log.start_time[0] >= 59.9
 
 
 def test_the_text_log_holds_exactly_what_the_scanner_sent(flight) -> None:
@@ -175,7 +178,7 @@ def test_georeferenced_points_lie_on_the_terrain(flight, source) -> None:
     tolerance = (0.005 + 0.001 + (speed * 0.001 if source == "text" else 0.0)) * (1 + s_max)
     assert np.abs(residual).max() <= tolerance
     expected = (log.point_valid == 1) & (log.valid[log.point_scan] == 1)
-    assert len(result.enu) == expected.sum() > 100_000
+    assert len(result.enu) == expected.sum() > 60_000
     assert np.ptp(pts[:, 0]) > 900, "the cloud covers the flight line"
     # the flagged echoes (clutter, dirt) really are off the ground: leaving them out matters
     flagged = np.nonzero((log.point_valid == 0) & (log.valid[log.point_scan] == 1))[0]
@@ -195,7 +198,8 @@ def test_a_silent_scanner_stops_the_run_after_the_event_timeout(
     assert summary.reason == "timeout" and summary.exit_code == 3
     assert summary.stop_acknowledged and not lidar.device.measuring
     sent = lidar.device.sent_scans
-    assert 30 <= len(sent) <= 40 and summary.scans_written + summary.scans_dropped == len(sent)
+    # scans ending in the first 3 s of measuring: starts at 0.04 + 0.08 k, each 22.2 ms long -> k = 0..36
+    assert len(sent) == 37 and summary.scans_written + summary.scans_dropped == len(sent)
     assert read_text_log(summary.text_path).n_scans == summary.scans_written
     assert read_binary_log(summary.binary_paths[0]).n_scans == summary.scans_written
     assert read_config_file(summary.config_path)["end_reason"] == "timeout"
@@ -205,18 +209,19 @@ def test_a_stop_request_ends_the_run_cleanly(make_world, start_mtig, start_ldmrs
     world = make_world(10.0, gps_fix_at=0.2, xkf_valid_at=0.5)
     imu = start_mtig(world)
     lidar = start_ldmrs(world, LdmrsOptions(return_fraction=0.1))
-    logger = LidarLogger(
-        settings_for(imu, lidar, tmp_path, event_timeout_s=5.0), clock=world.clock, out=io.StringIO()
-    )
-    timer = threading.Timer(0.6, logger.request_stop)
-    timer.start()
-    try:
-        summary = logger.run()
-    finally:
-        timer.cancel()
+    logger = LidarLogger(settings_for(imu, lidar, tmp_path), clock=world.clock, out=io.StringIO())
+
+    def stop_after_ten_scans() -> None:
+        wait_until(lambda: len(lidar.device.sent_scans) >= 10, 60, "ten scans")
+        logger.request_stop()
+
+    stopper = threading.Thread(target=stop_after_ten_scans, daemon=True)
+    stopper.start()
+    summary = logger.run()
+    stopper.join(5)
     assert summary.reason == "signal" and summary.exit_code == 0 and summary.stop_acknowledged
-    assert summary.scans_written > 0
-    assert summary.scans_written + summary.scans_dropped == len(lidar.device.sent_scans)
+    assert summary.scans_written >= 1
+    assert summary.scans_written + summary.scans_dropped == len(lidar.device.sent_scans) >= 10
     assert read_text_log(summary.text_path).n_scans == summary.scans_written
 
 
