@@ -69,10 +69,21 @@ def _pairs(items: list[str], what: str) -> dict[str, str]:
 
 
 def load_context(argv: list[str] | None, prog: str, default_name: str) -> ModuleContext:
-    """The context from ``CROMAT_CONTEXT`` if set (the manager's way), else from ``argv``."""
+    """The context from ``CROMAT_CONTEXT`` (the manager's way) and/or ``argv``.
+
+    With both, the manager's context is the base and ``--param``/``--route``/``--conf`` given on the command line
+    are added on top (a manifest can pass extra arguments this way).
+    """
     env = os.environ.get(CONTEXT_ENV)
-    if env and not argv:
-        return decode_context(env)
+    if env:
+        base = decode_context(env)
+        if not argv:
+            return base
+        extra = context_parser(prog, default_name).parse_args(argv)
+        return msgspec.structs.replace(
+            base, params={**base.params, **_pairs(extra.param, "--param")},
+            routes={**base.routes, **{k: int(v) for k, v in _pairs(extra.route, "--route").items()}},
+            conf=extra.conf or base.conf)
     args = context_parser(prog, default_name).parse_args(argv)
     if args.bus:
         bus = msgspec.json.decode(args.bus, type=SessionConfig)
