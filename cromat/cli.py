@@ -11,7 +11,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "gcs": ("ral.gcs.cli", "ground control station: robots, watch, task, abort, modules, route, errors"),
     "certs": ("ral.certs", "create a CA and certificates for a robot router, a GCS and modules"),
     "dsp-sim": ("modules.dsp.sim.cli", "run the DSP simulator on a pty or a TCP port"),
-    "lidar": ("modules.lidar_logger.cli", "read and georeference lidar logs"),
+    "lidar": ("modules.lidar_logger.cli", "run the lidar logger, read and georeference its logs"),
     "demo": ("examples.bus_demo", "a two-module bus demo on a private router"),
 }
 
