@@ -24,12 +24,12 @@ def test_sim_uav_comes_up_and_stops_clean(tmp_path):
     session = None
     sub = None
     try:
-        la.wait_line("all 4 modules up", 90)
+        la.wait_line("all 6 modules up", 90)
         session = open_session(local_client(la.port))
         reply = mri.call(session, "uav1", "modules", mri.ListModules())
         assert reply.ok
         assert {m.name: m.state for m in reply.data.modules} == {
-            "dsp": "up", "telemetry": "up", "pan_tilt": "up", "path_follower": "up"}
+            "dsp": "up", "telemetry": "up", "pan_tilt": "up", "path_follower": "up", "vision": "up", "ral": "up"}
         states: list[mri.RobotState] = []
         got = threading.Event()
         decode = msgspec.msgpack.Decoder(mri.RobotState).decode

@@ -1,6 +1,6 @@
 """Issue 6 end to end: ``cromat launch bbcs_conf/uav1_sim.toml`` (router, DSP simulator, DSP, telemetry, pan &
-tilt, path follower, vision, RAL — the real Module Manager) as a process tree, and a ground station using the
-GCS Python API over TCP: it sees the robot, watches its state, takes off, flies a 10-waypoint path to
+tilt, path follower, vision, RAL — the real Module Manager) as a process tree, and a ground station using
+the GCS Python API over TCP: it sees the robot, watches its state, takes off, flies a 10-waypoint path to
 completion, swaps the pan & tilt DATOS input to the vision target and back, tracks, and aborts mid-path.
 
 What the simulated DSP received is read from its ``--record`` file (every command frame, in order).
@@ -31,8 +31,13 @@ TIME_SCALE = 4.0
 N_MODULES = 6
 
 
-def sim_manifest(tmp_path: Path, *, ral: dict[str, str] | None = None, edit: Callable[[str], str] | None = None,
-                 time_scale: float = TIME_SCALE) -> tuple[Path, Path]:
+def sim_manifest(
+    tmp_path: Path,
+    *,
+    ral: dict[str, str] | None = None,
+    edit: Callable[[str], str] | None = None,
+    time_scale: float = TIME_SCALE,
+) -> tuple[Path, Path]:
     """uav1_sim.toml with an absolute .conf, the simulator recording into ``tmp_path`` and sped up, and some
     RAL parameters overridden. Returns (manifest, record file)."""
     record = tmp_path / "dsp_record.jsonl"
@@ -40,8 +45,9 @@ def sim_manifest(tmp_path: Path, *, ral: dict[str, str] | None = None, edit: Cal
     text = text.replace('conf = "uav1.conf"', f'conf = "{MANIFEST.parent / "uav1.conf"}"')
     old = '"--tcp", "127.0.0.1:{port:dsp}"]'
     assert old in text, "the DSP simulator's command line in uav1_sim.toml changed"
-    text = text.replace(old, f'"--tcp", "127.0.0.1:{{port:dsp}}", "--time-scale", "{time_scale:g}", '
-                             f'"--record", "{record}"]')
+    text = text.replace(
+        old, f'"--tcp", "127.0.0.1:{{port:dsp}}", "--time-scale", "{time_scale:g}", "--record", "{record}"]'
+    )
     for key, value in (ral or {}).items():
         text, n = _replace_param(text, key, value)
         assert n == 1, f"RAL parameter {key} not in the manifest"
@@ -89,8 +95,9 @@ class SimRobot:
         wait_until(lambda: bool(self.states) and pred(self.state), timeout_s, what)
         return self.state
 
-    def wait_event(self, pred: Callable[[gri.GriEvent], bool], timeout_s: float, what: str,
-                   after: int = 0) -> gri.GriEvent:
+    def wait_event(
+        self, pred: Callable[[gri.GriEvent], bool], timeout_s: float, what: str, after: int = 0
+    ) -> gri.GriEvent:
         found: list[gri.GriEvent] = []
 
         def seen() -> bool:
@@ -108,32 +115,43 @@ class SimRobot:
         return [json.loads(line) for line in self.record.read_text().splitlines() if line.strip()]
 
     def ensure_airborne(self, height: float = 10.0) -> gri.GriState:
-        state = self.wait_state(lambda s: s.position is not None and s.airborne is not None, 30,
-                                "robot telemetry in the GRI state")
+        state = self.wait_state(
+            lambda s: s.position is not None and s.airborne is not None,
+            30,
+            "robot telemetry in the GRI state",
+        )
         if state.airborne:
             return state
         start = len(self.events)
         reply = self.gcs.send(ROBOT, gri.TakeOff(height=height))
         assert reply.accepted, reply.reason
-        self.wait_event(lambda e: e.kind == "task_completed" and e.task_id == reply.task_id, 30,
-                        "take-off completed", after=start)
+        self.wait_event(
+            lambda e: e.kind == "task_completed" and e.task_id == reply.task_id,
+            30,
+            "take-off completed",
+            after=start,
+        )
         return self.wait_state(lambda s: bool(s.airborne), 5, "airborne")
 
 
 GRID_DEG = 1e-4
-"""The DSP protocol carries waypoint lat/lon as degrees × 10^4 (≈ 11 m): test paths lie on that grid so what the
-DSP receives equals what the GCS sent."""
+"""The DSP protocol carries waypoint lat/lon as degrees × 10^4 (≈ 11 m): test paths lie on that grid so what
+the DSP receives equals what the GCS sent."""
 LOOP = [(1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1), (2, -1), (2, 0)]
 """Ten waypoints around the start, in grid steps (north, east)."""
 
 
 def grid_path(center: object, steps: list[tuple[int, int]] = LOOP, scale: int = 1) -> list[gri.Waypoint]:
-    """Waypoints ``steps`` × ``scale`` grid cells from ``center`` (a GeoPoint) snapped to the grid, at its altitude."""
+    """Waypoints ``steps`` × ``scale`` grid cells from ``center`` (a GeoPoint, snapped to the grid)."""
     lat0 = round(center.lat / GRID_DEG) * GRID_DEG  # type: ignore[attr-defined]
     lon0 = round(center.lon / GRID_DEG) * GRID_DEG  # type: ignore[attr-defined]
     alt = center.alt  # type: ignore[attr-defined]
-    return [gri.Waypoint(lat=round(lat0 + n * scale * GRID_DEG, 4), lon=round(lon0 + e * scale * GRID_DEG, 4), alt=alt)
-            for n, e in steps]
+    return [
+        gri.Waypoint(
+            lat=round(lat0 + n * scale * GRID_DEG, 4), lon=round(lon0 + e * scale * GRID_DEG, 4), alt=alt
+        )
+        for n, e in steps
+    ]
 
 
 def launch_robot(tmp_path: Path, **manifest_kw) -> tuple[Launch, Path]:
@@ -169,13 +187,31 @@ def test_gcs_flies_ten_waypoints_swaps_pan_tilt_source_and_aborts(robot: SimRobo
     gcs = robot.gcs
     # sees the robot, watches its state
     wait_until(lambda: gcs.robots(1.0) == [ROBOT], 10, "the robot in the GCS's robot list")
-    first = robot.wait_state(lambda s: s.link == "up" and s.manager_up and s.position is not None, 20,
-                             "state with position, manager up and this GCS linked")
+    first = robot.wait_state(
+        lambda s: s.link == "up" and s.manager_up and s.position is not None,
+        20,
+        "state with position, manager up and this GCS linked",
+    )
     assert first.kind == "uav"
     assert {m.name: m.state for m in first.modules} == {
-        "dsp": "up", "telemetry": "up", "pan_tilt": "up", "path_follower": "up", "vision": "up", "ral": "up"}
-    assert {"goto", "follow_path", "take_off", "land", "look_at", "pan_tilt", "hold", "abort", "track"} <= set(
-        first.available)
+        "dsp": "up",
+        "telemetry": "up",
+        "pan_tilt": "up",
+        "path_follower": "up",
+        "vision": "up",
+        "ral": "up",
+    }
+    assert {
+        "goto",
+        "follow_path",
+        "take_off",
+        "land",
+        "look_at",
+        "pan_tilt",
+        "hold",
+        "abort",
+        "track",
+    } <= set(first.available)
 
     # take off if needed, then a 10-waypoint path to completion
     up = robot.ensure_airborne()
@@ -186,12 +222,17 @@ def test_gcs_flies_ten_waypoints_swaps_pan_tilt_source_and_aborts(robot: SimRobo
     reply = gcs.send(ROBOT, gri.FollowPath(waypoints=path, speed=5.0))
     assert reply.accepted and reply.task_type == "movement", reply.reason
     robot.wait_state(lambda s: bool(s.waypoints_queued), 10, "the DSP's waypoint queue filled")
-    done = robot.wait_event(lambda e: e.task_id == reply.task_id and e.kind != "task_accepted", 60,
-                            "the path task ended", after=start)
+    done = robot.wait_event(
+        lambda e: e.task_id == reply.task_id and e.kind != "task_accepted",
+        60,
+        "the path task ended",
+        after=start,
+    )
     assert done.kind == "task_completed", done
     added = [c for c in robot.commands()[before:] if c["name"] == "ADD_WAYPOINT"]
     assert [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in added] == [
-        (w.lat, w.lon) for w in path]
+        (w.lat, w.lon) for w in path
+    ]
     end = robot.wait_state(lambda s: s.waypoints_queued == 0, 5, "queue empty")
     assert end.position is not None
     assert abs(end.position.lat - path[-1].lat) * 111_320 < 3.0
@@ -213,7 +254,9 @@ def test_gcs_flies_ten_waypoints_swaps_pan_tilt_source_and_aborts(robot: SimRobo
     # GCS angles reach the DSP again after the swap back
     reply = gcs.send(ROBOT, gri.SetPanTilt(pan=-45.0, tilt=-10.0))
     assert reply.accepted, reply.reason
-    robot.wait_state(lambda s: s.pan_deg is not None and abs(s.pan_deg + 45.0) < 2.0, 15, "pan at -45 degrees")
+    robot.wait_state(
+        lambda s: s.pan_deg is not None and abs(s.pan_deg + 45.0) < 2.0, 15, "pan at -45 degrees"
+    )
 
     # perception task: the pan & tilt follows the vision target (mode 1)
     reply = gcs.send(ROBOT, gri.Track())
@@ -232,7 +275,13 @@ def test_gcs_flies_ten_waypoints_swaps_pan_tilt_source_and_aborts(robot: SimRobo
     assert reply.accepted, reply.reason
     wait_until(lambda: "ABORT" in [c["name"] for c in robot.commands()[n_cmd:]], 5, "Abort reached the DSP")
     robot.wait_state(lambda s: s.waypoints_queued == 0 and not s.tasks, 5, "queue empty and no task")
-    wait_until(lambda: {e.task_type for e in robot.events[start:] if e.kind == "aborted"}
-               == {"movement", "pan_tilt", "perception"}, 5, "an aborted event for each running task")
+    wait_until(
+        lambda: (
+            {e.task_type for e in robot.events[start:] if e.kind == "aborted"}
+            == {"movement", "pan_tilt", "perception"}
+        ),
+        5,
+        "an aborted event for each running task",
+    )
     assert gcs.routes(ROBOT).routes["pan_tilt"]["datos"] == 10
     assert robot.state.airborne  # abort holds; it does not land

@@ -1,0 +1,300 @@
+"""Abort latency: from a ground station's ``abort`` request to the simulated DSP's waypoint queue being empty.
+
+Launches the whole simulated UAV (bbcs_conf/uav1_sim.toml through the real Module Manager: router, DSP
+simulator, DSP, telemetry, pan & tilt, path follower, vision, RAL) and, from a GCS (Python API, TCP on
+127.0.0.1), repeats: follow a 10-waypoint path, wait until the DSP telemetry shows waypoints queued (mid-
+path), abort. The queue empties when the simulator handles the ABORT frame; that instant is the simulator's
+``--record`` timestamp (CLOCK_MONOTONIC, comparable across processes). The first DSP telemetry showing an
+empty queue (100 Hz here) is reported too. Baseline in the same run: the round trip of a no-op MRI request
+(``tasks``) from the same GCS session, and of a GRI task request the RAL rejects (no manager call, no DSP).
+
+    python bench/abort.py [--aborts 100]
+
+Writes bench/results/abort.json with summary keys ``abort_p50_ms`` and ``abort_p99_ms``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import msgspec  # noqa: E402
+
+from bbcs import keys  # noqa: E402
+from module_manager import mri  # noqa: E402
+from modules.dsp import protocol as p  # noqa: E402
+from ral import gri  # noqa: E402
+from ral.gcs.api import Gcs, session_config  # noqa: E402
+
+ROBOT = "uav1"
+GRID_DEG = 1e-4  # the DSP carries waypoint lat/lon in 10^-4 degrees
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def pct(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))]
+
+
+def prepare(work: Path, telemetry_ms: int) -> tuple[Path, Path]:
+    """A copy of uav1_sim.toml and uav1.conf: DSP telemetry every ``telemetry_ms``, the simulator
+    recording."""
+    conf = (ROOT / "bbcs_conf" / "uav1.conf").read_text()
+    conf, n = re.subn(
+        r"^TELEMETRY_PERIOD_MS:\s*\d+", f"TELEMETRY_PERIOD_MS: {telemetry_ms}", conf, flags=re.M
+    )
+    assert n == 1, "TELEMETRY_PERIOD_MS not found in uav1.conf"
+    (work / "uav1.conf").write_text(conf)
+    record = work / "dsp_record.jsonl"
+    text = (ROOT / "bbcs_conf" / "uav1_sim.toml").read_text()
+    old = '"--tcp", "127.0.0.1:{port:dsp}"]'
+    assert old in text, "the DSP simulator's command line in uav1_sim.toml changed"
+    text = text.replace(old, f'"--tcp", "127.0.0.1:{{port:dsp}}", "--record", "{record}"]')
+    manifest = work / "uav1_sim.toml"
+    manifest.write_text(text)
+    return manifest, record
+
+
+class Launch:
+    """``cromat launch`` in its own session; stopped (and its group killed) on exit."""
+
+    def __init__(self, manifest: Path, port: int, log_dir: Path) -> None:
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "module_manager.cli",
+                str(manifest),
+                "--listen",
+                f"tcp/127.0.0.1:{port}",
+                "--log-dir",
+                str(log_dir),
+            ],
+            cwd=str(ROOT),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+            env={**os.environ, "PYTHONPATH": str(ROOT)},
+        )
+
+    def wait_up(self, timeout_s: float = 90.0) -> None:
+        assert self.proc.stdout is not None
+        end = time.monotonic() + timeout_s
+        for line in self.proc.stdout:
+            if "modules up" in line:
+                threading.Thread(target=self._drain, daemon=True).start()
+                return
+            if time.monotonic() > end:
+                break
+        raise RuntimeError("cromat launch did not bring every module up")
+
+    def _drain(self) -> None:
+        assert self.proc.stdout is not None
+        for _ in self.proc.stdout:
+            pass
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait(10)
+
+
+class DspWatch:
+    """The DSP telemetry's queue length, with the monotonic time each sample arrived."""
+
+    def __init__(self, gcs: Gcs) -> None:
+        self.cond = threading.Condition()
+        self.samples: list[tuple[float, int]] = []
+        self.position: tuple[float, float, float] | None = None
+        decode = msgspec.msgpack.Decoder(p.Telemetry).decode
+
+        def on_sample(sample) -> None:  # type: ignore[no-untyped-def]
+            t = time.monotonic()
+            tel = decode(sample.payload.to_bytes())
+            with self.cond:
+                if tel.position is not None:
+                    self.position = (tel.position.lat, tel.position.lon, tel.position.alt)
+                if tel.status is not None:
+                    self.samples.append((t, tel.status.queue_length))
+                    del self.samples[:-2000]
+                    self.cond.notify_all()
+
+        self.sub = gcs.session.declare_subscriber(keys.slot_key(ROBOT, "dsp", "telemetry"), on_sample)
+
+    def wait(self, pred, after: float, timeout_s: float = 5.0) -> float:  # type: ignore[no-untyped-def]
+        """Arrival time of the first sample after ``after`` whose queue length satisfies ``pred``."""
+        end = time.monotonic() + timeout_s
+        with self.cond:
+            while True:
+                for t, q in self.samples:
+                    if t >= after and pred(q):
+                        return t
+                left = end - time.monotonic()
+                if left <= 0:
+                    raise RuntimeError("DSP telemetry did not show the expected queue length")
+                self.cond.wait(left)
+
+    def close(self) -> None:
+        self.sub.undeclare()
+
+
+class Record:
+    """Reads the simulator's command record incrementally."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.offset = 0
+        self.pending = ""
+
+    def wait_abort(self, after: float, timeout_s: float = 5.0) -> float:
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            if self.path.exists():
+                with self.path.open() as f:
+                    f.seek(self.offset)
+                    chunk = f.read()
+                    self.offset = f.tell()
+                self.pending += chunk
+                *lines, self.pending = self.pending.split("\n")
+                for line in lines:
+                    rec = json.loads(line)
+                    if rec["name"] == "ABORT" and rec["mono"] >= after:
+                        return float(rec["mono"])
+            time.sleep(0.001)
+        raise RuntimeError("no ABORT in the DSP simulator's record")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--aborts", type=int, default=100)
+    ap.add_argument("--telemetry-ms", type=int, default=10, help="DSP telemetry period (simulated ms)")
+    ap.add_argument("--baseline", type=int, default=200, help="no-op round trips for the baseline")
+    args = ap.parse_args(argv)
+    work = Path(tempfile.mkdtemp(prefix="cromat-abort-"))
+    manifest, record_path = prepare(work, args.telemetry_ms)
+    port = free_port()
+    launch = Launch(manifest, port, work / "logs")
+    gcs = watch = None
+    try:
+        launch.wait_up()
+        gcs = Gcs(session_config([f"tcp/127.0.0.1:{port}"]), name="bench", link=True, timeout_s=10.0)
+        watch = DspWatch(gcs)
+        t_end = time.monotonic() + 20
+        while watch.position is None and time.monotonic() < t_end:
+            time.sleep(0.05)
+        if watch.position is None:
+            raise RuntimeError("no DSP telemetry")
+        lat0 = round(watch.position[0] / GRID_DEG) * GRID_DEG
+        lon0 = round(watch.position[1] / GRID_DEG) * GRID_DEG
+        alt = watch.position[2] + 20.0
+        path = [
+            gri.Waypoint(lat=round(lat0 + 20 * GRID_DEG * (i + 1), 4), lon=round(lon0, 4), alt=alt)
+            for i in range(10)
+        ]
+        wait_list = gri.FollowPath(waypoints=path, speed=5.0)
+        record = Record(record_path)
+
+        # baseline: no-op MRI request and a GRI request the RAL rejects, same session
+        mri_rt, gri_rt = [], []
+        bad = gri.Cancel(task_type="no_such_type")
+        for _ in range(args.baseline):
+            t = time.perf_counter()
+            mri.call(gcs.session, ROBOT, "tasks", mri.ListTasks())
+            mri_rt.append((time.perf_counter() - t) * 1000)
+            t = time.perf_counter()
+            assert not gcs.send(ROBOT, bad).accepted
+            gri_rt.append((time.perf_counter() - t) * 1000)
+
+        to_dsp, to_telemetry, reply_rt = [], [], []
+        for i in range(args.aborts):
+            t_task = time.monotonic()
+            reply = gcs.send(ROBOT, wait_list)
+            if not reply.accepted:
+                raise RuntimeError(f"path task rejected: {reply.reason}")
+            watch.wait(lambda q: q > 0, t_task)
+            time.sleep(0.02 + 0.03 * (i % 5) / 4)  # abort at varying moments of the flight
+            t0 = time.monotonic()
+            reply = gcs.abort(ROBOT)
+            reply_rt.append((time.monotonic() - t0) * 1000)
+            if not reply.accepted:
+                raise RuntimeError(f"abort refused: {reply.reason}")
+            to_dsp.append((record.wait_abort(t0) - t0) * 1000)
+            to_telemetry.append((watch.wait(lambda q: q == 0, t0) - t0) * 1000)
+    finally:
+        if watch is not None:
+            watch.close()
+        if gcs is not None:
+            gcs.close()
+        launch.stop()
+
+    rows = [
+        ("abort → DSP queue empty (sim record)", to_dsp),
+        ("abort → empty queue in DSP telemetry", to_telemetry),
+        ("abort request round trip (GCS reply)", reply_rt),
+        ("baseline: MRI 'tasks' round trip", mri_rt),
+        ("baseline: GRI rejected-task round trip", gri_rt),
+    ]
+    print(
+        f"abort latency, {args.aborts} aborts mid-path, loopback; DSP telemetry every {args.telemetry_ms} ms"
+    )
+    print(f"{'measure':<42} {'n':>5} {'p50 ms':>9} {'p99 ms':>9} {'max ms':>9}")
+    for name, values in rows:
+        print(
+            f"{name:<42} {len(values):>5} {pct(values, 50):>9.2f} {pct(values, 99):>9.2f} {max(values):>9.2f}"
+        )
+    p50, p99 = pct(to_dsp, 50), pct(to_dsp, 99)
+    print(
+        f"abort p50 {p50:.2f} ms, p99 {p99:.2f} ms (target p99 < 50 ms); "
+        f"p50 = {p50 / pct(mri_rt, 50):.1f} x the MRI round trip"
+    )
+    out = ROOT / "bench" / "results" / "abort.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(
+        json.dumps(
+            {
+                "bench": "abort",
+                "aborts": args.aborts,
+                "telemetry_period_ms": args.telemetry_ms,
+                "rows": {
+                    name: {
+                        "n": len(v),
+                        "p50_ms": round(pct(v, 50), 3),
+                        "p99_ms": round(pct(v, 99), 3),
+                        "max_ms": round(max(v), 3),
+                    }
+                    for name, v in rows
+                },
+                "summary": {"abort_p50_ms": round(p50, 3), "abort_p99_ms": round(p99, 3)},
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,94 @@
+"""GCS killed mid-mission: a ground-station process holding the link is SIGKILLed while the robot flies a
+path; after the configured (short) failsafe time the RAL runs its action (hold: the path follower's abort
+command, the DSP's queue empties), reports it in events, and a ground station coming back sees the robot
+again and is told the failsafe stays in force (the mission does not resume)."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from bbcs.testing import child_env, wait_until
+from ral import gri
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402
+
+FAILSAFE_S = 1.5
+GCS_SCRIPT = """
+import sys, time
+from ral.gcs.api import Gcs, session_config
+gcs = Gcs(session_config([sys.argv[1]]), name="field_station", link=True)
+print("linked", flush=True)
+while True:
+    time.sleep(1)
+"""
+
+
+def test_gcs_killed_mid_mission_triggers_failsafe_then_gcs_back_sees_robot(tmp_path: Path) -> None:
+    la, record = launch_robot(
+        tmp_path, ral={"failsafe_timeout_s": str(FAILSAFE_S), "heartbeat_timeout_s": "1"}
+    )
+    observer = station = back = None
+    try:
+        observer = connect(la.port, "observer", link=False)  # watches and commands, holds no link
+        robot = SimRobot(la, observer, record)
+        station = subprocess.Popen(
+            [sys.executable, "-c", GCS_SCRIPT, f"tcp/127.0.0.1:{la.port}"],
+            env=child_env(),
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert station.stdout is not None and station.stdout.readline().strip() == "linked"
+        robot.wait_event(lambda e: e.kind == "link_up" and "field_station" in e.detail, 10, "link up")
+        up = robot.ensure_airborne()
+        reply = observer.send(ROBOT, gri.FollowPath(waypoints=grid_path(up.position, scale=6), speed=5.0))
+        assert reply.accepted, reply.reason
+        robot.wait_state(lambda s: (s.waypoints_queued or 0) >= 5, 10, "mid-path")
+
+        start = len(robot.events)
+        n_cmd = len(robot.commands())
+        killed_at = time.monotonic()
+        station.send_signal(signal.SIGKILL)
+        station.wait(10)
+        lost = robot.wait_event(lambda e: e.kind == "link_lost", 10, "link_lost", after=start)
+        fs = robot.wait_event(lambda e: e.kind == "failsafe", 10, "failsafe event", after=start)
+        assert time.monotonic() - killed_at >= FAILSAFE_S
+        assert fs.stamp - lost.stamp >= FAILSAFE_S - 0.05 and "hold" in fs.detail
+        robot.wait_event(
+            lambda e: e.kind == "task_accepted" and "(failsafe)" in e.detail,
+            10,
+            "the failsafe hold accepted",
+            after=start,
+        )
+        held = robot.wait_state(
+            lambda s: s.waypoints_queued == 0 and s.link == "failsafe",
+            10,
+            "DSP queue emptied by the failsafe",
+        )
+        assert [(t.kind, t.origin) for t in held.tasks] == [("hold", "failsafe")]
+        assert "ABORT" in [c["name"] for c in robot.commands()[n_cmd:]]
+
+        # a ground station comes back: it sees the robot within seconds; the failsafe stays in force
+        start = len(robot.events)
+        back = connect(la.port, "field_station_2", link=True)
+        wait_until(lambda: back.robots(1.0) == [ROBOT], 10, "robot listed again")
+        regained = robot.wait_event(lambda e: e.kind == "link_regained", 10, "link regained", after=start)
+        assert "stays in force" in regained.detail
+        state = robot.wait_state(lambda s: s.link == "up", 5, "link up in the state")
+        assert [(t.kind, t.origin) for t in state.tasks] == [("hold", "failsafe")]
+        assert state.waypoints_queued == 0
+    finally:
+        for g in (back, observer):
+            if g is not None:
+                g.close()
+        if station is not None and station.poll() is None:
+            station.kill()
+            station.wait(10)
+        if station is not None and station.stdout is not None:
+            station.stdout.close()
+        la.stop()
+        la.cleanup()
