@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import signal
 import sys
+import tempfile
 import threading
 import time
 from collections import deque
@@ -30,7 +32,7 @@ from bbcs.robot import RobotTelemetry
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import mri
+from module_manager import mri, secure
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
 from module_manager.process import Child, free_port, stop_children, wait_tcp
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor
@@ -130,14 +132,25 @@ class Manager:
         self.all_up_at: float | None = None
         self._ack_decode = msgspec.msgpack.Decoder(RouteAck).decode
         self._beat_decode = msgspec.msgpack.Decoder(Heartbeat).decode
+        proto = "tls" if manifest.pki is not None else "tcp"
+        if proto == "tls" and not all(e.startswith("tls/") for e in self.listen):
+            raise LaunchError(f"[bus.tls]: the router listens on tls/ endpoints only, not {', '.join(self.listen)}")
         connect = list(manifest.raw.bus.connect)
         if not connect:
-            first = next((tcp_endpoint(e) for e in self.listen if tcp_endpoint(e)), None)
+            first = next((ep for e in self.listen if e.startswith(f"{proto}/") and (ep := tcp_endpoint(e))), None)
             if first is None:
-                raise LaunchError("bus.listen has no tcp endpoint and bus.connect is empty: "
+                raise LaunchError(f"bus.listen has no {proto} endpoint and bus.connect is empty: "
                                   "the manager cannot tell its modules where the router is")
-            connect = [f"tcp/{first[0]}:{first[1]}"]
-        self.bus = SessionConfig(mode="client", connect=connect)
+            connect = [f"{proto}/{first[0]}:{first[1]}"]
+        self.connect = connect
+        self.runtime_dir: Path | None = None
+        self.bus = self.bus_for(MANAGER_MODULE)
+
+    def bus_for(self, identity: str) -> SessionConfig:
+        """The bus config of the manager or a module: plain client, or mTLS with that identity's certificate."""
+        if self.m.pki is None:
+            return SessionConfig(mode="client", connect=list(self.connect))
+        return secure.client_bus(self.m, self.connect, identity)
 
     # ------------------------------------------------------------------------------------------ start-up
 
@@ -156,6 +169,9 @@ class Manager:
             argv += ["--listen", e]
         if self.m.raw.bus.zenoh_config:
             argv += ["--config", str(self.m.dir / self.m.raw.bus.zenoh_config)]
+        elif self.m.pki is not None:
+            self.runtime_dir = Path(tempfile.mkdtemp(prefix=f"cromat-{self.m.robot}-"))
+            argv += ["--config", str(secure.write_router_config(self.m, self.listen, self.runtime_dir))]
         t = self.clock()
         self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir)
         host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))
@@ -290,7 +306,8 @@ class Manager:
 
     def _spawn(self, mod: _Module, action: Spawn) -> None:
         info = mod.info
-        ctx = ModuleContext(robot=self.m.robot, module=info.name, bus=self.bus, slot_table=self.m.slot_table,
+        ctx = ModuleContext(robot=self.m.robot, module=info.name, bus=self.bus_for(self.m.identity(info.name)),
+                            slot_table=self.m.slot_table,
                             routes=dict(mod.routes), conf=str(self.m.conf),
                             params={k: self.expand(v) for k, v in info.spec.params.items()},
                             restart_count=action.restart_count)
@@ -462,6 +479,9 @@ class Manager:
         if self.router is not None:
             stop_children([self.router], self.m.stop_grace_s)
             self.router = None
+        if self.runtime_dir is not None:
+            shutil.rmtree(self.runtime_dir, ignore_errors=True)
+            self.runtime_dir = None
         self.out("stopped")
 
     # ------------------------------------------------------------------------------------------ routing

@@ -62,6 +62,20 @@ class RobotSection(_Section):
     state_period_s: Positive = 1.0
 
 
+class TlsSection(_Section):
+    """``[bus.tls]``: the router requires mutual TLS; every process presents its own certificate."""
+
+    pki: str
+    """Folder written by ``cromat certs`` (relative to the manifest): ca.pem, router.*, manager.*, one pair per
+    module identity."""
+    acl: bool = True
+    """Also enforce the access policy of :mod:`ral.acl` on the router (identities = certificate CNs)."""
+    gcs: list[str] = msgspec.field(default_factory=lambda: ["gcs"])
+    """Ground-station identities the policy lets submit tasks and swap routes."""
+    ral: str = "ral"
+    """The module that is the robot's RAL (it gets the RAL's rights in the policy, not a module's)."""
+
+
 class BusSection(_Section):
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     """Endpoints of the robot router (``cromat launch`` starts it first)."""
@@ -70,6 +84,8 @@ class BusSection(_Section):
     zenoh_config: str | None = None
     """Zenoh JSON5 file for the router (access control, TLS), relative to the manifest."""
     ready_timeout_s: Positive = 10.0
+    tls: TlsSection | None = None
+    """Mutual TLS (and access control) on the router; see docs/manifest.md."""
 
 
 class SupervisionSection(_Section):
@@ -102,6 +118,8 @@ class ModuleDef(_Section):
     routes: dict[str, int] = msgspec.field(default_factory=dict)
     task_types: list[str] = msgspec.field(default_factory=list)
     env: dict[str, str] = msgspec.field(default_factory=dict)
+    identity: str | None = None
+    """Certificate name under ``[bus.tls]`` (``<pki>/<identity>.pem``); default: the module's name."""
     restart: Literal["never", "on-failure", "always"] | None = None
     backoff_s: Positive | None = None
     backoff_max_s: Positive | None = None
@@ -198,26 +216,35 @@ class Manifest:
     task_types: tuple[str, ...]
     stop_grace_s: float
     pythonpath: tuple[Path, ...]
+    pki: Path | None = None
+    """Absolute certificate folder under ``[bus.tls]``; None: plain TCP bus."""
 
     @property
     def dir(self) -> Path:
         return self.path.parent
 
+    def identity(self, module: str) -> str:
+        """Certificate name (CN) of a module: its ``identity`` key, else its instance name."""
+        return self.modules[module].spec.identity or module
+
 
 # ---------------------------------------------------------------------------------------------- loading
 
 
-def load_manifest(path: str | Path) -> Manifest:
-    """Read, decode and check a manifest; ManifestError on the first mistake (nothing is started here)."""
+def load_manifest(path: str | Path, *, check_pki: bool = True) -> Manifest:
+    """Read, decode and check a manifest; ManifestError on the first mistake (nothing is started here).
+
+    ``check_pki=False`` skips the certificate files of ``[bus.tls]`` (``cromat certs --manifest`` creates them).
+    """
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ManifestError(f"cannot read manifest: {exc.strerror or exc}", path=str(p)) from exc
-    return parse_manifest(text, p)
+    return parse_manifest(text, p, check_pki=check_pki)
 
 
-def parse_manifest(text: str, path: Path) -> Manifest:
+def parse_manifest(text: str, path: Path, *, check_pki: bool = True) -> Manifest:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -240,7 +267,7 @@ def parse_manifest(text: str, path: Path) -> Manifest:
             key = f"{key}.{missing}" if key else missing
             msg = "required key missing"
         raise ManifestError(msg, path=str(path), key=_dotted(key), line=_locate(text, _dotted(key))) from exc
-    return _Checker(text, path, raw).check()
+    return _Checker(text, path, raw, check_pki).check()
 
 
 def _dotted(key: str) -> str:
@@ -288,10 +315,11 @@ def _locate(text: str, key: str) -> int | None:
 class _Checker:
     """Cross-checks after decoding: names, files, types, slot numbers, routes, modes, tasks."""
 
-    def __init__(self, text: str, path: Path, raw: ManifestFile) -> None:
+    def __init__(self, text: str, path: Path, raw: ManifestFile, check_pki: bool = True) -> None:
         self.text = text
         self.path = path
         self.raw = raw
+        self.check_pki = check_pki
 
     def fail(self, key: str, message: str) -> ManifestError:
         return ManifestError(message, path=str(self.path), key=key, line=_locate(self.text, key))
@@ -344,9 +372,55 @@ class _Checker:
                 raise self.fail(f"mode.{mname}.module", f"mode slot {mname!r} drives unknown module {mode.module!r}")
         self.telemetry(table)
         tasks = {name: self.task(name, t, table, modules, modes, task_types) for name, t in raw.tasks.items()}
+        pki = self.tls(modules)
         return Manifest(path=self.path.resolve(), raw=raw, robot=raw.robot.name, kind=raw.robot.kind, conf=conf,
                         slot_table=table, modules=modules, modes=modes, tasks=tasks, task_types=task_types,
-                        stop_grace_s=raw.supervision.stop_grace_s, pythonpath=pythonpath)
+                        stop_grace_s=raw.supervision.stop_grace_s, pythonpath=pythonpath, pki=pki)
+
+    def tls(self, modules: dict[str, ModuleInfo]) -> Path | None:
+        """``[bus.tls]``: tls/ listeners only, identities valid, every certificate file present."""
+        tls = self.raw.bus.tls
+        if tls is None:
+            return None
+        if self.raw.bus.zenoh_config is not None:
+            raise self.fail("bus.zenoh_config", "bus.zenoh_config and [bus.tls] exclude each other: with [bus.tls] "
+                                                "the router's Zenoh config is generated at launch")
+        for i, endpoint in enumerate(self.raw.bus.listen):
+            if not endpoint.startswith("tls/"):
+                raise self.fail(f"bus.listen.{i}", f"{endpoint!r}: with [bus.tls] the router listens on tls/ only")
+        for i, endpoint in enumerate(self.raw.bus.connect):
+            if not endpoint.startswith("tls/"):
+                raise self.fail(f"bus.connect.{i}", f"{endpoint!r}: with [bus.tls] clients connect over tls/ only")
+        for i, name in enumerate(tls.gcs):
+            self.name(name, f"bus.tls.gcs.{i}", "GCS identity")
+        if not tls.gcs:
+            raise self.fail("bus.tls.gcs", "at least one GCS identity is needed")
+        reserved = {"ca": "the CA", "router": "the router", MANAGER_MODULE: "the manager",
+                    **{g: "a ground station" for g in tls.gcs}}
+        for name, info in modules.items():
+            ident = info.spec.identity or name
+            key = f"modules.{name}.identity" if info.spec.identity is not None else f"modules.{name}"
+            self.name(ident, key, "identity")
+            if ident in reserved:
+                raise self.fail(key, f"identity {ident!r} is {reserved[ident]}'s: a module must not share it")
+            reserved[ident] = f"module {name}"
+        pki = (self.path.parent / tls.pki).resolve()
+        if not self.check_pki:
+            return pki
+        if not pki.is_dir():
+            raise self.fail("bus.tls.pki", f"certificate folder {pki} does not exist (create it with "
+                                           f"`cromat certs --manifest {self.path}`)")
+        needed = [("bus.tls.pki", "ca.pem"), ("bus.tls.pki", "router.pem"), ("bus.tls.pki", "router.key"),
+                  ("bus.tls.pki", f"{MANAGER_MODULE}.pem"), ("bus.tls.pki", f"{MANAGER_MODULE}.key")]
+        for name, info in modules.items():
+            ident = info.spec.identity or name
+            key = f"modules.{name}.identity" if info.spec.identity is not None else f"modules.{name}"
+            needed += [(key, f"{ident}.pem"), (key, f"{ident}.key")]
+        for key, file in needed:
+            if not (pki / file).is_file():
+                raise self.fail(key, f"certificate file {pki / file} does not exist (create the certificates with "
+                                     f"`cromat certs --manifest {self.path}`)")
+        return pki
 
     def slot_table(self) -> SlotTable:
         seen: dict[int, int] = {}

@@ -128,7 +128,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="cromat certs", description="Create a CA and TLS certificates for cromat."
     )
-    p.add_argument("dir", help="output folder (created; an existing CA in it is reused)")
+    p.add_argument(
+        "dir",
+        nargs="?",
+        help="output folder (created; an existing CA in it is reused); with --manifest default: its bus.tls.pki",
+    )
+    p.add_argument(
+        "--manifest",
+        metavar="TOML",
+        help="make exactly the certificates this launch manifest's [bus.tls] needs (router, manager, its GCS "
+        "identities, one per module); --robot comes from it",
+    )
     p.add_argument("--ca-name", default="cromat-ca", help="common name of a new CA")
     p.add_argument(
         "--router-host",
@@ -143,6 +153,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME",
         help="module identity, its instance name (default: module)",
     )
+    p.add_argument(
+        "--modules",
+        metavar="A,B,...",
+        help="module identities as one comma-separated list (adds to --module)",
+    )
     p.add_argument("--no-local", action="store_true", help="do not create the ral and manager identities")
     p.add_argument("--days", type=int, default=825)
     p.add_argument("--acl", metavar="FILE", help="also write the robot router's Zenoh config (mTLS + ACL)")
@@ -156,17 +171,45 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _from_manifest(path: str) -> tuple[Path, str, list[str], list[str]]:
+    """(pki folder, robot, GCS identities, module identities incl. the RAL's) of a ``[bus.tls]`` manifest."""
+    from module_manager.manifest import ManifestError, load_manifest  # only this form needs the manager
+
+    try:
+        manifest = load_manifest(path, check_pki=False)
+    except ManifestError as exc:
+        raise CertError(f"manifest error: {exc}") from None
+    tls = manifest.raw.bus.tls
+    if tls is None or manifest.pki is None:
+        raise CertError(f"{path}: no [bus.tls] section, so no certificates are needed")
+    return manifest.pki, manifest.robot, list(tls.gcs), [manifest.identity(n) for n in manifest.modules]
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    out = Path(args.dir)
+    listed = [m.strip() for m in (args.modules or "").split(",") if m.strip()]
+    try:
+        if args.manifest:
+            pki, args.robot, gcs, modules = _from_manifest(args.manifest)
+            gcs = args.gcs or gcs
+            modules = [*modules, *(args.module or []), *listed]
+            local = ["manager"]
+            out = Path(args.dir) if args.dir else pki
+        else:
+            if not args.dir:
+                raise CertError("give the output folder DIR (or --manifest)")
+            out = Path(args.dir)
+            gcs = args.gcs or ["gcs"]
+            modules = [*(args.module or []), *listed] or ["module"]
+            local = [] if args.no_local else [n for n in ("ral", "manager") if n not in modules]
+    except CertError as exc:
+        print(f"cromat certs: {exc}", file=sys.stderr)
+        return 2
     out.mkdir(parents=True, exist_ok=True)
-    gcs = args.gcs or ["gcs"]
-    modules = args.module or ["module"]
-    local = [] if args.no_local else ["ral", "manager"]
     try:
         make_ca(out, args.ca_name)
         make_leaf(out, "router", args.router_host or list(DEFAULT_HOSTS), args.days)
-        for name in [*gcs, *local, *modules]:
+        for name in dict.fromkeys([*gcs, *local, *modules]):
             make_leaf(out, name, None, args.days)
         if args.acl:
             cfg = acl.router_config(
@@ -176,14 +219,15 @@ def main(argv: list[str] | None = None) -> int:
                 key=str((out / "router.key").resolve()),
                 robot=args.robot,
                 gcs=gcs,
-                modules=modules,
+                modules=[m for m in dict.fromkeys(modules) if m not in ("ral", "manager")],
             )
             acl.write(cfg, Path(args.acl))
     except (CertError, ValueError) as exc:
         print(f"cromat certs: {exc}", file=sys.stderr)
         return 2
     print(
-        f"cromat certs: CA and certificates for router, {', '.join([*gcs, *local, *modules])} in {out}"
+        f"cromat certs: CA and certificates for router, {', '.join(dict.fromkeys([*gcs, *local, *modules]))} "
+        f"in {out}"
         + (f"; router config {args.acl}" if args.acl else "")
     )
     return 0

@@ -1,0 +1,157 @@
+"""Issue 6, security on a launched robot: ``cromat launch bbcs_conf/uav1_secure.toml`` (router with mTLS and
+the access policy, DSP simulator, DSP, telemetry, pan & tilt, path follower, vision, RAL) as a process tree,
+every certificate made by ``cromat certs --manifest`` in tmp_path.
+
+A GCS presenting the ``gcs`` certificate sees the robot and gets a pan & tilt task accepted and carried out
+(RAL → pan & tilt → DSP through the policy); a client presenting a module's certificate is denied tasks and
+route swaps and the robot is unaffected; a client without a certificate is refused; every identity reads
+the state.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from bbcs.testing import child_env, free_port, wait_until
+from module_manager.manifest import ManifestError, load_manifest
+from ral import certs, gri
+from ral.gcs.api import Gcs, NoReply, Unreachable, session_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
+from launch_support import ROOT, Launch  # noqa: E402
+
+ROBOT = "uav1"
+MANIFEST = ROOT / "bbcs_conf" / "uav1_secure.toml"
+MODULES = {"dsp", "telemetry", "pan_tilt", "path_follower", "vision", "ral"}
+
+
+def secure_manifest(tmp_path: Path, port: int) -> tuple[Path, Path]:
+    """uav1_secure.toml with an absolute .conf, the pki folder in ``tmp_path`` and the router on ``port``."""
+    pki = tmp_path / "pki"
+    text = MANIFEST.read_text()
+    for old, new in (
+        ('conf = "uav1.conf"', f'conf = "{MANIFEST.parent / "uav1.conf"}"'),
+        ('pki = "pki"', f'pki = "{pki}"'),
+        ('listen = ["tls/127.0.0.1:7447"]', f'listen = ["tls/127.0.0.1:{port}"]'),
+    ):
+        assert text.count(old) == 1, f"{old!r} changed in uav1_secure.toml"
+        text = text.replace(old, new)
+    path = tmp_path / "uav1_secure.toml"
+    path.write_text(text)
+    return path, pki
+
+
+class SecureLaunch(Launch):
+    """``cromat launch`` of a manifest whose router listens on its own ``tls/`` endpoint (no ``--listen``)."""
+
+    def __init__(self, manifest: Path, tmp_path: Path, port: int) -> None:
+        self.port = port
+        self.lines: list[str] = []
+        self.cond = threading.Condition()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "module_manager.cli", str(manifest), "--log-dir", str(tmp_path / "logs")],
+            cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            start_new_session=True)
+        self.pgid = self.proc.pid
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+
+@dataclass
+class Robot:
+    launch: SecureLaunch
+    pki: Path
+
+    def client(self, identity: str | None, **kw: object) -> Gcs:
+        cert = str(self.pki / f"{identity}.pem") if identity else None
+        key = str(self.pki / f"{identity}.key") if identity else None
+        cfg = session_config([f"tls/127.0.0.1:{self.launch.port}"], ca=str(self.pki / "ca.pem"), cert=cert,
+                             key=key, connect_timeout_s=3.0)
+        return Gcs(cfg, **kw)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
+    tmp = tmp_path_factory.mktemp("secure")
+    port = free_port()
+    manifest, pki = secure_manifest(tmp, port)
+    assert certs.main(["--manifest", str(manifest)]) == 0
+    la = SecureLaunch(manifest, tmp, port)
+    try:
+        la.wait_line(f"all {len(MODULES)} modules up", 60)
+        yield Robot(la, pki)
+    finally:
+        try:
+            la.stop()
+        finally:
+            la.cleanup()
+
+
+def test_certificates_are_exactly_what_the_manifest_needs(robot: Robot) -> None:
+    made = {p.stem for p in robot.pki.glob("*.pem")}
+    assert made == {"ca", "router", "manager", "gcs", *MODULES}
+    assert {p.stem for p in robot.pki.glob("*.key")} == made
+
+
+def test_gcs_identity_sees_the_robot_and_gets_a_task_done(robot: Robot) -> None:
+    with robot.client("gcs", name="gcs", link=True, timeout_s=10.0) as gcs:
+        wait_until(lambda: gcs.robots(1.0) == [ROBOT], 10, "the robot in the GCS's robot list")
+        wait_until(lambda: {m.name: m.state for m in gcs.state(ROBOT).modules} == {n: "up" for n in MODULES}, 10,
+                   "every module up in the robot state")
+        reply = gcs.send(ROBOT, gri.SetPanTilt(pan=30.0, tilt=-20.0))
+        assert reply.accepted and reply.task_type == "pan_tilt", reply.reason
+        # the angles travel GCS → RAL slot → pan & tilt → DSP mailbox → simulator → telemetry → state
+        wait_until(lambda: (p := gcs.state(ROBOT).pan_deg) is not None and abs(p - 30.0) < 2.0, 15,
+                   "pan at 30 degrees")
+        assert any(t.kind == "pan_tilt" for t in gcs.state(ROBOT).tasks)
+
+
+def test_module_identity_is_denied_tasks_and_route_swaps_and_robot_unaffected(robot: Robot) -> None:
+    with robot.client("gcs", name="gcs", timeout_s=10.0) as gcs:
+        before = gcs.state(ROBOT)
+        routes = gcs.routes(ROBOT).routes
+        with robot.client("pan_tilt", name="pan_tilt", timeout_s=2.0) as module:
+            with pytest.raises(NoReply, match="may not submit"):
+                module.send(ROBOT, gri.Land())
+            with pytest.raises(NoReply):
+                module.route(ROBOT, "pan_tilt", "datos", 20)
+        after = gcs.state(ROBOT)
+        assert [(t.id, t.kind) for t in after.tasks] == [(t.id, t.kind) for t in before.tasks]
+        assert not any(t.kind == "land" for t in after.tasks)
+        assert gcs.routes(ROBOT).routes == routes
+        assert {m.name: m.state for m in gcs.modules(ROBOT).modules} == {name: "up" for name in MODULES}
+
+
+def test_client_without_certificate_is_refused(robot: Robot) -> None:
+    with pytest.raises(Unreachable, match="refused|reach"):
+        robot.client(None, timeout_s=2.0)
+
+
+@pytest.mark.parametrize("identity", ["gcs", "pan_tilt", "dsp", "ral", "manager"])
+def test_every_identity_reads_the_state(robot: Robot, identity: str) -> None:
+    with robot.client(identity, name="reader", timeout_s=5.0) as station:
+        assert station.robots() == [ROBOT]
+        state = station.state(ROBOT)
+        assert state.robot == ROBOT and state.manager_up
+        assert {m.name for m in station.modules(ROBOT).modules} == MODULES
+
+
+def test_missing_module_certificate_is_a_manifest_error_naming_the_file(robot: Robot, tmp_path: Path) -> None:
+    pki = tmp_path / "pki"
+    shutil.copytree(robot.pki, pki)
+    (pki / "vision.key").unlink()
+    manifest, _ = secure_manifest(tmp_path, free_port())
+    with pytest.raises(ManifestError, match=r"modules\.vision: certificate file .*/pki/vision\.key does not exist"):
+        load_manifest(manifest)
+    # cromat launch refuses it before starting anything
+    proc = subprocess.run([sys.executable, "-m", "module_manager.cli", str(manifest)], cwd=str(ROOT), env=child_env(),
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "vision.key" in proc.stderr and "router" not in proc.stdout
