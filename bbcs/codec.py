@@ -71,3 +71,9 @@ def field_of(error: msgspec.ValidationError) -> str:
     text = str(error)
     _, sep, path = text.rpartition(" - at `")
     return path.rstrip("`") if sep else "$"
+
+
+def leaf_field(path: str) -> str:
+    """``$.puntos[3].latitud`` → ``latitud``: the struct field a msgspec error path ends with."""
+    tail = path.rsplit(".", 1)[-1]
+    return tail.split("[", 1)[0]

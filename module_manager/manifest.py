@@ -69,7 +69,7 @@ class TlsSection(_Section):
     """Folder written by ``cromat certs`` (relative to the manifest): ca.pem, router.*, manager.*, one pair per
     module identity."""
     acl: bool = True
-    """Also enforce the access policy of :mod:`ral.acl` on the router (identities = certificate CNs)."""
+    """Also enforce the access policy of :mod:`bbcs.acl` on the router (identities = certificate CNs)."""
     gcs: list[str] = msgspec.field(default_factory=lambda: ["gcs"])
     """Ground-station identities the policy lets submit tasks and swap routes."""
     ral: str = "ral"

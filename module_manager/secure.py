@@ -1,7 +1,7 @@
 """``[bus.tls]`` at launch: the router's generated Zenoh config and each process's mutual-TLS client config.
 
 Every process presents its own certificate from the manifest's pki folder (``cromat certs``), so the router's
-access policy (:mod:`ral.acl`) knows it by its certificate CN: the manager as ``manager``, the RAL with the
+access policy (:mod:`bbcs.acl`) knows it by its certificate CN: the manager as ``manager``, the RAL with the
 RAL's rights, each module as its identity (its instance name unless the manifest says otherwise) with the
 right to write only its own slots.
 """
@@ -12,9 +12,9 @@ import json
 from pathlib import Path
 from typing import Any
 
+from bbcs import acl
 from bbcs.session import SessionConfig, TlsConfig
 from module_manager.manifest import MANAGER_MODULE, Manifest
-from ral import acl
 
 ROUTER = "router"
 
@@ -44,19 +44,15 @@ def router_config(manifest: Manifest, listen: list[str]) -> dict[str, Any]:
     assert pki is not None
     ral_module = tls.ral if tls.ral in manifest.modules else None
     modules = [n for n in manifest.modules if n != ral_module]
+    cn = {n: manifest.identity(n) for n in modules}
+    if ral_module is not None:
+        cn["ral"] = manifest.identity(ral_module)
     cfg = acl.router_config(
         listen=list(listen), ca=str(pki / "ca.pem"), cert=str(pki / f"{ROUTER}.pem"),
         key=str(pki / f"{ROUTER}.key"), robot=manifest.robot, gcs=list(tls.gcs), modules=modules,
-        ral=ral_module or tls.ral, manager=MANAGER_MODULE)
+        ral=ral_module or tls.ral, manager=MANAGER_MODULE, identities=cn)
     if not tls.acl:
         del cfg["access_control"]
-        return cfg
-    cn = {f"m-{n}": manifest.identity(n) for n in modules}
-    if ral_module is not None:
-        cn["ral"] = manifest.identity(ral_module)
-    for subject in cfg["access_control"]["subjects"]:
-        if subject["id"] in cn:
-            subject["cert_common_names"] = [cn[subject["id"]]]
     return cfg
 
 

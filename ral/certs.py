@@ -4,7 +4,7 @@ Each certificate's common name is the identity the router's access policy knows 
 ``manager``, a module's instance name). The router's certificate carries the host names clients connect to
 (default ``localhost`` and ``127.0.0.1``). An existing CA in DIR is reused, so new identities can be added
 later. With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + access policy, see
-:mod:`ral.acl`) pointing at these files. Keys are written mode 0600 and must never be committed.
+:mod:`bbcs.acl`) pointing at these files. Keys are written mode 0600 and must never be committed.
 
 The openssl commands are listed in docs/security.md. (The ``cryptography`` package is not a dependency; the
 openssl command-line tool is used.)
@@ -22,7 +22,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ral import acl
+from bbcs import acl
 
 CA = "ca"
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")

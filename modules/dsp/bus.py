@@ -20,6 +20,7 @@ refuses them on ``commands``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Annotated, Any
 
@@ -37,11 +38,19 @@ DspCommand = (
 
 STARTUP_ONLY: tuple[type[p.Command], ...] = (p.SetTelemetryMask, p.SetHelicopterType, p.SetPid)
 
+FORWARDED_DSP_ERROR_BASE = 1000
+"""A DSP error about one of a module's own batches is forwarded on that module's ERROR as 1000 + the code."""
+
 MODULE = "dsp"
 COMMANDS_SLOT = "commands"
 TELEMETRY_SLOT = "telemetry"
 ERRORS_SLOT = "errors"
 LINK_SLOT = "link"
+
+
+def representable(x: float) -> bool:
+    """Finite and within binary32: what the DSP (no doubles) can be sent."""
+    return math.isfinite(x) and abs(x) <= p.F32_MAX
 
 
 class DspCommands(msgspec.Struct, frozen=True, kw_only=True):

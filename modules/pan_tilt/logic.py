@@ -8,16 +8,13 @@ datum with any error produces no command at all (the seed's rule).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from enum import IntEnum
 
+from bbcs.codec import leaf_field
 from modules.dsp import protocol as p
-from modules.dsp.bus import DspCommand, DspErrorReport
+from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
 from modules.pan_tilt.structs import DatosPT, ModoFuncionamientoPT
-
-FORWARDED_DSP_ERROR_BASE = 1000
-"""A DSP error about one of this module's own batches is forwarded as 1000 + the DSP's code."""
 
 
 class PanTiltError(IntEnum):
@@ -51,20 +48,9 @@ FIELD_CODES: dict[tuple[str, str], PanTiltError] = {
 }
 
 
-def leaf_field(path: str) -> str:
-    """``$.puntos[3].latitud`` → ``latitud``: the struct field a msgspec error path ends with."""
-    tail = path.rsplit(".", 1)[-1]
-    return tail.split("[", 1)[0]
-
-
 def field_code(slot: str, path: str) -> int | None:
     """The documented code for an out-of-range ``slot`` field (None: not one of ours)."""
     return FIELD_CODES.get((slot, leaf_field(path)))
-
-
-def representable(x: float) -> bool:
-    """Finite and within binary32: what the DSP (no doubles) can be sent."""
-    return math.isfinite(x) and abs(x) <= p.F32_MAX
 
 
 @dataclass(frozen=True)

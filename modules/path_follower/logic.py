@@ -15,9 +15,9 @@ import math
 from dataclasses import dataclass, replace
 from enum import IntEnum
 
+from bbcs.codec import leaf_field
 from modules.dsp import protocol as p
-from modules.dsp.bus import DspCommand, DspErrorReport
-from modules.pan_tilt.logic import FORWARDED_DSP_ERROR_BASE, leaf_field, representable
+from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
 from modules.path_follower.structs import (
     ControlModoSegCam,
     DatoPuntoSegCam,

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from ral import acl
+from bbcs import acl
 
 ROOT = Path(__file__).resolve().parents[2]
 TEMPLATES = ROOT / "bbcs_conf" / "zenoh"

@@ -79,11 +79,17 @@ def router_config(
     ral: str = "ral",
     manager: str = "manager",
     mailboxes: tuple[str, ...] = ("dsp/commands",),
+    identities: dict[str, str] | None = None,
 ) -> dict[str, Any]:
-    """A complete Zenoh router config: ``tls/`` listeners with mTLS and the access policy above."""
+    """A complete Zenoh router config: ``tls/`` listeners with mTLS and the access policy above.
+
+    ``identities`` maps a module name (or ``ral``) to the certificate CN it presents when that differs from the
+    name; the module's rights stay keyed by its name (its slots are ``cromat/<robot>/<name>/*``).
+    """
+    cn = dict(identities or {})
     if robot != "*":
         keys.validate_name(robot, "robot name")
-    for name in [*gcs, *modules, ral, manager]:
+    for name in [*gcs, *modules, ral, manager, *(identities or {}).values()]:
         keys.validate_name(name, "identity")
     if not gcs:
         raise ValueError("at least one GCS identity is needed")
@@ -187,7 +193,7 @@ def router_config(
     ]
     subjects: list[dict[str, Any]] = [
         {"id": "gcs", "cert_common_names": list(gcs)},
-        {"id": "ral", "cert_common_names": [ral]},
+        {"id": "ral", "cert_common_names": [cn.get("ral", ral)]},
         {"id": "manager", "cert_common_names": [manager]},
     ]
     policies: list[dict[str, Any]] = [
@@ -220,7 +226,7 @@ def router_config(
                 "key_exprs": [f"cromat/{robot}/@alive/{name}"],
             },
         ]
-        subjects.append({"id": f"m-{name}", "cert_common_names": [name]})
+        subjects.append({"id": f"m-{name}", "cert_common_names": [cn.get(name, name)]})
         policies.append(
             {
                 "id": f"m-{name}",
@@ -265,7 +271,7 @@ def router_config(
 def write(config: dict[str, Any], path: Path) -> None:
     """Write as JSON5 (plain JSON is valid JSON5) with a header saying where it came from."""
     path.write_text(
-        "// robot router config written by `cromat certs --acl` (ral/acl.py): mTLS + access policy\n"
+        "// robot router config written by `cromat certs --acl` (bbcs/acl.py): mTLS + access policy\n"
         + json.dumps(config, indent=2)
         + "\n"
     )
