@@ -10,6 +10,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from bbcs.testing import wait_until
 from modules.dsp import codec
 from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
@@ -19,7 +20,7 @@ from modules.dsp.link import DspLink, startup, startup_commands
 from modules.dsp.sim import DspSimulator, FaultInjector, PtyEndpoint, TcpEndpoint
 from modules.dsp.sim.machine import METRES_PER_DEG
 
-from .conftest import UAV1, wait_for
+from .conftest import UAV1
 
 
 @pytest.fixture
@@ -97,7 +98,7 @@ def test_startup_over_a_pty_reaches_the_simulator_in_order(sim: DspSimulator) ->
     with DspLink(conf.port, conf.baudrate) as link:
         acks = startup(link, conf)
         assert len(acks) == 16 and all(a.ok for a in acks)
-        wait_for(lambda: link.latest_telemetry is not None, "first telemetry frame")
+        wait_until(lambda: link.latest_telemetry is not None, what="first telemetry frame")
         stats = link.stats()
     assert [c.name for c in sim.commands] == [codec.message_name(c.MSG_ID) for c in startup_commands(conf)]
     snap = sim.snapshot()
@@ -115,9 +116,9 @@ def test_socket_url_and_callbacks() -> None:
         with DspLink(url, on_telemetry=telemetry.append, on_error=errors.append) as link:
             link.send(p.SetTelemetryMask(mask=int(p.TelemetryField.STATUS | p.TelemetryField.ERROR)))
             link.send(p.SetStateTransmission(enable=True, period_ms=20))
-            wait_for(lambda: len(errors) == 1 and len(telemetry) > 20, "an error and telemetry")
+            wait_until(lambda: len(errors) == 1 and len(telemetry) > 20, what="an error and telemetry")
             assert errors[0].code == p.ErrorCode.GPS_LOST
-            wait_for(lambda: telemetry[-1].error_code == p.ErrorCode.GPS_LOST, "latched code in telemetry")
+            wait_until(lambda: telemetry[-1].error_code == p.ErrorCode.GPS_LOST, what="latched code in telemetry")
             assert link.ping().ok
             assert link.stats().dsp_errors == 1 and link.stats().dsp_frames_lost == 0
     finally:
@@ -154,7 +155,7 @@ def test_silent_dsp_times_out_naming_the_command(far_end) -> None:
         stats = link.stats()
     assert info.value.command == "Ping" and info.value.attempts == 3
     assert stats.retries == 2 and stats.timeouts == 1 and stats.frames_sent == 3
-    wait_for(lambda: len(end.frames) == 3, "three copies at the far end")
+    wait_until(lambda: len(end.frames) == 3, what="three copies at the far end")
     assert len({f.seq for f in end.frames}) == 1  # a retry is the same frame
 
 
@@ -239,7 +240,7 @@ def test_abort_stops_a_waypoint_list_and_empties_the_queue(sim: DspSimulator) ->
         result: list[int] = []
         sender = threading.Thread(target=lambda: result.append(link.send_waypoints(points)))
         sender.start()
-        wait_for(lambda: sim.snapshot().queue_length >= 20, "some waypoints queued")
+        wait_until(lambda: sim.snapshot().queue_length >= 20, what="some waypoints queued")
         assert link.abort().ok
         sender.join(5)
     assert result and 20 <= result[0] < 400
@@ -254,7 +255,7 @@ def test_port_vanishing_is_reported_not_hung() -> None:
     try:
         assert link.ping().ok
         s.stop()  # the DSP end disappears
-        wait_for(lambda: link.failure is not None, "the reader noticing")
+        wait_until(lambda: link.failure is not None, what="the reader noticing")
         with pytest.raises(DspLinkError, match="failed"):
             link.ping()
     finally:

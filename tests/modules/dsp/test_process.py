@@ -16,14 +16,14 @@ import pytest
 
 from bbcs import keys
 from bbcs.slots import Kind, OutputSlot, Publisher
-from bbcs.testing import stop_process
+from bbcs.testing import stop_process, wait_until
 from modules.dsp import bus
 from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
 from modules.dsp.errors import LinkErrorCode
 from modules.dsp.link import LinkStats, startup_commands
 
-from .conftest import UAV1, wait_for
+from .conftest import UAV1
 
 ROBOT = "r1"
 
@@ -84,7 +84,7 @@ def rig(processes, router, sessions, tmp_path: Path):
     view = Bus(sessions())
     try:
         proc = start_dsp(processes, router, pty)
-        wait_for(lambda: len(view.telemetry) > 5, "DSP telemetry on the bus", 20)
+        wait_until(lambda: len(view.telemetry) > 5, what="DSP telemetry on the bus", deadline_s=20)
         yield proc, view, record
     finally:
         view.close()
@@ -100,11 +100,11 @@ def test_startup_first_then_batches_in_order(rig) -> None:
     assert names(record) == startup  # nothing else before the start-up sequence, and all of it
     view.send(p.SetSpeed(speed=3.0), p.SetMode(mode=p.Mode.TAKE_OFF))
     view.send(p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES), p.SetPanTiltAngles(pan_deg=20, tilt_deg=-10))
-    wait_for(lambda: len(names(record)) == len(startup) + 4, "both batches at the DSP")
+    wait_until(lambda: len(names(record)) == len(startup) + 4, what="both batches at the DSP")
     assert names(record)[len(startup):] == ["SET_SPEED", "SET_MODE", "SET_PT_MODE", "SET_PT_ANGLES"]
-    wait_for(lambda: view.telemetry[-1].status.mode == p.Mode.TAKE_OFF and view.telemetry[-1].status.airborne,
-             "taking off, seen in bus telemetry")
-    wait_for(lambda: bool(view.link) and view.link[-1].commands_acked >= len(startup) + 4, "link statistics")
+    wait_until(lambda: view.telemetry[-1].status.mode == p.Mode.TAKE_OFF and view.telemetry[-1].status.airborne,
+               what="taking off, seen in bus telemetry")
+    wait_until(lambda: bool(view.link) and view.link[-1].commands_acked >= len(startup) + 4, what="link statistics")
     assert not view.reports
     assert proc.poll() is None
 
@@ -113,13 +113,13 @@ def test_limits_and_refusals_are_reported_with_the_sender(rig) -> None:
     _, view, record = rig
     before = len(names(record))
     batch = view.send(p.SetSpeed(speed=9.0), p.SetMode(mode=p.Mode.TAKE_OFF), sender="path_follower")
-    wait_for(lambda: len(view.reports) == 1, "the MAX_SPEED report")
+    wait_until(lambda: len(view.reports) == 1, what="the MAX_SPEED report")
     r = view.reports[0]
     assert (r.code, r.sender, r.batch_id, r.command) == (LinkErrorCode.OVER_MAX_SPEED, "path_follower", batch,
                                                          "SetSpeed")
     refs = p.SetRefs(ref_altura=30, error_longitudinal=1, error_lateral=0, ref_heading=0, ref_rpm_motor=1500)
     batch = view.send(refs, p.SetMode(mode=p.Mode.TAKE_OFF), sender="pan_tilt")  # REFS outside bridge mode
-    wait_for(lambda: len(view.reports) == 2, "the refusal report")
+    wait_until(lambda: len(view.reports) == 2, what="the refusal report")
     r = view.reports[1]
     expected = (p.ErrorCode.WRONG_MODE, "WRONG_MODE", "pan_tilt", batch, "SetRefs")
     assert (r.code, r.name, r.sender, r.batch_id, r.command) == expected
@@ -132,20 +132,21 @@ def test_abort_flushes_queued_batches_and_the_dsp_queue(rig) -> None:
     wps = [p.AddWaypoint(lat=home[0] + (i % 50) * 1e-4, lon=home[1], alt=40.0) for i in range(300)]
     first, _, third = (view.send(*wps, sender="planner") for _ in range(3))
     view.send(p.Abort(), sender="gcs")
-    wait_for(lambda: "ABORT" in names(record), "the ABORT at the DSP")
-    wait_for(lambda: any(r.batch_id == third and r.code == LinkErrorCode.FLUSHED for r in view.reports),
-             "the third batch reported flushed")
+    wait_until(lambda: "ABORT" in names(record), what="the ABORT at the DSP")
+    wait_until(lambda: any(r.batch_id == third and r.code == LinkErrorCode.FLUSHED for r in view.reports),
+               what="the third batch reported flushed")
     sent = names(record)
     print(f"\n{sent.count('ADD_WAYPOINT')} of 900 waypoints sent before the ABORT")
     assert sent.count("ADD_WAYPOINT") < 900 and sent[-1] == "ABORT"
-    wait_for(lambda: view.telemetry[-1].status.queue_length == 0 and not view.telemetry[-1].status.path_valid,
-             "the DSP's queue empty")
+    wait_until(lambda: view.telemetry[-1].status.queue_length == 0 and not view.telemetry[-1].status.path_valid,
+               what="the DSP's queue empty")
     assert {r.sender for r in view.reports} == {"planner"} and first < third
 
 
 def test_dsp_errors_are_forwarded(rig) -> None:
     _, view, _ = rig
-    wait_for(lambda: any(r.code == p.ErrorCode.GPS_LOST for r in view.reports), "GPS_LOST from the DSP", 15)
+    wait_until(lambda: any(r.code == p.ErrorCode.GPS_LOST for r in view.reports),
+               what="GPS_LOST from the DSP", deadline_s=15)
     r = next(r for r in view.reports if r.code == p.ErrorCode.GPS_LOST)
     assert r.name == "GPS_LOST" and r.sender == "" and "DSP reported" in r.detail
 

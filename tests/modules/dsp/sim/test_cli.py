@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from bbcs.testing import wait_until
 from modules.dsp import codec
 from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
@@ -24,7 +25,7 @@ from modules.dsp.link import DspLink, startup, startup_commands
 from modules.dsp.sim.cli import main
 from modules.dsp.sim.machine import METRES_PER_DEG
 
-from ..conftest import UAV1, wait_for
+from ..conftest import UAV1
 
 HOME = (37.4117, -6.0025, 12.0)
 TOLERANCE_M = 2.0
@@ -75,7 +76,8 @@ def fly_startup(url: str, recorder: Recorder) -> DspLink:
 
 def take_off(link: DspLink, rec: Recorder) -> None:
     link.send(p.SetMode(mode=p.Mode.TAKE_OFF))
-    wait_for(lambda: rec.last is not None and rec.last.position.alt > HOME[2] + 9.7, "take-off to 10 m", 30)
+    wait_until(lambda: rec.last is not None and rec.last.position.alt > HOME[2] + 9.7,
+               what="take-off to 10 m", deadline_s=30)
 
 
 def test_startup_sequence_arrives_in_spec_order(processes, tmp_path: Path) -> None:
@@ -114,9 +116,9 @@ def test_waypoint_list_is_flown_in_mode_0(processes) -> None:
                               alt=alt + 0.0) for n, e, alt in offsets]
         start = len(rec.frames)
         assert link.send_waypoints(sent) == 4
-        wait_for(lambda: any(t.status.queue_length == 4 for t in rec.frames[start:]), "the path queued")
-        wait_for(lambda: rec.last.status.queue_length == 0 and rec.last.nav.distance < 0, "the path flown",
-                 60)
+        wait_until(lambda: any(t.status.queue_length == 4 for t in rec.frames[start:]), what="the path queued")
+        wait_until(lambda: rec.last.status.queue_length == 0 and rec.last.nav.distance < 0,
+                   what="the path flown", deadline_s=60)
     finally:
         link.close()
     flight = rec.frames[start:]
@@ -147,10 +149,10 @@ def test_abort_empties_the_queue(processes, tmp_path: Path) -> None:
         link.send(p.SetSpeed(speed=8.0))
         far = [p.AddWaypoint(lat=HOME[0] + 0.002 * (i + 1), lon=HOME[1], alt=40.0) for i in range(5)]
         link.send_waypoints(far)
-        wait_for(lambda: rec.last.speed.ground > 3.0 and rec.last.status.queue_length == 5, "flying the path")
+        wait_until(lambda: rec.last.speed.ground > 3.0 and rec.last.status.queue_length == 5, what="flying the path")
         assert link.abort().ok
-        wait_for(lambda: rec.last.status.queue_length == 0 and not rec.last.status.path_valid, "empty queue")
-        wait_for(lambda: rec.last.speed.ground < 0.2, "the aircraft stopping", 20)
+        wait_until(lambda: rec.last.status.queue_length == 0 and not rec.last.status.path_valid, what="empty queue")
+        wait_until(lambda: rec.last.speed.ground < 0.2, what="the aircraft stopping", deadline_s=20)
         assert rec.last.nav.distance < 0 and rec.last.status.tracking  # tracking untouched, nothing to track
     finally:
         link.close()
@@ -183,7 +185,7 @@ def test_fault_injection_on_the_line(processes) -> None:
     rec = Recorder()
     with DspLink(url, ack_timeout=0.1, retries=10, on_telemetry=rec) as link:
         startup(link, conf)
-        wait_for(lambda: len(rec.frames) > 50, "telemetry through the noise")
+        wait_until(lambda: len(rec.frames) > 50, what="telemetry through the noise")
         stats = link.stats()
     assert stats.bad_crc > 0 and stats.bytes_discarded > 0
     assert stats.commands_acked == 16

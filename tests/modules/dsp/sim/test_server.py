@@ -8,12 +8,11 @@ from pathlib import Path
 import pytest
 import serial
 
+from bbcs.testing import wait_until
 from modules.dsp import codec
 from modules.dsp import protocol as p
 from modules.dsp.framing import FrameParser
 from modules.dsp.sim import DspSimulator, PtyEndpoint
-
-from ..conftest import wait_for
 
 
 def test_records_commands_and_flags_retransmissions(tmp_path: Path) -> None:
@@ -33,7 +32,7 @@ def test_records_commands_and_flags_retransmissions(tmp_path: Path) -> None:
                 acks.extend(m for m in msgs if isinstance(m, p.Ack))
                 return len(acks) >= 3
 
-            wait_for(three_acks, "three acknowledgements")
+            wait_until(three_acks, what="three acknowledgements")
         assert [(a.acked_id, a.acked_seq, a.status) for a in acks] == [
             (p.MsgId.ADD_WAYPOINT, 9, 0), (p.MsgId.ADD_WAYPOINT, 9, 0),
             (p.MsgId.SET_MODE, 10, p.ErrorCode.NOT_CONFIGURED)]
@@ -56,8 +55,8 @@ def test_garbage_on_the_line_is_counted_and_reported() -> None:
         with serial.Serial(sim.endpoint.path, 921_600, timeout=0.05) as port:  # type: ignore[attr-defined]
             port.write(codec.encode(p.SetTelemetryMask(mask=int(p.TelemetryField.ERROR)), 1))
             port.write(b"\xa5\x5a\x04\x01\x00garbage" * 3 + codec.encode(p.Ping(), 2))
-            wait_for(lambda: sim.rx_stats["bad_crc"] >= 1
-                     and sim.snapshot().error_code == p.ErrorCode.RX_ERRORS, "RX_ERRORS latched")
+            wait_until(lambda: sim.rx_stats["bad_crc"] >= 1
+                     and sim.snapshot().error_code == p.ErrorCode.RX_ERRORS, what="RX_ERRORS latched")
         assert [c.name for c in sim.commands] == ["SET_TELEMETRY_MASK", "PING"]
     finally:
         sim.stop()
