@@ -22,7 +22,7 @@ import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -30,7 +30,7 @@ import msgspec
 import zenoh
 
 from bbcs import keys
-from bbcs.codec import field_of, type_name
+from bbcs.codec import field_of, leaf_field, type_name
 from bbcs.context import ModuleContext, load_context
 from bbcs.errors import BusErrorCode, RouteError, SessionError, SlotError
 from bbcs.routing import IGNORE, RouteAck
@@ -85,6 +85,8 @@ class Module:
     control: ClassVar[Control | None] = None
     error_slot: ClassVar[str | None] = None
     """Name of the output slot that carries error codes (its struct has exactly one int field)."""
+    field_codes: ClassVar[Mapping[tuple[str, str], int]] = {}
+    """Per-field codes for out-of-range data: ``(slot, field)`` → code (others get OUT_OF_RANGE)."""
     tick_period: float | None = None
     """Call ``on_tick`` this often from the main loop (None: never)."""
 
@@ -293,9 +295,10 @@ class Module:
                 pub.publish(pub.spec.type(**{self._error_field: code}))
 
     def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
-        """The code reported when a datum on ``slot`` fails at ``field``; override for per-field codes."""
+        """The code reported when a datum on ``slot`` fails at ``field`` (``$.a.b[2].c``): the ``field_codes``
+        entry for an out-of-range field, else OUT_OF_RANGE; MALFORMED for anything that does not decode."""
         if isinstance(error, msgspec.ValidationError) and _is_range_error(str(error)):
-            return BusErrorCode.OUT_OF_RANGE
+            return self.field_codes.get((slot, leaf_field(field)), BusErrorCode.OUT_OF_RANGE)
         return BusErrorCode.MALFORMED
 
     # ---------------------------------------------------------------- inputs

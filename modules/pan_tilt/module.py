@@ -11,9 +11,6 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-import msgspec
-
-from bbcs.errors import BusErrorCode
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
@@ -36,18 +33,12 @@ class PanTiltModule(Module):
         ControlEntradaPT, {"slot_entrada_control_modos": "control_modo", "slot_entrada_datos": "datos"}
     )
     error_slot = "error"
+    field_codes = logic.FIELD_CODES
 
     def on_start(self) -> None:
         assert self.session is not None
         self.state = logic.PanTiltState()
         self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
-
-    def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
-        """Out-of-range fields get the documented per-field code; undecodable data: MALFORMED."""
-        code = super().error_code_for(slot, field, error)
-        if code == BusErrorCode.OUT_OF_RANGE:
-            return logic.field_code(slot, field) or code
-        return code
 
     def _apply(self, decision: logic.Decision) -> None:
         self.state = decision.state

@@ -13,10 +13,7 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
-import msgspec
-
 from bbcs.conf import ConfError, load_conf
-from bbcs.errors import BusErrorCode
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
@@ -80,6 +77,7 @@ class PathFollowerModule(Module):
         },
     )
     error_slot = "error"
+    field_codes = logic.FIELD_CODES
 
     def __init__(self, context) -> None:  # type: ignore[no-untyped-def]
         super().__init__(context)
@@ -90,13 +88,6 @@ class PathFollowerModule(Module):
         self.state = logic.FollowerState()
         self._mode_batches: dict[int, int | None] = {}
         self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
-
-    def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
-        """Out-of-range fields get the documented per-field code; undecodable data: MALFORMED."""
-        code = super().error_code_for(slot, field, error)
-        if code == BusErrorCode.OUT_OF_RANGE:
-            return logic.field_code(slot, field) or code
-        return code
 
     def _apply(self, decision: logic.Decision) -> int | None:
         self.state = decision.state
