@@ -42,7 +42,7 @@ def child_env(**extra: str) -> dict[str, str]:
     return env
 
 
-def stop_process(proc: subprocess.Popen, grace_s: float = 3.0) -> int | None:
+def stop_process(proc: subprocess.Popen, grace_s: float = 10.0) -> int | None:
     """SIGTERM, then SIGKILL after ``grace_s``; returns the exit code."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)

@@ -39,7 +39,7 @@ from module_manager.supervision import Kill, Phase, Spawn, Supervisor
 from module_manager.tasks import Changes, TaskBook
 
 ROOT = Path(__file__).resolve().parents[1]
-ACK_TIMEOUT_S = 5.0
+ACK_TIMEOUT_S = mri.MANAGER_ACK_S
 MAX_ERRORS = 32
 _PLACEHOLDER = re.compile(r"\{(port:[A-Za-z0-9_]+|python|manifest_dir|conf|robot)\}")
 
@@ -525,8 +525,9 @@ class Manager:
                     waiting.append(name)
             self._touch()
         problems = []
+        end = self.clock() + ACK_TIMEOUT_S  # one deadline for the whole change, so an MRI reply fits its timeout
         for name in waiting:
-            ok, why = self._wait_ack(name)
+            ok, why = self._wait_ack(name, end)
             if not ok:
                 problems.append(f"{name}: {why}")
                 with self.lock:  # the module kept its old routes: so does the manager, and says so on the bus
@@ -535,8 +536,7 @@ class Manager:
                     self._publish_control(mod)
         return (not problems), "; ".join(problems)
 
-    def _wait_ack(self, name: str) -> tuple[bool, str]:
-        end = self.clock() + ACK_TIMEOUT_S
+    def _wait_ack(self, name: str, end: float) -> tuple[bool, str]:
         with self.lock:
             mod = self.modules[name]
             wanted = {f: mod.routes[i] for f, i in mod.info.control_fields.items()}

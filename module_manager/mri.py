@@ -31,6 +31,11 @@ TaskType = str
 
 VERBS = ("modules", "routes", "route", "module", "task", "tasks", "mode")
 STATE = "state"
+MANAGER_ACK_S = 5.0
+"""How long the manager waits for the modules' RouteAcks of one change (one deadline for all of them)."""
+REPLY_TIMEOUT_S = 2 * MANAGER_ACK_S
+"""A caller's default wait for an MRI reply: longer than the manager's own ack wait, so a slow but successful
+change is never reported to the caller as "no reply" while the manager goes on to apply it."""
 
 
 class ListModules(msgspec.Struct, frozen=True, kw_only=True, tag=True):
@@ -167,7 +172,9 @@ class MriError(RuntimeError):
     """The manager did not answer (not running, unreachable) or its answer could not be read."""
 
 
-def call(session: zenoh.Session, robot: str, verb: str, request: msgspec.Struct, timeout_s: float = 5.0) -> MriReply:
+def call(
+    session: zenoh.Session, robot: str, verb: str, request: msgspec.Struct, timeout_s: float = REPLY_TIMEOUT_S
+) -> MriReply:
     """Send one MRI request and wait for its typed reply; MriError if none arrives in ``timeout_s``."""
     replies = session.get(mri_key(robot, verb), payload=encode(request), timeout=timeout_s)
     for reply in replies:

@@ -63,7 +63,8 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     max_range_m: float = 20_000.0
     return_height_m: float = 10.0
     """The ``return`` failsafe flies home at least this high above the take-off point."""
-    mri_timeout_s: float = 3.0
+    mri_timeout_s: float = mri.REPLY_TIMEOUT_S
+    """Must exceed the manager's ack wait (``mri.MANAGER_ACK_S``), else a task can be applied after being refused."""
     state_period_s: float = 0.2
     kind: str = ""
     """Robot kind shown in the GRI state when the manager's state has none."""
@@ -81,6 +82,11 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
             cfg = msgspec.convert(plain, cls, strict=False)
         except msgspec.ValidationError as exc:
             raise ValueError(f"bad RAL parameter: {exc}") from exc
+        if cfg.mri_timeout_s <= mri.MANAGER_ACK_S:
+            raise ValueError(
+                f"bad RAL parameter: mri_timeout_s = {cfg.mri_timeout_s:g} must exceed the manager's ack wait "
+                f"({mri.MANAGER_ACK_S:g} s), or a task could be applied after the ground station was told it failed"
+            )
         return cfg, names
 
 

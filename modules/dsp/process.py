@@ -2,7 +2,11 @@
 
 Start-up (``on_start``, before any input is handled): read the robot .conf, open the port, run SPEC §3's
 start-up sequence. Any failure there ends the process with a clear message and exit code 3, so the Module
-Manager sees it and nothing half-configured flies.
+Manager sees it and nothing half-configured flies. The DSP starts streaming state once start-up enables it
+(its third command), so telemetry and DSP errors can reach the bus while the rest of start-up (the PID groups)
+is still going out: only the liveliness token, or the first ``link`` statistics, mean the DSP is configured.
+Reports on ``errors`` are not in batch order: DSP errors go out as the reader thread receives them, NACK and
+FLUSHED reports when the sender thread reaches them.
 
 Then: command batches arriving on ``commands`` are queued and sent by one sender thread, in order, each
 acknowledged before the next; the first failure stops the rest of its batch and is reported on ``errors``

@@ -21,6 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_support import Launch, group_members, write_manifest  # noqa: E402
 
 UP = "all 3 modules up"
+MRI_S = 20.0
+"""MRI reply deadline: route swaps and tasks wait up to 5 s for module acknowledgements inside the manager."""
 
 
 @pytest.fixture
@@ -63,7 +65,7 @@ def sink_records(tmp_path: Path) -> list[dict]:
 
 
 def modules(session, robot: str = "r1") -> dict[str, mri.ModuleStatus]:
-    reply = mri.call(session, robot, "modules", mri.ListModules())
+    reply = mri.call(session, robot, "modules", mri.ListModules(), MRI_S)
     assert reply.ok and isinstance(reply.data, mri.ModuleList)
     return {m.name: m for m in reply.data.modules}
 
@@ -74,10 +76,10 @@ def test_comes_up_and_sigterm_leaves_no_process(launch):
     def up() -> list[str]:
         return sorted(line.split()[0] for line in list(la.lines) if line.split()[1:2] == ["up"])
 
-    wait_until(lambda: up() == ["sink", "src_a", "src_b"], 10, "one status line per module once up")
+    wait_until(lambda: up() == ["sink", "src_a", "src_b"], 30, "one status line per module once up")
     assert len(group_members(la.pgid)) >= 5, "manager, router and three modules"
     assert la.stop(signal.SIGTERM) == 0
-    wait_until(lambda: group_members(la.pgid) == [], 10, "every child of the launch gone")
+    wait_until(lambda: group_members(la.pgid) == [], 30, "every child of the launch gone")
 
 
 def test_ctrl_c_to_the_process_group_leaves_no_process(launch):
@@ -85,7 +87,7 @@ def test_ctrl_c_to_the_process_group_leaves_no_process(launch):
     la.wait_line(UP)
     os.killpg(la.pgid, signal.SIGINT)  # what a terminal does on Ctrl+C
     assert la.stop(signal.SIGINT) == 0
-    wait_until(lambda: group_members(la.pgid) == [], 10, "every child of the launch gone")
+    wait_until(lambda: group_members(la.pgid) == [], 30, "every child of the launch gone")
 
 
 def test_manager_sigkilled_leaves_no_orphan(launch):
@@ -93,15 +95,15 @@ def test_manager_sigkilled_leaves_no_orphan(launch):
     la.wait_line(UP)
     assert len(group_members(la.pgid)) >= 5
     la.proc.kill()
-    la.proc.wait(10)
-    wait_until(lambda: group_members(la.pgid) == [], 15, "children to die with the manager (PR_SET_PDEATHSIG)")
+    la.proc.wait(30)
+    wait_until(lambda: group_members(la.pgid) == [], 30, "children to die with the manager (PR_SET_PDEATHSIG)")
 
 
 def test_kill9_module_is_restarted_with_its_current_routing(launch, client, tmp_path):
     la = launch()
     la.wait_line(UP)
     s = client(la.port)
-    swap = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=2))
+    swap = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=2), MRI_S)
     assert swap.ok, swap.reason
     before = modules(s)["sink"]
     assert before.state == "up" and before.pid is not None
@@ -114,7 +116,7 @@ def test_kill9_module_is_restarted_with_its_current_routing(launch, client, tmp_
     starts = [r for r in sink_records(tmp_path) if r.get("event") == "start"]
     assert starts[-1] == {"module": "sink", "event": "start", "restart": 1, "routes": {"datos": 2, "modo": 3}}
     n = len(sink_records(tmp_path))
-    wait_until(lambda: any(r.get("slot") == "datos" for r in sink_records(tmp_path)[n:]), 10, "data after restart")
+    wait_until(lambda: any(r.get("slot") == "datos" for r in sink_records(tmp_path)[n:]), 30, "data after restart")
     assert {r["source"] for r in sink_records(tmp_path)[n:] if r.get("slot") == "datos"} == {"src_b"}
     la.wait_line("restarts 1")
     assert la.stop() == 0
@@ -136,6 +138,8 @@ def test_always_crashing_module_is_failed_others_keep_running(launch, client, tm
     la = launch(edit=add_crasher)
     la.wait_line("intensity exceeded", 60)
     s = client(la.port)
+    # the crasher can fail before the other modules have finished starting: they must come (and stay) up
+    wait_until(lambda: all(m.state == "up" for n, m in modules(s).items() if n != "crasher"), 30, "the others up")
     status = modules(s)
     assert status["crasher"].state == "failed"
     assert status["crasher"].restarts == 2
@@ -152,14 +156,14 @@ def test_always_crashing_module_is_failed_others_keep_running(launch, client, tm
 
     sub = s.declare_subscriber(keys.manager_key("r1", "state"), on_state)
     try:
-        assert got.wait(10), "robot state published periodically"
+        assert got.wait(20), "robot state published periodically"
         state = states[-1]
         assert state.robot == "r1" and state.kind == "test"
         assert {m.name: m.state for m in state.modules}["crasher"] == "failed"
     finally:
         sub.undeclare()
     n = len(sink_records(tmp_path))
-    wait_until(lambda: len(sink_records(tmp_path)) > n + 5, 10, "the sink still handling data")
+    wait_until(lambda: len(sink_records(tmp_path)) > n + 5, 30, "the sink still handling data")
     assert la.stop() == 0
 
 
@@ -167,19 +171,19 @@ def test_swap_route_through_mri_while_data_flow(launch, client, tmp_path):
     la = launch()
     la.wait_line(UP)
     s = client(la.port)
-    wait_until(lambda: any(r.get("source") == "src_a" for r in sink_records(tmp_path)), 10, "data from src_a")
+    wait_until(lambda: any(r.get("source") == "src_a" for r in sink_records(tmp_path)), 30, "data from src_a")
     for bad, why in ((4, "carries"), (99, "not in the slot table")):
-        reply = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=bad))
+        reply = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=bad), MRI_S)
         assert not reply.ok and why in reply.reason and "old route kept" in reply.reason
         assert isinstance(reply.data, mri.RouteList) and reply.data.routes["sink"]["datos"] == 1
-    reply = mri.call(s, "r1", "route", mri.SwapRoute(module="nosuch", input="datos", slot=2))
+    reply = mri.call(s, "r1", "route", mri.SwapRoute(module="nosuch", input="datos", slot=2), MRI_S)
     assert not reply.ok and "nosuch" in reply.reason
-    reply = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=2))
+    reply = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=2), MRI_S)
     assert reply.ok, reply.reason
     assert isinstance(reply.data, mri.RouteList) and reply.data.routes["sink"]["datos"] == 2
     records = sink_records(tmp_path)
     switch = max(i for i, r in enumerate(records) if r.get("event") == "route" and r["routes"]["datos"] == 2)
-    wait_until(lambda: sum(r.get("source") == "src_b" for r in sink_records(tmp_path)) > 10, 10, "data from src_b")
+    wait_until(lambda: sum(r.get("source") == "src_b" for r in sink_records(tmp_path)) > 10, 30, "data from src_b")
     after = [r["source"] for r in sink_records(tmp_path)[switch:] if r.get("slot") == "datos"]
     assert set(after) == {"src_b"}, "only the new source is used after the acknowledged switch"
     assert "src_a" in {r.get("source") for r in records[:switch]}
@@ -190,30 +194,30 @@ def test_tasks_modes_and_robot_state_errors(launch, client, tmp_path):
     la = launch()
     la.wait_line(UP)
     s = client(la.port)
-    tasks = mri.call(s, "r1", "tasks", mri.ListTasks())
+    tasks = mri.call(s, "r1", "tasks", mri.ListTasks(), MRI_S)
     assert tasks.ok and tasks.data.available == {"follow_b": "perception", "ignore_all": "perception"}
-    reply = mri.call(s, "r1", "task", mri.SetTask(name="follow_b"))
+    reply = mri.call(s, "r1", "task", mri.SetTask(name="follow_b"), MRI_S)
     assert reply.ok, reply.reason
     assert [t.name for t in reply.data.active] == ["follow_b"]
-    routes = mri.call(s, "r1", "routes", mri.ListRoutes()).data
+    routes = mri.call(s, "r1", "routes", mri.ListRoutes(), MRI_S).data
     assert routes.routes["sink"]["datos"] == 2
-    wait_until(lambda: {"module": "sink", "slot": "modo", "mode": 1} in sink_records(tmp_path), 10, "task mode 1")
-    reply = mri.call(s, "r1", "task", mri.SetTask(name="ignore_all"))
+    wait_until(lambda: {"module": "sink", "slot": "modo", "mode": 1} in sink_records(tmp_path), 30, "task mode 1")
+    reply = mri.call(s, "r1", "task", mri.SetTask(name="ignore_all"), MRI_S)
     assert reply.ok and [t.name for t in reply.data.active] == ["ignore_all"], "replaces the task of its type"
-    assert mri.call(s, "r1", "routes", mri.ListRoutes()).data.routes["sink"]["datos"] == -1
-    reply = mri.call(s, "r1", "task", mri.EndTask(task_type="perception"))
+    assert mri.call(s, "r1", "routes", mri.ListRoutes(), MRI_S).data.routes["sink"]["datos"] == -1
+    reply = mri.call(s, "r1", "task", mri.EndTask(task_type="perception"), MRI_S)
     assert reply.ok and reply.data.active == []
-    assert mri.call(s, "r1", "routes", mri.ListRoutes()).data.routes["sink"]["datos"] == 1, "routes restored"
-    wait_until(lambda: [r for r in sink_records(tmp_path) if r.get("slot") == "modo"][-1]["mode"] == 0, 10,
+    assert mri.call(s, "r1", "routes", mri.ListRoutes(), MRI_S).data.routes["sink"]["datos"] == 1, "routes restored"
+    wait_until(lambda: [r for r in sink_records(tmp_path) if r.get("slot") == "modo"][-1]["mode"] == 0, 30,
                "mode restored to the one before the first task")
-    reply = mri.call(s, "r1", "task", mri.EndTask(task_type="perception"))
+    reply = mri.call(s, "r1", "task", mri.EndTask(task_type="perception"), MRI_S)
     assert not reply.ok and "no perception task" in reply.reason
-    assert not mri.call(s, "r1", "task", mri.SetTask(name="nosuch")).ok
-    bad = mri.call(s, "r1", "mode", mri.SetModuleMode(module="sink", mode={"mode": 7}))
+    assert not mri.call(s, "r1", "task", mri.SetTask(name="nosuch"), MRI_S).ok
+    bad = mri.call(s, "r1", "mode", mri.SetModuleMode(module="sink", mode={"mode": 7}), MRI_S)
     assert not bad.ok and "refused" in bad.reason
-    assert mri.call(s, "r1", "mode", mri.SetModuleMode(module="sink", mode={"mode": 2})).ok
-    wait_until(lambda: modules(s)["sink"].last_error == 142, 10, "the sink's error code in the module status")
-    wrong = mri.call(s, "r1", "modules", mri.ListRoutes())
+    assert mri.call(s, "r1", "mode", mri.SetModuleMode(module="sink", mode={"mode": 2}), MRI_S).ok
+    wait_until(lambda: modules(s)["sink"].last_error == 142, 30, "the sink's error code in the module status")
+    wrong = mri.call(s, "r1", "modules", mri.ListRoutes(), MRI_S)
     assert not wrong.ok and "ListModules" in wrong.reason
     assert la.stop() == 0
 

@@ -26,7 +26,7 @@ def test_sim_uav_comes_up_and_stops_clean(tmp_path):
     try:
         la.wait_line("all 6 modules up", 90)
         session = open_session(local_client(la.port))
-        reply = mri.call(session, "uav1", "modules", mri.ListModules())
+        reply = mri.call(session, "uav1", "modules", mri.ListModules(), 20.0)
         assert reply.ok
         assert {m.name: m.state for m in reply.data.modules} == {
             "dsp": "up", "telemetry": "up", "pan_tilt": "up", "path_follower": "up", "vision": "up", "ral": "up"}
@@ -44,7 +44,7 @@ def test_sim_uav_comes_up_and_stops_clean(tmp_path):
         assert got.wait(20), "robot telemetry from the DSP simulator folded into the robot state"
         assert states[-1].kind == "uav" and states[-1].telemetry.position is not None
         assert la.stop(signal.SIGTERM) == 0
-        wait_until(lambda: group_members(la.pgid) == [], 10, "no process of the launch left")
+        wait_until(lambda: group_members(la.pgid) == [], 30, "no process of the launch left")
     finally:
         if sub is not None:
             sub.undeclare()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 import sys
+import time
 from pathlib import Path
 
 import msgspec
@@ -63,25 +64,28 @@ def test_bad_tasks_rejected_with_reason_state_unchanged(tmp_path: Path) -> None:
         # a task kind the robot lacks
         reply = gcs.send(ROBOT, gri.LookAt(lat=pos.lat, lon=pos.lon, alt=pos.alt))
         assert not reply.accepted and "has no task 'look_at'" in reply.reason
+        answered = time.time()  # the RAL stamps its states with this same host clock
 
-        # a valid task still goes through afterwards, and nothing reached the DSP before it
         # events travel on pub/sub, replies on queries: the last event may land after its reply
         def rejected() -> list[gri.GriEvent]:
             with robot.lock:
                 return [e for e in robot.events[start:] if e.kind == "task_rejected"]
 
-        wait_until(lambda: len(rejected()) >= 4, 5, "four task_rejected events")
+        wait_until(lambda: len(rejected()) >= 4, 15, "four task_rejected events")
         assert len(rejected()) == 4 and not [e for e in robot.events[start:] if e.kind != "task_rejected"]
-        after = robot.wait_state(lambda s: s.stamp > before.stamp + 0.5, 5, "a later state")
+        # a state the RAL made after the last rejection was answered: what the rejections (did not) change
+        after = robot.wait_state(lambda s: s.stamp > max(answered, before.stamp + 0.5), 15, "a later state")
         assert after.tasks == before.tasks == []
         assert after.waypoints_queued == before.waypoints_queued
         assert after.airborne == before.airborne
-        sent = [c["name"] for c in robot.commands()[n_cmd:]]
-        assert not [
-            n for n in sent if n in ("ADD_WAYPOINT", "SET_MODE", "SET_PAN_TILT_TARGET", "SET_TRACKING")
-        ]
+        # a valid task still goes through afterwards, and nothing reached the DSP before it: its angles at the
+        # DSP come after anything the refused tasks could have set off
         reply = gcs.send(ROBOT, gri.SetPanTilt(pan=10.0, tilt=0.0))
         assert reply.accepted, reply.reason
+        wait_until(lambda: "SET_PT_ANGLES" in [c["name"] for c in robot.commands()[n_cmd:]], 20,
+                   "the valid task's angles at the DSP")
+        sent = [c["name"] for c in robot.commands()[n_cmd:]]
+        assert not [n for n in sent if n in ("ADD_WAYPOINT", "SET_MODE", "SET_PT_TARGET", "SET_TRACKING")], sent
     finally:
         if gcs is not None:
             gcs.close()

@@ -5,10 +5,10 @@ again and is told the failsafe stays in force (the mission does not resume)."""
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 from bbcs.testing import child_env, wait_until
@@ -29,8 +29,10 @@ while True:
 
 
 def test_gcs_killed_mid_mission_triggers_failsafe_then_gcs_back_sees_robot(tmp_path: Path) -> None:
+    # heartbeats come every 0.5 s: a 1 s timeout would drop the link whenever a loaded machine delays one; the
+    # killed station's link goes with its liveliness token (its socket closes), which this does not delay
     la, record = launch_robot(
-        tmp_path, ral={"failsafe_timeout_s": str(FAILSAFE_S), "heartbeat_timeout_s": "1"}
+        tmp_path, ral={"failsafe_timeout_s": str(FAILSAFE_S), "heartbeat_timeout_s": "3"}
     )
     observer = station = back = None
     try:
@@ -43,30 +45,35 @@ def test_gcs_killed_mid_mission_triggers_failsafe_then_gcs_back_sees_robot(tmp_p
             text=True,
         )
         assert station.stdout is not None and station.stdout.readline().strip() == "linked"
-        robot.wait_event(lambda e: e.kind == "link_up" and "field_station" in e.detail, 10, "link up")
+        robot.wait_event(lambda e: e.kind == "link_up" and "field_station" in e.detail, 20, "link up")
         up = robot.ensure_airborne()
         reply = observer.send(ROBOT, gri.FollowPath(waypoints=grid_path(up.position, scale=6), speed=5.0))
         assert reply.accepted, reply.reason
-        robot.wait_state(lambda s: (s.waypoints_queued or 0) >= 5, 10, "mid-path")
+        robot.wait_state(lambda s: (s.waypoints_queued or 0) >= 5, 20, "mid-path")
 
         start = len(robot.events)
         n_cmd = len(robot.commands())
-        killed_at = time.monotonic()
         station.send_signal(signal.SIGKILL)
         station.wait(10)
-        lost = robot.wait_event(lambda e: e.kind == "link_lost", 10, "link_lost", after=start)
-        fs = robot.wait_event(lambda e: e.kind == "failsafe", 10, "failsafe event", after=start)
-        assert time.monotonic() - killed_at >= FAILSAFE_S
-        assert fs.stamp - lost.stamp >= FAILSAFE_S - 0.05 and "hold" in fs.detail
+        lost = robot.wait_event(lambda e: e.kind == "link_lost", 20, "link_lost", after=start)
+        fs = robot.wait_event(lambda e: e.kind == "failsafe", 20, "failsafe event", after=start)
+        # in that order, and only after the configured time of loss by the RAL's own account (no wall-clock
+        # threshold here: a loaded machine only makes it later)
+        with robot.lock:
+            after_kill = robot.events[start:]
+        assert after_kill.index(lost) < after_kill.index(fs)
+        waited = re.search(r"no ground station for (\d+\.\d) s", fs.detail)
+        assert waited is not None and float(waited.group(1)) >= FAILSAFE_S and "hold" in fs.detail, fs.detail
         robot.wait_event(
             lambda e: e.kind == "task_accepted" and "(failsafe)" in e.detail,
-            10,
+            20,
             "the failsafe hold accepted",
             after=start,
         )
+        # the hold is in the RAL's task list only once the manager has answered, which the queue can beat
         held = robot.wait_state(
-            lambda s: s.waypoints_queued == 0 and s.link == "failsafe",
-            10,
+            lambda s: s.waypoints_queued == 0 and s.link == "failsafe" and any(t.origin == "failsafe" for t in s.tasks),
+            20,
             "DSP queue emptied by the failsafe",
         )
         assert [(t.kind, t.origin) for t in held.tasks] == [("hold", "failsafe")]
@@ -75,10 +82,10 @@ def test_gcs_killed_mid_mission_triggers_failsafe_then_gcs_back_sees_robot(tmp_p
         # a ground station comes back: it sees the robot within seconds; the failsafe stays in force
         start = len(robot.events)
         back = connect(la.port, "field_station_2", link=True)
-        wait_until(lambda: back.robots(1.0) == [ROBOT], 10, "robot listed again")
-        regained = robot.wait_event(lambda e: e.kind == "link_regained", 10, "link regained", after=start)
+        wait_until(lambda: back.robots(1.0) == [ROBOT], 20, "robot listed again")
+        regained = robot.wait_event(lambda e: e.kind == "link_regained", 20, "link regained", after=start)
         assert "stays in force" in regained.detail
-        state = robot.wait_state(lambda s: s.link == "up", 5, "link up in the state")
+        state = robot.wait_state(lambda s: s.link == "up", 15, "link up in the state")
         assert [(t.kind, t.origin) for t in state.tasks] == [("hold", "failsafe")]
         assert state.waypoints_queued == 0
     finally:

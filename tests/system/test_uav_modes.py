@@ -236,6 +236,9 @@ def test_refs_reach_the_dsp_in_mode_6_only(stack: Stack) -> None:
     mark = stack.mark()
     stack.send("refs", REFS)
     stack.expect(mark, [SET_REFS], "refs as they are in mode 6")
+    # the DSP's answer as it gave it (the record, already in after the barrier); its report, if it refused,
+    # goes on the bus with no order against that record
+    assert [r["status"] for r in stack.received(mark)] == [0], "the DSP refused the bridge references"
     assert not [r for r in stack.reports if r.sender == PF], "the DSP refused the bridge references"
 
 

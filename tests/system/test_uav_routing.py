@@ -11,7 +11,7 @@ from modules.dsp import protocol as p
 from modules.pan_tilt.logic import PanTiltError as E
 from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 
-from .uav_stack import SLOT, Stack, wait_until
+from .uav_stack import DEADLINE_S, SLOT, Stack, wait_until
 
 PT = "pan_tilt"
 TARGET = DatosPT(latitud=37.4127, longitud=-6.0015, altura=5.0)
@@ -145,4 +145,4 @@ def test_out_of_range_datum_gives_its_code_and_nothing_reaches_the_dsp(
     stack.expect_error(PT, errors, code, f"{source} {raw}")
     stack.barrier()
     assert stack.received(mark) == [], f"{source} {raw} reached the DSP"
-    wait_until(lambda: stack.latest().pan_tilt.mode == m, 5, "pan & tilt mode unchanged")
+    wait_until(lambda: stack.latest().pan_tilt.mode == m, DEADLINE_S, "pan & tilt mode unchanged")

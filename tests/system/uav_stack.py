@@ -304,7 +304,8 @@ class Stack:
         """Every command frame the simulator applied, in order (link retransmissions left out)."""
         if not self.record.exists():
             return []
-        lines = self.record.read_text().splitlines()
+        text = self.record.read_text()  # a line the simulator is still writing is left for the next read
+        lines = text[: text.rfind("\n") + 1].splitlines()
         return [r for r in (json.loads(line) for line in lines if line.endswith("}")) if not r["duplicate"]]
 
     def mark(self) -> int:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import socket
 import threading
-import time
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -21,6 +20,10 @@ from modules.dsp.sim import DspSimulator, FaultInjector, PtyEndpoint, TcpEndpoin
 from modules.dsp.sim.machine import METRES_PER_DEG
 
 from .conftest import UAV1
+
+CLEAN_ACK_S = 2.0
+"""Acknowledgement timeout where a test counts retries on a clean line: a late ack on a loaded machine must not
+look like a lost frame (an ack that comes costs nothing)."""
 
 
 @pytest.fixture
@@ -95,7 +98,7 @@ def ack_for(frame: Frame, status: int = 0) -> bytes:
 
 def test_startup_over_a_pty_reaches_the_simulator_in_order(sim: DspSimulator) -> None:
     conf = load_dsp_config(UAV1, port=sim.endpoint.path)  # type: ignore[attr-defined]
-    with DspLink(conf.port, conf.baudrate) as link:
+    with DspLink(conf.port, conf.baudrate, ack_timeout=CLEAN_ACK_S) as link:
         acks = startup(link, conf)
         assert len(acks) == 16 and all(a.ok for a in acks)
         wait_until(lambda: link.latest_telemetry is not None, what="first telemetry frame")
@@ -148,10 +151,8 @@ def test_nothing_listening_on_a_socket() -> None:
 def test_silent_dsp_times_out_naming_the_command(far_end) -> None:
     end = far_end(lambda frame: b"")  # hears everything, answers nothing
     with DspLink(end.path, ack_timeout=0.05, retries=2) as link:
-        start = time.monotonic()
         with pytest.raises(DspTimeout, match=r"for Ping \(seq \d+\) after 3 attempts of 0.05 s") as info:
             link.ping()
-        assert time.monotonic() - start < 1.0
         stats = link.stats()
     assert info.value.command == "Ping" and info.value.attempts == 3
     assert stats.retries == 2 and stats.timeouts == 1 and stats.frames_sent == 3
@@ -163,6 +164,8 @@ def test_loopback_hears_only_its_own_commands() -> None:
     with DspLink("loop://", ack_timeout=0.05, retries=1) as link:
         with pytest.raises(DspTimeout):
             link.send(p.SetSpeed(speed=0.0))
+        # the reader thread may not have parsed the second copy yet when the sender gives up
+        wait_until(lambda: link.stats().unknown_id >= 2, what="both copies read back")
         assert link.stats().unknown_id == 2  # its own command frames, not valid PC-side ids
 
 
@@ -174,7 +177,7 @@ def test_a_lost_frame_is_resent_and_then_acknowledged(far_end) -> None:
         return b"" if len(seen) == 1 else ack_for(frame)
 
     end = far_end(drop_first)
-    with DspLink(end.path, ack_timeout=0.1, retries=3) as link:
+    with DspLink(end.path, ack_timeout=0.5, retries=3) as link:  # the first timeout is sure; the retry's ack must come
         ack = link.send(p.SetMode(mode=p.Mode.TAKE_OFF))
         assert ack.ok and link.stats().retries == 1
     assert seen[0] == seen[1]
@@ -182,7 +185,7 @@ def test_a_lost_frame_is_resent_and_then_acknowledged(far_end) -> None:
 
 def test_refused_command_raises_and_is_not_retried(far_end) -> None:
     end = far_end(lambda frame: ack_for(frame, p.ErrorCode.NOT_CONFIGURED))
-    with DspLink(end.path, ack_timeout=0.1) as link:
+    with DspLink(end.path, ack_timeout=CLEAN_ACK_S) as link:
         with pytest.raises(DspRejected, match="refused SetMode: NOT_CONFIGURED") as info:
             link.send(p.SetMode(mode=p.Mode.TAKE_OFF))
         assert info.value.status == p.ErrorCode.NOT_CONFIGURED
@@ -204,7 +207,7 @@ def test_out_of_range_sends_nothing(far_end) -> None:
 def test_false_start_then_silence_does_not_hide_the_ack(far_end) -> None:
     false_header = bytes([0xA5, 0x5A, 107, p.MsgId.TELEMETRY, 0])  # claims 114 bytes that never come
     end = far_end(lambda frame: false_header + ack_for(frame))
-    with DspLink(end.path, ack_timeout=0.5, retries=0) as link:
+    with DspLink(end.path, ack_timeout=CLEAN_ACK_S, retries=0) as link:
         assert link.ping().ok
         assert link.stats().truncated == 1
 
@@ -215,7 +218,7 @@ def test_lossy_line_retries_without_duplicating_waypoints() -> None:
     rx = FaultInjector(corrupt=0.004, garbage=0.02, seed=12)
     s = DspSimulator(PtyEndpoint(), time_scale=5.0, tx_faults=tx, rx_faults=rx).start()
     try:
-        with DspLink(s.endpoint.path, ack_timeout=0.08, retries=10) as link:  # type: ignore[attr-defined]
+        with DspLink(s.endpoint.path, ack_timeout=0.25, retries=10) as link:  # type: ignore[attr-defined]
             link.send(p.SetTelemetryMask(mask=p.TELEMETRY_ALL))
             link.send(p.SetStateTransmission(enable=True, period_ms=20))
             home = s.machine.params
@@ -242,7 +245,7 @@ def test_abort_stops_a_waypoint_list_and_empties_the_queue(sim: DspSimulator) ->
         sender.start()
         wait_until(lambda: sim.snapshot().queue_length >= 20, what="some waypoints queued")
         assert link.abort().ok
-        sender.join(5)
+        sender.join(30)
     assert result and 20 <= result[0] < 400
     assert sim.snapshot().queue_length == 0 and not sim.snapshot().path_valid
     names = [c.name for c in sim.commands]
@@ -251,7 +254,7 @@ def test_abort_stops_a_waypoint_list_and_empties_the_queue(sim: DspSimulator) ->
 
 def test_port_vanishing_is_reported_not_hung() -> None:
     s = DspSimulator(PtyEndpoint(), time_scale=1.0).start()
-    link = DspLink(s.endpoint.path, ack_timeout=0.1, retries=1)  # type: ignore[attr-defined]
+    link = DspLink(s.endpoint.path, ack_timeout=1.0, retries=1)  # type: ignore[attr-defined]
     try:
         assert link.ping().ok
         s.stop()  # the DSP end disappears
@@ -279,6 +282,10 @@ def test_wrong_baud_gives_garbage_and_a_timeout() -> None:
         with DspLink(conf.port, 115_200, ack_timeout=0.05, retries=2) as link:
             with pytest.raises(DspTimeout, match="SetSpeed"):
                 startup(link, conf)
+            sent = link.stats().bytes_tx
+        # at 1/8 of its speed every byte the PC sent reaches the DSP as one byte of noise: once all are in, the
+        # simulator has decoded (or not) everything
+        wait_until(lambda: s.rx_stats["bytes_in"] >= sent, what="every byte sent read by the simulator")
         assert s.baud_mismatch and s.commands == []
     finally:
         s.stop()
@@ -294,7 +301,7 @@ def test_waypoint_goes_out_quantised_to_1e_4_degree(sim: DspSimulator) -> None:
 
 
 def test_many_threads_share_one_link(sim: DspSimulator) -> None:
-    with DspLink(sim.endpoint.path) as link:  # type: ignore[attr-defined]
+    with DspLink(sim.endpoint.path, ack_timeout=CLEAN_ACK_S) as link:  # type: ignore[attr-defined]
         errors: list[BaseException] = []
 
         def worker() -> None:
@@ -308,7 +315,7 @@ def test_many_threads_share_one_link(sim: DspSimulator) -> None:
         for t in threads:
             t.start()
         for t in threads:
-            t.join(10)
+            t.join(60)
         stats = link.stats()
     assert not errors
     assert stats.commands_acked == 100 and stats.stray_acks == 0 and stats.retries == 0

@@ -145,9 +145,10 @@ def test_a_lost_connection_is_reported_and_fails_waiting_commands(
 
     t = threading.Thread(target=ask)
     t.start()
-    time.sleep(0.1)
+    # the request must be waiting for its reply when the connection goes: the scanner has it (and stays quiet)
+    wait_for(lambda: any(c == Cmd.GET_STATUS for _, c, _, _ in sim.device.commands))
     sim.stop()
-    t.join(timeout=5)
+    t.join(timeout=30)
     wait_for(lambda: client.disconnected is not None)
     assert result and "closed the connection" in str(result[0])
 
@@ -156,6 +157,9 @@ def test_set_time_puts_the_scanner_clock_on_the_given_utc(make_world, start_ldmr
     world = make_world(1.0)
     sim = start_ldmrs(world)
     client = client_factory(sim.port)
-    target = world.utc(world.now()) + 1234.5
-    client.set_time(target)
-    assert sim.device.clock_offset == pytest.approx(1234.5, abs=0.5)  # minus the command's latency
+    before = world.now()
+    client.set_time(world.utc(before) + 1234.5)
+    after = world.now()
+    # the scanner takes the time when SET_NTP_FRAC arrives, between the two readings: the offset is 1234.5 s
+    # minus that latency, whatever it was (1e-5 s: float and NTP-fraction rounding)
+    assert 1234.5 - (after - before) - 1e-5 <= sim.device.clock_offset <= 1234.5 + 1e-5

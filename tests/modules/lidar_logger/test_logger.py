@@ -231,13 +231,21 @@ def test_stop_while_waiting_for_a_valid_pose_creates_nothing(
     world = make_world(1.0, gps_fix_at=100.0, xkf_valid_at=200.0)
     imu = start_mtig(world)
     lidar = start_ldmrs(world)
-    logger = LidarLogger(settings_for(imu, lidar, tmp_path), clock=world.clock, out=io.StringIO())
-    timer = threading.Timer(0.5, logger.request_stop)
-    timer.start()
+    polled = threading.Event()
+    logger = LidarLogger(settings_for(imu, lidar, tmp_path), clock=world.clock, out=io.StringIO(),
+                         on_pose=lambda _: polled.set())
+
+    def stop_after_a_pose() -> None:  # not after a fixed time: a loaded machine may not have polled one by then
+        polled.wait(60)
+        logger.request_stop()
+
+    stopper = threading.Thread(target=stop_after_a_pose, daemon=True)
+    stopper.start()
     try:
         summary = logger.run()
     finally:
-        timer.cancel()
+        polled.set()
+        stopper.join(10)
     assert summary.reason == "signal" and summary.folder is None
     assert not lidar.connected_at and list(tmp_path.iterdir()) == []
     assert summary.poses > 0 and summary.valid_poses == 0

@@ -106,7 +106,7 @@ def test_a_failed_run_is_reported_on_the_error_slot_and_the_module_stays_up(
         wait_until(lambda: errors, 10, "the error code")
         assert proc.poll() is None, "the module stays up after its run ended"
     finally:
-        code = stop_process(proc)
+        code = stop_process(proc, grace_s=20)
         for sub in subs:
             sub.undeclare()
     assert code == 0

@@ -5,11 +5,11 @@ from __future__ import annotations
 import os
 import struct
 import threading
-import time
 import tty
 
 import pytest
 
+from bbcs.testing import wait_until
 from modules.lidar_logger.mtdata import POSE_MODE, POSE_SETTINGS
 from modules.lidar_logger.mtig import SCENARIO_AEROSPACE, MTiG, MTiGError, PoseSource
 from modules.lidar_logger.vehicles import VEHICLES
@@ -34,8 +34,10 @@ def driver_factory():
 
 def test_configure_sends_the_seed_sequence_past_streamed_data(make_world, start_mtig, driver_factory) -> None:
     sim = start_mtig(make_world(10.0))
-    dev = driver_factory(sim.port)
-    time.sleep(0.05)  # the device streams its power-on output meanwhile
+    dev = driver_factory(sim.port)  # opening the port drops what the device streamed before
+    # the device streams its power-on output: a frame made after the port was opened is on the line before GoToConfig
+    opened_at = sim.device.sample_counter
+    wait_until(lambda: sim.device.sample_counter != opened_at, 10, "power-on MTData on the line")
     dev.configure(VEHICLES["PILATUS_PORTER"])
     mids = [mid for _, mid, _ in sim.device.received]
     assert mids == [
@@ -142,16 +144,14 @@ def test_a_silent_port_times_out_after_the_retries(driver_factory) -> None:
 def test_pose_source_reports_a_device_that_stops_answering(make_world, start_mtig, driver_factory) -> None:
     world = make_world(10.0, gps_fix_at=0.0, xkf_valid_at=0.0)
     sim = start_mtig(world)
-    dev = driver_factory(sim.port, reply_timeout=0.05)
+    dev = driver_factory(sim.port)  # the pose source polls with its own reply timeout: configure at the default
     dev.configure(VEHICLES["CB5000"])
     source = PoseSource(dev, period=0.02, clock=world.clock, max_failures=3)
     source.start()
     try:
         assert source.wait_valid(threading.Event()) is not None
         sim.stop()
-        deadline = time.monotonic() + 10
-        while source.failed is None and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(lambda: source.failed is not None, 20, "the pose source giving up")
     finally:
         source.stop()
     assert source.failed is not None and "stopped answering" in source.failed

@@ -4,7 +4,6 @@ the mode table and every out-of-range datum (its code on ERROR, nothing to the D
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import msgspec
@@ -20,7 +19,16 @@ from modules.dsp import protocol as p  # noqa: E402
 from modules.pan_tilt.logic import PanTiltError as E  # noqa: E402
 from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ModoFuncionamientoPT  # noqa: E402
 
-SETTLE_S = 0.3
+STOP_S = 20.0  # a loaded machine may take seconds to stop a Zenoh process: the exit code is what is checked
+# per input, a datum refused at decoding and its code. Sent after a step's datum on the same input, whose thread
+# handles data in arrival order and publishes a datum's DSP commands before the next one's ERROR code, its code
+# proves the step's datum handled and its commands here: absence is checked without a fixed sleep. An input not
+# routed at the time never reaches the module, so its marker goes through one that is (``via``).
+MARKERS = {
+    "modo": ({"modo_de_funcionamiento": 3}, E.MODE_OUT_OF_RANGE),
+    "a": ({"ref_pan": 180.001}, E.REF_PAN_OUT_OF_RANGE),
+    "b": ({"ref_pan": 180.001}, E.REF_PAN_OUT_OF_RANGE),
+}
 
 
 @pytest.fixture
@@ -43,11 +51,15 @@ def rig(processes, router, sessions, tmp_path):
         watch.close()
 
 
-def step(watch, source, value, expected, what):
-    before = len(watch.commands())
-    source.send(value)
+def step(watch, src, name, value, expected, what, *, via=None):
+    """Publish ``value`` on input ``name``; exactly ``expected`` DSP commands must follow it (none after)."""
+    before, errors = len(watch.commands()), len(watch.errors)
+    src[name].send(value)
     watch.wait_for(lambda: len(watch.commands()) >= before + len(expected), what)
-    time.sleep(SETTLE_S)
+    raw, code = MARKERS[via or name]
+    src[via or name].send_raw(msgspec.msgpack.encode(raw))
+    watch.wait_for(lambda: len(watch.errors) > errors, f"the marker's code after: {what}")
+    assert watch.errors[errors:] == [code], what
     assert watch.commands()[before:] == expected, what
 
 
@@ -57,60 +69,65 @@ def angles(pan: float, tilt: float = 0.0) -> DatosPT:
 
 def test_modes_and_routing_between_two_sources(rig):
     proc, watch, src = rig
-    step(watch, src["a"], angles(10), [], "mode unknown (DSP start-up: hold): nothing")
+    step(watch, src, "a", angles(10), [], "mode unknown (DSP start-up: hold): nothing")
     step(
         watch,
-        src["modo"],
+        src,
+        "modo",
         ModoFuncionamientoPT(modo_de_funcionamiento=0),
         [p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES)],
         "mode 0 as it is",
     )
-    step(watch, src["a"], angles(11, -5), [p.SetPanTiltAngles(pan_deg=11, tilt_deg=-5)], "A drives in mode 0")
-    step(watch, src["b"], angles(99), [], "B is not selected")
+    step(watch, src, "a", angles(11, -5), [p.SetPanTiltAngles(pan_deg=11, tilt_deg=-5)], "A drives in mode 0")
+    step(watch, src, "b", angles(99), [], "B is not selected", via="modo")
     src["control"].send(ControlEntradaPT(slot_entrada_control_modos=10, slot_entrada_datos=12))
     watch.wait_for(
         lambda: bool(watch.acks) and watch.acks[-1].routes == {"control_modo": 10, "datos": 12}, "switch to B"
     )
-    step(watch, src["a"], angles(12), [], "A no longer selected")
-    step(watch, src["b"], angles(-120, 45), [p.SetPanTiltAngles(pan_deg=-120, tilt_deg=45)], "B drives")
+    step(watch, src, "a", angles(12), [], "A no longer selected", via="modo")
+    step(watch, src, "b", angles(-120, 45), [p.SetPanTiltAngles(pan_deg=-120, tilt_deg=45)], "B drives")
     step(
         watch,
-        src["modo"],
+        src,
+        "modo",
         ModoFuncionamientoPT(modo_de_funcionamiento=1),
         [p.SetPanTiltMode(mode=p.PanTiltMode.TARGET)],
         "mode 1",
     )
     step(
         watch,
-        src["b"],
+        src,
+        "b",
         DatosPT(latitud=37.5, longitud=-6.1, altura=30.0),
         [p.SetPanTiltTarget(lat=37.5, lon=-6.1, alt=30.0)],
         "target point in mode 1",
     )
     step(
         watch,
-        src["modo"],
+        src,
+        "modo",
         ModoFuncionamientoPT(modo_de_funcionamiento=2),
         [p.SetPanTiltMode(mode=p.PanTiltMode.HOLD)],
         "mode 2",
     )
-    step(watch, src["b"], angles(5), [], "mode 2: nothing")
+    step(watch, src, "b", angles(5), [], "mode 2: nothing")
     src["control"].send(ControlEntradaPT(slot_entrada_control_modos=10, slot_entrada_datos=-1))
     watch.wait_for(lambda: watch.acks[-1].routes == {"control_modo": 10, "datos": -1}, "ignore DATOS")
     step(
         watch,
-        src["modo"],
+        src,
+        "modo",
         ModoFuncionamientoPT(modo_de_funcionamiento=0),
         [p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES)],
         "mode 0 again",
     )
-    step(watch, src["a"], angles(1), [], "-1: A ignored")
-    step(watch, src["b"], angles(2), [], "-1: B ignored")
+    step(watch, src, "a", angles(1), [], "-1: A ignored", via="modo")
+    step(watch, src, "b", angles(2), [], "-1: B ignored", via="modo")
     # a route to an unknown slot is refused and the old routes stay
     src["control"].send(ControlEntradaPT(slot_entrada_control_modos=10, slot_entrada_datos=77))
     watch.wait_for(lambda: not watch.acks[-1].accepted, "refused route")
     assert watch.errors[-1] == 3 and watch.acks[-1].routes == {"control_modo": 10, "datos": -1}
-    assert stop_process(proc) == 0
+    assert stop_process(proc, STOP_S) == 0
 
 
 BAD = [
@@ -134,19 +151,25 @@ def test_every_out_of_range_datum(rig, target_mode):
     proc, watch, src = rig
     step(
         watch,
-        src["modo"],
+        src,
+        "modo",
         ModoFuncionamientoPT(modo_de_funcionamiento=target_mode),
         [p.SetPanTiltMode(mode=p.PanTiltMode(target_mode))],
         f"mode {target_mode}",
     )
     bad = [*BAD, *([("a", {"altura": float("inf")}, E.ALTURA_NOT_REPRESENTABLE)] if target_mode == 1 else [])]
-    for i, (name, raw, code) in enumerate(bad):
-        before = len(watch.commands())
+    expected = list(watch.errors)  # the step's marker code
+    for name, raw, code in bad:
+        before, n = len(watch.commands()), len(watch.errors)
         src[name].send_raw(msgspec.msgpack.encode(raw))
-        watch.wait_for(lambda n=i: len(watch.errors) >= n + 1, f"error code for {raw}")
-        assert watch.errors[i] == code, raw
+        watch.wait_for(lambda n=n: len(watch.errors) > n, f"error code for {raw}")
+        expected.append(code)
+        assert watch.errors[n] == code, raw
         assert len(watch.commands()) == before, f"{raw} reached the DSP"
-    time.sleep(SETTLE_S)
-    assert len(watch.errors) == len(bad)
+    # the last bad datum once more on its input: its code proves no further code of the earlier ones is coming
+    name, raw, code = bad[-1]
+    src[name].send_raw(msgspec.msgpack.encode(raw))
+    watch.wait_for(lambda: len(watch.errors) > len(expected), "the closing marker's code")
+    assert watch.errors == [*expected, code]
     assert [a.accepted for a in watch.acks] == [True] * len(watch.acks)
-    assert stop_process(proc) == 0
+    assert stop_process(proc, STOP_S) == 0

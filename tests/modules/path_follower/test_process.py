@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import sys
-import time
 from pathlib import Path
 
 import msgspec
@@ -31,7 +30,25 @@ from modules.path_follower.structs import (  # noqa: E402
     SpeedSegCam,
 )
 
-SETTLE_S = 0.3  # time given to an ignored datum to (wrongly) produce a command before absence is checked
+STOP_S = 20.0  # a loaded machine may take seconds to stop a Zenoh process: the exit code is what is checked
+RF = {
+    "ref_altura": 0.0,
+    "error_longitudinal": 0.0,
+    "error_lateral": 0.0,
+    "ref_heading": 0.0,
+    "ref_rpm_motor": 0.0,
+}
+# per input, a datum refused at decoding and its code. Sent after a step's datum on the same input, whose thread
+# handles data in arrival order and publishes a datum's DSP commands before the next one's ERROR code, its code
+# proves the step's datum handled and its commands here: absence is checked without a fixed sleep. An input not
+# routed at the time never reaches the module, so its marker goes through one that is (``via``).
+MARKERS = {
+    "modo": ({"modo_o_comando": -1}, E.MODO_O_COMANDO_OUT_OF_RANGE),
+    "heading": ({"heading": math.pi}, E.HEADING_OUT_OF_RANGE),
+    "speed": ({"speed": -1e-9}, E.SPEED_OUT_OF_RANGE),
+    "path": ({"n_points": 0, "puntos": []}, E.N_POINTS_OUT_OF_RANGE),
+    "refs": ({**RF, "ref_rpm_motor": -1e-9}, E.REF_RPM_OUT_OF_RANGE),
+}
 PT = DatoPuntoSegCam(latitud=37.4118, longitud=-6.0024, altura=20.0)
 
 
@@ -71,19 +88,32 @@ def rig(processes, router, sessions, tmp_path):
         watch.close()
 
 
-def step(watch: Watch, source: Source, value, expected: list, what: str) -> None:
-    """Publish ``value`` and wait for exactly ``expected`` commands to follow it."""
-    before = len(watch.commands())
-    source.send(value)
+def step(
+    watch: Watch,
+    src: dict[str, Source],
+    name: str,
+    value,
+    expected: list,
+    what: str,
+    *,
+    errors: tuple[int, ...] = (),
+    via: str | None = None,
+) -> None:
+    """Publish ``value`` on input ``name``: exactly ``expected`` commands (and ``errors`` codes) follow it."""
+    before, n = len(watch.commands()), len(watch.errors)
+    src[name].send(value)
     watch.wait_for(lambda: len(watch.commands()) >= before + len(expected), what)
-    time.sleep(SETTLE_S)
+    raw, code = MARKERS[via or name]
+    src[via or name].send_raw(msgspec.msgpack.encode(raw))
+    watch.wait_for(lambda: len(watch.errors) > n + len(errors), f"the marker's code after: {what}")
+    assert watch.errors[n:] == [*errors, code], what
     assert watch.commands()[before:] == expected, what
 
 
 def test_mode_table_and_slot_gating(rig):
     proc, watch, src = rig
     # ignored before any mode is known (DSP start-up mode semi-automatic): heading, path, refs
-    step(watch, src["speed"], SpeedSegCam(speed=8.0), [p.SetSpeed(speed=8.0)], "speed always (at MAX_SPEED)")
+    step(watch, src, "speed", SpeedSegCam(speed=8.0), [p.SetSpeed(speed=8.0)], "speed always (at MAX_SPEED)")
     for name, value in [
         ("heading", HeadingSegCam(heading=1.0)),
         ("path", DatosSegCam(n_points=1, puntos=[PT])),
@@ -94,19 +124,21 @@ def test_mode_table_and_slot_gating(rig):
             ),
         ),
     ]:
-        step(watch, src[name], value, [], f"{name} ignored in mode 2")
-    step(watch, src["modo"], mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0")
-    step(watch, src["heading"], HeadingSegCam(heading=1.0), [], "heading ignored in mode 0")
+        step(watch, src, name, value, [], f"{name} ignored in mode 2")
+    step(watch, src, "modo", mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0")
+    step(watch, src, "heading", HeadingSegCam(heading=1.0), [], "heading ignored in mode 0")
     step(
         watch,
-        src["path"],
+        src,
+        "path",
         DatosSegCam(n_points=2, puntos=[PT, PT]),
         [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)] * 2,
         "path in mode 0",
     )
     step(
         watch,
-        src["modo"],
+        src,
+        "modo",
         mode(1),
         [
             p.SetHeading(heading_deg=pytest.approx(45.0)),
@@ -117,21 +149,24 @@ def test_mode_table_and_slot_gating(rig):
     )
     step(
         watch,
-        src["heading"],
+        src,
+        "heading",
         HeadingSegCam(heading=-math.pi / 2),
         [p.SetHeading(heading_deg=-90.0)],
         "heading in degrees in mode 1",
     )
     step(
         watch,
-        src["path"],
+        src,
+        "path",
         DatosSegCam(n_points=1, puntos=[PT]),
         [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)],
         "path in mode 1",
     )
     step(
         watch,
-        src["modo"],
+        src,
+        "modo",
         mode(2),
         [p.SetMode(mode=p.Mode(2)), p.SetTracking(enable=False), p.InvalidatePath()],
         "mode 2",
@@ -139,18 +174,20 @@ def test_mode_table_and_slot_gating(rig):
     for m in (4, 5):
         step(
             watch,
-            src["modo"],
+            src,
+            "modo",
             mode(m),
             [p.SetTracking(enable=False), p.InvalidatePath(), p.SetMode(mode=p.Mode(m))],
             f"mode {m}",
         )
-    step(watch, src["modo"], mode(6), [p.SetMode(mode=p.Mode(6))], "mode 6")
+    step(watch, src, "modo", mode(6), [p.SetMode(mode=p.Mode(6))], "mode 6")
     refs = RefsSegCam(
         ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500
     )
     step(
         watch,
-        src["refs"],
+        src,
+        "refs",
         refs,
         [
             p.SetRefs(
@@ -159,14 +196,13 @@ def test_mode_table_and_slot_gating(rig):
         ],
         "refs as they are in mode 6",
     )
-    step(watch, src["path"], DatosSegCam(n_points=1, puntos=[PT]), [], "path ignored in mode 6")
-    step(watch, src["modo"], ControlModoSegCam(modo_o_comando=1, numero_de_comando=0), [p.Abort()], "abort")
-    errors_before = len(watch.errors)
-    step(watch, src["modo"], mode(3), [], "mode 3 sends nothing")
-    assert watch.errors[errors_before:] == [E.ONBOARD_FOLLOWER_NOT_BUILT]
+    step(watch, src, "path", DatosSegCam(n_points=1, puntos=[PT]), [], "path ignored in mode 6")
+    step(watch, src, "modo", ControlModoSegCam(modo_o_comando=1, numero_de_comando=0), [p.Abort()], "abort")
+    step(watch, src, "modo", mode(3), [], "mode 3 sends nothing", errors=(E.ONBOARD_FOLLOWER_NOT_BUILT,))
     step(
         watch,
-        src["refs"],
+        src,
+        "refs",
         refs,
         [
             p.SetRefs(
@@ -176,17 +212,10 @@ def test_mode_table_and_slot_gating(rig):
         "mode 3 refused: still mode 6",
     )
     assert all(b.sender == "path_follower" for b in watch.batches)
-    assert stop_process(proc) == 0
+    assert stop_process(proc, STOP_S) == 0
 
 
 DP = {"latitud": 0.0, "longitud": 0.0, "altura": 0.0}
-RF = {
-    "ref_altura": 0.0,
-    "error_longitudinal": 0.0,
-    "error_lateral": 0.0,
-    "ref_heading": 0.0,
-    "ref_rpm_motor": 0.0,
-}
 NEXT_BELOW_MINUS_PI = math.nextafter(-math.pi, -4)
 BAD = [  # (source, raw datum, documented code): one per range bound of every struct
     ("modo", {"modo_o_comando": -1}, E.MODO_O_COMANDO_OUT_OF_RANGE),
@@ -220,36 +249,43 @@ BAD = [  # (source, raw datum, documented code): one per range bound of every st
 
 def test_every_out_of_range_datum_gives_its_code_and_nothing_reaches_the_dsp(rig):
     proc, watch, src = rig
-    step(watch, src["modo"], mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0")
+    step(watch, src, "modo", mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0")
     # mode 0 accepts paths; mode 6 accepts refs: errors must not depend on the mode: refs tested in mode 6
+    expected = list(watch.errors)  # the step's marker code
     for i, (name, raw, code) in enumerate(BAD):
         if name == "refs" and i and BAD[i - 1][0] != "refs":
-            step(watch, src["modo"], mode(6), [p.SetMode(mode=p.Mode(6))], "mode 6 for refs")
-        before = len(watch.commands())
+            step(watch, src, "modo", mode(6), [p.SetMode(mode=p.Mode(6))], "mode 6 for refs")
+            expected.append(MARKERS["modo"][1])
+        before, n = len(watch.commands()), len(watch.errors)
         src[name].send_raw(msgspec.msgpack.encode(raw))
-        watch.wait_for(lambda n=i: len(watch.errors) >= n + 1, f"error code for {name} {raw}")
-        assert watch.errors[i] == code, (name, raw)
+        watch.wait_for(lambda n=n: len(watch.errors) > n, f"error code for {name} {raw}")
+        expected.append(code)
+        assert watch.errors[n] == code, (name, raw)
         assert len(watch.commands()) == before, f"{name} {raw} reached the DSP"
-    time.sleep(SETTLE_S)
-    assert len(watch.errors) == len(BAD)
+    # the last bad datum once more on its input: its code proves no further code of the earlier ones is coming
+    name, raw, code = BAD[-1]
+    src[name].send_raw(msgspec.msgpack.encode(raw))
+    watch.wait_for(lambda: len(watch.errors) > len(expected), "the closing marker's code")
+    assert watch.errors == [*expected, code]
     # the bad CONTROL_ENTRADA left the routes in force: the planner's path still arrives (back in mode 0)
-    step(watch, src["modo"], mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0 again")
+    step(watch, src, "modo", mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0 again")
     step(
         watch,
-        src["path"],
+        src,
+        "path",
         DatosSegCam(n_points=1, puntos=[PT]),
         [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)],
         "routes kept",
     )
     assert not [a for a in watch.acks if not a.accepted]
-    assert stop_process(proc) == 0
+    assert stop_process(proc, STOP_S) == 0
 
 
 def test_minus_one_ignores_an_input(rig):
     proc, watch, src = rig
-    step(watch, src["modo"], mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0")
+    step(watch, src, "modo", mode(0), [p.SetMode(mode=p.Mode(0)), p.SetTracking(enable=True)], "mode 0")
     src["control"].send(msgspec.structs.replace(FOLLOWER_ROUTES, slot_entrada_datos=-1))
     watch.wait_for(lambda: bool(watch.acks) and watch.acks[-1].routes.get("datos") == -1, "datos ignored")
-    step(watch, src["path"], DatosSegCam(n_points=1, puntos=[PT]), [], "-1 ignores the planner's path")
-    step(watch, src["speed"], SpeedSegCam(speed=1.0), [p.SetSpeed(speed=1.0)], "other inputs still routed")
-    assert stop_process(proc) == 0
+    step(watch, src, "path", DatosSegCam(n_points=1, puntos=[PT]), [], "-1 ignores the planner's path", via="modo")
+    step(watch, src, "speed", SpeedSegCam(speed=1.0), [p.SetSpeed(speed=1.0)], "other inputs still routed")
+    assert stop_process(proc, STOP_S) == 0

@@ -62,7 +62,9 @@ def test_vision_process_geolocates_the_simulated_target(processes, router, sessi
     feeder = threading.Thread(target=feed, daemon=True)
     feeder.start()
     try:
-        wait_until(lambda: len(targets) >= 5 and paths, 60, "targets and a path from vision")
+        # the status comes on its own (unsafe) slot: no order with the targets, so it is waited for too
+        wait_until(lambda: len(targets) >= 5 and paths and "found" in states, 60,
+                   "targets, a path and the 'found' status from vision")
     finally:
         stop.set()
         feeder.join()

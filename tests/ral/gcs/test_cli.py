@@ -30,8 +30,8 @@ def robot(router: int) -> Iterator[int]:
     thread.start()
     try:
         with Gcs(local_client(router)) as gcs:
-            wait_until(lambda: gcs.robots() == [ROBOT], what="RAL alive")
-            wait_until(lambda: bool(gcs.state(ROBOT).available), what="task list known")
+            wait_until(lambda: gcs.robots() == [ROBOT], 30, "RAL alive")
+            wait_until(lambda: bool(gcs.state(ROBOT).available), 30, "task list known")
         yield router
     finally:
         ral.request_stop()

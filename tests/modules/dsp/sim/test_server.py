@@ -55,8 +55,9 @@ def test_garbage_on_the_line_is_counted_and_reported() -> None:
         with serial.Serial(sim.endpoint.path, 921_600, timeout=0.05) as port:  # type: ignore[attr-defined]
             port.write(codec.encode(p.SetTelemetryMask(mask=int(p.TelemetryField.ERROR)), 1))
             port.write(b"\xa5\x5a\x04\x01\x00garbage" * 3 + codec.encode(p.Ping(), 2))
-            wait_until(lambda: sim.rx_stats["bad_crc"] >= 1
-                     and sim.snapshot().error_code == p.ErrorCode.RX_ERRORS, what="RX_ERRORS latched")
+            # the PING may come in a later read than the garbage: wait for it too, then check the list exactly
+            wait_until(lambda: sim.rx_stats["bad_crc"] >= 1 and len(sim.commands) >= 2
+                       and sim.snapshot().error_code == p.ErrorCode.RX_ERRORS, what="RX_ERRORS latched, PING read")
         assert [c.name for c in sim.commands] == ["SET_TELEMETRY_MASK", "PING"]
     finally:
         sim.stop()

@@ -1,0 +1,26 @@
+"""RAL parameters from the manifest: unknown names and values that would break the MRI contract are refused."""
+
+from __future__ import annotations
+
+import pytest
+
+from module_manager import mri
+from ral.process import RalConfig
+
+
+def test_defaults_wait_longer_for_the_manager_than_it_waits_for_modules() -> None:
+    cfg, names = RalConfig.from_params({"task.goto": "goto"})
+    assert cfg.mri_timeout_s == mri.REPLY_TIMEOUT_S > mri.MANAGER_ACK_S
+    assert names == {"goto": "goto"}
+
+
+def test_mri_timeout_not_above_the_manager_ack_wait_is_refused() -> None:
+    with pytest.raises(ValueError, match="mri_timeout_s = 5 must exceed the manager's ack wait"):
+        RalConfig.from_params({"mri_timeout_s": str(mri.MANAGER_ACK_S)})
+    cfg, _ = RalConfig.from_params({"mri_timeout_s": "6"})
+    assert cfg.mri_timeout_s == 6.0
+
+
+def test_unknown_parameter_is_named() -> None:
+    with pytest.raises(ValueError, match="unknown RAL parameter.*'mri_timeuot_s'"):
+        RalConfig.from_params({"mri_timeuot_s": "8"})
