@@ -107,14 +107,15 @@ def main(argv: list[str] | None = None) -> int:
         vehicle_params=VehicleParams(max_speed=args.max_speed), rate_hz=args.rate, time_scale=args.time_scale,
         baud=args.baud, tx_faults=faults.get("tx"), rx_faults=faults.get("rx"), record_path=args.record,
         fail_at=args.fail, seed=args.seed)
-    url = endpoint.path if isinstance(endpoint, PtyEndpoint) else f"socket://{endpoint.host}:{endpoint.port}"
-    print(url, flush=True)
 
     def on_signal(signum: int, frame: object) -> None:
         sim.stop()
 
+    # handlers first, then the readiness line: whoever reads it may signal us at once and expects a clean stop
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    url = endpoint.path if isinstance(endpoint, PtyEndpoint) else f"socket://{endpoint.host}:{endpoint.port}"
+    print(url, flush=True)
     timer = threading.Timer(args.duration, sim.stop) if args.duration > 0 else None
     if timer is not None:
         timer.daemon = True
