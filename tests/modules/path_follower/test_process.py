@@ -31,13 +31,7 @@ from modules.path_follower.structs import (  # noqa: E402
 )
 
 STOP_S = 20.0  # a loaded machine may take seconds to stop a Zenoh process: the exit code is what is checked
-RF = {
-    "ref_altura": 0.0,
-    "error_longitudinal": 0.0,
-    "error_lateral": 0.0,
-    "ref_heading": 0.0,
-    "ref_rpm_motor": 0.0,
-}
+RF = {field: 0.0 for field in RefsSegCam.__struct_fields__}  # valid all-zero references
 # per input, a datum refused at decoding and its code. Sent after a step's datum on the same input, whose thread
 # handles data in arrival order and publishes a datum's DSP commands before the next one's ERROR code, its code
 # proves the step's datum handled and its commands here: absence is checked without a fixed sleep. An input not
