@@ -7,31 +7,22 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+from bbcs.net import free_port, wait_tcp
+
+__all__ = ["free_port", "wait_port", "wait_until", "child_env", "stop_process", "start_router", "Processes"]
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def wait_port(port: int, deadline_s: float = 10.0) -> None:
-    end = time.monotonic() + deadline_s
-    while time.monotonic() < end:
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return
-        except OSError:
-            time.sleep(0.02)
-    raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {deadline_s} s")
+    if not wait_tcp("127.0.0.1", port, deadline_s):
+        raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {deadline_s} s")
 
 
 def child_env(**extra: str) -> dict[str, str]:

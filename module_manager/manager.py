@@ -28,13 +28,14 @@ import zenoh
 from bbcs import keys
 from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
 from bbcs.module import Heartbeat
+from bbcs.net import free_port, wait_tcp
 from bbcs.robot import RobotTelemetry
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import mri, secure
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
-from module_manager.process import Child, free_port, stop_children, wait_tcp
+from module_manager.process import Child, stop_children
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor
 from module_manager.tasks import Changes, TaskBook
 

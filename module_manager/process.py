@@ -1,4 +1,4 @@
-"""Child processes of the manager: spawned so that none outlives it, stopped TERM-then-KILL, readiness checks.
+"""Child processes of the manager: spawned so that none outlives it, stopped TERM-then-KILL.
 
 Every child stays in the manager's process group (Ctrl+C in a terminal reaches all of them) and asks the kernel
 for SIGTERM when its parent dies (``prctl(PR_SET_PDEATHSIG)``), so a SIGKILLed manager leaves no orphan.
@@ -11,7 +11,6 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -125,21 +124,3 @@ def stop_children(children: list[Child], grace_s: float, on_stopped: Callable[[C
         if on_stopped is not None:
             on_stopped(child, code)
         child.close()
-
-
-def wait_tcp(host: str, port: int, timeout_s: float, alive: Callable[[], bool] = lambda: True) -> bool:
-    """True once something accepts TCP connections on host:port (False at the deadline or if ``alive`` fails)."""
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end and alive():
-        try:
-            with socket.create_connection((host, port), timeout=0.2):
-                return True
-        except OSError:
-            time.sleep(0.02)
-    return False
-
-
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket() as s:
-        s.bind((host, 0))
-        return s.getsockname()[1]
