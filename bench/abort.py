@@ -20,7 +20,6 @@ import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -28,30 +27,18 @@ import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import msgspec
+from benchlib import ROOT, pct, write_results
 
-import msgspec  # noqa: E402
-
-from bbcs import keys  # noqa: E402
-from module_manager import mri  # noqa: E402
-from modules.dsp import protocol as p  # noqa: E402
-from ral import gri  # noqa: E402
-from ral.gcs.api import Gcs, session_config  # noqa: E402
+from bbcs import keys
+from bbcs.testing import free_port
+from module_manager import mri
+from modules.dsp import protocol as p
+from ral import gri
+from ral.gcs.api import Gcs, session_config
 
 ROBOT = "uav1"
 GRID_DEG = 1e-4  # the DSP carries waypoint lat/lon in 10^-4 degrees
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def pct(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))]
 
 
 def prepare(work: Path, telemetry_ms: int) -> tuple[Path, Path]:
@@ -270,28 +257,23 @@ def main(argv: list[str] | None = None) -> int:
         f"abort p50 {p50:.2f} ms, p99 {p99:.2f} ms (target p99 < 50 ms); "
         f"p50 = {p50 / pct(mri_rt, 50):.1f} x the MRI round trip"
     )
-    out = ROOT / "bench" / "results" / "abort.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(
-        json.dumps(
-            {
-                "bench": "abort",
-                "aborts": args.aborts,
-                "telemetry_period_ms": args.telemetry_ms,
-                "rows": {
-                    name: {
-                        "n": len(v),
-                        "p50_ms": round(pct(v, 50), 3),
-                        "p99_ms": round(pct(v, 99), 3),
-                        "max_ms": round(max(v), 3),
-                    }
-                    for name, v in rows
-                },
-                "summary": {"abort_p50_ms": round(p50, 3), "abort_p99_ms": round(p99, 3)},
+    write_results(
+        "abort",
+        {
+            "bench": "abort",
+            "aborts": args.aborts,
+            "telemetry_period_ms": args.telemetry_ms,
+            "rows": {
+                name: {
+                    "n": len(v),
+                    "p50_ms": round(pct(v, 50), 3),
+                    "p99_ms": round(pct(v, 99), 3),
+                    "max_ms": round(max(v), 3),
+                }
+                for name, v in rows
             },
-            indent=2,
-        )
-        + "\n"
+            "summary": {"abort_p50_ms": round(p50, 3), "abort_p99_ms": round(p99, 3)},
+        },
     )
     return 0
 

@@ -22,16 +22,14 @@ from typing import Annotated
 
 import msgspec
 import zenoh
+from benchlib import pct, write_results
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from bbcs import keys  # noqa: E402
-from bbcs.context import ModuleContext  # noqa: E402
-from bbcs.module import Module  # noqa: E402
-from bbcs.session import SessionConfig, local_client, open_session  # noqa: E402
-from bbcs.slots import InputSlot, Kind, OutputSlot  # noqa: E402
-from bbcs.testing import Processes, start_router  # noqa: E402
+from bbcs import keys
+from bbcs.context import ModuleContext
+from bbcs.module import Module
+from bbcs.session import SessionConfig, local_client, open_session
+from bbcs.slots import InputSlot, Kind, OutputSlot
+from bbcs.testing import Processes, start_router
 
 SIZES = {"small": 0, "1k": 1000, "32k": 32_000}
 ROBOT = "bench"
@@ -259,11 +257,6 @@ def throughput_run(port: int, mode: str, size: str, count: int, tag: str) -> flo
         procs.stop_all()
 
 
-def pct(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--rounds", type=int, default=3, help="interleaved rounds per configuration")
@@ -302,9 +295,9 @@ def main() -> None:
         for mode in ("raw", "bbcs"):
             s = lat[(mode, size)]
             rate = statistics.median(thr[(mode, size)]) if (mode, size) in thr else None
-            rows.append({"payload": size, "mode": mode, "p50_us": pct(s, 0.5), "p99_us": pct(s, 0.99),
+            rows.append({"payload": size, "mode": mode, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
                          "samples": len(s), "msgs_per_s": rate})
-            print(f"{size:8} {mode:5} {pct(s, 0.5):9.1f} {pct(s, 0.99):9.1f} "
+            print(f"{size:8} {mode:5} {pct(s, 50):9.1f} {pct(s, 99):9.1f} "
                   f"{'' if rate is None else f'{rate:11,.0f}'}")
     get = {(r["mode"], r["payload"]): r for r in rows}
     summary = {
@@ -315,11 +308,8 @@ def main() -> None:
         "scan_throughput_ratio": get[("bbcs", "32k")]["msgs_per_s"] / get[("raw", "32k")]["msgs_per_s"],
     }
     print("\n" + "\n".join(f"{k:22} {v:.3f}" for k, v in summary.items()))
-    out = ROOT / "bench" / "results" / "bus.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"summary": summary, "rows": rows, "rounds": args.rounds, "pings": args.pings,
-                               "messages": args.messages, "stamp": time.time()}, indent=2))
-    print(f"\nwrote {out.relative_to(ROOT)}")
+    write_results("bus", {"summary": summary, "rows": rows, "rounds": args.rounds, "pings": args.pings,
+                          "messages": args.messages, "stamp": time.time()})
 
 
 if __name__ == "__main__":

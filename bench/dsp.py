@@ -14,23 +14,19 @@ it shows what the ``find``-based scan buys in speed and what backtracking buys i
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import time
 from binascii import crc_hqx
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
+from benchlib import write_results
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from modules.dsp import codec  # noqa: E402
-from modules.dsp import protocol as p  # noqa: E402
-from modules.dsp.framing import Frame, FrameParser  # noqa: E402
-from modules.dsp.sim.stress import TYPICAL_MASKS, dsp_traffic, fault_stream, random_telemetry, score  # noqa: E402
+from modules.dsp import codec
+from modules.dsp import protocol as p
+from modules.dsp.framing import Frame, FrameParser
+from modules.dsp.sim.stress import TYPICAL_MASKS, dsp_traffic, fault_stream, random_telemetry, score
 
 LINE_BYTES_PER_S = 921_600 / 10  # 8N1: 10 bit times per byte
 TARGET_SHARE = 0.05
@@ -111,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=100_000, help="frames in the 1 %% corruption run (100000)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per timing, best kept (3)")
-    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "dsp.json"))
+    ap.add_argument("--out", help="result file (default bench/results/dsp.json)")
     args = ap.parse_args(argv)
 
     rows: list[dict] = []
@@ -211,10 +207,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{base.recovery_ratio:.4f}, bad accepted {base.bad_accepted}; our parser is "
           f"{result['baseline_naive_receiver']['parse_speedup_clean_mixed']:.1f}× faster on clean mixed "
           f"traffic")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {out}")
+    write_results("dsp", result, args.out)
     return 0
 
 

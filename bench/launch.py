@@ -9,39 +9,23 @@ Writes bench/results/launch.json with summary keys ``cold_start_s`` and ``cold_s
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import socket
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchlib import ROOT, write_results
 
-from module_manager.manifest import load_manifest  # noqa: E402
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def env() -> dict[str, str]:
-    e = dict(os.environ)
-    e["PYTHONPATH"] = os.pathsep.join([str(ROOT), e.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-    e.setdefault("CROMAT_LOG", "WARNING")
-    return e
+from bbcs.testing import child_env, free_port
+from module_manager.manifest import load_manifest
 
 
 def cold_start(manifest: Path, expect: str) -> float:
     """Seconds from starting ``cromat launch`` to its "all N modules up" line; it then stops everything."""
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "module_manager.cli", str(manifest), "--once-up",
-                             "--listen", f"tcp/127.0.0.1:{free_port()}"], cwd=str(ROOT), env=env(),
+                             "--listen", f"tcp/127.0.0.1:{free_port()}"], cwd=str(ROOT), env=child_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True)
     up = None
     assert proc.stdout is not None
@@ -58,7 +42,7 @@ def cold_start(manifest: Path, expect: str) -> float:
 def bare_zenoh(n: int) -> float:
     """Seconds to start ``n`` ``python -c "import zenoh"`` processes at once and see them all finish."""
     t0 = time.perf_counter()
-    procs = [subprocess.Popen([sys.executable, "-c", "import zenoh"], env=env()) for _ in range(n)]
+    procs = [subprocess.Popen([sys.executable, "-c", "import zenoh"], env=child_env()) for _ in range(n)]
     for p in procs:
         p.wait(60)
     return time.perf_counter() - t0
@@ -84,12 +68,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{max(launches):7.3f}")
     print(f"{f'{n_procs} x python -c import zenoh':<42} {bare:9.3f} {min(bares):7.3f} {max(bares):7.3f}")
     print(f"cold_start_ratio {ratio:.2f}")
-    out = ROOT / "bench" / "results" / "launch.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
+    write_results("launch", {
         "manifest": str(manifest.relative_to(ROOT)) if manifest.is_relative_to(ROOT) else str(manifest),
         "runs": args.runs, "processes": n_procs, "launch_s": launches, "bare_import_zenoh_s": bares,
-        "summary": {"cold_start_s": round(cold, 4), "cold_start_ratio": round(ratio, 3)}}, indent=2) + "\n")
+        "summary": {"cold_start_s": round(cold, 4), "cold_start_ratio": round(ratio, 3)}})
     return 0
 
 

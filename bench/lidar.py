@@ -26,15 +26,14 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchlib import write_results
 
-from modules.lidar_logger.binlog import BinaryLogWriter, read_binary_log  # noqa: E402
-from modules.lidar_logger.flags import wire_to_seed  # noqa: E402
-from modules.lidar_logger.ldmrs_scan import encode_scan  # noqa: E402
-from modules.lidar_logger.logdata import ScanRecord  # noqa: E402
-from modules.lidar_logger.sim import LdmrsDevice, LdmrsOptions, World  # noqa: E402
-from modules.lidar_logger.textlog import TextLogWriter, format_scan, read_text_log  # noqa: E402
+from modules.lidar_logger.binlog import BinaryLogWriter, read_binary_log
+from modules.lidar_logger.flags import wire_to_seed
+from modules.lidar_logger.ldmrs_scan import encode_scan
+from modules.lidar_logger.logdata import ScanRecord
+from modules.lidar_logger.sim import LdmrsDevice, LdmrsOptions, World
+from modules.lidar_logger.textlog import TextLogWriter, format_scan, read_text_log
 
 REALTIME_POINTS_PER_S = 700 / 0.080
 SCANS_PER_MINUTE = 750
@@ -118,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scans", type=int, default=SCANS_PER_MINUTE, help="scans written (750 = one minute)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=5)
-    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "lidar.json"))
+    ap.add_argument("--out", help="result file (default bench/results/lidar.json)")
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()
@@ -168,11 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"reading back: text {results['text']['read_points_per_s']:,.0f} points/s, "
           f"binary {results['binary']['read_points_per_s']:,.0f} points/s")
     print(f"summary: {json.dumps(summary)}")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"summary": summary, "realtime_points_per_s": REALTIME_POINTS_PER_S,
-                               "scans": len(records), "points": points, "writers": results,
-                               "cpus": os.cpu_count()}, indent=2) + "\n")
+    write_results("lidar", {"summary": summary, "realtime_points_per_s": REALTIME_POINTS_PER_S,
+                            "scans": len(records), "points": points, "writers": results,
+                            "cpus": os.cpu_count()}, args.out)
     return 0
 
 

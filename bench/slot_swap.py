@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -23,23 +21,13 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchlib import ROOT, pct, write_results
+
+from bbcs.session import local_client, open_session
+from bbcs.testing import child_env, free_port
+from module_manager import mri
+
 PROBE = ROOT / "tests" / "module_manager"
-sys.path.insert(0, str(ROOT))
-
-from bbcs.session import local_client, open_session  # noqa: E402
-from module_manager import mri  # noqa: E402
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def pct(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))]
 
 
 def records(path: Path) -> list[dict]:
@@ -59,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     manifest = work / "robot.toml"
     manifest.write_text(text)
     port = free_port()
-    env = dict(os.environ, PYTHONPATH=str(ROOT), CROMAT_LOG="WARNING")
+    env = child_env()
     proc = subprocess.Popen([sys.executable, "-m", "module_manager.cli", str(manifest), "--listen",
                              f"tcp/127.0.0.1:{port}"], cwd=str(ROOT), env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.DEVNULL, text=True, start_new_session=True)
@@ -113,14 +101,12 @@ def main(argv: list[str] | None = None) -> int:
           f"{max(acks):7.2f}")
     print(f"{'baseline: MRI no-op (routes) round trip':<46} {statistics.median(noop):7.2f} {pct(noop, 99):7.2f} "
           f"{max(noop):7.2f}")
-    out = ROOT / "bench" / "results" / "slot_swap.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({
+    write_results("slot_swap", {
         "swaps": args.swaps, "source_period_ms": args.period_ms,
         "swap_ms": [round(v, 3) for v in swaps], "ack_ms": [round(v, 3) for v in acks],
         "noop_mri_ms": [round(v, 3) for v in noop],
         "baseline_noop_p50_ms": round(statistics.median(noop), 3),
-        "summary": {"swap_p50_ms": round(p50, 3), "swap_p99_ms": round(p99, 3)}}, indent=2) + "\n")
+        "summary": {"swap_p50_ms": round(p50, 3), "swap_p99_ms": round(p99, 3)}})
     return 0
 
 

@@ -19,40 +19,32 @@ import argparse
 import json
 import statistics
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import msgspec
 import numpy as np
+from benchlib import ROOT, pct, write_results
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from bbcs import keys  # noqa: E402
-from bbcs.routing import SlotRef, SlotTable  # noqa: E402
-from bbcs.session import local_client, open_session  # noqa: E402
-from bbcs.slots import Kind, OutputSlot, Publisher  # noqa: E402
-from bbcs.testing import Processes, child_env, start_router, wait_until  # noqa: E402
-from modules.dsp import bus as dsp_bus  # noqa: E402
-from modules.dsp import protocol as p  # noqa: E402
-from modules.pan_tilt.structs import ControlEntradaPT, ModoFuncionamientoPT  # noqa: E402
-from modules.vision.geodesy import LocalFrame  # noqa: E402
-from modules.vision.pipeline import VisionPipeline  # noqa: E402
-from modules.vision.pose import Gimbal  # noqa: E402
-from modules.vision.scene import LinearTarget  # noqa: E402
-from modules.vision.sim_camera import SimulatedCamera  # noqa: E402
-from modules.vision.source import Frame  # noqa: E402
+from bbcs import keys
+from bbcs.routing import SlotRef, SlotTable
+from bbcs.session import local_client, open_session
+from bbcs.slots import Kind, OutputSlot, Publisher
+from bbcs.testing import Processes, child_env, start_router, wait_until
+from modules.dsp import bus as dsp_bus
+from modules.dsp import protocol as p
+from modules.pan_tilt.structs import ControlEntradaPT, ModoFuncionamientoPT
+from modules.vision.geodesy import LocalFrame
+from modules.vision.pipeline import VisionPipeline
+from modules.vision.pose import Gimbal
+from modules.vision.scene import LinearTarget
+from modules.vision.sim_camera import SimulatedCamera
+from modules.vision.source import Frame
 
 ROBOT = "bench"
 HOME = (37.4117, -6.0025, 12.0)
 CONF = ROOT / "bbcs_conf" / "uav1.conf"
-
-
-def pct(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
 def throughput(frames: int) -> tuple[float, float]:
@@ -185,8 +177,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         lat, floor_ms, commands = latency(args.camera_hz, args.seconds, Path(tmp))
     summary = {"fps": fps, "fps_ratio": fps / args.camera_hz,
-               "frame_to_dsp_p50_ms": pct(lat, 0.5) if lat else None,
-               "frame_to_dsp_p99_ms": pct(lat, 0.99) if lat else None,
+               "frame_to_dsp_p50_ms": pct(lat, 50) if lat else None,
+               "frame_to_dsp_p99_ms": pct(lat, 99) if lat else None,
                "raw_zenoh_one_way_p50_ms": floor_ms}
     print(f"{'measure':34} {'value':>10}")
     print(f"{'pipeline frames/s (640x480)':34} {fps:10.1f}")
@@ -195,14 +187,11 @@ def main() -> None:
     print(f"{'render ms/frame (sim, not timed)':34} {render_ms:10.2f}")
     print(f"{'SET_PT_TARGET commands paired':34} {len(lat):10d} of {commands}")
     if lat:
-        print(f"{'frame → DSP p50 ms':34} {pct(lat, 0.5):10.2f}")
-        print(f"{'frame → DSP p99 ms':34} {pct(lat, 0.99):10.2f}")
+        print(f"{'frame → DSP p50 ms':34} {pct(lat, 50):10.2f}")
+        print(f"{'frame → DSP p99 ms':34} {pct(lat, 99):10.2f}")
     print(f"{'raw Zenoh one-way p50 ms (floor)':34} {floor_ms:10.3f}")
-    out = ROOT / "bench" / "results" / "vision.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"summary": summary, "frames": args.frames, "camera_hz": args.camera_hz,
-                               "latency_ms": lat, "stamp": time.time()}, indent=2))
-    print(f"\nwrote {out.relative_to(ROOT)}")
+    write_results("vision", {"summary": summary, "frames": args.frames, "camera_hz": args.camera_hz,
+                             "latency_ms": lat, "stamp": time.time()})
 
 
 if __name__ == "__main__":

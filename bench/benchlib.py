@@ -1,0 +1,33 @@
+"""What every benchmark shares: the project on ``sys.path``, one percentile, and writing ``bench/results/NAME.json``.
+
+Benchmarks run as ``python bench/NAME.py`` from a checkout, so this file sits beside them and is imported first.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+RESULTS = ROOT / "bench" / "results"
+
+
+def pct(values: list[float], q: float) -> float:
+    """The ``q``-th percentile (0–100) of ``values``: the sample at that rank, no interpolation."""
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))]
+
+
+def write_results(name: str, result: dict[str, Any], out: str | Path | None = None) -> Path:
+    """Write ``result`` (which holds the issue's ``summary`` object) as JSON, by default to results/NAME.json."""
+    if "summary" not in result:
+        raise ValueError(f"benchmark {name!r}: its result has no 'summary' object")
+    path = Path(out) if out is not None else RESULTS / f"{name}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
+    return path
