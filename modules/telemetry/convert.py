@@ -1,16 +1,21 @@
 """DSP telemetry → the robot-independent :class:`bbcs.robot.RobotTelemetry` (pure, no bus).
 
-A field the DSP did not send (its telemetry mask) stays ``None``. A position outside WGS84 ranges or a
-non-finite number is not passed on: that field becomes ``None`` and the caller counts it (no datum affected by
-an error is used).
+A field the DSP did not send (its telemetry mask) stays ``None``. A position outside WGS84 ranges (as the
+:mod:`bbcs.robot` types declare them) or a non-finite number is not passed on: that field becomes ``None`` and
+the caller counts it (no datum affected by an error is used).
 """
 
 from __future__ import annotations
 
 import math
+from typing import TypeVar
+
+import msgspec
 
 from bbcs.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
 from modules.dsp import protocol as p
+
+_S = TypeVar("_S", bound=msgspec.Struct)
 
 
 def mode_name(mode: int) -> str:
@@ -24,30 +29,27 @@ def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
+def _part(part: msgspec.Struct | None, into: type[_S], name: str, dropped: list[str]) -> _S | None:
+    """``part`` as the robot struct ``into`` (same field names), its ranges checked by ``into``'s type;
+    None, with ``name`` added to ``dropped``, when a value is non-finite or out of range."""
+    if part is None:
+        return None
+    values = msgspec.structs.asdict(part)
+    if _finite(*values.values()):
+        try:
+            return msgspec.convert(values, into)
+        except msgspec.ValidationError:
+            pass
+    dropped.append(name)
+    return None
+
+
 def to_robot_telemetry(t: p.Telemetry, stamp: float) -> tuple[RobotTelemetry, list[str]]:
     """The robot telemetry of one DSP frame, and the names of fields dropped as invalid."""
     dropped: list[str] = []
-    position = None
-    if t.position is not None:
-        pos = t.position
-        if _finite(pos.lat, pos.lon, pos.alt) and -90 <= pos.lat <= 90 and -180 <= pos.lon <= 180:
-            position = GeoPoint(lat=pos.lat, lon=pos.lon, alt=pos.alt)
-        else:
-            dropped.append("position")
-    attitude = None
-    if t.attitude is not None:
-        a = t.attitude
-        if _finite(a.roll, a.pitch, a.yaw):
-            attitude = Attitude(roll=a.roll, pitch=a.pitch, yaw=a.yaw)
-        else:
-            dropped.append("attitude")
-    velocity = None
-    if t.velocity is not None:
-        v = t.velocity
-        if _finite(v.vn, v.ve, v.vd):
-            velocity = VelocityNED(vn=v.vn, ve=v.ve, vd=v.vd)
-        else:
-            dropped.append("velocity")
+    position = _part(t.position, GeoPoint, "position", dropped)
+    attitude = _part(t.attitude, Attitude, "attitude", dropped)
+    velocity = _part(t.velocity, VelocityNED, "velocity", dropped)
     heading = None
     if t.heading is not None:
         if _finite(t.heading):

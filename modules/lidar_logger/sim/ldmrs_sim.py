@@ -16,7 +16,6 @@ from __future__ import annotations
 import select
 import socket
 import struct
-import threading
 import time
 from dataclasses import dataclass, field
 
@@ -45,6 +44,7 @@ from modules.lidar_logger.ldmrs_scan import (
     make_points,
     posix_to_ntp,
 )
+from modules.lidar_logger.sim.background import BackgroundServer
 from modules.lidar_logger.sim.world import World
 
 ANGLE_STEP_TICKS = 8
@@ -247,11 +247,14 @@ class LdmrsDevice:
                     points)
 
 
-class LdmrsSimulator:
+class LdmrsSimulator(BackgroundServer):
     """The device behind a TCP server on ``host:port`` (port 0 picks a free one; see ``.port``)."""
+
+    THREAD_NAME = "ldmrs-sim"
 
     def __init__(self, world: World, options: LdmrsOptions | None = None, *, host: str = "127.0.0.1",
                  port: int = 0) -> None:
+        super().__init__()
         self.world = world
         self.device = LdmrsDevice(world, options or LdmrsOptions())
         self._listener = socket.create_server((host, port))
@@ -262,25 +265,9 @@ class LdmrsSimulator:
         """Clock time of every accepted connection."""
         self.messages_sent = 0
         self._garbage_rng = np.random.default_rng(self.device.options.seed + 1)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
-    def start(self) -> LdmrsSimulator:
-        self._thread = threading.Thread(target=self._serve, name="ldmrs-sim", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
+    def _release(self) -> None:
         self._listener.close()
-
-    def __enter__(self) -> LdmrsSimulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def _send(self, client: socket.socket, data_type: int, payload: bytes, t: float) -> None:
         msg = pack_message(data_type, payload, ntp=self.device.scanner_ntp(t))

@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 import select
 import struct
-import threading
 import tty
 from dataclasses import dataclass, field
 
@@ -25,6 +24,7 @@ from modules.lidar_logger.mtdata import (
     encode_pose_payload,
     layout,
 )
+from modules.lidar_logger.sim.background import BackgroundServer
 from modules.lidar_logger.sim.world import World
 from modules.lidar_logger.xbus import MID, Frame, FrameParser, ack_of, build_frame
 
@@ -144,10 +144,13 @@ class MTiGDevice:
         return None
 
 
-class MTiGSimulator:
+class MTiGSimulator(BackgroundServer):
     """The device on a pty, served by a thread. ``port`` is the path a driver opens."""
 
+    THREAD_NAME = "mtig-sim"
+
     def __init__(self, world: World, **device_kwargs) -> None:
+        super().__init__()
         self.world = world
         self.device = MTiGDevice(world, **device_kwargs)
         self._master, self._slave = os.openpty()
@@ -156,29 +159,13 @@ class MTiGSimulator:
         self.port = os.ttyname(self._slave)
         self.parser = FrameParser()
         self.dropped_writes = 0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
-    def start(self) -> MTiGSimulator:
-        self._thread = threading.Thread(target=self._serve, name="mtig-sim", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
+    def _release(self) -> None:
         for fd in (self._master, self._slave):
             try:
                 os.close(fd)
             except OSError:
                 pass
-
-    def __enter__(self) -> MTiGSimulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def inject(self, data: bytes) -> None:
         """Put raw bytes on the line (line noise, a corrupt frame) as if the device had sent them."""
