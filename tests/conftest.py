@@ -11,6 +11,9 @@ import pytest
 
 from bbcs.testing import Processes, start_router
 
+# helpers whose asserts check what tests see: rewritten so a failure shows the values, as in a test file
+pytest.register_assert_rewrite("harness", "tests.system.uav_stack")
+
 
 @pytest.fixture
 def processes() -> Iterator[Processes]:
@@ -28,14 +31,17 @@ def router(processes: Processes) -> int:
 
 
 @pytest.fixture
-def sessions(router: int) -> Iterator[Callable[[], object]]:
-    """Factory of client sessions of ``router``; all closed at teardown."""
+def clients() -> Iterator[Callable[[int], object]]:
+    """Factory of client sessions of the router on a given 127.0.0.1 port; all closed at teardown.
+
+    Request it after the fixture that starts the router, so the sessions close before the router stops.
+    """
     from bbcs.session import local_client, open_session
 
     opened = []
 
-    def make():
-        s = open_session(local_client(router))
+    def make(port: int):
+        s = open_session(local_client(port))
         opened.append(s)
         return s
 
@@ -44,3 +50,9 @@ def sessions(router: int) -> Iterator[Callable[[], object]]:
     finally:
         for s in opened:
             s.close()
+
+
+@pytest.fixture
+def sessions(router: int, clients: Callable[[int], object]) -> Callable[[], object]:
+    """Factory of client sessions of ``router``; all closed at teardown."""
+    return lambda: clients(router)

@@ -13,7 +13,6 @@ import msgspec
 import pytest
 
 from bbcs import keys
-from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
 from module_manager import mri
 
@@ -39,22 +38,6 @@ def launch(tmp_path):
     finally:
         for launch in started:
             launch.cleanup()
-
-
-@pytest.fixture
-def client():
-    opened = []
-
-    def make(port: int):
-        s = open_session(local_client(port))
-        opened.append(s)
-        return s
-
-    try:
-        yield make
-    finally:
-        for s in opened:
-            s.close()
 
 
 def sink_records(tmp_path: Path) -> list[dict]:
@@ -99,10 +82,10 @@ def test_manager_sigkilled_leaves_no_orphan(launch):
     wait_until(lambda: group_members(la.pgid) == [], 30, "children to die with the manager (PR_SET_PDEATHSIG)")
 
 
-def test_kill9_module_is_restarted_with_its_current_routing(launch, client, tmp_path):
+def test_kill9_module_is_restarted_with_its_current_routing(launch, clients, tmp_path):
     la = launch()
     la.wait_line(UP)
-    s = client(la.port)
+    s = clients(la.port)
     swap = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=2), MRI_S)
     assert swap.ok, swap.reason
     before = modules(s)["sink"]
@@ -134,10 +117,10 @@ period_s = 60.0
 """
 
 
-def test_always_crashing_module_is_failed_others_keep_running(launch, client, tmp_path):
+def test_always_crashing_module_is_failed_others_keep_running(launch, clients, tmp_path):
     la = launch(edit=add_crasher)
     la.wait_line("intensity exceeded", 60)
-    s = client(la.port)
+    s = clients(la.port)
     # the crasher can fail before the other modules have finished starting: they must come (and stay) up
     wait_until(lambda: all(m.state == "up" for n, m in modules(s).items() if n != "crasher"), 30, "the others up")
     status = modules(s)
@@ -167,10 +150,10 @@ def test_always_crashing_module_is_failed_others_keep_running(launch, client, tm
     assert la.stop() == 0
 
 
-def test_swap_route_through_mri_while_data_flow(launch, client, tmp_path):
+def test_swap_route_through_mri_while_data_flow(launch, clients, tmp_path):
     la = launch()
     la.wait_line(UP)
-    s = client(la.port)
+    s = clients(la.port)
     wait_until(lambda: any(r.get("source") == "src_a" for r in sink_records(tmp_path)), 30, "data from src_a")
     for bad, why in ((4, "carries"), (99, "not in the slot table")):
         reply = mri.call(s, "r1", "route", mri.SwapRoute(module="sink", input="datos", slot=bad), MRI_S)
@@ -190,10 +173,10 @@ def test_swap_route_through_mri_while_data_flow(launch, client, tmp_path):
     assert la.stop() == 0
 
 
-def test_tasks_modes_and_robot_state_errors(launch, client, tmp_path):
+def test_tasks_modes_and_robot_state_errors(launch, clients, tmp_path):
     la = launch()
     la.wait_line(UP)
-    s = client(la.port)
+    s = clients(la.port)
     tasks = mri.call(s, "r1", "tasks", mri.ListTasks(), MRI_S)
     assert tasks.ok and tasks.data.available == {"follow_b": "perception", "ignore_all": "perception"}
     reply = mri.call(s, "r1", "task", mri.SetTask(name="follow_b"), MRI_S)
@@ -222,10 +205,10 @@ def test_tasks_modes_and_robot_state_errors(launch, client, tmp_path):
     assert la.stop() == 0
 
 
-def test_module_stop_start_restart_through_mri(launch, client):
+def test_module_stop_start_restart_through_mri(launch, clients):
     la = launch()
     la.wait_line(UP)
-    s = client(la.port)
+    s = clients(la.port)
     reply = mri.call(s, "r1", "module", mri.ModuleCommand(module="src_a", action="stop"), timeout_s=15)
     assert reply.ok and reply.data.state == "stopped"
     assert modules(s)["src_a"].pid is None

@@ -187,14 +187,19 @@ def test_telemetry_module_reports_the_dsp_state(stack: Stack) -> None:
 # --- what each input does in each mode ----------------------------------------------------------------
 
 
+def ignored_in_mode(stack: Stack, m: int, source: str, value, bad: dict, code: int, slot: str) -> None:
+    """In mode ``m``, ``value`` on ``source`` is handled (``bad`` after it gives ``code``) and reaches nothing."""
+    enter(stack, m, f"mode {m}")
+    mark = stack.mark()
+    stack.send(source, value)
+    stack.handled(PF, source, bad, code, f"{source} in mode {m}")
+    stack.barrier()
+    assert stack.received(mark) == [], f"{slot} reached the DSP in mode {m}"
+
+
 def test_heading_reaches_the_dsp_in_degrees_in_mode_1_only(stack: Stack) -> None:
     for m in (0, 6, 2):  # 2 last: the mode the reset left, re-entered
-        enter(stack, m, f"mode {m}")
-        mark = stack.mark()
-        stack.send("heading", HeadingSegCam(heading=1.0))
-        stack.handled(PF, "heading", BAD_HEADING, E.HEADING_OUT_OF_RANGE, f"heading in mode {m}")
-        stack.barrier()
-        assert stack.received(mark) == [], f"HEADING reached the DSP in mode {m}"
+        ignored_in_mode(stack, m, "heading", HeadingSegCam(heading=1.0), BAD_HEADING, E.HEADING_OUT_OF_RANGE, "HEADING")
     enter_mode_1(stack)
     for rad, deg in ((-math.pi / 2, -90.0), (0.5, math.degrees(0.5)), (-math.pi, -180.0)):
         mark = stack.mark()
@@ -204,12 +209,7 @@ def test_heading_reaches_the_dsp_in_degrees_in_mode_1_only(stack: Stack) -> None
 
 def test_path_reaches_the_dsp_in_modes_0_and_1_only(stack: Stack) -> None:
     for m in (6, 2):
-        enter(stack, m, f"mode {m}")
-        mark = stack.mark()
-        stack.send("path", PATH)
-        stack.handled(PF, "path", BAD_PATH, E.N_POINTS_MISMATCH, f"path in mode {m}")
-        stack.barrier()
-        assert stack.received(mark) == [], f"DATOS reached the DSP in mode {m}"
+        ignored_in_mode(stack, m, "path", PATH, BAD_PATH, E.N_POINTS_MISMATCH, "DATOS")
         stack.wait_state(f"no path in mode {m}", path_valid=False, queue=0)
     enter_mode_1(stack)
     stack.wait_state("mode 1", mode=1, tracking=True)
@@ -226,12 +226,7 @@ def test_path_reaches_the_dsp_in_modes_0_and_1_only(stack: Stack) -> None:
 
 def test_refs_reach_the_dsp_in_mode_6_only(stack: Stack) -> None:
     for m in (0, 2):
-        enter(stack, m, f"mode {m}")
-        mark = stack.mark()
-        stack.send("refs", REFS)
-        stack.handled(PF, "refs", BAD_REFS, E.REF_RPM_OUT_OF_RANGE, f"refs in mode {m}")
-        stack.barrier()
-        assert stack.received(mark) == [], f"REFS reached the DSP in mode {m}"
+        ignored_in_mode(stack, m, "refs", REFS, BAD_REFS, E.REF_RPM_OUT_OF_RANGE, "REFS")
     enter(stack, 6, "mode 6")
     mark = stack.mark()
     stack.send("refs", REFS)
@@ -285,12 +280,7 @@ def test_out_of_range_datum_gives_its_code_and_nothing_reaches_the_dsp(
         enter_mode_1(stack)
     else:
         enter(stack, m, f"mode {m}")
-    errors = stack.error_mark(PF)
-    mark = stack.mark()
-    stack.send_raw(source, raw)
-    stack.expect_error(PF, errors, code, f"{source} {raw}")
-    stack.barrier()
-    assert stack.received(mark) == [], f"{source} {raw} reached the DSP"
+    stack.refused(PF, source, raw, code)
 
 
 def test_bad_control_entrada_keeps_the_routes(stack: Stack) -> None:

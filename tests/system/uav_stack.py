@@ -356,6 +356,15 @@ class Stack:
         self.send_raw(source, bad)
         self.expect_error(module, mark, code, what)
 
+    def refused(self, module: str, source: str, fields: dict[str, Any], code: int) -> None:
+        """A bad datum on ``source``: exactly ``code`` on ``module``'s ERROR, and nothing reaches the DSP."""
+        errors = self.error_mark(module)
+        mark = self.mark()
+        self.send_raw(source, fields)
+        self.expect_error(module, errors, code, f"{source} {fields}")
+        self.barrier()
+        assert self.received(mark) == [], f"{source} {fields} reached the DSP"
+
     # --- the DSP's state -------------------------------------------------------------------------------
 
     def status(self) -> p.DspStatus:

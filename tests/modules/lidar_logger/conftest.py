@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from typing import TypeVar
 
 import pytest
 
 from modules.lidar_logger.clock import ScaledClock
-from modules.lidar_logger.sim import LdmrsOptions, LdmrsSimulator, MTiGSimulator, World
+from modules.lidar_logger.sim import LdmrsSimulator, MTiGSimulator, World
+
+Sim = TypeVar("Sim", MTiGSimulator, LdmrsSimulator)
 
 
 @pytest.fixture
@@ -18,12 +21,12 @@ def make_world() -> Callable[..., World]:
     return make
 
 
-@pytest.fixture
-def start_mtig() -> Iterator[Callable[[World], MTiGSimulator]]:
-    started: list[MTiGSimulator] = []
+def _started(make: Callable[..., Sim]) -> Iterator[Callable[..., Sim]]:
+    """Yield a starter of ``make``'s simulators; every one it started is stopped, also on failure."""
+    started: list[Sim] = []
 
-    def start(world: World) -> MTiGSimulator:
-        sim = MTiGSimulator(world)
+    def start(*args, **kwargs) -> Sim:
+        sim = make(*args, **kwargs)
         started.append(sim)
         return sim.start()
 
@@ -32,19 +35,14 @@ def start_mtig() -> Iterator[Callable[[World], MTiGSimulator]]:
     finally:
         for sim in started:
             sim.stop()
+
+
+@pytest.fixture
+def start_mtig() -> Iterator[Callable[[World], MTiGSimulator]]:
+    yield from _started(MTiGSimulator)
 
 
 @pytest.fixture
 def start_ldmrs() -> Iterator[Callable[..., LdmrsSimulator]]:
-    started: list[LdmrsSimulator] = []
-
-    def start(world: World, options: LdmrsOptions | None = None) -> LdmrsSimulator:
-        sim = LdmrsSimulator(world, options)
-        started.append(sim)
-        return sim.start()
-
-    try:
-        yield start
-    finally:
-        for sim in started:
-            sim.stop()
+    """``start_ldmrs(world, options=None)``: a started ``LdmrsSimulator``."""
+    yield from _started(LdmrsSimulator)

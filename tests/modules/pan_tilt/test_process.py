@@ -3,6 +3,7 @@ the mode table and every out-of-range datum (its code on ERROR, nothing to the D
 
 from __future__ import annotations
 
+import functools
 import sys
 from pathlib import Path
 
@@ -13,22 +14,21 @@ from bbcs.slots import Safety
 from bbcs.testing import stop_process
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "path_follower"))
-from harness import Source, Watch, control_source, start_module  # noqa: E402
+from harness import Source, Watch, close_rig, control_source, start_module  # noqa: E402
+from harness import step as marker_step  # noqa: E402
 
 from modules.dsp import protocol as p  # noqa: E402
 from modules.pan_tilt.logic import PanTiltError as E  # noqa: E402
 from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ModoFuncionamientoPT  # noqa: E402
 
 STOP_S = 20.0  # a loaded machine may take seconds to stop a Zenoh process: the exit code is what is checked
-# per input, a datum refused at decoding and its code. Sent after a step's datum on the same input, whose thread
-# handles data in arrival order and publishes a datum's DSP commands before the next one's ERROR code, its code
-# proves the step's datum handled and its commands here: absence is checked without a fixed sleep. An input not
-# routed at the time never reaches the module, so its marker goes through one that is (``via``).
+# per input, a datum refused at decoding and its code: the marker that ends a ``step`` (see ``harness.step``)
 MARKERS = {
     "modo": ({"modo_de_funcionamiento": 3}, E.MODE_OUT_OF_RANGE),
     "a": ({"ref_pan": 180.001}, E.REF_PAN_OUT_OF_RANGE),
     "b": ({"ref_pan": 180.001}, E.REF_PAN_OUT_OF_RANGE),
 }
+step = functools.partial(marker_step, markers=MARKERS)
 
 
 @pytest.fixture
@@ -46,21 +46,7 @@ def rig(processes, router, sessions, tmp_path):
         watch.wait_alive()
         yield proc, watch, src
     finally:
-        for source in src.values():
-            source.close()
-        watch.close()
-
-
-def step(watch, src, name, value, expected, what, *, via=None):
-    """Publish ``value`` on input ``name``; exactly ``expected`` DSP commands must follow it (none after)."""
-    before, errors = len(watch.commands()), len(watch.errors)
-    src[name].send(value)
-    watch.wait_for(lambda: len(watch.commands()) >= before + len(expected), what)
-    raw, code = MARKERS[via or name]
-    src[via or name].send_raw(msgspec.msgpack.encode(raw))
-    watch.wait_for(lambda: len(watch.errors) > errors, f"the marker's code after: {what}")
-    assert watch.errors[errors:] == [code], what
-    assert watch.commands()[before:] == expected, what
+        close_rig(watch, src)
 
 
 def angles(pan: float, tilt: float = 0.0) -> DatosPT:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import subprocess
 import threading
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -133,6 +134,43 @@ class Watch:
     def close(self) -> None:
         for sub in self.subs:
             sub.undeclare()
+
+
+def close_rig(watch: Watch, src: Mapping[str, Any]) -> None:
+    """A rig's teardown: close every source, then the watch."""
+    for source in src.values():
+        source.close()
+    watch.close()
+
+
+def step(
+    watch: Watch,
+    src: Mapping[str, Any],
+    name: str,
+    value: Any,
+    expected: list,
+    what: str,
+    *,
+    markers: Mapping[str, tuple[dict[str, Any], int]],
+    errors: tuple[int, ...] = (),
+    via: str | None = None,
+) -> None:
+    """Publish ``value`` on input ``name``: exactly ``expected`` commands (and ``errors`` codes) follow it.
+
+    ``markers`` gives, per input, a datum the module refuses at decoding and its code. Sent after the step's
+    datum on the same input, whose thread handles data in arrival order and publishes a datum's DSP commands
+    before the next one's ERROR code, its code proves the step's datum handled and its commands here: absence
+    is checked without a fixed sleep. An input not routed at the time never reaches the module, so its marker
+    goes through one that is (``via``).
+    """
+    before, n = len(watch.commands()), len(watch.errors)
+    src[name].send(value)
+    watch.wait_for(lambda: len(watch.commands()) >= before + len(expected), what)
+    raw, code = markers[via or name]
+    src[via or name].send_raw(msgspec.msgpack.encode(raw))
+    watch.wait_for(lambda: len(watch.errors) > n + len(errors), f"the marker's code after: {what}")
+    assert watch.errors[n:] == [*errors, code], what
+    assert watch.commands()[before:] == expected, what
 
 
 class Source:

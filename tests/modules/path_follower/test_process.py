@@ -6,6 +6,7 @@ commands are observed on the DSP process's mailbox key, so nothing here needs th
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 from pathlib import Path
@@ -17,7 +18,16 @@ from bbcs.slots import Kind, Safety
 from bbcs.testing import stop_process
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from harness import FOLLOWER_ROUTES, Source, TelemetryStream, Watch, control_source, start_module  # noqa: E402
+from harness import (  # noqa: E402
+    FOLLOWER_ROUTES,
+    Source,
+    TelemetryStream,
+    Watch,
+    close_rig,
+    control_source,
+    start_module,
+)
+from harness import step as marker_step  # noqa: E402
 
 from modules.dsp import protocol as p  # noqa: E402
 from modules.path_follower.logic import FollowerError as E  # noqa: E402
@@ -32,10 +42,7 @@ from modules.path_follower.structs import (  # noqa: E402
 
 STOP_S = 20.0  # a loaded machine may take seconds to stop a Zenoh process: the exit code is what is checked
 RF = {field: 0.0 for field in RefsSegCam.__struct_fields__}  # valid all-zero references
-# per input, a datum refused at decoding and its code. Sent after a step's datum on the same input, whose thread
-# handles data in arrival order and publishes a datum's DSP commands before the next one's ERROR code, its code
-# proves the step's datum handled and its commands here: absence is checked without a fixed sleep. An input not
-# routed at the time never reaches the module, so its marker goes through one that is (``via``).
+# per input, a datum refused at decoding and its code: the marker that ends a ``step`` (see ``harness.step``)
 MARKERS = {
     "modo": ({"modo_o_comando": -1}, E.MODO_O_COMANDO_OUT_OF_RANGE),
     "heading": ({"heading": math.pi}, E.HEADING_OUT_OF_RANGE),
@@ -44,6 +51,7 @@ MARKERS = {
     "refs": ({**RF, "ref_rpm_motor": -1e-9}, E.REF_RPM_OUT_OF_RANGE),
 }
 PT = DatoPuntoSegCam(latitud=37.4118, longitud=-6.0024, altura=20.0)
+step = functools.partial(marker_step, markers=MARKERS)
 
 
 def mode(m: int) -> ControlModoSegCam:
@@ -77,31 +85,7 @@ def rig(processes, router, sessions, tmp_path):
         watch.wait_alive()
         yield proc, watch, src
     finally:
-        for source in src.values():
-            source.close()
-        watch.close()
-
-
-def step(
-    watch: Watch,
-    src: dict[str, Source],
-    name: str,
-    value,
-    expected: list,
-    what: str,
-    *,
-    errors: tuple[int, ...] = (),
-    via: str | None = None,
-) -> None:
-    """Publish ``value`` on input ``name``: exactly ``expected`` commands (and ``errors`` codes) follow it."""
-    before, n = len(watch.commands()), len(watch.errors)
-    src[name].send(value)
-    watch.wait_for(lambda: len(watch.commands()) >= before + len(expected), what)
-    raw, code = MARKERS[via or name]
-    src[via or name].send_raw(msgspec.msgpack.encode(raw))
-    watch.wait_for(lambda: len(watch.errors) > n + len(errors), f"the marker's code after: {what}")
-    assert watch.errors[n:] == [*errors, code], what
-    assert watch.commands()[before:] == expected, what
+        close_rig(watch, src)
 
 
 def test_mode_table_and_slot_gating(rig):
@@ -178,33 +162,14 @@ def test_mode_table_and_slot_gating(rig):
     refs = RefsSegCam(
         ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500
     )
-    step(
-        watch,
-        src,
-        "refs",
-        refs,
-        [
-            p.SetRefs(
-                ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500
-            )
-        ],
-        "refs as they are in mode 6",
+    set_refs = p.SetRefs(
+        ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500
     )
+    step(watch, src, "refs", refs, [set_refs], "refs as they are in mode 6")
     step(watch, src, "path", DatosSegCam(n_points=1, puntos=[PT]), [], "path ignored in mode 6")
     step(watch, src, "modo", ControlModoSegCam(modo_o_comando=1, numero_de_comando=0), [p.Abort()], "abort")
     step(watch, src, "modo", mode(3), [], "mode 3 sends nothing", errors=(E.ONBOARD_FOLLOWER_NOT_BUILT,))
-    step(
-        watch,
-        src,
-        "refs",
-        refs,
-        [
-            p.SetRefs(
-                ref_altura=30, error_longitudinal=2, error_lateral=-1, ref_heading=0.25, ref_rpm_motor=1500
-            )
-        ],
-        "mode 3 refused: still mode 6",
-    )
+    step(watch, src, "refs", refs, [set_refs], "mode 3 refused: still mode 6")
     assert all(b.sender == "path_follower" for b in watch.batches)
     assert stop_process(proc, STOP_S) == 0
 

@@ -81,6 +81,14 @@ def take_off(link: DspLink, rec: Recorder) -> None:
                what="take-off to 10 m", deadline_s=30)
 
 
+def follow_paths(link: DspLink, rec: Recorder, speed: float) -> None:
+    """Airborne in mode 0 with tracking on at ``speed``: what a waypoint test starts from."""
+    take_off(link, rec)
+    link.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
+    link.send(p.SetTracking(enable=True))
+    link.send(p.SetSpeed(speed=speed))
+
+
 def test_startup_sequence_arrives_in_spec_order(processes, tmp_path: Path) -> None:
     record = tmp_path / "commands.jsonl"
     _, url = start_sim(processes, "--pty", "--record", str(record))
@@ -108,10 +116,7 @@ def test_waypoint_list_is_flown_in_mode_0(processes) -> None:
     rec = Recorder()
     link = fly_startup(url, rec)
     try:
-        take_off(link, rec)
-        link.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
-        link.send(p.SetTracking(enable=True))
-        link.send(p.SetSpeed(speed=6.0))
+        follow_paths(link, rec, 6.0)
         offsets = [(50, 0, 25), (50, 50, 30), (0, 50, 30), (-30, 20, 20)]
         sent = [p.AddWaypoint(lat=HOME[0] + n / METRES_PER_DEG, lon=HOME[1] + e / (METRES_PER_DEG * COS_HOME),
                               alt=alt + 0.0) for n, e, alt in offsets]
@@ -144,10 +149,7 @@ def test_abort_empties_the_queue(processes, tmp_path: Path) -> None:
     rec = Recorder()
     link = fly_startup(url, rec)
     try:
-        take_off(link, rec)
-        link.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
-        link.send(p.SetTracking(enable=True))
-        link.send(p.SetSpeed(speed=8.0))
+        follow_paths(link, rec, 8.0)
         far = [p.AddWaypoint(lat=HOME[0] + 0.002 * (i + 1), lon=HOME[1], alt=40.0) for i in range(5)]
         link.send_waypoints(far)
         wait_until(lambda: rec.last.speed.ground > 3.0 and rec.last.status.queue_length == 5, what="flying the path")

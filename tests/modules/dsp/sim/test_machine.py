@@ -48,6 +48,14 @@ class Driver:
         self.run(20)
         assert self.m.vehicle.state.pos[2] == pytest.approx(10.0, abs=0.3)
 
+    def follow_paths(self, speed: float | None = None) -> None:
+        """Airborne in mode 0 with tracking on (and ``speed`` commanded): what a waypoint test starts from."""
+        self.take_off()
+        self.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
+        self.send(p.SetTracking(enable=True))
+        if speed is not None:
+            self.send(p.SetSpeed(speed=speed))
+
     def waypoint(self, north: float, east: float, up: float) -> p.AddWaypoint:
         par = self.m.params
         east_deg = east / (METRES_PER_DEG * math.cos(math.radians(par.home_lat)))
@@ -100,10 +108,7 @@ def test_retransmission_is_acknowledged_but_not_applied_twice() -> None:
 
 def test_abort_empties_the_queue_and_holds() -> None:
     d = Driver()
-    d.take_off()
-    d.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
-    d.send(p.SetTracking(enable=True))
-    d.send(p.SetSpeed(speed=8))
+    d.follow_paths(8)
     for i in range(5):
         assert d.send(d.waypoint(100 + 50 * i, 0, 10)) == 0
     d.run(5)
@@ -120,10 +125,7 @@ def test_abort_empties_the_queue_and_holds() -> None:
 
 def test_invalidate_clears_the_path_and_tracking_off_stops_following() -> None:
     d = Driver()
-    d.take_off()
-    d.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
-    d.send(p.SetTracking(enable=True))
-    d.send(p.SetSpeed(speed=5))
+    d.follow_paths(5)
     d.send(d.waypoint(200, 0, 10))
     d.run(3)
     assert d.m.following
@@ -144,10 +146,7 @@ def test_invalidate_clears_the_path_and_tracking_off_stops_following() -> None:
 
 def test_mode_0_flies_the_waypoints_in_order_facing_each() -> None:
     d = Driver()
-    d.take_off()
-    d.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
-    d.send(p.SetTracking(enable=True))
-    d.send(p.SetSpeed(speed=6))
+    d.follow_paths(6)
     legs = [(60, 0, 10), (60, 60, 15), (0, 60, 15)]
     wps = [d.waypoint(*leg) for leg in legs]
     for wp in wps:
@@ -180,9 +179,7 @@ def test_mode_0_flies_the_waypoints_in_order_facing_each() -> None:
 
 def test_speed_is_limited_by_the_airframe_maximum() -> None:
     d = Driver(DspMachine(vehicle_params=VehicleParams(max_speed=4.0)))
-    d.take_off()
-    d.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
-    d.send(p.SetTracking(enable=True))
+    d.follow_paths()
     assert d.send(p.SetSpeed(speed=20)) == 0
     assert d.m.speed_cmd == 4.0
     d.send(d.waypoint(300, 0, 10))
@@ -195,9 +192,7 @@ def test_speed_is_limited_by_the_airframe_maximum() -> None:
 
 def test_speed_zero_means_no_progress() -> None:
     d = Driver()
-    d.take_off()
-    d.send(p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
-    d.send(p.SetTracking(enable=True))
+    d.follow_paths()
     d.send(d.waypoint(100, 0, 10))
     d.run(10)
     assert abs(d.m.vehicle.state.pos[0]) < 0.5
