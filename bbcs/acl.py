@@ -36,35 +36,34 @@ ALL_MESSAGES = [
 
 def _keys() -> dict[str, list[str]]:
     """Keys anyone authenticated may observe, for every robot (a GCS lists robots with ``cromat/*/...``)."""
-    r = "*"
     return {
         "read": [
-            f"cromat/{r}/*/*",
-            f"cromat/{r}/*/@schema",
-            f"cromat/{r}/*/@route",
-            f"cromat/{r}/*/@heartbeat",
-            f"cromat/{r}/@alive/*",
-            f"cromat/{r}/@manager/**",
-            f"cromat/{r}/@ral/**",
-            "cromat/@gcs/**",
+            keys.slot_pattern(),
+            keys.schema_pattern(),
+            keys.route_ack_pattern(),
+            keys.heartbeat_pattern(),
+            keys.alive_pattern(),
+            keys.manager_pattern(),
+            keys.ral_pattern(),
+            keys.gcs_pattern(),
         ],
         "adv": [
-            f"cromat/{r}/*/*/@adv/**",
-            f"cromat/{r}/*/@route/@adv/**",
-            f"cromat/{r}/@manager/*/@adv/**",
-            f"cromat/{r}/@ral/*/@adv/**",
+            keys.adv_pattern(keys.slot_pattern()),
+            keys.adv_pattern(keys.route_ack_pattern()),
+            keys.adv_pattern(keys.manager_key("*") + "/*"),
+            keys.adv_pattern(keys.ral_key("*") + "/*"),
         ],
         "read_queries": [
-            f"cromat/{r}/*/@schema",
-            f"cromat/{r}/@manager/modules",
-            f"cromat/{r}/@manager/routes",
-            f"cromat/{r}/@manager/tasks",
+            keys.schema_pattern(),
+            keys.manager_key("*", "modules"),
+            keys.manager_key("*", "routes"),
+            keys.manager_key("*", "tasks"),
         ],
     }
 
 
 def _own(robot: str, name: str) -> list[str]:
-    return [f"cromat/{robot}/{name}/*", f"cromat/{robot}/{name}/@route", f"cromat/{robot}/{name}/@heartbeat"]
+    return [keys.slot_pattern(robot, name), keys.route_ack_pattern(robot, name), keys.heartbeat_pattern(robot, name)]
 
 
 def router_config(
@@ -135,49 +134,49 @@ def router_config(
             "permission": "allow",
             "flows": ["ingress"],
             "messages": ["query"],
-            "key_exprs": [f"cromat/{robot}/@ral/task", f"cromat/{robot}/@manager/route"],
+            "key_exprs": [keys.ral_key(robot, "task"), keys.manager_key(robot, "route")],
         },
         {
             "id": "gcs-link",
             "permission": "allow",
             "flows": ["ingress"],
             "messages": ["put", "delete", "liveliness_token"],
-            "key_exprs": ["cromat/@gcs/**"],
+            "key_exprs": [keys.gcs_pattern()],
         },
         {
             "id": "ral-write",
             "permission": "allow",
             "flows": ["ingress"],
             "messages": ["put", "delete"],
-            "key_exprs": [*_own(robot, ral), f"cromat/{robot}/@ral/**"],
+            "key_exprs": [*_own(robot, ral), keys.ral_pattern(robot)],
         },
         {
             "id": "ral-serve",
             "permission": "allow",
             "flows": ["ingress"],
             "messages": ["declare_queryable"],
-            "key_exprs": [f"cromat/{robot}/@ral/**", f"cromat/{robot}/{ral}/@schema"],
+            "key_exprs": [keys.ral_pattern(robot), keys.schema_pattern(robot, ral)],
         },
         {
             "id": "ral-token",
             "permission": "allow",
             "flows": ["ingress"],
             "messages": ["liveliness_token"],
-            "key_exprs": [f"cromat/{robot}/@alive/{ral}"],
+            "key_exprs": [keys.alive_pattern(robot, ral)],
         },
         {
             "id": "ral-mri",
             "permission": "allow",
             "flows": ["ingress"],
             "messages": ["query"],
-            "key_exprs": [f"cromat/{robot}/@manager/**"],
+            "key_exprs": [keys.manager_pattern(robot)],
         },
         {
             "id": "manager-write",
             "permission": "allow",
             "flows": ["ingress"],
             "messages": ["put", "delete"],
-            "key_exprs": [f"cromat/{robot}/*/*", f"cromat/{robot}/@manager/**", *_own(robot, manager)],
+            "key_exprs": [keys.slot_pattern(robot), keys.manager_pattern(robot), *_own(robot, manager)],
         },
         {
             "id": "manager-serve",
@@ -185,9 +184,9 @@ def router_config(
             "flows": ["ingress"],
             "messages": ["declare_queryable", "liveliness_token"],
             "key_exprs": [
-                f"cromat/{robot}/@manager/**",
-                f"cromat/{robot}/{manager}/@schema",
-                f"cromat/{robot}/@alive/*",
+                keys.manager_pattern(robot),
+                keys.schema_pattern(robot, manager),
+                keys.alive_pattern(robot),
             ],
         },
     ]
@@ -209,21 +208,21 @@ def router_config(
                 "permission": "allow",
                 "flows": ["ingress"],
                 "messages": ["put", "delete"],
-                "key_exprs": own + [f"cromat/{robot}/{box}" for box in mailboxes],
+                "key_exprs": own + [keys.slot_pattern(robot, *box.split("/", 1)) for box in mailboxes],
             },
             {
                 "id": f"m-{name}-serve",
                 "permission": "allow",
                 "flows": ["ingress"],
                 "messages": ["declare_queryable"],
-                "key_exprs": [f"cromat/{robot}/{name}/@schema"],
+                "key_exprs": [keys.schema_pattern(robot, name)],
             },
             {
                 "id": f"m-{name}-token",
                 "permission": "allow",
                 "flows": ["ingress"],
                 "messages": ["liveliness_token"],
-                "key_exprs": [f"cromat/{robot}/@alive/{name}"],
+                "key_exprs": [keys.alive_pattern(robot, name)],
             },
         ]
         subjects.append({"id": f"m-{name}", "cert_common_names": [cn.get(name, name)]})

@@ -71,9 +71,10 @@ def alive_key(robot: str, module: str) -> str:
     return f"{ROOT}/{validate_name(robot, 'robot name')}/@alive/{validate_name(module, 'module name')}"
 
 
-def alive_pattern(robot: str = "*") -> str:
-    """Key expression matching the liveliness tokens of every module of ``robot`` (``*``: all robots)."""
-    return f"{ROOT}/{_robot_or_wildcard(robot)}/@alive/*"
+def alive_pattern(robot: str = "*", module: str = "*") -> str:
+    """Key expression matching the liveliness tokens of ``module`` (``*``: every module) of ``robot``
+    (``*``: all robots)."""
+    return f"{ROOT}/{_robot_or_wildcard(robot)}/@alive/{_chunk_or_wildcard(module, 'module name')}"
 
 
 def manager_key(robot: str, *parts: str) -> str:
@@ -86,6 +87,60 @@ def ral_key(robot: str, *parts: str) -> str:
     """``cromat/<robot>/@ral/<parts...>``; ``robot='*'`` gives a pattern over every robot."""
     tail = "/".join(validate_name(p, "RAL key part") for p in parts)
     return f"{ROOT}/{_robot_or_wildcard(robot)}/@ral" + (f"/{tail}" if tail else "")
+
+
+# ---------------------------------------------------------------- patterns (access policy, subscriptions)
+# Each takes ``*`` (one chunk) wherever a name may be a wildcard; names are validated as in the keys above.
+
+
+def _chunk_or_wildcard(name: str, what: str) -> str:
+    return name if name == "*" else validate_name(name, what)
+
+
+def slot_pattern(robot: str = "*", module: str = "*", slot: str = "*") -> str:
+    """``cromat/<robot>/<module>/<slot>`` with any of the three a ``*``."""
+    return (f"{ROOT}/{_robot_or_wildcard(robot)}/{_chunk_or_wildcard(module, 'module name')}/"
+            f"{_chunk_or_wildcard(slot, 'slot name')}")
+
+
+def schema_pattern(robot: str = "*", module: str = "*") -> str:
+    """The ``@schema`` queryables of ``module`` (``*``: every module)."""
+    return f"{slot_pattern(robot, module, '*').rsplit('/', 1)[0]}/@schema"
+
+
+def route_ack_pattern(robot: str = "*", module: str = "*") -> str:
+    """The ``@route`` acknowledgements of ``module`` (``*``: every module)."""
+    return f"{slot_pattern(robot, module, '*').rsplit('/', 1)[0]}/@route"
+
+
+def heartbeat_pattern(robot: str = "*", module: str = "*") -> str:
+    """The ``@heartbeat`` keys of ``module`` (``*``: every module)."""
+    return f"{slot_pattern(robot, module, '*').rsplit('/', 1)[0]}/@heartbeat"
+
+
+def manager_pattern(robot: str = "*") -> str:
+    """Every Module Manager key of ``robot``: ``cromat/<robot>/@manager/**``."""
+    return f"{manager_key(robot)}/**"
+
+
+def ral_pattern(robot: str = "*") -> str:
+    """Every RAL key of ``robot``: ``cromat/<robot>/@ral/**``."""
+    return f"{ral_key(robot)}/**"
+
+
+def gcs_key(name: str) -> str:
+    """``cromat/@gcs/<name>``: a ground station's link token (``*``: every ground station)."""
+    return f"{ROOT}/@gcs/{_chunk_or_wildcard(name, 'GCS name')}"
+
+
+def gcs_pattern() -> str:
+    """Every ground-station key: ``cromat/@gcs/**``."""
+    return f"{ROOT}/@gcs/**"
+
+
+def adv_pattern(key: str) -> str:
+    """The zenoh.ext advanced pub/sub bookkeeping under ``key`` (``**`` never matches the verbatim ``@adv``)."""
+    return f"{key}/@adv/**"
 
 
 class SlotAddress(NamedTuple):

@@ -28,13 +28,13 @@ import numpy as np
 from benchlib import ROOT, pct, write_results
 
 from bbcs import keys
+from bbcs.contracts.pan_tilt import ControlEntradaPT, ModoFuncionamientoPT
 from bbcs.routing import SlotRef, SlotTable
 from bbcs.session import local_client, open_session
 from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import Processes, child_env, start_router, wait_until
 from modules.dsp import bus as dsp_bus
 from modules.dsp import protocol as p
-from modules.pan_tilt.structs import ControlEntradaPT, ModoFuncionamientoPT
 from modules.vision.geodesy import LocalFrame
 from modules.vision.pipeline import VisionPipeline
 from modules.vision.pose import Gimbal
@@ -107,8 +107,8 @@ def latency(camera_hz: float, seconds: float, tmp: Path) -> tuple[list[float], f
         url = sim.stdout.readline().strip()
         table = tmp / "slots.json"
         table.write_bytes(msgspec.json.encode(SlotTable(robot=ROBOT, slots={
-            5: SlotRef(module="bench", slot="pt_mode", type="modules.pan_tilt.structs:ModoFuncionamientoPT"),
-            20: SlotRef(module="vision", slot="target", type="modules.pan_tilt.structs:DatosPT")})))
+            5: SlotRef(module="bench", slot="pt_mode", type="bbcs.contracts.pan_tilt:ModoFuncionamientoPT"),
+            20: SlotRef(module="vision", slot="target", type="bbcs.contracts.pan_tilt:DatosPT")})))
         common = ["--robot", ROBOT, "--connect", f"tcp/127.0.0.1:{port}", "--slot-table", str(table),
                   "--conf", str(CONF)]
         env = child_env(CROMAT_LOG="WARNING")

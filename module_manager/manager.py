@@ -27,9 +27,10 @@ import zenoh
 
 from bbcs import keys
 from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.module import Heartbeat
 from bbcs.net import free_port, wait_tcp
-from bbcs.robot import RobotTelemetry
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
@@ -42,6 +43,7 @@ from module_manager.tasks import Changes, TaskBook
 ROOT = Path(__file__).resolve().parents[1]
 ACK_TIMEOUT_S = mri.MANAGER_ACK_S
 MAX_ERRORS = 32
+_decode_error = msgspec.msgpack.Decoder(ErrorReport).decode
 _PLACEHOLDER = re.compile(r"\{(port:[A-Za-z0-9_]+|python|manifest_dir|conf|robot)\}")
 
 
@@ -213,11 +215,8 @@ class Manager:
             self._entities.append(s.declare_subscriber(
                 keys.heartbeat_key(robot, name), lambda smp, n=name: self._on_beat(n, _bytes(smp))))
             if info.error_slot and info.error_type is not None:
-                decode = msgspec.msgpack.Decoder(info.error_type).decode
-                field = info.error_type.__struct_fields__[0]
                 self._entities.append(s.declare_subscriber(
-                    keys.slot_key(robot, name, info.error_slot),
-                    lambda smp, n=name, d=decode, f=field: self._on_error(n, d, f, smp)))
+                    keys.slot_key(robot, name, info.error_slot), lambda smp, n=name: self._on_error(n, smp)))
             if info.control_type is not None:
                 spec = SlotSpec(info.control_slot, info.control_type, Direction.OUT, Kind.STATE, Safety.SAFE)
                 mod.control = Publisher(s, keys.slot_key(robot, name, info.control_slot), spec)
@@ -281,9 +280,9 @@ class Manager:
             if mod.child is not None and beat.pid == mod.child.pid:
                 mod.sup.heartbeat(self.clock())
 
-    def _on_error(self, name: str, decode: Callable[[bytes], Any], field: str, sample: zenoh.Sample) -> None:
+    def _on_error(self, name: str, sample: zenoh.Sample) -> None:
         try:
-            code = int(getattr(decode(_bytes(sample)), field))
+            code = _decode_error(_bytes(sample)).code
         except msgspec.MsgspecError:
             return
         with self.lock:

@@ -20,8 +20,9 @@ import msgspec
 from bbcs import keys
 from bbcs.codec import resolve_type, type_name
 from bbcs.conf import ConfError, load_conf
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.errors import InvalidNameError
-from bbcs.robot import RobotTelemetry
 from bbcs.routing import IGNORE, SlotRef, SlotTable
 from module_manager.supervision import Policy
 
@@ -58,7 +59,7 @@ class RobotSection(_Section):
     """The robot .conf file, relative to the manifest."""
     task_types: list[str] = msgspec.field(default_factory=lambda: ["perception", "movement", "pan_tilt"])
     telemetry_slot: int | None = None
-    """Slot number carrying bbcs.robot:RobotTelemetry, folded into the robot state."""
+    """Slot number carrying bbcs.contracts.robot:RobotTelemetry, folded into the robot state."""
     state_period_s: Positive = 1.0
 
 
@@ -493,6 +494,9 @@ class _Checker:
             routes[slot] = number
         error_slot = cls.error_slot
         error_type = cls._outputs[error_slot].type if error_slot else None
+        if error_type is not None and error_type is not ErrorReport:
+            raise self.fail(key, f"{name}: error slot {error_slot!r} carries {type_name(error_type)}, "
+                                 f"not the one error shape {type_name(ErrorReport)}")
         s = self.raw.supervision
         policy = Policy(
             restart=spec.restart or s.restart, backoff_s=spec.backoff_s or s.backoff_s,

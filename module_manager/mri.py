@@ -23,7 +23,7 @@ import msgspec
 import zenoh
 
 from bbcs import keys
-from bbcs.robot import RobotTelemetry
+from bbcs.contracts.robot import RobotTelemetry
 
 ModuleState = Literal["starting", "up", "restarting", "failed", "stopped"]
 TaskType = str

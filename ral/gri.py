@@ -19,12 +19,17 @@ from typing import Annotated, Literal
 import msgspec
 
 from bbcs import keys
-from bbcs.robot import Attitude, GeoPoint, VelocityNED
+from bbcs.contracts.geo import (
+    AltitudeEllipsoid,
+    Attitude,
+    DegreesSigned90,
+    DegreesSigned180,
+    GeoPoint,
+    Latitude,
+    Longitude,
+    VelocityNED,
+)
 
-Latitude = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
-Longitude = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
-Altitude = Annotated[float, msgspec.Meta(ge=-500.0, le=10_000.0)]
-"""Metres above the WGS84 ellipsoid (a sanity range, not a flight envelope)."""
 Speed = Annotated[float, msgspec.Meta(gt=0.0, le=100.0)]
 MAX_WAYPOINTS = 10_000
 
@@ -41,7 +46,7 @@ class Waypoint(msgspec.Struct, frozen=True, kw_only=True):
 
     lat: Latitude
     lon: Longitude
-    alt: Altitude
+    alt: AltitudeEllipsoid
 
 
 Waypoints = Annotated[list[Waypoint], msgspec.Meta(min_length=1, max_length=MAX_WAYPOINTS)]
@@ -76,14 +81,14 @@ class LookAt(msgspec.Struct, frozen=True, kw_only=True, tag="look_at"):
 
     lat: Latitude
     lon: Longitude
-    alt: Altitude
+    alt: AltitudeEllipsoid
 
 
 class SetPanTilt(msgspec.Struct, frozen=True, kw_only=True, tag="pan_tilt"):
     """Hold the pan & tilt at these angles (degrees)."""
 
-    pan: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
-    tilt: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
+    pan: DegreesSigned180
+    tilt: DegreesSigned90
 
 
 class Hold(msgspec.Struct, frozen=True, kw_only=True, tag="hold"):

@@ -23,11 +23,12 @@ import zenoh
 import zenoh.ext
 
 from bbcs.context import ModuleContext
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.pan_tilt import DatosPT
+from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam, SpeedSegCam
 from bbcs.module import Module
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from module_manager import mri
-from modules.pan_tilt.structs import DatosPT
-from modules.path_follower.structs import DatoPuntoSegCam, DatosSegCam, SpeedSegCam
 from ral import gri
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.tasks import Plan, QueueConfig, Rejected, TaskQueue
@@ -42,12 +43,6 @@ class RalErrorCode(enum.IntEnum):
     """The Module Manager did not answer an MRI request."""
     MRI_REFUSED = 602
     """The Module Manager refused a request the RAL had admitted."""
-
-
-class RalError(msgspec.Struct, frozen=True, kw_only=True):
-    """The RAL's ERROR slot."""
-
-    error_ral: int
 
 
 class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
@@ -96,7 +91,7 @@ class Ral(Module):
         OutputSlot("path", DatosSegCam, kind=Kind.STREAM),
         OutputSlot("speed", SpeedSegCam),
         OutputSlot("pt_datos", DatosPT),
-        OutputSlot("error", RalError),
+        OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
     tick_period = 0.05

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 
 import msgspec
 
-from bbcs.robot import GeoPoint, RobotTelemetry
+from bbcs.contracts.geo import GeoPoint
+from bbcs.contracts.robot import RobotTelemetry
 from ral import gri
 
 EARTH_RADIUS_M = 6_371_000.0

@@ -8,7 +8,7 @@ The DSP process (``python -m modules.dsp``) is the only owner of the serial port
 | ``telemetry`` | out | state, unsafe  | :class:`modules.dsp.protocol.Telemetry` (fields the mask selects) |
 | ``errors``    | out | stream, safe   | :class:`DspErrorReport` — DSP faults and refused/unacknowledged commands |
 | ``link``      | out | state, unsafe  | :class:`modules.dsp.link.LinkStats` |
-| ``error``     | out | state, safe    | :class:`DspModuleError` — bus-level error codes of the DSP process itself |
+| ``error``     | out | state, safe    | :class:`bbcs.contracts.errors.ErrorReport` — the DSP process's own codes |
 
 ``commands`` is a mailbox input: many modules write to the DSP's own key (``keys.slot_key(robot, "dsp",
 "commands")``), every batch is sent in order, each command acknowledged before the next. A batch is atomic in
@@ -74,12 +74,6 @@ class DspErrorReport(msgspec.Struct, frozen=True, kw_only=True):
     """Module whose batch failed; empty for faults the DSP reported on its own."""
     batch_id: int = 0
     command: str = ""
-
-
-class DspModuleError(msgspec.Struct, frozen=True, kw_only=True):
-    """The DSP process's ERROR slot: bus-level codes (bbcs.errors.BusErrorCode) and its own."""
-
-    error_dsp: int
 
 
 def telemetry_input() -> Any:

@@ -24,6 +24,7 @@ from collections import deque
 from typing import ClassVar, NoReturn
 
 from bbcs.conf import ConfError
+from bbcs.contracts.errors import ErrorReport
 from bbcs.errors import BusErrorCode
 from bbcs.module import Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
@@ -47,7 +48,7 @@ class DspModule(Module):
         OutputSlot(bus.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
         OutputSlot(bus.ERRORS_SLOT, bus.DspErrorReport, kind=Kind.STREAM),
         OutputSlot(bus.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
-        OutputSlot("error", bus.DspModuleError),
+        OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
     tick_period = 1.0

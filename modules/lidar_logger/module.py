@@ -4,7 +4,7 @@ Slots (``cromat/<robot>/lidar_logger/...``):
 - ``pose`` — unsafe state, ``mtdata.Pose``: every MTi-G sample (about 50 Hz), ``valid`` per the status byte;
   other modules (vision, the ground station) read the newest one.
 - ``status`` — unsafe state, ``LidarStatus``: what the run is doing, once a second and at the end.
-- ``error`` — safe state, ``LidarError``: 100 = the run ended on an error (the log says which).
+- ``error`` — safe state, ``bbcs.contracts.errors.ErrorReport``: 100 = the run ended on an error (the log says which).
 
 Settings come from the robot .conf (``LIDAR: logger`` group, ``--conf``) with module params on top
 (``--param vehicle=CB5000 --param mtig_port=/dev/ttyUSB1 --param mounting=0,90,0,0,0,0`` ...; names as the
@@ -22,6 +22,7 @@ from typing import Annotated, ClassVar, Literal
 import msgspec
 
 from bbcs.context import ModuleContext
+from bbcs.contracts.errors import ErrorReport
 from bbcs.module import Module
 from bbcs.slots import OutputSlot, Safety
 from modules.lidar_logger.config import LidarConf, load_lidar_conf, merge_lidar_conf
@@ -50,10 +51,6 @@ class LidarStatus(msgspec.Struct, frozen=True, kw_only=True):
     end_reason: Literal["", "duration", "timeout", "signal", "error"]
 
 
-class LidarError(msgspec.Struct, frozen=True, kw_only=True):
-    error_lidar: int
-
-
 def conf_from_context(context: ModuleContext) -> LidarConf:
     """The robot .conf's LIDAR group (if any) with the module params on top."""
     base = load_lidar_conf(context.conf, required=False) if context.conf else None
@@ -67,7 +64,7 @@ class LidarLoggerModule(Module):
     slots = (
         OutputSlot("pose", Pose, safety=Safety.UNSAFE),
         OutputSlot("status", LidarStatus, safety=Safety.UNSAFE),
-        OutputSlot("error", LidarError),
+        OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
     tick_period = 1.0

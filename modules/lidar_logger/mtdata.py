@@ -22,6 +22,8 @@ from typing import Annotated
 
 import msgspec
 
+from bbcs.contracts.geo import DegreesSigned90, DegreesSigned180, Latitude, Longitude, SensorAltitudeEllipsoid
+
 # --- output mode (u16) ---
 MODE_TEMP = 0x0001
 MODE_CALIB = 0x0002
@@ -194,12 +196,6 @@ class UtcTime(msgspec.Struct, frozen=True, kw_only=True):
     flags: Annotated[int, msgspec.Meta(ge=0, le=255)]
 
 
-Roll = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
-Pitch = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
-Yaw = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
-Lat = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
-Lon = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
-Alt = Annotated[float, msgspec.Meta(ge=-10_000.0, le=100_000.0)]
 Speed = Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0)]
 
 
@@ -208,8 +204,8 @@ class Pose(msgspec.Struct, frozen=True, kw_only=True):
     status byte, valid (1 only when the status byte says self-test ok, GPS fix and XKF valid)."""
 
     utc: UtcTime
-    euler: tuple[Roll, Pitch, Yaw]
-    lla: tuple[Lat, Lon, Alt]
+    euler: tuple[DegreesSigned180, DegreesSigned90, DegreesSigned180]
+    lla: tuple[Latitude, Longitude, SensorAltitudeEllipsoid]
     vel: tuple[Speed, Speed, Speed]
     status: Annotated[int, msgspec.Meta(ge=0, le=255)]
     valid: Annotated[int, msgspec.Meta(ge=0, le=1)]

@@ -12,9 +12,9 @@ from dataclasses import dataclass, replace
 from enum import IntEnum
 
 from bbcs.codec import leaf_field
+from bbcs.contracts.pan_tilt import DatosPT, ModoFuncionamientoPT
 from modules.dsp import protocol as p
 from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
-from modules.pan_tilt.structs import DatosPT, ModoFuncionamientoPT
 
 
 class PanTiltError(IntEnum):

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
 from modules.dsp import protocol as p
 from modules.pan_tilt import logic
-from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ErrorPT, ModoFuncionamientoPT
 
 
 class PanTiltModule(Module):
@@ -24,7 +25,7 @@ class PanTiltModule(Module):
     slots = (
         InputSlot("control_modo", ModoFuncionamientoPT),
         InputSlot("datos", DatosPT, safety=Safety.UNSAFE),
-        OutputSlot("error", ErrorPT),
+        OutputSlot("error", ErrorReport),
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
         dsp_bus.commands_output(),

@@ -16,9 +16,7 @@ from dataclasses import dataclass, replace
 from enum import IntEnum
 
 from bbcs.codec import leaf_field
-from modules.dsp import protocol as p
-from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
-from modules.path_follower.structs import (
+from bbcs.contracts.path_follower import (
     ControlModoSegCam,
     DatoPuntoSegCam,
     DatosSegCam,
@@ -26,6 +24,8 @@ from modules.path_follower.structs import (
     RefsSegCam,
     SpeedSegCam,
 )
+from modules.dsp import protocol as p
+from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
 
 MODE_CHANGE = 0
 COMMAND = 1

@@ -14,20 +14,20 @@ import math
 from typing import ClassVar
 
 from bbcs.conf import ConfError, load_conf
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.path_follower import (
+    ControlEntradaSegCam,
+    ControlModoSegCam,
+    DatosSegCam,
+    HeadingSegCam,
+    RefsSegCam,
+    SpeedSegCam,
+)
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
 from modules.dsp import protocol as p
 from modules.path_follower import logic
-from modules.path_follower.structs import (
-    ControlEntradaSegCam,
-    ControlModoSegCam,
-    DatosSegCam,
-    ErrorSegCam,
-    HeadingSegCam,
-    RefsSegCam,
-    SpeedSegCam,
-)
 
 MODE_BATCH_MEMORY = 256
 """How many recent mode-change batches are remembered to undo the mode if the DSP refuses one."""
@@ -65,7 +65,7 @@ class PathFollowerModule(Module):
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
         dsp_bus.commands_output(),
-        OutputSlot("error", ErrorSegCam),
+        OutputSlot("error", ErrorReport),
     )
     control = Control(
         ControlEntradaSegCam,

@@ -1,7 +1,7 @@
-"""DSP telemetry → the robot-independent :class:`bbcs.robot.RobotTelemetry` (pure, no bus).
+"""DSP telemetry → the robot-independent :class:`bbcs.contracts.robot.RobotTelemetry` (pure, no bus).
 
 A field the DSP did not send (its telemetry mask) stays ``None``. A position outside WGS84 ranges (as the
-:mod:`bbcs.robot` types declare them) or a non-finite number is not passed on: that field becomes ``None`` and
+:mod:`bbcs.contracts.geo` types declare them) or a non-finite number is not passed on: that field becomes ``None`` and
 the caller counts it (no datum affected by an error is used).
 """
 
@@ -12,7 +12,8 @@ from typing import TypeVar
 
 import msgspec
 
-from bbcs.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
+from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED
+from bbcs.contracts.robot import RobotTelemetry
 from modules.dsp import protocol as p
 
 _S = TypeVar("_S", bound=msgspec.Struct)

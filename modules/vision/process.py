@@ -6,11 +6,11 @@ pipeline, and publishes only when the pipeline says so (target FOUND and geoloca
 
 | slot | dir | kind | struct |
 | --- | --- | --- | --- |
-| ``telemetry`` | in (peer ``telemetry``) | unsafe state | :class:`bbcs.robot.RobotTelemetry` |
-| ``target`` | out | unsafe state | :class:`modules.pan_tilt.structs.DatosPT` (mode 1 target point + pointing angles) |
-| ``path`` | out | safe stream | :class:`modules.path_follower.structs.DatosSegCam` (short path over the target) |
+| ``telemetry`` | in (peer ``telemetry``) | unsafe state | :class:`bbcs.contracts.robot.RobotTelemetry` |
+| ``target`` | out | unsafe state | :class:`bbcs.contracts.pan_tilt.DatosPT` (mode 1 target point + pointing angles) |
+| ``path`` | out | safe stream | :class:`bbcs.contracts.path_follower.DatosSegCam` (short path over the target) |
 | ``status`` | out | unsafe state | :class:`VisionStatus` (track state, confidence, counters, lost-target state) |
-| ``error`` | out | safe state | :class:`ErrorVision` |
+| ``error`` | out | safe state | :class:`bbcs.contracts.errors.ErrorReport` |
 
 Parameters (manifest ``params`` or ``--param``): ``camera`` = ``sim`` (default) | ``folder:PATH`` |
 ``v4l2:DEVICE``; ``rate`` frames/s (10); ``ground_alt`` metres (0); ``path_period`` s between paths (2);
@@ -25,11 +25,12 @@ from enum import IntEnum
 
 import msgspec
 
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.pan_tilt import DatosPT
+from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.module import Module
-from bbcs.robot import RobotTelemetry
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
-from modules.pan_tilt.structs import DatosPT
-from modules.path_follower.structs import DatoPuntoSegCam, DatosSegCam
 from modules.vision.geodesy import LocalFrame
 from modules.vision.geometry import CameraModel
 from modules.vision.pipeline import VisionConfig, VisionPipeline, VisionResult
@@ -60,10 +61,6 @@ class VisionStatus(msgspec.Struct, frozen=True, kw_only=True):
     target_lat: float | None = None
     target_lon: float | None = None
     frame_stamp: float = 0.0
-
-
-class ErrorVision(msgspec.Struct, frozen=True, kw_only=True):
-    error_vision: int
 
 
 def pose_and_gimbal(t: RobotTelemetry) -> tuple[AircraftPose, Gimbal] | None:
@@ -100,7 +97,7 @@ class Vision(Module):
         OutputSlot("target", DatosPT, safety=Safety.UNSAFE),
         OutputSlot("path", DatosSegCam, kind=Kind.STREAM),
         OutputSlot("status", VisionStatus, safety=Safety.UNSAFE),
-        OutputSlot("error", ErrorVision),
+        OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
 

@@ -31,3 +31,25 @@ def test_bad_names_refused(bad):
 def test_parse_rejects_non_slot_keys(key):
     with pytest.raises(InvalidNameError):
         keys.parse_slot_key(key)
+
+
+def test_patterns_take_wildcards_chunk_by_chunk():
+    assert keys.slot_pattern() == "cromat/*/*/*"
+    assert keys.slot_pattern("uav1", "dsp", "commands") == "cromat/uav1/dsp/commands"
+    assert keys.schema_pattern("uav1", "ral") == "cromat/uav1/ral/@schema"
+    assert keys.route_ack_pattern() == "cromat/*/*/@route"
+    assert keys.heartbeat_pattern("uav1", "dsp") == "cromat/uav1/dsp/@heartbeat"
+    assert keys.alive_pattern("uav1", "ral") == "cromat/uav1/@alive/ral"
+    assert keys.manager_pattern("uav1") == "cromat/uav1/@manager/**"
+    assert keys.ral_pattern() == "cromat/*/@ral/**"
+    assert keys.gcs_key("*") == "cromat/@gcs/*"
+    assert keys.gcs_pattern() == "cromat/@gcs/**"
+    assert keys.adv_pattern(keys.slot_pattern()) == "cromat/*/*/*/@adv/**"
+
+
+@pytest.mark.parametrize("bad", ["**", "a*", "@x", ""])
+def test_patterns_refuse_anything_but_names_and_star(bad):
+    with pytest.raises(InvalidNameError):
+        keys.slot_pattern("uav1", bad)
+    with pytest.raises(InvalidNameError):
+        keys.alive_pattern(bad)

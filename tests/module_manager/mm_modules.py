@@ -10,6 +10,7 @@ from typing import Annotated
 
 import msgspec
 
+from bbcs.contracts.errors import ErrorReport
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot
 
@@ -34,10 +35,6 @@ class SinkMode(msgspec.Struct, frozen=True, kw_only=True):
     mode: Annotated[int, msgspec.Meta(ge=0, le=2)]
 
 
-class SinkError(msgspec.Struct, frozen=True, kw_only=True):
-    error_sink: int
-
-
 class Sink(Module):
     """Records every datum and route switch as JSON lines to ``params['record']``.
 
@@ -48,7 +45,7 @@ class Sink(Module):
     slots = (
         InputSlot("datos", ProbeMsg, kind=Kind.STREAM),
         InputSlot("modo", SinkMode),
-        OutputSlot("error", SinkError),
+        OutputSlot("error", ErrorReport),
     )
     control = Control(SinkControl, {"slot_entrada_datos": "datos", "slot_entrada_modo": "modo"})
     error_slot = "error"

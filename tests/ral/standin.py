@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import msgspec
 import zenoh
 
-from bbcs.robot import RobotTelemetry
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import mri
 

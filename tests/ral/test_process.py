@@ -18,11 +18,12 @@ import pytest
 
 from bbcs import keys
 from bbcs.context import ModuleContext
-from bbcs.robot import GeoPoint, RobotTelemetry
+from bbcs.contracts.geo import GeoPoint
+from bbcs.contracts.path_follower import DatosSegCam
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
 from module_manager import mri
-from modules.path_follower.structs import DatosSegCam
 from ral import gri
 from ral.gcs.api import Gcs
 from ral.process import Ral

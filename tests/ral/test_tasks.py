@@ -5,7 +5,8 @@ from __future__ import annotations
 import msgspec
 import pytest
 
-from bbcs.robot import GeoPoint, RobotTelemetry
+from bbcs.contracts.geo import GeoPoint
+from bbcs.contracts.robot import RobotTelemetry
 from ral import gri
 from ral.tasks import Plan, QueueConfig, Rejected, TaskQueue, distance_m
 

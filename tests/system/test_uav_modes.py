@@ -8,10 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from bbcs.robot import RobotTelemetry
-from modules.dsp import protocol as p
-from modules.path_follower.logic import FollowerError as E
-from modules.path_follower.structs import (
+from bbcs.contracts.path_follower import (
     ControlEntradaSegCam,
     ControlModoSegCam,
     DatoPuntoSegCam,
@@ -20,6 +17,9 @@ from modules.path_follower.structs import (
     RefsSegCam,
     SpeedSegCam,
 )
+from bbcs.contracts.robot import RobotTelemetry
+from modules.dsp import protocol as p
+from modules.path_follower.logic import FollowerError as E
 
 from .uav_stack import INITIAL_ROUTES, SLOT, Stack, wait_until
 

@@ -29,6 +29,16 @@ import msgspec
 
 from bbcs import keys
 from bbcs.codec import type_name
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
+from bbcs.contracts.path_follower import (
+    ControlEntradaSegCam,
+    ControlModoSegCam,
+    DatosSegCam,
+    HeadingSegCam,
+    RefsSegCam,
+    SpeedSegCam,
+)
 from bbcs.routing import RouteAck, SlotRef, SlotTable
 from bbcs.session import local_client, open_session
 from bbcs.slots import Kind, OutputSlot, Publisher, Safety
@@ -37,16 +47,6 @@ from modules.dsp import bus
 from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
 from modules.dsp.link import startup_commands
-from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ErrorPT, ModoFuncionamientoPT
-from modules.path_follower.structs import (
-    ControlEntradaSegCam,
-    ControlModoSegCam,
-    DatosSegCam,
-    ErrorSegCam,
-    HeadingSegCam,
-    RefsSegCam,
-    SpeedSegCam,
-)
 
 ROOT = Path(__file__).resolve().parents[2]
 CONF = ROOT / "bbcs_conf" / "uav1.conf"
@@ -79,7 +79,7 @@ INITIAL_ROUTES = {
     "pan_tilt": {"control_modo": SLOT["pt_modo"], "datos": SLOT["pt_gcs"]},
     "telemetry": {},
 }
-ERROR_SLOTS = {"path_follower": (ErrorSegCam, "error_seg_cam"), "pan_tilt": (ErrorPT, "error_pan_tilt")}
+ERROR_SLOTS = {"path_follower": (ErrorReport, "code"), "pan_tilt": (ErrorReport, "code")}
 STARTUP = [c.MSG_ID.name for c in startup_commands(load_dsp_config(CONF))]
 
 

@@ -7,10 +7,11 @@ import threading
 import msgspec
 
 from bbcs import keys
+from bbcs.contracts.errors import ErrorReport
 from bbcs.testing import stop_process, wait_until
 from modules.lidar_logger.config import read_config_file
 from modules.lidar_logger.ldmrs_proto import Cmd
-from modules.lidar_logger.module import LIDAR_RUN_FAILED, LidarError, LidarStatus
+from modules.lidar_logger.module import LIDAR_RUN_FAILED, LidarStatus
 from modules.lidar_logger.mtdata import Pose
 from modules.lidar_logger.sim import LdmrsOptions
 from modules.lidar_logger.textlog import read_text_log
@@ -88,9 +89,9 @@ def test_a_failed_run_is_reported_on_the_error_slot_and_the_module_stays_up(
     processes, router, sessions, tmp_path
 ) -> None:
     s = sessions()
-    errors: list[LidarError] = []
+    errors: list[ErrorReport] = []
     statuses: list[LidarStatus] = []
-    subs = [subscribe(s, "error", LidarError, errors), subscribe(s, "status", LidarStatus, statuses)]
+    subs = [subscribe(s, "error", ErrorReport, errors), subscribe(s, "status", LidarStatus, statuses)]
     proc = start_module(
         processes,
         router,
@@ -110,7 +111,7 @@ def test_a_failed_run_is_reported_on_the_error_slot_and_the_module_stays_up(
         for sub in subs:
             sub.undeclare()
     assert code == 0
-    assert errors[0].error_lidar == LIDAR_RUN_FAILED
+    assert errors[0].code == LIDAR_RUN_FAILED
     final = next(st for st in statuses if st.state == "finished")
     assert final.end_reason == "error" and final.run == "" and final.pose_status == -1
 

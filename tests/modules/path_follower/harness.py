@@ -17,19 +17,19 @@ import msgspec
 
 from bbcs import keys
 from bbcs.codec import type_name
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
+from bbcs.contracts.path_follower import (
+    ControlEntradaSegCam,
+    ControlModoSegCam,
+    DatosSegCam,
+    HeadingSegCam,
+    SpeedSegCam,
+)
 from bbcs.routing import RouteAck, SlotRef, SlotTable
 from bbcs.slots import Kind, OutputSlot, Publisher, Safety
 from bbcs.testing import Processes, wait_until
 from modules.dsp.bus import DspCommands
-from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ErrorPT, ModoFuncionamientoPT
-from modules.path_follower.structs import (
-    ControlEntradaSegCam,
-    ControlModoSegCam,
-    DatosSegCam,
-    ErrorSegCam,
-    HeadingSegCam,
-    SpeedSegCam,
-)
 
 ROOT = Path(__file__).resolve().parents[3]
 CONF = ROOT / "bbcs_conf" / "uav1.conf"
@@ -49,7 +49,7 @@ TABLE = {
 FOLLOWER_ROUTES = ControlEntradaSegCam(
     slot_entrada_control_modos=1, slot_entrada_heading=2, slot_entrada_speed=3, slot_entrada_datos=4
 )
-ERROR_TYPES = {"path_follower": (ErrorSegCam, "error_seg_cam"), "pan_tilt": (ErrorPT, "error_pan_tilt")}
+ERROR_TYPES = {"path_follower": (ErrorReport, "code"), "pan_tilt": (ErrorReport, "code")}
 
 
 def write_table(tmp_path: Path) -> Path:

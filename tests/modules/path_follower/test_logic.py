@@ -8,11 +8,7 @@ import msgspec
 import pytest
 
 from bbcs.codec import field_of
-from modules.dsp import protocol as p
-from modules.dsp.bus import DspErrorReport
-from modules.path_follower import logic
-from modules.path_follower.logic import FollowerError, FollowerState
-from modules.path_follower.structs import (
+from bbcs.contracts.path_follower import (
     ControlEntradaSegCam,
     ControlModoSegCam,
     DatoPuntoSegCam,
@@ -21,6 +17,10 @@ from modules.path_follower.structs import (
     RefsSegCam,
     SpeedSegCam,
 )
+from modules.dsp import protocol as p
+from modules.dsp.bus import DspErrorReport
+from modules.path_follower import logic
+from modules.path_follower.logic import FollowerError, FollowerState
 
 PT = DatoPuntoSegCam(latitud=37.4118, longitud=-6.0024, altura=20.0)
 REFS = RefsSegCam(

@@ -6,7 +6,7 @@ import math
 
 import msgspec
 
-from bbcs.robot import RobotTelemetry
+from bbcs.contracts.robot import RobotTelemetry
 from modules.dsp import protocol as p
 from modules.telemetry.convert import to_robot_telemetry
 

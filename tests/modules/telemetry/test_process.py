@@ -7,7 +7,7 @@ import threading
 import msgspec
 
 from bbcs import keys
-from bbcs.robot import RobotTelemetry
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.slots import OutputSlot, Publisher, Safety
 from bbcs.testing import stop_process, wait_until
 from modules.dsp import protocol as p

@@ -10,11 +10,12 @@ import msgspec
 import numpy as np
 
 from bbcs import keys
-from bbcs.robot import Attitude, GeoPoint, RobotTelemetry
+from bbcs.contracts.geo import Attitude, GeoPoint
+from bbcs.contracts.pan_tilt import DatosPT
+from bbcs.contracts.path_follower import DatosSegCam
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.slots import OutputSlot, Publisher, Safety
 from bbcs.testing import wait_until
-from modules.pan_tilt.structs import DatosPT
-from modules.path_follower.structs import DatosSegCam
 from modules.vision.geodesy import LocalFrame
 from modules.vision.process import VisionStatus, pose_and_gimbal
 

@@ -7,36 +7,9 @@ and the RAL serves it to ground stations. Nothing here is UAV-specific: a field 
 
 from __future__ import annotations
 
-from typing import Annotated
-
 import msgspec
 
-Lat = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
-Lon = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
-
-
-class GeoPoint(msgspec.Struct, frozen=True, kw_only=True):
-    """WGS84 degrees, altitude in metres."""
-
-    lat: Lat
-    lon: Lon
-    alt: float
-
-
-class Attitude(msgspec.Struct, frozen=True, kw_only=True):
-    """Degrees: roll, pitch, yaw (yaw 0 = north, clockwise)."""
-
-    roll: float
-    pitch: float
-    yaw: float
-
-
-class VelocityNED(msgspec.Struct, frozen=True, kw_only=True):
-    """Metres per second, north-east-down."""
-
-    vn: float
-    ve: float
-    vd: float
+from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED
 
 
 class RobotTelemetry(msgspec.Struct, frozen=True, kw_only=True):

@@ -1,5 +1,7 @@
 """Slot structs of the pan & tilt module, as seed 004 §5.3.2.2 defines them (field names are the seed's).
 
+Its ERROR slot (the seed's ERROR_PT.error_pan_tilt) is :class:`bbcs.contracts.errors.ErrorReport`.
+
 One definition each: every producer (ground station, vision, a tracker) imports DatosPT from here.
 Ranges live in the types, so decoding is validation.
 """
@@ -10,8 +12,8 @@ from typing import Annotated
 
 import msgspec
 
-SlotNumber = Annotated[int, msgspec.Meta(ge=-1)]
-"""A slot-table number; -1 means "ignore this input"."""
+from bbcs.contracts.geo import DegreesSigned90, DegreesSigned180, Latitude, Longitude
+from bbcs.contracts.slots import SlotNumber
 
 
 class ControlEntradaPT(msgspec.Struct, frozen=True, kw_only=True):
@@ -31,14 +33,8 @@ class ModoFuncionamientoPT(msgspec.Struct, frozen=True, kw_only=True):
 class DatosPT(msgspec.Struct, frozen=True, kw_only=True):
     """DATOS_PT: angle references (degrees) for mode 0, target point (WGS84 degrees, metres) for mode 1."""
 
-    ref_pan: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)] = 0.0
-    ref_tilt: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)] = 0.0
-    latitud: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)] = 0.0
-    longitud: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)] = 0.0
+    ref_pan: DegreesSigned180 = 0.0
+    ref_tilt: DegreesSigned90 = 0.0
+    latitud: Latitude = 0.0
+    longitud: Longitude = 0.0
     altura: float = 0.0
-
-
-class ErrorPT(msgspec.Struct, frozen=True, kw_only=True):
-    """ERROR_PT: an error code of the pan & tilt module (see docs/error_codes.md)."""
-
-    error_pan_tilt: int

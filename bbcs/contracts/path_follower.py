@@ -1,19 +1,18 @@
 """Slot structs of the path follower / bridge, as seed 004 §5.3.2.3 defines them (field names are the seed's).
 
 One definition each; ranges in the types. MAX_SPEED, known only from the robot .conf, is checked by the module
-right after decoding.
+right after decoding. Its ERROR slot (the seed's ERROR_SEG_CAM.error_seg_cam) is
+:class:`bbcs.contracts.errors.ErrorReport`.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Annotated
 
 import msgspec
 
-SlotNumber = Annotated[int, msgspec.Meta(ge=-1)]
-Radians = Annotated[float, msgspec.Meta(ge=-math.pi, lt=math.pi)]
-"""An angle in radians in [-π, π)."""
+from bbcs.contracts.geo import Latitude, Longitude, Radians
+from bbcs.contracts.slots import SlotNumber
 
 
 class ControlEntradaSegCam(msgspec.Struct, frozen=True, kw_only=True):
@@ -51,8 +50,8 @@ class SpeedSegCam(msgspec.Struct, frozen=True, kw_only=True):
 class DatoPuntoSegCam(msgspec.Struct, frozen=True, kw_only=True):
     """DATO_PUNTO_SEG_CAM: one waypoint (WGS84 degrees, metres). Heading is not part of a waypoint."""
 
-    latitud: Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
-    longitud: Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+    latitud: Latitude
+    longitud: Longitude
     altura: float
 
 
@@ -76,9 +75,3 @@ class RefsSegCam(msgspec.Struct, frozen=True, kw_only=True):
     error_lateral: float
     ref_heading: Radians
     ref_rpm_motor: Annotated[float, msgspec.Meta(ge=0.0, le=1800.0)]
-
-
-class ErrorSegCam(msgspec.Struct, frozen=True, kw_only=True):
-    """ERROR_SEG_CAM: an error code of the path follower, also forwarded DSP errors (docs/error_codes.md)."""
-
-    error_seg_cam: int

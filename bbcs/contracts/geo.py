@@ -1,0 +1,55 @@
+"""Geographic and angle types, declared once with their ranges (so decoding a struct is validating it).
+
+Every struct that carries a position or an angle uses these aliases; a range changes here and nowhere else.
+Angles are degrees unless the alias says radians. Latitude/longitude are WGS84.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+import msgspec
+
+Latitude = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
+"""WGS84 latitude, degrees, [-90, 90]."""
+Longitude = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+"""WGS84 longitude, degrees, [-180, 180]."""
+
+AltitudeEllipsoid = Annotated[float, msgspec.Meta(ge=-500.0, le=10_000.0)]
+"""Metres above the WGS84 ellipsoid, a sanity range for a robot's commanded points (not a flight envelope)."""
+SensorAltitudeEllipsoid = Annotated[float, msgspec.Meta(ge=-10_000.0, le=100_000.0)]
+"""Metres above the WGS84 ellipsoid as an INS may report it (wider than a commanded point: a sensor's range)."""
+
+DegreesSigned180 = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+"""Degrees, [-180, 180]: pan, roll, yaw as sensors report them."""
+DegreesSigned90 = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
+"""Degrees, [-90, 90]: tilt, pitch."""
+HeadingDegrees = Annotated[float, msgspec.Meta(ge=-180.0, lt=180.0)]
+"""Heading, degrees, [-180, 180), 0 = north, clockwise."""
+Radians = Annotated[float, msgspec.Meta(ge=-math.pi, lt=math.pi)]
+"""An angle in radians, [-π, π)."""
+
+
+class GeoPoint(msgspec.Struct, frozen=True, kw_only=True):
+    """WGS84 degrees, altitude in metres above the ellipsoid (unbounded: whatever the robot measured)."""
+
+    lat: Latitude
+    lon: Longitude
+    alt: float
+
+
+class Attitude(msgspec.Struct, frozen=True, kw_only=True):
+    """Degrees: roll, pitch, yaw (yaw 0 = north, clockwise)."""
+
+    roll: float
+    pitch: float
+    yaw: float
+
+
+class VelocityNED(msgspec.Struct, frozen=True, kw_only=True):
+    """Metres per second, north-east-down."""
+
+    vn: float
+    ve: float
+    vd: float
