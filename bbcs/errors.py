@@ -14,6 +14,10 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+EXIT_CONFIG = 78
+"""Exit status of a module whose configuration (robot .conf, params) is invalid: ``os.EX_CONFIG``. The Module
+Manager never restarts a module that exits with it (restarting cannot fix a file)."""
+
 
 class BbcsError(Exception):
     """Base class of every error the bus library raises."""

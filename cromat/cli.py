@@ -8,6 +8,7 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "launch": ("module_manager.cli", "start a robot from a manifest (router, manager, modules), supervise it"),
     "router": ("bbcs.router", "run a robot's Zenoh router"),
+    "conf": ("cromat.conf", "check a robot .conf: every error with file:line (conf check FILE)"),
     "gcs": ("ral.gcs.cli", "ground control station: robots, watch, task, abort, modules, route, errors"),
     "certs": ("ral.certs", "create a CA and certificates for a robot router, a GCS and modules"),
     "dsp-sim": ("modules.dsp.sim.cli", "run the DSP simulator on a pty or a TCP port"),

@@ -19,7 +19,7 @@ import msgspec
 
 from bbcs import keys
 from bbcs.codec import resolve_type, type_name
-from bbcs.conf import ConfError, load_conf
+from bbcs.conf import ConfDocument, ConfError, load_conf
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.errors import InvalidNameError
@@ -321,6 +321,7 @@ class _Checker:
         self.path = path
         self.raw = raw
         self.check_pki = check_pki
+        self.conf_doc: ConfDocument | None = None
 
     def fail(self, key: str, message: str) -> ManifestError:
         return ManifestError(message, path=str(self.path), key=key, line=_locate(self.text, key))
@@ -349,7 +350,7 @@ class _Checker:
         if not conf.is_file():
             raise self.fail("robot.conf", f"robot .conf file {conf} does not exist")
         try:
-            load_conf(conf)
+            self.conf_doc = load_conf(conf)
         except ConfError as exc:
             raise self.fail("robot.conf", f"the robot .conf is malformed: {exc}") from None
         if raw.bus.zenoh_config is not None and not (base / raw.bus.zenoh_config).is_file():
@@ -475,6 +476,11 @@ class _Checker:
         cls: Any = self._class(spec.cls, f"{key}.class")
         if not (isinstance(cls, type) and issubclass(cls, Module)):
             raise self.fail(f"{key}.class", f"{spec.cls!r} is not a bbcs Module subclass")
+        conf_errors = getattr(cls, "conf_errors", None)  # the module's check of its part of the robot .conf
+        problems = conf_errors(self.conf_doc) if callable(conf_errors) and self.conf_doc is not None else []
+        if problems:
+            raise self.fail("robot.conf", f"module {name} refuses the robot .conf ({len(problems)} errors):\n"
+                                          + "\n".join(f"  {p}" for p in problems))
         for i, t in enumerate(spec.task_types):
             if t not in task_types:
                 raise self.fail(f"{key}.task_types.{i}", f"unknown task type {t!r}; robot.task_types: "

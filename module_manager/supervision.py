@@ -13,6 +13,8 @@ Rules (after systemd, OTP and dora, see docs/manifest.md):
   kill; ``always``: restart after any exit that the manager did not ask for;
 - backoff doubles per restart still inside the intensity window, capped; more than ``intensity`` restarts within
   ``period_s`` marks the module ``failed`` (it stays down and is reported) — counted also after a good start.
+- exit status 78 (``bbcs.errors.EXIT_CONFIG``: the module's configuration is invalid) marks the module ``failed``
+  at once, whatever the policy: a restart reads the same file and fails the same way.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ import enum
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal
+
+from bbcs.errors import EXIT_CONFIG
 
 RestartPolicy = Literal["never", "on-failure", "always"]
 
@@ -187,6 +191,10 @@ class Supervisor:
                 self.reason = ""
             else:
                 self.phase = Phase.STOPPED
+            return []
+        if code == EXIT_CONFIG:
+            self.phase = Phase.FAILED
+            self.reason = f"{how}: configuration error (fix the robot .conf, see the module's log); not restarted"
             return []
         wants = self.policy.restart == "always" or (self.policy.restart == "on-failure" and failure)
         if not wants:

@@ -73,6 +73,30 @@ class _Scope:
         except msgspec.ValidationError as exc:
             raise self._conversion_error(str(exc), typ) from exc
 
+    def errors_for(self, typ: type[msgspec.Struct]) -> list[ConfError]:
+        """Every problem ``to_struct(typ)`` would find, one ConfError per key (not only the first), for a checker
+        that reports all of a file's mistakes at once. Empty when ``to_struct`` would succeed."""
+        errors: list[ConfError] = []
+        fields = msgspec.structs.fields(typ)
+        for f in fields:
+            entry = self.entries.get(f.encode_name)
+            if entry is None:
+                if f.required:
+                    line, column = self._anchor()
+                    errors.append(ConfError(f"missing required key {f.encode_name!r}{self._where()}",
+                                            path=self.path, line=line, column=column))
+                continue
+            one = msgspec.defstruct(typ.__name__, [(f.encode_name, f.type)])
+            try:
+                msgspec.convert({f.encode_name: entry.value}, one, strict=False)
+            except msgspec.ValidationError as exc:
+                errors.append(self._conversion_error(str(exc), typ))
+        if typ.__struct_config__.forbid_unknown_fields:
+            known = {f.encode_name for f in fields}
+            errors += [ConfError(f"unknown key {key!r}{self._where()}", path=self.path, line=e.line, column=e.column)
+                       for key, e in self.entries.items() if key not in known]
+        return errors
+
     def _conversion_error(self, text: str, typ: type) -> ConfError:
         detail, _, at = text.rpartition(" - at `$")
         if not detail:

@@ -87,14 +87,19 @@ def _heli_type(doc: ConfDocument, text: str) -> HeliType:
                                             f"use one of {names}")
 
 
-def _pid(group: ConfGroup) -> SetPid:
+def _axis(group: ConfGroup) -> Axis:
     name = group.name.strip().upper()
     if name not in Axis.__members__:
         axes = ", ".join(a.name for a in Axis)
         raise ConfError(f"group '{group.label}': unknown controlled axis {group.name!r}; use one of {axes}",
                         path=group.path, line=group.line, column=group.column)
+    return Axis[name]
+
+
+def _pid(group: ConfGroup) -> SetPid:
+    axis = _axis(group)
     keys = group.to_struct(_PidKeys)
-    pid = SetPid(axis=Axis[name], kp=keys.Kp, ki=keys.Ki, kd=keys.Kd, integral=keys.valor_int,
+    pid = SetPid(axis=axis, kp=keys.Kp, ki=keys.Ki, kd=keys.Kd, integral=keys.valor_int,
                  awu_max=keys.max_awu, awu_min=keys.min_awu, reference=keys.referencia, offset=keys.offset,
                  sat_high=keys.sat_encima, sat_low=keys.sat_deb)
     try:
@@ -105,8 +110,52 @@ def _pid(group: ConfGroup) -> SetPid:
     return pid
 
 
+def _pid_errors(group: ConfGroup) -> list[ConfError]:
+    """The axis, every key, then (only when those are fine) the ranges ``check`` applies to the SetPid."""
+    errors = group.errors_for(_PidKeys)
+    if errors or group.name.strip().upper() not in Axis.__members__:
+        try:
+            _axis(group)
+        except ConfError as exc:
+            errors.insert(0, exc)
+        return errors
+    try:
+        _pid(group)
+    except ConfError as exc:
+        errors.append(exc)
+    return errors
+
+
+def conf_errors(doc: ConfDocument) -> list[ConfError]:
+    """Every mistake in the DSP part of a parsed .conf (all of them, each with file:line), for
+    ``cromat conf check`` and ``cromat launch --check``; empty when :func:`dsp_config_from` would succeed."""
+    errors = doc.errors_for(_DspKeys)
+    bad = {e.line for e in errors}
+    telemetry = doc.entries.get("TELEMETRY")
+    if telemetry is not None and telemetry.line not in bad:
+        names = telemetry.value if isinstance(telemetry.value, list) else [telemetry.value]
+        for i, name in enumerate(names):
+            try:
+                parse_telemetry_fields([name])
+            except ValueError as exc:
+                errors.append(_error_at(doc, "TELEMETRY", f"key 'TELEMETRY' (item {i + 1} of the list): {exc}"))
+    heli = doc.entries.get("HELICOPTER_TYPE")
+    if heli is not None and isinstance(heli.value, str):
+        try:
+            _heli_type(doc, heli.value)
+        except ConfError as exc:
+            errors.append(exc)
+    for group in doc.groups_of("PID"):
+        errors += _pid_errors(group)
+    return sorted(errors, key=lambda e: (e.line or 0, e.column or 0))
+
+
 def dsp_config_from(doc: ConfDocument) -> DspConfig:
-    """Build the DspConfig of a parsed .conf; ConfError (file:line) on any missing or bad value."""
+    """Build the DspConfig of a parsed .conf; ConfError (file:line) on any missing or bad value (the first of
+    :func:`conf_errors`, so the module and ``cromat conf check`` never disagree)."""
+    errors = conf_errors(doc)
+    if errors:
+        raise errors[0]
     keys = doc.to_struct(_DspKeys)
     try:
         mask = parse_telemetry_fields(keys.telemetry)

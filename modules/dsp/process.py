@@ -25,12 +25,12 @@ from typing import ClassVar, NoReturn
 
 from bbcs.conf import ConfError
 from bbcs.contracts.errors import ErrorReport
-from bbcs.errors import BusErrorCode
+from bbcs.errors import EXIT_CONFIG, BusErrorCode
 from bbcs.module import Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import bus
 from modules.dsp import protocol as p
-from modules.dsp.config import DspConfig, load_dsp_config
+from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout, LinkErrorCode
 from modules.dsp.link import DspLink, LinkStats, open_link, startup
 
@@ -39,6 +39,10 @@ EXIT_LINK_FAILED = 3
 
 class DspStartupError(RuntimeError):
     """The .conf, the port or the start-up sequence failed: the process must not run."""
+
+
+class DspConfigError(DspStartupError):
+    """The robot .conf is missing or invalid: exit EXIT_CONFIG (78) so the manager does not restart it."""
 
 
 class DspModule(Module):
@@ -51,6 +55,8 @@ class DspModule(Module):
         OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
+    conf_errors = staticmethod(conf_errors)
+    """Checks the robot .conf's DSP part at ``cromat launch --check`` / ``cromat conf check``."""
     tick_period = 1.0
     exit_code: ClassVar[int] = 0
 
@@ -102,9 +108,12 @@ class DspModule(Module):
 
     @classmethod
     def main(cls, argv: list[str] | None = None) -> int:
-        """``python -m modules.dsp``: 0 after a clean stop, 2 bad arguments/bus, 3 link or start-up failed."""
+        """``python -m modules.dsp``: 0 after a clean stop, 2 bad arguments/bus, 3 link or start-up failed,
+        78 (EXIT_CONFIG) invalid robot .conf."""
         try:
             code = super().main(argv)
+        except DspConfigError:
+            return EXIT_CONFIG
         except DspStartupError:
             return EXIT_LINK_FAILED
         return code or cls.exit_code
@@ -112,16 +121,17 @@ class DspModule(Module):
     def _load_conf(self) -> DspConfig:
         path = self.context.conf
         if not path:
-            self._fatal(BusErrorCode.MALFORMED, "no robot .conf given (--conf FILE or the manager's context)")
+            self._fatal(BusErrorCode.MALFORMED, "no robot .conf given (--conf FILE or the manager's context)",
+                        DspConfigError)
         try:
             return load_dsp_config(path, port=self.context.params.get("port") or None)
         except ConfError as exc:
-            self._fatal(BusErrorCode.MALFORMED, f"robot configuration: {exc}")
+            self._fatal(BusErrorCode.MALFORMED, f"robot configuration: {exc}", DspConfigError)
 
-    def _fatal(self, code: int, detail: str) -> NoReturn:
+    def _fatal(self, code: int, detail: str, error: type[DspStartupError] = DspStartupError) -> NoReturn:
         self.report_error(code, detail)
         self.log.error("%s", detail)
-        raise DspStartupError(detail)
+        raise error(detail)
 
     # --- commands ----------------------------------------------------------------------------------------
 

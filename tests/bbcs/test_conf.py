@@ -419,3 +419,27 @@ def documents(draw) -> tuple[str, dict, list]:
 def test_any_valid_rendering_parses_back_to_what_was_written(case: tuple[str, dict, list]) -> None:
     text, entries, groups = case
     assert summary(parse_conf(text)) == (entries, groups)
+
+
+class _Strict(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    speed: Annotated[float, msgspec.Meta(gt=0)]
+    count: int
+    name: str = "x"
+
+
+def test_errors_for_reports_every_key_not_only_the_first() -> None:
+    doc = parse_conf("speed: -1\ncount: many\nextra: 1\n", path="r.conf")
+    errors = [str(e) for e in doc.errors_for(_Strict)]
+    assert errors == ["r.conf:1:1: key 'speed': invalid value '-1': expected `float` > 0.0",
+                      "r.conf:2:1: key 'count': invalid value 'many': expected `int`",
+                      "r.conf:3:1: unknown key 'extra'"]
+    with pytest.raises(ConfError, match="r.conf:1:1"):
+        doc.to_struct(_Strict)
+
+
+def test_errors_for_names_missing_keys_and_is_empty_when_to_struct_succeeds() -> None:
+    doc = parse_conf("G: g {\n  speed: 2\n}\n", path="r.conf")
+    group = doc.group("G", "g")
+    assert [str(e) for e in group.errors_for(_Strict)] == ["r.conf:1:1: missing required key 'count' in group 'G: g'"]
+    ok = parse_conf("speed: 2\ncount: 3\n").errors_for(_Strict)
+    assert ok == []

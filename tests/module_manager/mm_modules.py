@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Annotated
@@ -11,6 +12,7 @@ from typing import Annotated
 import msgspec
 
 from bbcs.contracts.errors import ErrorReport
+from bbcs.errors import EXIT_CONFIG
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot
 
@@ -53,6 +55,9 @@ class Sink(Module):
     def on_start(self) -> None:
         if self.context.params.get("crash") == "always":
             os._exit(3)
+        if self.context.params.get("crash") == "config":  # what a module does when its configuration is invalid
+            print("mm_modules: invalid configuration (test)", file=sys.stderr, flush=True)
+            os._exit(EXIT_CONFIG)
         record = self.context.params.get("record")
         self.record = Path(record).open("a", buffering=1) if record else None
         self._write({"event": "start", "restart": self.restart_count, "routes": self.routes})

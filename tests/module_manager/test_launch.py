@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import sys
 import threading
 from pathlib import Path
@@ -13,11 +14,12 @@ import msgspec
 import pytest
 
 from bbcs import keys
+from bbcs.errors import EXIT_CONFIG
 from bbcs.testing import wait_until
 from module_manager import mri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from launch_support import Launch, group_members, write_manifest  # noqa: E402
+from launch_support import ROOT, Launch, group_members, write_manifest  # noqa: E402
 
 UP = "all 3 modules up"
 MRI_S = 20.0
@@ -148,6 +150,46 @@ def test_always_crashing_module_is_failed_others_keep_running(launch, clients, t
     n = len(sink_records(tmp_path))
     wait_until(lambda: len(sink_records(tmp_path)) > n + 5, 30, "the sink still handling data")
     assert la.stop() == 0
+
+
+def test_module_exiting_on_a_configuration_error_is_failed_and_not_retried(launch, clients, tmp_path):
+    la = launch(edit=lambda text: add_crasher(text).replace('crash = "always"', 'crash = "config"')
+                .replace("intensity = 2", "intensity = 5"))
+    la.wait_line("configuration error", 60)
+    s = clients(la.port)
+    wait_until(lambda: all(m.state == "up" for n, m in modules(s).items() if n != "crasher"), 30, "the others up")
+    status = modules(s)["crasher"]
+    assert status.state == "failed" and status.restarts == 0 and status.last_exit == EXIT_CONFIG
+    assert "configuration error" in status.reason and "not restarted" in status.reason
+    log = (tmp_path / "logs" / "crasher.log").read_text()
+    assert log.count("invalid configuration (test)") == 1, "started exactly once"
+    assert la.stop() == 0
+
+
+def test_launch_with_an_invalid_conf_stops_before_anything_starts(tmp_path):
+    """The UAV's manifest with MAX_SPEED: fast and a misspelt TELEMETRY field: both reported with the .conf's
+    file:line, exit 2, and no router, simulator or module was started (no log file, the port stays closed)."""
+    conf_dir = ROOT / "bbcs_conf"
+    conf = tmp_path / "uav1.conf"
+    text = (conf_dir / "uav1.conf").read_text()
+    conf.write_text(text.replace("MAX_SPEED: 8.0", "MAX_SPEED: fast").replace("NAV, SPEED", "NAV, SPED"))
+    lines = conf.read_text().splitlines()
+    speed_line = next(i for i, t in enumerate(lines, 1) if t.startswith("MAX_SPEED"))
+    telemetry_line = next(i for i, t in enumerate(lines, 1) if t.startswith("TELEMETRY:"))
+    manifest = tmp_path / "uav1_sim.toml"
+    manifest.write_text((conf_dir / "uav1_sim.toml").read_text().replace('conf = "uav1.conf"', f'conf = "{conf}"'))
+    la = Launch(manifest, tmp_path)
+    try:
+        assert la.proc.wait(60) == 2
+        la.reader.join(10)
+        out = "\n".join(la.lines)
+        assert f"{conf}:{speed_line}:1: key 'MAX_SPEED': invalid value 'fast'" in out, out
+        assert f"{conf}:{telemetry_line}:1: key 'TELEMETRY'" in out and "'SPED'" in out, out
+        assert not (tmp_path / "logs").exists(), "no child was started"
+        with pytest.raises(OSError):
+            socket.create_connection(("127.0.0.1", la.port), timeout=1).close()
+    finally:
+        la.cleanup()
 
 
 def test_swap_route_through_mri_while_data_flow(launch, clients, tmp_path):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from bbcs.errors import EXIT_CONFIG
 from module_manager.supervision import Kill, Phase, Policy, Spawn, Supervisor
 
 
@@ -53,6 +54,16 @@ def test_restart_policies(policy, code, phase):
     assert sup.phase is phase
     assert sup.last_exit == code
     assert (sup.restarts == 1) == (phase is Phase.RESTARTING)
+
+
+@pytest.mark.parametrize("policy", ["never", "on-failure", "always"])
+def test_configuration_error_exit_is_never_restarted(policy):
+    sup = started(Policy(restart=policy, backoff_s=0.1, intensity=5))
+    sup.exited(0.5, EXIT_CONFIG)
+    assert sup.phase is Phase.FAILED
+    assert sup.restarts == 0
+    assert "configuration error" in sup.reason and "78" in sup.reason
+    assert sup.tick(100.0) == [], "no spawn, however long we wait"
 
 
 def test_exponential_backoff_with_cap():

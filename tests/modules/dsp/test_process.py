@@ -15,6 +15,7 @@ import msgspec
 import pytest
 
 from bbcs import keys
+from bbcs.errors import EXIT_CONFIG
 from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import stop_process, wait_until
 from modules.dsp import bus
@@ -173,6 +174,21 @@ def test_missing_port_exits_with_a_clear_error(processes, router) -> None:
     proc = start_dsp(processes, router, "/dev/ttyDSP-missing")
     assert proc.wait(20) == 3
     assert "cannot open DSP port /dev/ttyDSP-missing: the port does not exist" in proc.stderr.read()
+
+
+def test_invalid_conf_exits_with_the_configuration_status(processes, router, tmp_path) -> None:
+    """A bad .conf value is a configuration error (exit 78, which the manager never restarts), named with
+    file:line, and the DSP port is never opened."""
+    conf = tmp_path / "bad.conf"
+    conf.write_text(UAV1.read_text().replace("MAX_SPEED: 8.0", "MAX_SPEED: fast"))
+    line = next(i for i, t in enumerate(conf.read_text().splitlines(), 1) if t.startswith("MAX_SPEED"))
+    args = ["-m", "modules.dsp", "--robot", ROBOT, "--connect", f"tcp/127.0.0.1:{router}",
+            "--conf", str(conf), "--param", "port=/dev/ttyDSP-never-opened"]
+    proc = processes.start(args, stderr=subprocess.PIPE, text=True)
+    assert proc.wait(20) == EXIT_CONFIG
+    err = proc.stderr.read()
+    assert f"{conf}:{line}:1: key 'MAX_SPEED': invalid value 'fast'" in err
+    assert "cannot open DSP port" not in err
 
 
 def test_silent_dsp_exits_with_a_clear_error(processes, router) -> None:

@@ -1,0 +1,78 @@
+"""``cromat conf check FILE``: every bad value of the UAV's .conf is reported with its file:line, all at once."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bbcs.testing import child_env
+from cromat.conf import check_file, main
+
+ROOT = Path(__file__).resolve().parents[2]
+UAV1 = ROOT / "bbcs_conf" / "uav1.conf"
+
+
+def broken(tmp_path: Path, old: str, new: str) -> tuple[Path, int]:
+    """uav1.conf with ``old`` replaced by ``new``; the path and the 1-based line of the change."""
+    text = UAV1.read_text()
+    assert old in text
+    path = tmp_path / "uav1.conf"
+    path.write_text(text.replace(old, new, 1))
+    line = text[: text.index(old)].count("\n") + 1
+    return path, line
+
+
+@pytest.mark.parametrize("old,new,says", [
+    ("MAX_SPEED: 8.0", "MAX_SPEED: fast", "key 'MAX_SPEED': invalid value 'fast': expected `float`"),
+    ("MAX_SPEED: 8.0", "MAX_SPEED: 500", "key 'MAX_SPEED': invalid value '500': expected `float` <= 30"),
+    ("DSP_RETRIES: 3", "DSP_RETRIES: -1", "key 'DSP_RETRIES': invalid value '-1': expected `int` >= 0"),
+    ("TELEMETRY_PERIOD_MS: 50", "TELEMETRY_PERIOD_MS: 5", "key 'TELEMETRY_PERIOD_MS'"),
+    ("DSP_BAUD: 921600", "DSP_BAUD: fast", "key 'DSP_BAUD'"),
+    ("TELEMETRY: [POSITION, ATTITUDE,", "TELEMETRY: [POSITION, ATTITUD,",
+     "key 'TELEMETRY' (item 2 of the list): unknown telemetry field 'ATTITUD'"),
+    ("HELICOPTER_TYPE: H3_CCPM_120", "HELICOPTER_TYPE: BLIMP", "unknown helicopter type 'BLIMP'"),
+    ("PID: ROLL", "PID: WOBBLE", "unknown controlled axis 'WOBBLE'"),
+    ("Kp=0.045", "Kp=much", "key 'Kp' in group 'PID: ROLL': invalid value 'much'"),
+])
+def test_each_bad_value_is_reported_at_its_line(tmp_path, old, new, says):
+    path, line = broken(tmp_path, old, new)
+    errors = check_file(path)
+    assert len(errors) == 1, errors
+    assert str(errors[0]).startswith(f"{path}:{line}:"), str(errors[0])
+    assert says in str(errors[0])
+
+
+def test_every_error_is_reported_in_one_run(tmp_path, capsys):
+    text = UAV1.read_text().replace("MAX_SPEED: 8.0", "MAX_SPEED: fast").replace("DSP_RETRIES: 3", "DSP_RETRIES: 99")
+    text = text.replace("NAV, SPEED", "NAV, SPED")
+    path = tmp_path / "uav1.conf"
+    path.write_text(text)
+    assert main(["check", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert "'MAX_SPEED'" in err and "'DSP_RETRIES'" in err and "'SPED'" in err
+    assert "3 error(s)" in err
+
+
+def test_a_syntax_error_is_reported_at_its_line(tmp_path):
+    path, line = broken(tmp_path, "PID: PITCH\n{", "PID: PITCH\n{{")
+    errors = check_file(path)
+    assert len(errors) == 1 and str(errors[0]).startswith(f"{path}:{line + 1}:")
+
+
+def test_the_shipped_conf_is_valid_through_the_cromat_command():
+    out = subprocess.run([sys.executable, "-m", "cromat", "conf", "check", str(UAV1), "--manifest",
+                          str(ROOT / "bbcs_conf" / "uav1_sim.toml")], cwd=ROOT, env=child_env(),
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "ok (checked by modules.dsp.process:DspModule)" in out.stdout
+
+
+def test_the_cromat_command_exits_non_zero_on_a_bad_value(tmp_path):
+    path, line = broken(tmp_path, "MAX_SPEED: 8.0", "MAX_SPEED: fast")
+    out = subprocess.run([sys.executable, "-m", "cromat", "conf", "check", str(path)], cwd=ROOT, env=child_env(),
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1
+    assert f"{path}:{line}:1: key 'MAX_SPEED'" in out.stderr
