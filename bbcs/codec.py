@@ -61,11 +61,6 @@ def resolve_type(name: str) -> type[msgspec.Struct]:
     return obj
 
 
-def json_schema(struct_type: type) -> dict[str, Any]:
-    """The JSON Schema of a struct type, with its ranges, as msgspec generates it."""
-    return msgspec.json.schema(struct_type)
-
-
 def field_of(error: msgspec.ValidationError) -> str:
     """The ``$.field`` path msgspec names in a validation error, or ``$`` when it names none."""
     text = str(error)

@@ -111,8 +111,3 @@ def open_session(cfg: SessionConfig) -> zenoh.Session:
 def local_client(port: int, host: str = "127.0.0.1") -> SessionConfig:
     """A client of the router listening on ``tcp/host:port``: what tests and local modules use."""
     return SessionConfig(mode="client", connect=[f"tcp/{host}:{port}"])
-
-
-def local_router(port: int, host: str = "127.0.0.1") -> SessionConfig:
-    """A router listening on ``tcp/host:port`` only."""
-    return SessionConfig(mode="router", listen=[f"tcp/{host}:{port}"], connect=[])

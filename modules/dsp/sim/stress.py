@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from modules.dsp import protocol as p
-from modules.dsp.codec import DSP_TO_PC_LENGTHS, encode, encode_payload
+from modules.dsp.codec import DSP_TO_PC_LENGTHS, encode_payload
 from modules.dsp.framing import Frame, build_frame
 
 F = p.TelemetryField
@@ -86,25 +86,6 @@ def dsp_traffic(n: int, seed: int = 1, masks: Sequence[int] = TYPICAL_MASKS, tem
             frames.append(build_frame(p.MsgId.ACK, i & 0xFF, payload))
         else:
             frames.append(build_frame(p.MsgId.ERROR, i & 0xFF, err.pack(i, 5, 0)))
-    return frames
-
-
-def command_traffic(n: int, seed: int = 1) -> list[bytes]:
-    """``n`` PC → DSP command frames (waypoints, speeds, headings...), for the simulator's receive side."""
-    rng = np.random.default_rng(seed)
-    frames = []
-    for i in range(n):
-        k = i % 4
-        if k == 0:
-            msg: p.Command = p.AddWaypoint(lat=int(rng.integers(-9e5, 9e5)) / 1e4,
-                                           lon=int(rng.integers(-18e5, 18e5)) / 1e4, alt=float(np.float32(i)))
-        elif k == 1:
-            msg = p.SetSpeed(speed=float(np.float32(rng.uniform(0, 30))))
-        elif k == 2:
-            msg = p.SetHeading(heading_deg=float(np.float32(rng.uniform(-180, 179))))
-        else:
-            msg = p.Ping()
-        frames.append(encode(msg, i))
     return frames
 
 
