@@ -13,7 +13,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "certs": ("ral.certs", "create a CA and certificates for a robot router, a GCS and modules"),
     "dsp-sim": ("modules.dsp.sim.cli", "run the DSP simulator on a pty or a TCP port"),
     "lidar": ("modules.lidar_logger.cli", "run the lidar logger, read and georeference its logs"),
-    "demo": ("examples.bus_demo", "a two-module bus demo on a private router"),
 }
 
 
