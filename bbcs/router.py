@@ -26,6 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tls-cert", metavar="PEM", help="router certificate for tls/ endpoints")
     p.add_argument("--tls-key", metavar="PEM", help="router private key for tls/ endpoints")
     p.add_argument("--scouting", action="store_true", help="enable UDP multicast scouting (off by default)")
+    p.add_argument("--admin-space", action="store_true",
+                   help="answer queries on Zenoh's admin space @/<zid>/router/** (read-only; off by default)")
     return p
 
 
@@ -35,7 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.tls_ca:
         tls = TlsConfig(root_ca=args.tls_ca, cert=args.tls_cert, key=args.tls_key)
     cfg = SessionConfig(mode="router", listen=args.listen or ["tcp/127.0.0.1:7447"], connect=args.connect,
-                        multicast_scouting=args.scouting, tls=tls, config_file=args.config)
+                        multicast_scouting=args.scouting, tls=tls, config_file=args.config,
+                        admin_space=args.admin_space)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

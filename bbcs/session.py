@@ -48,6 +48,8 @@ class SessionConfig(msgspec.Struct, frozen=True, kw_only=True):
     """How long opening a client/peer session waits for its first connect endpoint (-1: forever)."""
     config_file: str | None = None
     """A Zenoh JSON5 config file applied first (access control, auth, tuning); the fields above override it."""
+    admin_space: bool = False
+    """Serve Zenoh's admin space (``@/<zid>/router/**``: links, routes, metrics) read-only; off by default."""
     user: str | None = None
     password: str | None = None
     """User/password authentication (Zenoh ``usrpwd``); authenticates but does not encrypt: combine with TLS."""
@@ -87,6 +89,8 @@ def zenoh_config(cfg: SessionConfig) -> zenoh.Config:
             if cfg.mode == "peer":
                 _set(conf, "transport/link/tls/listen_certificate", tls.cert)
                 _set(conf, "transport/link/tls/listen_private_key", tls.key)
+    if cfg.admin_space:
+        _set(conf, "adminspace", {"enabled": True, "permissions": {"read": True, "write": False}})
     if cfg.user is not None:
         _set(conf, "transport/auth/usrpwd/user", cfg.user)
         _set(conf, "transport/auth/usrpwd/password", cfg.password or "")

@@ -175,6 +175,8 @@ class Manager:
         elif self.m.pki is not None:
             self.runtime_dir = Path(tempfile.mkdtemp(prefix=f"cromat-{self.m.robot}-"))
             argv += ["--config", str(secure.write_router_config(self.m, self.listen, self.runtime_dir))]
+        if self.m.raw.bus.admin_space:
+            argv.append("--admin-space")
         t = self.clock()
         self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir)
         host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))

@@ -87,6 +87,8 @@ class BusSection(_Section):
     ready_timeout_s: Positive = 10.0
     tls: TlsSection | None = None
     """Mutual TLS (and access control) on the router; see docs/manifest.md."""
+    admin_space: bool = False
+    """Let clients read the router's Zenoh admin space (``@/<zid>/router/**``), read-only."""
 
 
 class SupervisionSection(_Section):
