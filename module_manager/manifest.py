@@ -443,6 +443,20 @@ class _Checker:
             rows[s.number] = SlotRef(module=s.module, slot=s.slot, type=type_name(cls), robot=s.robot)
         return SlotTable(robot=self.raw.robot.name, slots=rows)
 
+    def slot_publishers(self, module: str, cls: Any) -> None:
+        """Every ``[[slot]]`` of ``module`` names an output slot of its class, carrying the same struct type."""
+        for i, s in enumerate(self.raw.slot):
+            if s.module != module or (s.robot is not None and s.robot != self.raw.robot.name):
+                continue
+            spec = cls._outputs.get(s.slot)
+            if spec is None:
+                known = ", ".join(sorted(cls._outputs)) or "none"
+                raise self.fail(f"slot.{i}.slot", f"module {s.module} ({type_name(cls)}) has no output slot "
+                                                  f"{s.slot!r} (outputs: {known})")
+            if type_name(spec.type) != type_name(self.type_(s.type, f"slot.{i}.type")):
+                raise self.fail(f"slot.{i}.type", f"slot {s.number} is declared {s.type} but {s.module}/{s.slot} "
+                                                  f"publishes {type_name(spec.type)} ({type_name(cls)})")
+
     def modes(self, table: SlotTable) -> dict[str, ModeSlot]:
         out: dict[str, ModeSlot] = {}
         for i, m in enumerate(self.raw.mode):
@@ -478,6 +492,7 @@ class _Checker:
         cls: Any = self._class(spec.cls, f"{key}.class")
         if not (isinstance(cls, type) and issubclass(cls, Module)):
             raise self.fail(f"{key}.class", f"{spec.cls!r} is not a bbcs Module subclass")
+        self.slot_publishers(name, cls)
         conf_errors = getattr(cls, "conf_errors", None)  # the module's check of its part of the robot .conf
         problems = conf_errors(self.conf_doc) if callable(conf_errors) and self.conf_doc is not None else []
         if problems:

@@ -49,6 +49,12 @@ BAD = [
     pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["cooking"]'),
                  "modules.sink.task_types.0", "unknown task type", None, id="task-type"),
     pytest.param(lambda t: t.replace("[robot]", "[robot"), "", "not valid TOML", "[robot", id="toml-syntax"),
+    pytest.param(lambda t: t.replace('type = "mm_modules:ProbeMsg"', 'type = "mm_modules:OtherMsg"', 1),
+                 "slot.0.type", "src_a/datos publishes mm_modules:ProbeMsg (mm_modules:Source)",
+                 'type = "mm_modules:OtherMsg"', id="slot-type-vs-publisher"),
+    pytest.param(lambda t: t.replace('slot = "datos"', 'slot = "datas"', 1),
+                 "slot.0.slot", "has no output slot 'datas' (outputs: datos)", 'slot = "datas"',
+                 id="slot-not-an-output"),
 ]
 
 
