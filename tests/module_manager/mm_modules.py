@@ -96,3 +96,15 @@ class Source(Module):
     def on_tick(self) -> None:
         self.seq += 1
         self.publish("datos", ProbeMsg(source=self.module, seq=self.seq))
+
+
+class LegacyErrorShape(msgspec.Struct, frozen=True, kw_only=True):
+    """An ERROR struct of the old kind (its own field name): the manifest refuses it."""
+
+    error_legacy: int
+
+
+class LegacySink(Module):
+    name = "legacy"
+    slots = (OutputSlot("error", LegacyErrorShape),)
+    error_slot = "error"
