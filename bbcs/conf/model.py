@@ -7,6 +7,7 @@ and turns any refusal into a ConfError at the line of the key that caused it.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from typing import TypeVar
 
@@ -82,9 +83,7 @@ class _Scope:
             entry = self.entries.get(f.encode_name)
             if entry is None:
                 if f.required:
-                    line, column = self._anchor()
-                    errors.append(ConfError(f"missing required key {f.encode_name!r}{self._where()}",
-                                            path=self.path, line=line, column=column))
+                    errors.append(self._missing(f.encode_name, {g.encode_name for g in fields}))
                 continue
             one = msgspec.defstruct(typ.__name__, [(f.encode_name, f.type)])
             try:
@@ -93,9 +92,20 @@ class _Scope:
                 errors.append(self._conversion_error(str(exc), typ))
         if typ.__struct_config__.forbid_unknown_fields:
             known = {f.encode_name for f in fields}
+            misspelt = {(e.line, e.column) for e in errors if e.message.endswith("a misspelling?")}
             errors += [ConfError(f"unknown key {key!r}{self._where()}", path=self.path, line=e.line, column=e.column)
-                       for key, e in self.entries.items() if key not in known]
+                       for key, e in self.entries.items() if key not in known and (e.line, e.column) not in misspelt]
         return errors
+
+    def _missing(self, key: str, known: set[str]) -> ConfError:
+        """A missing key; at the line of an unknown key that looks like a misspelling of it, if there is one."""
+        close = difflib.get_close_matches(key, [k for k in self.entries if k not in known], n=1, cutoff=0.8)
+        if close:
+            entry = self.entries[close[0]]
+            return ConfError(f"missing required key {key!r}{self._where()}: is {entry.key!r} a misspelling?",
+                             path=self.path, line=entry.line, column=entry.column)
+        line, column = self._anchor()
+        return ConfError(f"missing required key {key!r}{self._where()}", path=self.path, line=line, column=column)
 
     def _conversion_error(self, text: str, typ: type) -> ConfError:
         detail, _, at = text.rpartition(" - at `$")

@@ -35,6 +35,8 @@ def broken(tmp_path: Path, old: str, new: str) -> tuple[Path, int]:
      "key 'TELEMETRY' (item 2 of the list): unknown telemetry field 'ATTITUD'"),
     ("HELICOPTER_TYPE: H3_CCPM_120", "HELICOPTER_TYPE: BLIMP", "unknown helicopter type 'BLIMP'"),
     ("PID: ROLL", "PID: WOBBLE", "unknown controlled axis 'WOBBLE'"),
+    ("MAX_SPEED: 8.0", "MAX_SPED: 8.0", "missing required key 'MAX_SPEED': is 'MAX_SPED' a misspelling?"),
+    ("    Kp=0.045", "    Kpp=0.045", "missing required key 'Kp' in group 'PID: ROLL': is 'Kpp' a misspelling?"),
     ("Kp=0.045", "Kp=much", "key 'Kp' in group 'PID: ROLL': invalid value 'much'"),
 ])
 def test_each_bad_value_is_reported_at_its_line(tmp_path, old, new, says):
