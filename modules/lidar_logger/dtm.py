@@ -10,8 +10,10 @@ echoes), three rounds, so the plane sinks from the mean of everything to the gro
 plane, not a height cut, so steep ground is not mistaken for objects); then it drops points whose
 residual exceeds ``max(3σ, 5 cm)`` either way (low outliers too) and fits once more. The cell value
 is the plane at the cell centre, so a slope does not bias it by where in the cell the points fell, as a mean
-would (0.45 slope × 0.5 m = 0.2 m at worst on the simulator's terrain). A cell with fewer than
-``min_points`` ground points, or points on one line, has no value (NaN).
+would (0.45 slope × 0.5 m = 0.2 m at worst on the simulator's terrain). A cell with ground points that do
+not pin a plane (fewer than ``min_points``, or all on one scan line) takes the plane fitted to its 3x3
+block of cells at its own centre; a cell with no ground point has no value (NaN): nothing is interpolated
+into it.
 
 Coverage (``coverage``): cells with a value over the cells considered (the grid, or those inside a polygon),
 and **holes**: connected groups of empty cells enclosed by data (not touching the considered area's edge).
@@ -108,37 +110,68 @@ def build_dtm(enu: np.ndarray, cell: float, *, max_above: float = 0.5, min_point
     sigma = np.sqrt(np.bincount(ids[keep], weights=resid[keep] ** 2, minlength=n_cells)
                     / np.maximum(np.bincount(ids[keep], minlength=n_cells), 1))
     keep &= ~ok[ids] | (resid <= np.maximum(3 * sigma[ids], 0.05))
-    a, ok = _fit_planes(ids, dx, dy, z, keep, n_cells, min_points, cell)
-    heights = np.where(ok, a[:, 0], np.nan).reshape(rows, cols)
-    count = np.bincount(ids[keep], minlength=n_cells).reshape(rows, cols)
-    return Dtm(heights, np.where(ok.reshape(rows, cols), count, 0), float(west), float(north), float(cell))
+    mom = _moments(ids, dx, dy, z, keep, n_cells)
+    a, ok = _solve(mom, min_points, cell)
+    # a cell whose own points do not pin a plane (too few, or all on one scan line) but has ground points
+    # takes the plane through its 3x3 block, evaluated at its own centre
+    a3, ok3 = _solve(_neighbourhood(mom, rows, cols, cell), min_points, cell)
+    fallback = ~ok & (mom[0] > 0) & ok3
+    heights = np.where(ok, a[:, 0], np.where(fallback, a3[:, 0], np.nan)).reshape(rows, cols)
+    count = mom[0].astype(np.int64).reshape(rows, cols)
+    return Dtm(heights, np.where(np.isfinite(heights), count, 0), float(west), float(north), float(cell))
 
 
-def _fit_planes(ids: np.ndarray, dx: np.ndarray, dy: np.ndarray, z: np.ndarray, keep: np.ndarray, n_cells: int,
-                min_points: int, cell: float) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares z = a + b·dx + c·dy per cell over the kept points: (n_cells, 3) coefficients and which
-    cells have a well-posed fit."""
+def _moments(ids: np.ndarray, dx: np.ndarray, dy: np.ndarray, z: np.ndarray, keep: np.ndarray,
+             n_cells: int) -> np.ndarray:
+    """(9, n_cells) sums n, Σx, Σy, Σxx, Σxy, Σyy, Σz, Σxz, Σyz of the kept points about each cell's centre."""
     i, x, y, h = ids[keep], dx[keep], dy[keep], z[keep]
+    weights = (None, x, y, x * x, x * y, y * y, h, x * h, y * h)
+    return np.stack([np.bincount(i, weights=w, minlength=n_cells).astype(np.float64) for w in weights])
 
-    def s(w: np.ndarray | None) -> np.ndarray:
-        return np.bincount(i, weights=w, minlength=n_cells).astype(np.float64)
 
-    n = s(None)
-    sx, sy, sxx, sxy, syy = s(x), s(y), s(x * x), s(x * y), s(y * y)
-    sz, sxz, syz = s(h), s(x * h), s(y * h)
+def _solve(mom: np.ndarray, min_points: int, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares plane per cell from its moments: (n_cells, 3) coefficients, and which cells have a
+    well-posed fit (enough points, spread in both directions: the 2x2 covariance not near singular)."""
+    n, sx, sy, sxx, sxy, syy, sz, sxz, syz = mom
     m = np.stack([np.stack([n, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], -2)
     rhs = np.stack([sz, sxz, syz], -1)
-    # well posed: enough points, spread in both directions (the 2x2 covariance not near singular)
     with np.errstate(invalid="ignore", divide="ignore"):
         cxx = sxx / n - (sx / n) ** 2
         cyy = syy / n - (sy / n) ** 2
         cxy = sxy / n - sx * sy / n**2
         det = cxx * cyy - cxy**2
     ok = (n >= min_points) & (det > (0.01 * cell * cell) ** 2)
-    coef = np.zeros((n_cells, 3))
+    coef = np.zeros((len(n), 3))
     if ok.any():
         coef[ok] = np.linalg.solve(m[ok], rhs[ok][..., None])[..., 0]
     return coef, ok
+
+
+def _fit_planes(ids: np.ndarray, dx: np.ndarray, dy: np.ndarray, z: np.ndarray, keep: np.ndarray, n_cells: int,
+                min_points: int, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    return _solve(_moments(ids, dx, dy, z, keep, n_cells), min_points, cell)
+
+
+def _neighbourhood(mom: np.ndarray, rows: int, cols: int, cell: float) -> np.ndarray:
+    """Moments of each cell's 3x3 block about the middle cell's centre (the sums moved to that origin)."""
+    n, sx, sy, sxx, sxy, syy, sz, sxz, syz = (m.reshape(rows, cols) for m in mom)
+    out = np.zeros((9, rows, cols))
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            ox, oy = dj * cell, -di * cell  # the neighbour's centre seen from the middle one (rows run south)
+            src = (slice(max(di, 0), rows + min(di, 0)), slice(max(dj, 0), cols + min(dj, 0)))
+            dst = (slice(max(-di, 0), rows + min(-di, 0)), slice(max(-dj, 0), cols + min(-dj, 0)))
+            a = [v[src] for v in (n, sx, sy, sxx, sxy, syy, sz, sxz, syz)]
+            out[0][dst] += a[0]
+            out[1][dst] += a[1] + a[0] * ox
+            out[2][dst] += a[2] + a[0] * oy
+            out[3][dst] += a[3] + 2 * ox * a[1] + a[0] * ox * ox
+            out[4][dst] += a[4] + ox * a[2] + oy * a[1] + a[0] * ox * oy
+            out[5][dst] += a[5] + 2 * oy * a[2] + a[0] * oy * oy
+            out[6][dst] += a[6]
+            out[7][dst] += a[7] + ox * a[6]
+            out[8][dst] += a[8] + oy * a[6]
+    return out.reshape(9, -1)
 
 
 def _plane_at(coef: np.ndarray, ids: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:

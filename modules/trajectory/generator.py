@@ -23,8 +23,8 @@ class Limits:
     max_bank_deg: float = 25.0
     ground_altitude: float = 0.0
     """Added to a request's height above the ground to give the waypoints' ``altura``."""
-    line_extension: float = 10.0
-    """Lines run this far past the polygon, so the turns are flown outside it."""
+    line_extension: float = 5.0
+    """Lines run this far past the polygon before a turn starts (turns are flown outside it)."""
     arc_step_deg: float = 10.0
     max_points: int = 2000
 
@@ -91,7 +91,7 @@ def plan_survey(req: SurveyRequest, limits: Limits) -> Plan:
                             "overlap, or slower")
     start = _local(frame, [req.start])[0] if req.start is not None else None
     survey = planning.lawnmower(_local(frame, req.polygon), spacing, direction_deg=req.direction_deg, start=start,
-                                extension=limits.line_extension)
+                                extension=limits.line_extension, turn_extension=radius)
     path = planning.smooth(survey.waypoints, radius, step_deg=limits.arc_step_deg)
     return Plan("survey", _datos(frame, path, limits.ground_altitude + req.height, limits), path,
                 planning.path_length(path), spacing, survey.lines, survey.lower_bound_m)

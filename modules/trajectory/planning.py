@@ -120,14 +120,18 @@ def sweep_lines(polygon: np.ndarray, direction_rad: float, spacing: float) -> li
 
 
 def _serpentine(lines: list[tuple[np.ndarray, np.ndarray]], reverse_order: bool, flip_first: bool,
-                extension: float) -> np.ndarray:
+                extension: float, turn_extension: float = 0.0) -> np.ndarray:
+    """Line ends in flying order; every line runs ``extension`` past the polygon, plus ``turn_extension``
+    at the ends where the aircraft turns onto the next line (not at the way in and the way out)."""
     order = lines[::-1] if reverse_order else lines
     pts = []
+    last = len(order) - 1
     for k, (a, b) in enumerate(order):
         if (k % 2 == 1) != flip_first:
             a, b = b, a
         d = (b - a) / max(np.linalg.norm(b - a), 1e-12)
-        pts += [a - d * extension, b + d * extension]
+        pts += [a - d * (extension + (turn_extension if k > 0 else 0.0)),
+                b + d * (extension + (turn_extension if k < last else 0.0))]
     return np.array(pts)
 
 
@@ -143,10 +147,12 @@ class Survey:
 
 
 def lawnmower(polygon: np.ndarray, spacing: float, *, direction_deg: float | None = None,
-              start: np.ndarray | None = None, extension: float = 0.0) -> Survey:
+              start: np.ndarray | None = None, extension: float = 0.0, turn_extension: float = 0.0) -> Survey:
     """The boustrophedon over ``polygon``. Without a ``direction_deg``, every edge direction of the polygon
     is tried (the shortest lawnmower runs along one of them); of each, the four ways in (either end line,
-    either end of it); the choice minimises the path, plus the leg from ``start`` when given."""
+    either end of it); the choice minimises the path, plus the leg from ``start`` when given.
+    ``turn_extension`` (the turn radius, for a path to be smoothed) makes the turns start past the lines'
+    ``extension``, so no part of a line over the polygon is flown banked."""
     poly = _check_polygon(polygon)
     if direction_deg is not None:
         candidates = [math.radians(direction_deg)]
@@ -161,7 +167,7 @@ def lawnmower(polygon: np.ndarray, spacing: float, *, direction_deg: float | Non
         bound = _serpentine(lines, False, False, 0.0)
         for reverse_order in (False, True):
             for flip in (False, True):
-                pts = _serpentine(lines, reverse_order, flip, extension)
+                pts = _serpentine(lines, reverse_order, flip, extension, turn_extension)
                 cost = path_length(pts) + (float(np.hypot(*(pts[0] - start))) if start is not None else 0.0)
                 if best is None or cost < best[0] - 1e-6:
                     best = (cost, Survey(pts, math.degrees(angle) % 180.0, spacing, len(lines),

@@ -37,13 +37,22 @@ def test_plane_fit_is_exact_on_a_slope_and_the_filter_drops_points_above() -> No
     assert dtm.count.sum() == (~canopy).sum()
 
 
-def test_cells_without_enough_points_or_on_a_line_have_no_value() -> None:
-    pts = np.array([[0.5, 0.5, 1.0], [0.2, 0.7, 1.0],              # cell (0, 0): two points
-                    [1.1, 0.1, 2.0], [1.5, 0.5, 2.0], [1.9, 0.9, 2.0],  # cell (0, 1): three on a line
-                    [0.1, 1.1, 3.0], [0.9, 1.2, 3.0], [0.5, 1.9, 3.0]])  # cell (1, 0) in north-up rows: ok
+def test_cells_whose_points_do_not_pin_a_plane_use_their_block_and_empty_cells_stay_empty() -> None:
+    def plane(e, n):
+        return 1.0 + 0.5 * e + 0.2 * n
+
+    en = np.array([[0.5, 0.5], [0.2, 0.7],                 # south-west cell: two points
+                   [1.1, 0.1], [1.5, 0.5], [1.9, 0.9],     # south-east cell: three on a line
+                   [0.1, 1.1], [0.9, 1.2], [0.5, 1.9]])    # north-west cell: enough; north-east: none
+    pts = np.column_stack((en, plane(en[:, 0], en[:, 1])))
     dtm = build_dtm(pts, 1.0, bounds=(0, 0, 2, 2))
-    assert np.isnan(dtm.z[1, 0]) and np.isnan(dtm.z[1, 1]) and np.isnan(dtm.z[0, 1])
-    assert dtm.z[0, 0] == pytest.approx(3.0)
+    ce, cn = dtm.centres()
+    assert np.isnan(dtm.z[0, 1])  # no point there: nothing is interpolated into it
+    has = ~np.isnan(dtm.z)
+    assert has.sum() == 3 and np.allclose(dtm.z[has], plane(ce[has], cn[has]))
+    assert dtm.count.tolist() == [[3, 0], [2, 3]]
+    lone = build_dtm(np.array([[0.5, 0.5, 1.0], [0.6, 0.4, 1.0]]), 1.0, bounds=(0, 0, 1, 1))
+    assert np.isnan(lone.z).all()  # two points and no neighbours: no plane at all
 
 
 def test_bad_cell_size_is_refused() -> None:

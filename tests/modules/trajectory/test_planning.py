@@ -116,3 +116,15 @@ def test_local_frame_round_trip_and_scale() -> None:
     lat, lon = f.to_geo(en)
     assert np.allclose(f.to_local(lat, lon), en, atol=1e-6)
     assert lat[0] == pytest.approx(37.4261 - 2000 / 111_000, abs=3e-4)
+
+
+def test_turns_are_flown_outside_the_polygon_when_lines_are_extended_by_the_radius() -> None:
+    r = 30.0
+    s = lawnmower(RECT, 70.0, extension=5.0, turn_extension=r)
+    flown = smooth(s.waypoints, r, step_deg=5.0)
+    heading = np.arctan2(*np.diff(flown, axis=0).T)
+    turning = np.abs(np.angle(np.exp(1j * np.diff(heading)))) > 1e-6
+    arc_points = flown[1:-1][turning]
+    assert len(arc_points) > 0 and np.all((arc_points[:, 0] <= -5.0 + 1e-6) | (arc_points[:, 0] >= 805.0 - 1e-6))
+    ends = [flown[0], flown[-1]]  # the way in and out: only the plain extension
+    assert all(min(abs(p[0] + 5.0), abs(p[0] - 805.0)) < 1e-6 for p in ends)
