@@ -134,8 +134,10 @@ def main(argv: list[str] | None = None) -> int:
         "baseline_mean_dtm_rms_m": base["rms_m"],
     }
     print(f"\n{'figure':<34}{'value':>12}")
-    rows = [("coverage of the polygon (%)", cov.percent), ("holes (groups / cells)", f"{cov.holes} / {cov.hole_cells}"),
-            ("DTM error RMS (m)", err["rms_m"]), ("DTM error p99 (m)", err["p99_m"]), ("DTM error max (m)", err["max_m"]),
+    rows = [("coverage of the polygon (%)", cov.percent),
+            ("holes (groups / cells)", f"{cov.holes} / {cov.hole_cells}"),
+            ("DTM error RMS (m)", err["rms_m"]), ("DTM error p99 (m)", err["p99_m"]),
+            ("DTM error max (m)", err["max_m"]),
             ("baseline cell-mean RMS (m)", base["rms_m"]), ("baseline cell-mean max (m)", base["max_m"]),
             ("path / lawnmower lower bound", summary["path_length_ratio"]),
             ("DTM build CPU s per M points", summary["dtm_s_per_mpoints"]),
