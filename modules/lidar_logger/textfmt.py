@@ -33,28 +33,6 @@ def _width(top: int) -> int:
     return 1 if top < 10 else 4 if top < 10_000 else 8
 
 
-def _digits(v: np.ndarray, width: int, natural: bool) -> tuple[np.ndarray, np.ndarray]:
-    """ASCII digits (..., width) of 0 ≤ v < 10**width and which of them are printed."""
-    if width == 1:
-        return (v + ord("0")).astype(np.uint8)[..., None], np.ones(v.shape + (1,), dtype=np.uint8)
-    if width <= 4:
-        chars = _DIGITS4[v].view(np.uint8).reshape(v.shape + (4,))[..., 4 - width:]
-        shown = (_SIGNIFICANT4[v] if natural else np.full(v.shape, _ONES4)).view(np.uint8)
-        return chars, shown.reshape(v.shape + (4,))[..., 4 - width:]
-    hi, lo = v // 10_000, v % 10_000
-    words = np.empty(v.shape + (2,), dtype=np.uint32)
-    words[..., 0] = _DIGITS4[hi]
-    words[..., 1] = _DIGITS4[lo]
-    shown = np.empty(v.shape + (2,), dtype=np.uint32)
-    if natural:
-        big = hi > 0
-        shown[..., 0] = np.where(big, _SIGNIFICANT4[hi], 0)
-        shown[..., 1] = np.where(big, _ONES4, _SIGNIFICANT4[lo])
-    else:
-        shown[:] = _ONES4
-    return words.view(np.uint8).reshape(v.shape + (8,)), shown.view(np.uint8).reshape(v.shape + (8,))
-
-
 @functools.lru_cache(maxsize=64)
 def _template(widths: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
     """Literal characters of a line whose numbers have ``widths`` (num, x int, width, flags, layer, echo,
@@ -110,37 +88,69 @@ def format_points(xyz: np.ndarray, width_cm: np.ndarray, flags: np.ndarray, laye
         return _format_points_slow(xyz, width_cm, flags, layer, echo, offset_us)
     widths = tuple(_width(t) for t in tops)
     row_chars, row_mask, starts = _template(widths)
-    chars = np.empty((n, len(row_chars)), dtype=np.uint8)
-    mask = np.empty((n, len(row_chars)), dtype=np.uint8)
-    chars[:] = row_chars
-    mask[:] = row_mask
-    (p_num, p_xsign, p_xint, p_xfrac, p_ysign, p_yint, p_yfrac, p_zsign, p_zint, p_zfrac, p_ew, p_ewfrac,
-     p_flags, p_layer, p_echo, p_osign, p_off, p_valid) = starts
-    stride = p_ysign - p_xsign
+    dest, fixed, hi_of, low_of = _layout(widths, starts, len(row_chars))
+    columns = (naturals[0], ints[:, 0], fracs[:, 0], ints[:, 1], fracs[:, 1], ints[:, 2], fracs[:, 2],
+               naturals[2], width % 100, flag, lay, ech, abs_offset, naturals[7])
+    groups = np.empty((n, len(dest) // 4), dtype=np.int64)
+    k = 0
+    for col, w in zip(columns, _FIELD_WIDTHS(widths), strict=True):
+        if w == 8:
+            groups[:, k] = col // 10_000
+            groups[:, k + 1] = col % 10_000
+            k += 2
+        else:
+            groups[:, k] = col
+            k += 1
+    shown = _SIGNIFICANT4[groups]
+    shown[:, fixed] = _ONES4
+    if len(hi_of):  # 8-digit naturals: the high group only when not 0, the low one then in full
+        big = groups[:, hi_of] > 0
+        shown[:, low_of] = np.where(big, _ONES4, shown[:, low_of])
+        shown[:, hi_of] = np.where(big, shown[:, hi_of], 0)
+    chars = np.empty((n, len(row_chars) + 1), dtype=np.uint8)  # the last column takes unused digits
+    mask = np.empty((n, len(row_chars) + 1), dtype=np.uint8)
+    chars[:, :-1] = row_chars
+    mask[:, :-1] = row_mask
+    chars[:, dest] = _DIGITS4[groups].view(np.uint8).reshape(n, -1)
+    mask[:, dest] = shown.view(np.uint8).reshape(n, -1)
+    mask[:, -1] = 0
+    sign_cols = [starts[1], starts[4], starts[7], starts[15]]
+    mask[:, sign_cols[:3]] = np.signbit(xyz)
+    mask[:, sign_cols[3]] = offset < 0
+    return np.compress(mask.ravel().view(bool), chars.ravel()).tobytes()  # compress: ~3x a boolean index
 
-    def put(pos: int, v: np.ndarray, w: int, natural: bool = True) -> None:
-        c, m = _digits(v, w, natural)
-        chars[:, pos:pos + w] = c
-        mask[:, pos:pos + w] = m
 
-    def put3(pos: int, c: np.ndarray, m: np.ndarray) -> None:
-        """The same column of x, y and z, which sit ``stride`` apart: one assignment through a strided view."""
-        w = c.shape[-1]
-        off = pos - p_xsign
-        chars[:, p_xsign:p_xsign + 3 * stride].reshape(n, 3, stride)[:, :, off:off + w] = c
-        mask[:, p_xsign:p_xsign + 3 * stride].reshape(n, 3, stride)[:, :, off:off + w] = m
+def _FIELD_WIDTHS(widths: tuple[int, ...]) -> tuple[int, ...]:  # noqa: N802
+    """Digit widths of the 14 numbers of a line, in line order."""
+    w_num, w_int, w_ew, w_flags, w_layer, w_echo, w_off, w_valid = widths
+    return (w_num, w_int, 8, w_int, 8, w_int, 8, w_ew, 2, w_flags, w_layer, w_echo, w_off, w_valid)
 
-    put(p_num, naturals[0], widths[0])
-    put3(p_xsign, np.full((n, 3, 1), ord("-"), dtype=np.uint8), np.signbit(xyz).astype(np.uint8)[..., None])
-    put3(p_xint, *_digits(ints, widths[1], True))
-    put3(p_xfrac, *_digits(fracs, 8, False))
-    put(p_ew, naturals[2], widths[2])
-    put(p_ewfrac, width % 100, 2, natural=False)
-    for pos, k in ((p_flags, 3), (p_layer, 4), (p_echo, 5), (p_off, 6), (p_valid, 7)):
-        put(pos, naturals[k], widths[k])
-    mask[:, p_osign] = offset < 0
-    chars[:, p_osign] = ord("-")
-    return chars[mask.view(bool)].tobytes()
+
+_FIXED_FIELDS = frozenset({2, 4, 6, 8})  # the fractions: printed with their leading zeros
+
+
+@functools.lru_cache(maxsize=64)
+def _layout(widths: tuple[int, ...], starts: tuple[int, ...], line_width: int
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where the 4 bytes of each 4-digit group go in the line (``line_width`` = a trash column for digits
+    beyond a number's width), which groups print leading zeros, and the high/low groups of 8-digit naturals."""
+    number_starts = [starts[i] for i in (0, 2, 3, 5, 6, 8, 9, 10, 11, 12, 13, 14, 16, 17)]
+    dest: list[int] = []
+    fixed: list[int] = []
+    hi_of: list[int] = []
+    low_of: list[int] = []
+    for f, (pos, w) in enumerate(zip(number_starts, _FIELD_WIDTHS(widths), strict=True)):
+        if w == 8:
+            if f not in _FIXED_FIELDS:
+                hi_of.append(len(fixed))
+                low_of.append(len(fixed) + 1)
+            fixed += [f in _FIXED_FIELDS] * 2
+            dest += list(range(pos, pos + 8))
+        else:
+            fixed.append(f in _FIXED_FIELDS)
+            dest += [line_width] * (4 - w) + list(range(pos, pos + w))
+    return (np.array(dest), np.nonzero(np.array(fixed))[0], np.array(hi_of, dtype=np.int64),
+            np.array(low_of, dtype=np.int64))
 
 
 def _format_points_slow(xyz: np.ndarray, width_cm: np.ndarray, flags: np.ndarray, layer: np.ndarray,
