@@ -6,17 +6,17 @@ from __future__ import annotations
 import json
 import warnings
 
+import laspy
 import numpy as np
 import pytest
+import rasterio
+import rasterio.errors
 
 from modules.lidar_logger import cli
 from modules.lidar_logger.dtm import Dtm, build_dtm, coverage, ground_candidates, hillshade, polygon_mask
 from modules.lidar_logger.flags import FLAG_DIRT, FLAG_GROUND, FLAG_RAIN, FLAG_TRANSPARENT
 from modules.lidar_logger.sim import LdmrsOptions, World
 from modules.lidar_logger.sim.survey_flight import flight_scans, write_run
-
-rasterio = pytest.importorskip("rasterio")
-laspy = pytest.importorskip("laspy")
 
 
 def test_ground_candidates_follow_the_scanner_flags() -> None:
