@@ -6,8 +6,8 @@ The LD-MRS sends about 700 points every 80 ms (seed ch. 4.2.2.1): 8,750 points/s
 - the text writer (Figure 42 format, ``textlog.TextLogWriter``) and, as its baseline in the same run, a
   naive text writer that formats and writes one point line at a time (the straightforward port of the
   seed's processScan);
-- the binary writer (``binlog.BinaryLogWriter``) and, as its baseline, a raw dump of every scan's wire
-  payload (the least work any binary log can do).
+- the binary writer (``binlog.BinaryLogWriter``, compressed per scan) and, as its baseline, a raw dump of
+  every scan's wire payload (the least work any binary log can do).
 
 Throughput = points / CPU seconds of the writer; real-time factor = throughput / 8,750; CPU share at real
 time = 8,750 / throughput (fraction of one core). Reading back (text parse, binary load) is timed too.

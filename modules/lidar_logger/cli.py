@@ -3,7 +3,8 @@
     cromat lidar run --mtig-port /dev/ttyUSB1 --ldmrs-host 192.168.0.1 --vehicle CB5000 --duration 20 --binary
     cromat lidar run --conf bbcs_conf/uav1.conf              (settings from the LIDAR: logger group)
     cromat lidar read Scan_Y2010_M09_D10_H07M30S07 [--npz scans.npz] [--json]
-    cromat lidar georef Scan_Y2010_M09_D10_H07M30S07 --out cloud.ply [--ascii]
+    cromat lidar georef Scan_Y2010_M09_D10_H07M30S07 --out cloud.ply [--ascii]     (.las / .laz: LAS 1.4)
+    cromat lidar dtm Scan_A Scan_B --cell 1 --out dtm.tif [--hillshade dtm.png] [--las ground.laz]
 
 Exit codes: 0 finished (duration or Ctrl+C), 3 stopped because the scanner went silent, 1 error, 2 usage.
 """
@@ -21,10 +22,12 @@ import numpy as np
 from bbcs.conf import ConfError
 from modules.lidar_logger.clock import SYSTEM_CLOCK, ScaledClock
 from modules.lidar_logger.config import load_lidar_conf, merge_lidar_conf, read_config_file
+from modules.lidar_logger.dtm import build_dtm, coverage, ground_candidates, hillshade
 from modules.lidar_logger.georef import GeorefError, Mounting, georeference
 from modules.lidar_logger.logdata import LogFormatError, load_log
 from modules.lidar_logger.logger import LidarLogger
 from modules.lidar_logger.ply import write_ply
+from modules.lidar_logger.raster import MissingExtraError, write_geotiff, write_las, write_png
 from modules.lidar_logger.vehicles import VEHICLES
 
 
@@ -57,7 +60,7 @@ def _parser() -> argparse.ArgumentParser:
 
     geo = sub.add_parser("georef", help="georeference valid points into a local ENU frame, write a PLY")
     geo.add_argument("log", help="run folder, LogFile_<date>, or LogFile_<date>.scans.bin")
-    geo.add_argument("--out", required=True, help="PLY file to write")
+    geo.add_argument("--out", required=True, help="PLY file to write (.las/.laz: LAS 1.4, needs the survey extra)")
     geo.add_argument("--ascii", action="store_true", help="ASCII PLY instead of binary little-endian")
     geo.add_argument("--mounting", type=float, nargs=6, metavar=("ROLL", "PITCH", "YAW", "X", "Y", "Z"),
                      help="scanner mounting; default: the run's ConfigFile")
@@ -68,6 +71,19 @@ def _parser() -> argparse.ArgumentParser:
                      help="move the IMU along its velocity to each point's time (needs scanner clock on UTC)")
     geo.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"),
                      help="ENU origin; default: the first valid pose")
+
+    dtm = sub.add_parser("dtm", help="terrain model from one or more flight logs: GeoTIFF, PNG hillshade, LAS")
+    dtm.add_argument("logs", nargs="+", help="run folders or log files; all in the first one's ENU frame")
+    dtm.add_argument("--cell", type=float, required=True, help="cell size, metres")
+    dtm.add_argument("--out", required=True, help="GeoTIFF of heights to write")
+    dtm.add_argument("--hillshade", help="PNG hillshade to write")
+    dtm.add_argument("--las", help="the ground points as LAS/LAZ")
+    dtm.add_argument("--max-above", type=float, default=0.5,
+                     help="ground filter: drop points this far above a cell's low surface (m)")
+    dtm.add_argument("--min-points", type=int, default=3, help="ground points a cell needs for a value")
+    dtm.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"),
+                     help="ENU origin; default: the first valid pose of the first log")
+    dtm.add_argument("--json", action="store_true", help="the report as JSON")
     return p
 
 
@@ -112,34 +128,75 @@ def _run_config(log_path: Path) -> dict[str, str]:
     return read_config_file(found[0]) if found else {}
 
 
-def _georef(args: argparse.Namespace) -> int:
-    path = Path(args.log)
-    log = load_log(path)
+def _mounting_and_lever(path: Path, args: argparse.Namespace) -> tuple[Mounting, tuple[float, ...], str]:
+    """Mounting, lever arm and position reference: the options if given, else the run's ConfigFile."""
     cfg = _run_config(path)
-    if args.mounting:
+    if getattr(args, "mounting", None):
         mounting = Mounting(*args.mounting)
     elif "mounting_pitch_deg" in cfg:
         mounting = Mounting(*(float(cfg[f"mounting_{k}"]) for k in
                               ("roll_deg", "pitch_deg", "yaw_deg", "x_m", "y_m", "z_m")))
     else:
         mounting = Mounting()
-    lever = tuple(args.lever_arm) if args.lever_arm else tuple(
+    lever = tuple(args.lever_arm) if getattr(args, "lever_arm", None) else tuple(
         float(cfg.get(f"lever_arm_{k}_m", 0.0)) for k in "xyz")
-    position_ref = args.position_ref or cfg.get("position_reference", "imu")
+    position_ref = getattr(args, "position_ref", None) or cfg.get("position_reference", "imu")
+    return mounting, lever, position_ref
+
+
+def _georef(args: argparse.Namespace) -> int:
+    path = Path(args.log)
+    log = load_log(path)
+    mounting, lever, position_ref = _mounting_and_lever(path, args)
     align = {"auto": None, "on": True, "off": False}[args.time_align]
     result = georeference(log, mounting, lever_arm=lever, position_ref=position_ref, time_align=align,
                           origin_lla=np.array(args.origin) if args.origin else None)
     o = result.origin_lla
     idx = result.point_index
-    write_ply(args.out, result.enu, ascii=args.ascii,
-              scalars={"intensity": log.echo_width[idx].astype(np.float32),
-                       "layer": log.layer[idx].astype(np.uint8)},
-              comments=[f"cromat lidar georef of {log.source}",
-                        "frame ENU metres: x east, y north, z up; "
-                        f"origin lat {o[0]:.9f} lon {o[1]:.9f} h {o[2]:.4f}",
-                        f"time_aligned {int(result.time_aligned)}; intensity = echo width (m)"])
+    if Path(args.out).suffix.lower() in (".las", ".laz"):
+        write_las(args.out, result.enu, o, intensity=log.echo_width[idx])
+    else:
+        write_ply(args.out, result.enu, ascii=args.ascii,
+                  scalars={"intensity": log.echo_width[idx].astype(np.float32),
+                           "layer": log.layer[idx].astype(np.uint8)},
+                  comments=[f"cromat lidar georef of {log.source}",
+                            "frame ENU metres: x east, y north, z up; "
+                            f"origin lat {o[0]:.9f} lon {o[1]:.9f} h {o[2]:.4f}",
+                            f"time_aligned {int(result.time_aligned)}; intensity = echo width (m)"])
     print(f"{len(idx)} points -> {args.out} (skipped {result.skipped_invalid_points} flagged points, "
           f"{result.skipped_invalid_pose} points without a valid pose; time aligned: {result.time_aligned})")
+    return 0
+
+
+def _dtm(args: argparse.Namespace) -> int:
+    if not args.cell > 0:
+        raise ValueError(f"--cell must be positive, got {args.cell}")
+    origin = np.array(args.origin) if args.origin else None
+    clouds = []
+    for item in args.logs:
+        path = Path(item)
+        log = load_log(path)
+        mounting, lever, position_ref = _mounting_and_lever(path, args)
+        result = georeference(log, mounting, lever_arm=lever, position_ref=position_ref, origin_lla=origin,
+                              select=ground_candidates(log.flags))
+        origin = result.origin_lla
+        clouds.append(result.enu)
+    assert origin is not None
+    enu = np.concatenate(clouds)
+    dtm = build_dtm(enu, args.cell, max_above=args.max_above, min_points=args.min_points)
+    report = {"points": len(enu), "logs": len(args.logs), "cell_m": args.cell, "rows": dtm.shape[0],
+              "cols": dtm.shape[1], **coverage(dtm).as_dict(), "geotiff": str(write_geotiff(args.out, dtm, origin)),
+              "origin_lla": [float(v) for v in origin]}
+    if args.hillshade:
+        report["hillshade"] = str(write_png(args.hillshade, hillshade(dtm)))
+    if args.las:
+        report["las"] = str(write_las(args.las, enu, origin, ground=np.ones(len(enu), dtype=bool)))
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(f"{report['points']} ground points from {len(args.logs)} log(s) -> {dtm.shape[0]} x {dtm.shape[1]} "
+              f"cells of {args.cell:g} m: {report['cells_with_data']} with data ({report['coverage_pct']:.1f} %), "
+              f"{report['holes']} hole(s) of {report['hole_cells']} cell(s) in all -> {args.out}")
     return 0
 
 
@@ -147,8 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     try:
-        return {"run": _run, "read": _read, "georef": _georef}[args.cmd](args)
-    except (ConfError, LogFormatError, GeorefError, OSError) as exc:
+        return {"run": _run, "read": _read, "georef": _georef, "dtm": _dtm}[args.cmd](args)
+    except (ConfError, LogFormatError, GeorefError, OSError, MissingExtraError) as exc:
         print(f"cromat lidar {args.cmd}: {exc}", file=sys.stderr)
         return 1
     except ValueError as exc:

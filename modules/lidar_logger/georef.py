@@ -78,7 +78,10 @@ def clocks_synchronised(log: LidarLog) -> bool:
 
 def georeference(log: LidarLog, mounting: Mounting = Mounting(), *,
                  lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0), position_ref: str = "imu",
-                 time_align: bool | None = None, origin_lla: np.ndarray | None = None) -> GeorefResult:
+                 time_align: bool | None = None, origin_lla: np.ndarray | None = None,
+                 select: np.ndarray | None = None) -> GeorefResult:
+    """Points of scans with a valid pose into ENU; ``select`` (a boolean per point) replaces the default
+    choice of points (``Valid 1``: no flag set), e.g. to keep the points the scanner labelled ground."""
     if position_ref not in ("imu", "antenna"):
         raise GeorefError(f"position_ref must be 'imu' or 'antenna', not {position_ref!r}")
     pose_ok = log.valid == 1
@@ -91,7 +94,7 @@ def georeference(log: LidarLog, mounting: Mounting = Mounting(), *,
         origin_lla = log.lla[np.argmax(pose_ok)]
     origin_lla = np.asarray(origin_lla, dtype=np.float64)
 
-    point_ok = log.point_valid == 1
+    point_ok = log.point_valid == 1 if select is None else np.asarray(select, dtype=bool)
     with_pose = pose_ok[log.point_scan]
     keep = np.nonzero(point_ok & with_pose)[0]
 

@@ -27,7 +27,6 @@ offset from scan start in µs, valid = 1 when no flag is set, segment 0 (unused)
 from __future__ import annotations
 
 import calendar
-import itertools
 import logging
 import os
 from datetime import UTC, datetime, timedelta
@@ -39,12 +38,12 @@ import numpy as np
 from modules.lidar_logger.flags import wire_to_seed
 from modules.lidar_logger.logdata import LidarLog, LogFormatError, ScanRecord, point_scan_index
 from modules.lidar_logger.mtdata import UtcTime
+from modules.lidar_logger.textfmt import format_points
 
 log = logging.getLogger("lidar_logger.textlog")
 
 POINT_HEADER = (
     "Point num; Cartesian(x,y,z); EchoWidth; Flags; Channel; Subchannel; Offset (us); Valid; Segment;")
-POINT_FMT = "%d; %.8f,%.8f,%.8f; %.2f; %d; %d; %d; %d; %d; %d\n"
 _NTP_EPOCH = datetime(1900, 1, 1)
 
 
@@ -84,18 +83,11 @@ def format_scan(record: ScanRecord) -> str:
         f"Valid {pose.valid}\n"
         f"{POINT_HEADER}\n"
     )
-    n = scan.n_points
-    if n == 0:
+    if scan.n_points == 0:
         return head + "\n\n"
-    xyz = scan.cartesian()
-    flags = wire_to_seed(scan.wire_flags)
-    columns = (
-        range(1, n + 1), xyz[:, 0].tolist(), xyz[:, 1].tolist(), xyz[:, 2].tolist(),
-        (scan.echo_width_cm / 100.0).tolist(), flags.tolist(), scan.layer.tolist(), scan.echo.tolist(),
-        scan.time_offsets_us().tolist(), (flags == 0).astype(np.int64).tolist(), itertools.repeat(0, n),
-    )
-    body = (POINT_FMT * n) % tuple(itertools.chain.from_iterable(zip(*columns, strict=False)))
-    return head + body + "\n\n"
+    body = format_points(scan.cartesian(), scan.echo_width_cm, wire_to_seed(scan.wire_flags), scan.layer,
+                         scan.echo, scan.time_offsets_us())
+    return head + body.decode("ascii") + "\n\n"
 
 
 class TextLogWriter:

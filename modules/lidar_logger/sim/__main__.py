@@ -46,21 +46,22 @@ def main(argv: list[str] | None = None) -> int:
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    with MTiGSimulator(world) as imu, LdmrsSimulator(world, options, port=args.port) as lidar:
+    with MTiGSimulator(world) as imu:
         link = Path(args.pty_link) if args.pty_link else None
-        if link is not None:
+        if link is not None:  # before the LD-MRS listens: a launcher waiting on its port finds the link there
             link.unlink(missing_ok=True)
             link.symlink_to(imu.port)
-        print(json.dumps({"mtig_port": imu.port, "ldmrs_host": lidar.host, "ldmrs_port": lidar.port,
-                          "time_scale": args.time_scale}), flush=True)
-        while not done.wait(0.2):
-            pass
-        if link is not None:
-            link.unlink(missing_ok=True)
-        print(json.dumps({"scans_sent": len(lidar.device.sent_scans),
-                          "ldmrs_commands": len(lidar.device.commands),
-                          "mtig_messages": len(imu.device.received),
-                          "poses_sent": len(imu.device.poses_sent)}), flush=True)
+        with LdmrsSimulator(world, options, port=args.port) as lidar:
+            print(json.dumps({"mtig_port": imu.port, "ldmrs_host": lidar.host, "ldmrs_port": lidar.port,
+                              "time_scale": args.time_scale}), flush=True)
+            while not done.wait(0.2):
+                pass
+            if link is not None:
+                link.unlink(missing_ok=True)
+            print(json.dumps({"scans_sent": len(lidar.device.sent_scans),
+                              "ldmrs_commands": len(lidar.device.commands),
+                              "mtig_messages": len(imu.device.received),
+                              "poses_sent": len(imu.device.poses_sent)}), flush=True)
     return 0
 
 
