@@ -42,7 +42,7 @@ class UquadConfig(msgspec.Struct, frozen=True, kw_only=True):
     CONTROL_EVERY: int = 1
     K_PROP_FILE: str
     K_INT_FILE: str
-    MAX_TILT_SP: float = 0.35
+    MAX_POS_ERR: float = 1.5
     TAKEOFF_HEIGHT: float = 3.0
     WAYPOINT_RADIUS: float = 0.5
     WAYPOINT_SPEED_MAX: float = 0.5
