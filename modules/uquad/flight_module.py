@@ -123,6 +123,7 @@ class UquadModule(Module):
         except Exception as exc:  # the loop must never die silently
             self.log.exception("flight loop failed")
             self.report_error(UquadErrorCode.IMU_LOST, f"flight loop stopped: {exc}")
+            self.request_stop()  # no flight loop, no module: the process exits and the manager reports it
 
     def _loop(self) -> None:
         v = self.cfg.values
@@ -220,15 +221,15 @@ class UquadModule(Module):
                     self.core.set_mode(Mode.LAND)
         latency = time.monotonic() - t_read
         self.latencies.append(latency)
-        self.publish("control", MotorCommandLog(stamp=time.time(), speeds=tuple(sent), ts=self.core.stats.last_ts,
-                                                latency_s=latency))
+        self.publish("control", MotorCommandLog(stamp=time.time(), speeds=_vec(sent),
+                                                ts=float(self.core.stats.last_ts), latency_s=latency))
 
     def _publish_state(self, stamp: float) -> None:
         k = self.core.kalman
         self.publish("state", UquadState(
-            stamp=stamp, position=tuple(k.position), velocity=tuple(k.velocity), euler=tuple(k.euler),
-            rates=tuple(self.core.gyro), acc_bias=tuple(k.acc_bias), mode=int(self.core.planner.mode),
-            setpoint=tuple(self.core.planner.sp)))
+            stamp=stamp, position=_vec(k.position), velocity=_vec(k.velocity), euler=_vec(k.euler),
+            rates=_vec(self.core.gyro), acc_bias=_vec(k.acc_bias), mode=int(self.core.planner.mode),
+            setpoint=_vec(self.core.planner.sp)))
 
     def _publish_telemetry(self) -> None:
         core = self.core
@@ -252,6 +253,10 @@ class UquadModule(Module):
             airborne=planner.airborne, waypoints_queued=queued,
             error_code=UquadErrorCode.DRIVER_ERROR if self.driver_error else 0,
         ))
+
+
+def _vec(values: Any) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
 
 
 def main(argv: list[str] | None = None) -> int:
