@@ -52,6 +52,17 @@ def integrate(previous: ArrayLike, err: ArrayLike, ts: float, aw: AntiWindup) ->
     return np.where(np.abs(e) > np.asarray(aw.th_dist, dtype=float), prev, acc)
 
 
+def integrate_scalar(previous: float, err: float, ts: float, th_dist: float, th_max: float, low: float,
+                     high: float) -> float:
+    """:func:`integrate` for one variable in plain floats (a DSP loop calls it every few milliseconds)."""
+    if not ts > 0:
+        raise ValueError(f"sampling period must be positive, got {ts!r}")
+    if abs(err) > th_dist:
+        return previous
+    step = min(max(err * ts, -th_max * ts), th_max * ts)
+    return min(max(previous + step, low), high)
+
+
 def integral_action(k_int: ArrayLike, x_int: ArrayLike) -> Array:
     """Seed eq. 1.5: ``ω_int = K_int x_int``."""
     k = np.asarray(k_int, dtype=float)

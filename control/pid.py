@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from control.laws import AntiWindup, integrate
+from control.laws import AntiWindup, integrate_scalar
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ class Pid:
         if ts is not None and ts <= 0:
             return self.output  # same instant (or a clock going back): nothing new to integrate
         if ts is not None:
-            self.integral = float(integrate(self.integral, err, ts, g.anti_windup))
+            self.integral = integrate_scalar(self.integral, err, ts, g.th_dist, g.th_max, g.awu_min, g.awu_max)
         if rate is not None:
             d = rate
         else:

@@ -7,7 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from control.laws import AntiWindup, integral_action, integrate, proportional, saturate, total_action
+from control.laws import (
+    AntiWindup,
+    integral_action,
+    integrate,
+    integrate_scalar,
+    proportional,
+    saturate,
+    total_action,
+)
 from control.pid import Pid, PidGains
 
 
@@ -44,6 +52,12 @@ def test_integral_elementwise_thresholds() -> None:
     aw = AntiWindup(th_dist=np.array([1.0, 10.0]), th_max=np.array([100.0, 1.0]), accum_high=np.array([5.0, 5.0]))
     got = integrate([0.0, 0.0], [2.0, 3.0], 0.5, aw)
     assert got.tolist() == pytest.approx([0.0, 0.5])  # first: |2|>1 skipped; second: 1.5 clamped to 1·0.5
+
+
+@pytest.mark.parametrize(("prev", "err", "ts"), [(0.3, 1.5, 0.1), (0.3, -0.5, 0.1), (0.9, 5.0, 0.3), (-0.9, -9.0, 1.0)])
+def test_scalar_integral_matches_the_array_form(prev: float, err: float, ts: float) -> None:
+    aw = AntiWindup(th_dist=6.0, th_max=2.0, accum_high=1.0, accum_low=-0.95)
+    assert integrate_scalar(prev, err, ts, 6.0, 2.0, -0.95, 1.0) == pytest.approx(float(integrate(prev, err, ts, aw)))
 
 
 def test_integral_refuses_non_positive_period() -> None:
