@@ -182,6 +182,9 @@ class UquadModule(Module):
                     next_tel = wall + TELEMETRY_PERIOD_S
                     self._publish_telemetry()
         finally:
+            st = parser.stats
+            self.log.info("flight loop stopped: frames=%d bad_frames=%d bytes_discarded=%d control_actions=%d",
+                          st.frames, st.bad_frames, st.bytes_discarded, self.core.stats.control_actions)
             if motor is not None:
                 motor.send(time.monotonic(), [0.0] * 4)
                 motor.close()
