@@ -34,7 +34,7 @@ class HeliParams:
     flap_tau: float = 0.04  # s, rotor flapping lag (cyclic → disc tilt)
     collective_tau: float = 0.10  # s, collective servo + inflow lag
     hover_collective: float = 0.42  # collective that hovers at nominal rotor speed
-    drag_h: float = 0.35  # 1/s, horizontal drag per m/s of airspeed
+    drag_h: float = 0.25  # 1/s, horizontal drag per m/s of airspeed
     drag_v: float = 0.6  # 1/s, vertical drag
 
 
