@@ -46,6 +46,9 @@ from modules.uquad.transport import Stream
 
 TELEMETRY_PERIOD_S = 0.1
 STATE_EVERY = 2  # state published every this many IMU frames (50 Hz)
+OUTBOX_SIZE = 2000
+"""Data waiting for the bus writer thread; when full (a logger or the bus is slower than the IMU), the newest
+datum is dropped and counted: the control loop never waits for the bus (seed 002 §1.2.1)."""
 
 
 class UquadErrorCode(enum.IntEnum):
@@ -89,7 +92,10 @@ class UquadModule(Module):
         self.core = FlightCore(self.cfg, load_calibration(self.cfg.imu_calib_file), p.get("controller", "hover"))
         self.home = Home(self.cfg.home_lat, self.cfg.home_lon, self.cfg.home_alt)
         self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
+        self._outbox: queue.Queue[tuple[str, Any] | None] = queue.Queue(OUTBOX_SIZE)
+        self.outbox_dropped = 0
         self._thread: threading.Thread | None = None
+        self._writer: threading.Thread | None = None
         self._wake_r, self._wake_w = os.pipe()
         self.latencies: list[float] = []
         self.driver_error = ""
@@ -97,6 +103,8 @@ class UquadModule(Module):
     # ------------------------------------------------------------ bus side
 
     def on_start(self) -> None:
+        self._writer = threading.Thread(target=self._write_bus, name="uquad.bus_writer", daemon=True)
+        self._writer.start()
         self._thread = threading.Thread(target=self._flight, name="uquad.flight", daemon=True)
         self._thread.start()
 
@@ -104,6 +112,27 @@ class UquadModule(Module):
         os.write(self._wake_w, b"x")
         if self._thread is not None:
             self._thread.join(5.0)
+        try:
+            self._outbox.put(None, timeout=1.0)
+        except queue.Full:
+            pass
+        if self._writer is not None:
+            self._writer.join(5.0)
+
+    def _send(self, slot: str, value: Any) -> None:
+        """Queue a datum for the bus writer thread; never blocks the flight loop."""
+        try:
+            self._outbox.put_nowait((slot, value))
+        except queue.Full:
+            self.outbox_dropped += 1
+
+    def _write_bus(self) -> None:
+        while (item := self._outbox.get()) is not None:
+            try:
+                self.publish(*item)
+            except Exception:  # a closed session at shutdown: nothing more to write
+                self.log.exception("publishing %s failed", item[0])
+                return
 
     def on_modo(self, m: UquadMode) -> None:
         self._inbox.put(("mode", Mode(m.modo)))
@@ -174,7 +203,7 @@ class UquadModule(Module):
                     if cmd is not None:
                         self._command(cmd, now, t_read, motor)
                     stamp = time.time()
-                    self.publish("imu_raw", ImuRaw(stamp=stamp, **frame._asdict()))
+                    self._send("imu_raw", ImuRaw(stamp=stamp, **frame._asdict()))
                     if frames % STATE_EVERY == 0 and self.core.calibrated:
                         self._publish_state(stamp)
                 wall = time.monotonic()
@@ -185,6 +214,7 @@ class UquadModule(Module):
             st = parser.stats
             self.log.info("flight loop stopped: frames=%d bad_frames=%d bytes_discarded=%d control_actions=%d",
                           st.frames, st.bad_frames, st.bytes_discarded, self.core.stats.control_actions)
+            self.log.info("bus data dropped by the outbox (bus slower than the IMU): %d", self.outbox_dropped)
             if motor is not None:
                 motor.send(time.monotonic(), [0.0] * 4)
                 motor.close()
@@ -224,12 +254,12 @@ class UquadModule(Module):
                     self.core.set_mode(Mode.LAND)
         latency = time.monotonic() - t_read
         self.latencies.append(latency)
-        self.publish("control", MotorCommandLog(stamp=time.time(), speeds=_vec(sent),
+        self._send("control", MotorCommandLog(stamp=time.time(), speeds=_vec(sent),
                                                 ts=float(self.core.stats.last_ts), latency_s=latency))
 
     def _publish_state(self, stamp: float) -> None:
         k = self.core.kalman
-        self.publish("state", UquadState(
+        self._send("state", UquadState(
             stamp=stamp, position=_vec(k.position), velocity=_vec(k.velocity), euler=_vec(k.euler),
             rates=_vec(self.core.gyro), acc_bias=_vec(k.acc_bias), mode=int(self.core.planner.mode),
             setpoint=_vec(self.core.planner.sp)))
@@ -237,8 +267,8 @@ class UquadModule(Module):
     def _publish_telemetry(self) -> None:
         core = self.core
         if not core.calibrated:
-            self.publish("telemetry", RobotTelemetry(stamp=time.time(), mode=int(Mode.IDLE), mode_name="calibrating",
-                                                     airborne=False))
+            self._send("telemetry", RobotTelemetry(stamp=time.time(), mode=int(Mode.IDLE), mode_name="calibrating",
+                                                   airborne=False))
             return
         k = core.kalman
         e, n, u = (float(c) for c in k.position)
@@ -246,7 +276,7 @@ class UquadModule(Module):
         psi, phi, theta = (float(a) for a in k.euler)
         planner = core.planner
         queued = len(planner.waypoints) if planner.mode is Mode.GOTO else 0
-        self.publish("telemetry", RobotTelemetry(
+        self._send("telemetry", RobotTelemetry(
             stamp=time.time(),
             position=GeoPoint(lat=lat, lon=lon, alt=alt),
             attitude=Attitude(roll=float(np.degrees(psi)), pitch=float(np.degrees(phi)), yaw=heading_deg(theta)),

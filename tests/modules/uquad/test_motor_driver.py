@@ -89,8 +89,9 @@ class EscRecorder:
 def driver(tmp_path):
     conf = tmp_path / "u.conf"
     text = (ROOT / "bbcs_conf" / "uquad1.conf").read_text()
-    text = text.replace("MOTOR_RAMP_S: 1.5", "MOTOR_RAMP_S: 0.3").replace("IMU_CALIB_FILE: uquad1_imu_calib.conf",
-                                                                        f"IMU_CALIB_FILE: {ROOT}/bbcs_conf/x")
+    for old, new in (("MOTOR_RAMP_S: 1.5", "MOTOR_RAMP_S: 0.3"), ("MOTOR_CMD_TIMEOUT: 0.5", "MOTOR_CMD_TIMEOUT: 0.2")):
+        assert old in text
+        text = text.replace(old, new)
     conf.write_text(text)
     esc = EscRecorder()
     proc = subprocess.Popen([sys.executable, "-m", "modules.uquad.motor_driver", "--conf", str(conf), "--esc",
