@@ -104,6 +104,7 @@ class DriverProcess:
         self.send_period = send_period
         self._stop = False
         self.esc_errors = 0
+        self.esc_dropped = 0
 
     @property
     def address(self) -> tuple[str, int]:
@@ -114,7 +115,7 @@ class DriverProcess:
 
     def _connect_esc(self) -> None:
         try:
-            sock = socket.create_connection(self.esc_addr, timeout=0.2)
+            sock = socket.create_connection(self.esc_addr, timeout=0.05)
         except OSError:
             return
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -128,6 +129,9 @@ class DriverProcess:
             return False
         try:
             self.esc.send(mp.esc(speeds))
+            return True
+        except (BlockingIOError, InterruptedError):
+            self.esc_dropped += 1  # the ESC end is not draining: this set-point is lost, the next one follows
             return True
         except OSError:
             self.esc.close()
@@ -218,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         proc.close()
         print(f"uquad motor driver stopped refused={logic.refused} timeouts={logic.timeouts} "
-              f"esc_errors={proc.esc_errors}", flush=True)
+              f"esc_errors={proc.esc_errors} esc_dropped={proc.esc_dropped}", flush=True)
     return 0
 
 
