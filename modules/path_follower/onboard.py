@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 
 import numpy as np
@@ -25,6 +25,7 @@ from control.laws import AntiWindup, integral_action, integrate_scalar, total_ac
 from control.linearize import discretize, linearize_along
 from control.lqr import dlqr
 from modules.dsp import protocol as p
+from modules.path_follower.logic import Decision, FollowerState
 
 METRES_PER_DEG = 6378137.0 * math.pi / 180.0
 BRIDGE_GAIN = 0.8  # 1/s: the DSP's bridge law, speed = min(v_max, √(2·a·d), k·d) toward the REFS target
@@ -259,5 +260,23 @@ class OnboardFollower:
         else:
             ref_heading = math.radians(heading_deg)
         ref_heading = (ref_heading + math.pi) % (2 * math.pi) - math.pi
-        return p.SetRefs(ref_altura=alt_msl + climb / BRIDGE_GAIN, error_longitudinal=dist * math.cos(rel),
-                         error_lateral=dist * math.sin(rel), ref_heading=ref_heading, ref_rpm_motor=NOMINAL_RPM)
+        return p.SetRefs(ref_altura=float(alt_msl + climb / BRIDGE_GAIN),
+                         error_longitudinal=float(dist * math.cos(rel)),
+                         error_lateral=float(dist * math.sin(rel)), ref_heading=float(ref_heading),
+                         ref_rpm_motor=NOMINAL_RPM)  # plain floats: the bus codec does not take numpy scalars
+
+
+def decide(follower: OnboardFollower, state: FollowerState, telemetry: p.Telemetry) -> Decision:
+    """Mode 3's answer to one DSP telemetry frame: the onboard trajectory (``state.path``) flown one period.
+
+    The clock is the DSP's own (``time_ms``), so the integral's sampling period is what passed between frames.
+    Outside mode 3 the follower forgets its trajectory and sends nothing.
+    """
+    if state.mode != p.Mode.ONBOARD_FOLLOWER:
+        if follower.points:
+            follower.reset()
+        return Decision(state)
+    follower.set_points([(pt.latitud, pt.longitud, pt.altura) for pt in state.path])
+    result = follower.step(telemetry.time_ms / 1000.0, telemetry)
+    new = replace(state, path=()) if OnboardError.OFF_PATH in result.errors else state
+    return Decision(new, result.commands, result.errors, result.detail)
