@@ -103,3 +103,18 @@ def test_estimator_converges_and_hovers_on_simulated_data():
     assert abs(late[-1][0][model.IZ] - 3.0) < 0.4  # hovering at TAKEOFF_HEIGHT
     # the vertical accelerometer bias is observable through the barometer and GPS: estimated within 50 %
     assert loop.core.kalman.acc_bias[2] == pytest.approx(loop.sim.noise.acc_bias[2], rel=0.5)
+
+
+def test_setpoint_mode_relinearises_per_target_and_flies_there():
+    loop = ClosedLoop(controller_mode="setpoint", seed=7)
+    loop.run(5.5)
+    loop.core.set_mode(Mode.TAKE_OFF)
+    loop.run(9.0)
+    assert "take_off" in loop.core.planner.completed
+    updates = loop.core.controller.gain_updates
+    loop.core.set_waypoints([np.array([3.0, 0.0, 3.0])])
+    loop.core.set_mode(Mode.GOTO)
+    loop.run(7.0)
+    assert loop.core.planner.completed[-2:] == ["waypoint", "goto"]
+    assert loop.core.controller.gain_updates > updates  # new LQR gains for the new target
+    assert np.linalg.norm(loop.sim.x[:3] - [3.0, 0.0, 3.0]) < 0.5
