@@ -192,6 +192,8 @@ class UquadModule(Module):
                 if raw_log is not None:
                     raw_log.write(data)
                 for frame in parser.feed(data):
+                    if self.stopping:
+                        break
                     frames += 1
                     now = frames * 0.01 if self.clock_mode == "imu" else time.monotonic()
                     refusals = self.core.stats.calibration_refusals
@@ -240,8 +242,8 @@ class UquadModule(Module):
 
     def _command(self, cmd: np.ndarray, now: float, t_read: float, motor: MotorClient | None) -> None:
         sent = list(cmd)
-        if motor is not None:
-            sent = motor.send(now, cmd)
+        if motor is not None:  # the driver link always runs on the wall clock (its acks arrive in real time)
+            sent = motor.send(time.monotonic(), cmd)
             error = motor.check(time.monotonic())
             if error and not self.driver_error:
                 self.driver_error = error
@@ -249,7 +251,7 @@ class UquadModule(Module):
                 self.report_error(UquadErrorCode.DRIVER_ERROR, f"{error}: {action}")
                 if action == "cut":
                     self.core.set_mode(Mode.IDLE)
-                    motor.send(now, [0.0] * 4)
+                    motor.send(time.monotonic(), [0.0] * 4)
                 else:
                     self.core.set_mode(Mode.LAND)
         latency = time.monotonic() - t_read
