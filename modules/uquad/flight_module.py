@@ -244,6 +244,7 @@ class UquadModule(Module):
         sent = list(cmd)
         if motor is not None:  # the driver link always runs on the wall clock (its acks arrive in real time)
             sent = motor.send(time.monotonic(), cmd)
+            motor.on_readable(time.monotonic())  # acks already here count, even while a burst of frames is handled
             error = motor.check(time.monotonic())
             if error and not self.driver_error:
                 self.driver_error = error

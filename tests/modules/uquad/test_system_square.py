@@ -112,6 +112,18 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
             assert d.min() < 1.0, (e, n, d.min())
             assert abs(flown[d.argmin(), 2] - HEIGHT_M) < 0.7
 
+        # hold, then a goto interrupted by abort: the aircraft stops where it is, still flying
+        assert gcs.send(ROBOT, gri.Hold()).accepted
+        far = local.to_geo(SIDE_M * 3, 0.0, HEIGHT_M)
+        reply = gcs.send(ROBOT, gri.Goto(waypoints=[gri.Waypoint(lat=far[0], lon=far[1], alt=home.alt + HEIGHT_M)]))
+        assert reply.accepted, reply.reason
+        wait_until(lambda: truth.last["x"][0] > 1.0, 20, "moving toward the far waypoint")
+        assert gcs.abort(ROBOT).accepted
+        wait_until(lambda: any(e.kind == "aborted" for e in events), 10, "the ground station told of the abort")
+        wait_until(lambda: np.linalg.norm(truth.last["x"][6:9]) < 0.3, 20, "stopped after the abort")
+        stopped_at = truth.last["x"][0]
+        assert stopped_at < SIDE_M * 3 - 2.0 and not truth.last["on_ground"]
+
         completed(gcs.send(ROBOT, gri.Land()), "landing completed", 60)
         wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 10,
                    "on the ground, motors stopped")
