@@ -179,7 +179,15 @@ class UquadModule(Module):
                 if motor is not None and motor.fileno() in ready:
                     motor.on_readable(now)
                 if gps is not None and gps.fileno() in ready:
-                    for fix in nmea.feed(gps.read()):
+                    try:
+                        gps_data = gps.read()
+                    except EOFError as exc:  # without GPS the estimator goes on (the seed's reduced mode)
+                        self.log.warning("GPS lost, flying on the IMU and barometer: %s", exc)
+                        fds.remove(gps.fileno())
+                        gps.close()
+                        gps = None
+                        gps_data = b""
+                    for fix in nmea.feed(gps_data):
                         self.core.on_gps(LocalGps(*self.home.to_local(fix.lat, fix.lon, fix.alt), fix.ve, fix.vn))
                 if imu.fileno() not in ready:
                     continue
