@@ -52,7 +52,7 @@ def default_pids() -> dict[Axis, PidGains]:
     return {
         Axis.ROLL: PidGains(0.045, 0.010, 0.008, 0, 20, -20, 0, 0, 1, -1, th_dist=20.0, th_max=10.0),
         Axis.PITCH: PidGains(0.050, 0.012, 0.009, 0, 20, -20, 0, 0, 1, -1, th_dist=20.0, th_max=10.0),
-        Axis.YAW: PidGains(0.020, 0.004, 0.002, 0, 45, -45, 0, 0, 1, -1, th_dist=5.0, th_max=2.0),
+        Axis.YAW: PidGains(0.020, 0.004, 0.002, 0, 45, -45, 0, 0, 1, -1, th_dist=0.5, th_max=0.2),
         Axis.ALTITUDE: PidGains(0.080, 0.015, 0.040, 0, 10, -10, 0, 0.42, 1, 0, th_dist=1.0, th_max=0.5),
         Axis.LONGITUDINAL: PidGains(1.2, 0.05, 0.60, 0, 50, -50, 0, 0, 15, -15, th_dist=10.0, th_max=2.0),
         Axis.LATERAL: PidGains(1.0, 0.05, 0.50, 0, 50, -50, 0, 0, 15, -15, th_dist=10.0, th_max=2.0),
