@@ -136,7 +136,8 @@ class OnboardFollower:
             return
         if self.points and points[: len(self.points)] == self.points:
             self.points = points
-            self._extend()
+            if self.segments:  # otherwise the first step builds them all, from where the aircraft is
+                self._extend()
             self.complete = False
             return
         self.reset()

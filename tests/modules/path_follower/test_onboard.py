@@ -124,6 +124,21 @@ def test_own_errors_no_navigation_once_and_off_path_aborts() -> None:
     assert d.errors == (OnboardError.OFF_PATH,) and d.commands == (p.Abort(),) and d.state.path == ()
 
 
+def test_a_second_datos_extends_the_trajectory_also_before_the_first_fix() -> None:
+    f = OnboardFollower()
+    f.set_speed(3.0)
+    a, b = (37.001, -6.0, 30.0), (37.001, -5.999, 30.0)
+    f.set_points([a])
+    f.set_points([a, b])  # no telemetry yet: nothing to build the segments from, nothing fails
+    fix = p.Telemetry(time_ms=0, heading=0.0, position=p.Position(lat=37.0, lon=-6.0, alt=30.0),
+                      velocity=p.Velocity(vn=0.0, ve=0.0, vd=0.0))
+    assert f.step(0.0, fix).commands and len(f.segments) == 2
+    f.set_points([a, b, a])  # extends: one more segment, the flown ones kept
+    assert len(f.segments) == 3
+    f.set_points([b])  # a different trajectory replaces it
+    assert f.points == (b,) and f.segments == []
+
+
 def test_segment_gains_solve_the_discrete_riccati_equation() -> None:
     f = OnboardFollower(OnboardParams(period_s=0.05))
     f.set_speed(5.0)
