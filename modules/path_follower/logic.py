@@ -75,8 +75,7 @@ class FollowerError(IntEnum):
     """DATOS has more points than the DSP's waypoint queue holds (512)."""
     HEADING_UNKNOWN = 116
     """Mode 1 asked before any DSP telemetry gave the current heading."""
-    ONBOARD_FOLLOWER_NOT_BUILT = 117
-    """Mode 3 (onboard path follower) asked: reserved, not built yet; nothing changed."""
+    # 117 retired (mode 3 was not built); 118 and 119 are mode 3's own: modules/path_follower/onboard.py
 
 
 FIELD_CODES: dict[tuple[str, str], FollowerError] = {
@@ -152,12 +151,9 @@ def on_control_modo(state: FollowerState, msg: ControlModoSegCam) -> Decision:
     elif mode == p.Mode.SEMI_AUTOMATIC:
         cmds = (p.SetMode(mode=mode), p.SetTracking(enable=False), p.InvalidatePath())
         new = replace(new, path=())
-    elif mode == p.Mode.ONBOARD_FOLLOWER:
-        return _refused(
-            state,
-            FollowerError.ONBOARD_FOLLOWER_NOT_BUILT,
-            "mode 3 (onboard path follower) is reserved and not built yet; mode unchanged",
-        )
+    elif mode == p.Mode.ONBOARD_FOLLOWER:  # the trajectory is flown from here: modules/path_follower/onboard.py
+        cmds = (p.SetMode(mode=mode),)
+        new = replace(new, path=())
     elif mode in (p.Mode.TAKE_OFF, p.Mode.LANDING):
         cmds = (p.SetTracking(enable=False), p.InvalidatePath(), p.SetMode(mode=mode))
         new = replace(new, path=())
@@ -202,6 +198,8 @@ def on_datos(state: FollowerState, msg: DatosSegCam, capacity: int = p.WAYPOINT_
                 FollowerError.ALTURA_NOT_REPRESENTABLE,
                 f"point {i}: altura {pt.altura!r} cannot be sent to the DSP; whole path rejected",
             )
+    if state.mode == p.Mode.ONBOARD_FOLLOWER:  # kept here for the onboard follower, not queued on the DSP
+        return Decision(replace(state, path=state.path + tuple(msg.puntos)), detail=f"{msg.n_points} points onboard")
     if state.mode not in (p.Mode.PATH_AUTO_HEADING, p.Mode.PATH_GIVEN_HEADING):
         return Decision(state, detail=f"DATOS ignored in mode {state.mode}")
     if msg.n_points > capacity:

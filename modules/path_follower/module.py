@@ -27,7 +27,7 @@ from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
 from modules.dsp import protocol as p
-from modules.path_follower import logic
+from modules.path_follower import logic, onboard
 
 MODE_BATCH_MEMORY = 256
 """How many recent mode-change batches are remembered to undo the mode if the DSP refuses one."""
@@ -88,6 +88,7 @@ class PathFollowerModule(Module):
         self.state = logic.FollowerState()
         self._mode_batches: dict[int, int | None] = {}
         self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
+        self.onboard = onboard.OnboardFollower(onboard.OnboardParams(max_speed=self.max_speed))  # mode 3
 
     def _apply(self, decision: logic.Decision) -> int | None:
         self.state = decision.state
@@ -108,9 +109,12 @@ class PathFollowerModule(Module):
                 del self._mode_batches[next(iter(self._mode_batches))]
 
     def on_heading(self, msg: HeadingSegCam) -> None:
+        self.onboard.set_heading(msg.heading)
         self._apply(logic.on_heading(self.state, msg))
 
     def on_velocidad(self, msg: SpeedSegCam) -> None:
+        if msg.speed <= self.max_speed:
+            self.onboard.set_speed(msg.speed)
         self._apply(logic.on_velocidad(self.state, msg, self.max_speed))
 
     def on_datos(self, msg: DatosSegCam) -> None:
@@ -121,6 +125,7 @@ class PathFollowerModule(Module):
 
     def on_dsp_telemetry(self, t: p.Telemetry) -> None:
         self.state = logic.on_telemetry(self.state, t)
+        self._apply(onboard.decide(self.onboard, self.state, t))
 
     def on_dsp_errors(self, report: dsp_bus.DspErrorReport) -> None:
         own_mode_batch = report.sender == self.module and report.batch_id in self._mode_batches

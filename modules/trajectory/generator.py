@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, SmoothRequest, SurveyRequest, TrajectoryRequest
 from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
+from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, SmoothRequest, SurveyRequest, TrajectoryRequest
 from modules.trajectory import planning
 from modules.trajectory.planning import LocalFrame, PlanningError
 

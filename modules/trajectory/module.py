@@ -18,10 +18,10 @@ from __future__ import annotations
 from typing import ClassVar
 
 from bbcs.context import ModuleContext
+from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import TrajectoryRequest, TrajectoryStatus
 from bbcs.module import Module
 from bbcs.slots import InputSlot, Kind, OutputSlot
-from bbcs.contracts.path_follower import DatosSegCam
 from modules.trajectory.generator import Limits, plan
 
 

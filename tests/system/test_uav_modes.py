@@ -21,7 +21,7 @@ from bbcs.contracts.robot import RobotTelemetry
 from modules.dsp import protocol as p
 from modules.path_follower.logic import FollowerError as E
 
-from .uav_stack import INITIAL_ROUTES, SLOT, Stack, wait_until
+from .uav_stack import DEADLINE_S, INITIAL_ROUTES, SLOT, Stack, wait_until
 
 PF = "path_follower"
 # far waypoints (≈ 1 km north of home): queued, never reached while a test looks at the queue
@@ -120,11 +120,14 @@ def enter_mode_1(stack: Stack) -> None:
     assert heading is not None
     mark = stack.mark()
     stack.send("modo", mode(1))
-    stack.expect(
-        mark,
-        [p.SetHeading(heading_deg=heading), p.SetMode(mode=p.Mode(1)), p.SetTracking(enable=True)],
-        "mode 1",
-    )
+    wait_until(lambda: len(stack.received(mark)) >= 3, DEADLINE_S, "mode 1")
+    stack.barrier()
+    got = stack.received(mark)
+    assert [r["name"] for r in got] == ["SET_HEADING", "SET_MODE", "SET_TRACKING"], got
+    assert got[1]["fields"]["mode"] == 1 and got[2]["fields"]["enable"] is True, got
+    # the follower sends the heading of the last telemetry it saw: the simulated helicopter's heading is a
+    # physical state that may still be settling by hundredths of a degree between two telemetry frames
+    assert abs(got[0]["fields"]["heading_deg"] - heading) < 0.5, (got, heading)
 
 
 def test_mode_1_sends_the_current_heading_with_the_mode(stack: Stack) -> None:
@@ -139,15 +142,42 @@ def test_modes_2_4_5_disable_tracking_and_invalidate_the_path(stack: Stack, m: i
     stack.wait_state(f"mode {m}", mode=m, tracking=False, path_valid=False, queue=0)
 
 
-def test_mode_3_is_refused_with_its_code_and_changes_nothing(stack: Stack) -> None:
-    load_path(stack)
-    errors = stack.error_mark(PF)
+def test_mode_3_flies_the_trajectory_onboard_through_bridge_references(stack: Stack) -> None:
+    """Mode 3: only SET_MODE 3 for the mode; DATOS stays onboard (no ADD_WAYPOINT); the follower answers the
+    DSP telemetry with SET_REFS and the aircraft climbs and moves north along the trajectory; abort stops it."""
     mark = stack.mark()
     stack.send("modo", mode(3))
-    stack.expect_error(PF, errors, E.ONBOARD_FOLLOWER_NOT_BUILT, "mode 3")
+    stack.expect(mark, [p.SetMode(mode=p.Mode(3))], "mode 3")
+    stack.wait_state("mode 3", mode=3, queue=0)
+    start = stack.latest().position
+    assert start is not None
+    mark = stack.mark()
+    stack.send("speed", SpeedSegCam(speed=4.0))
     stack.barrier()
-    assert stack.received(mark) == [], "mode 3 reached the DSP"
-    stack.wait_state("still mode 0", mode=0, tracking=True, path_valid=True, queue=3)
+    stack.send("path", PATH)
+    wait_until(lambda: any(r["name"] == "SET_REFS" for r in stack.received(mark)), DEADLINE_S, "REFS from mode 3")
+    stack.wait_telemetry(
+        lambda t: t.position is not None and t.position.lat > start.lat + 3e-5 and t.position.alt > start.alt + 1,
+        "the aircraft flying up and north along the onboard trajectory",
+        45.0,
+    )
+    assert "ADD_WAYPOINT" not in {r["name"] for r in stack.received(mark)}, "mode 3 queued waypoints on the DSP"
+    stack.wait_state("DSP queue untouched", mode=3, queue=0)
+    abort_mark = stack.mark()
+    reports_before = len(stack.reports)
+    stack.send("modo", ABORT)
+    wait_until(lambda: any(r["name"] == "ABORT" for r in stack.received(abort_mark)), DEADLINE_S, "abort")
+    stack.barrier()
+    after = stack.mark()
+    now = stack.latest().time_ms
+    stack.wait_telemetry(lambda t: t.time_ms > now + 500, "half a second of telemetry after the abort")
+    stack.barrier()
+    assert [r["name"] for r in stack.received(after)] == [], "mode 3 kept sending after the abort"
+    # the only reports: REFS batches still queued when ABORT jumped the queue (FLUSHED, expected); taken out so
+    # later tests see only their own
+    ours = stack.reports[reports_before:]
+    assert all(r.sender == PF and r.name == "FLUSHED" for r in ours), ours
+    del stack.reports[reports_before:]
 
 
 def test_mode_6_sends_bridge_mode(stack: Stack) -> None:

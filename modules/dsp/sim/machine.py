@@ -18,7 +18,7 @@ import numpy as np
 from modules.dsp import protocol as p
 from modules.dsp.codec import DspDecodeError, decode
 from modules.dsp.framing import Frame
-from modules.dsp.sim.vehicle import ROTOR_FLIGHT_RPM, Vehicle, VehicleParams, wrap_deg
+from modules.dsp.sim.vehicle import ROTOR_FLIGHT_RPM, Vehicle, VehicleParams, pid_gains, wrap_deg
 
 METRES_PER_DEG = 6378137.0 * math.pi / 180.0  # WGS-84 equatorial radius; ≈ 111,319.5 m per degree
 FLIGHT_MODES = frozenset({p.Mode.PATH_AUTO_HEADING, p.Mode.PATH_GIVEN_HEADING, p.Mode.ONBOARD_FOLLOWER,
@@ -157,6 +157,7 @@ class DspMachine:
             self.heli_type = msg.heli_type
         elif isinstance(msg, p.SetPid):
             self.pids[msg.axis] = msg
+            self.vehicle.set_pid(msg.axis, pid_gains(msg))  # the simulated loops fly on the gains sent
         elif isinstance(msg, p.SetMode):
             if msg.mode in FLIGHT_MODES and self.heli_type is None:
                 return E.NOT_CONFIGURED

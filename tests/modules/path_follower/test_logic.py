@@ -75,10 +75,10 @@ def test_mode_2_disables_tracking_and_invalidates():
     assert d.state.path == ()
 
 
-def test_mode_3_answers_an_error_and_changes_nothing():
-    s = FollowerState(mode=0, path=(PT,))
-    d = logic.on_control_modo(s, mode(3))
-    assert d.commands == () and d.errors == (FollowerError.ONBOARD_FOLLOWER_NOT_BUILT,) and d.state == s
+def test_mode_3_sets_the_onboard_follower_mode_and_empties_the_onboard_trajectory():
+    d = logic.on_control_modo(FollowerState(mode=0, path=(PT,)), mode(3))
+    assert d.commands == (p.SetMode(mode=p.Mode.ONBOARD_FOLLOWER),) and d.errors == ()
+    assert d.state.mode == 3 and d.state.path == ()
 
 
 @pytest.mark.parametrize("m", [4, 5])

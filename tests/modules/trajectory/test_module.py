@@ -10,9 +10,9 @@ import msgspec
 import pytest
 
 from bbcs import keys
+from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, SurveyRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.testing import stop_process, wait_until
-from bbcs.contracts.path_follower import DatosSegCam
 from modules.trajectory.planning import LocalFrame, line_spacing
 
 POLYGON = [GeoPoint(lat=37.4260, lon=-6.0040), GeoPoint(lat=37.4260, lon=-5.9960),

@@ -1,0 +1,133 @@
+"""The uQuad's robot .conf (``bbcs_conf/uquad1.conf``), typed; errors name the file and line (ConfError)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import msgspec
+import numpy as np
+
+from bbcs.conf import ConfError, load_conf
+from modules.uquad.model import QuadParams
+
+
+class AntiWindupConf(msgspec.Struct, frozen=True, kw_only=True):
+    th_dist: list[float]
+    th_max: list[float]
+    th_accum: list[float]
+
+
+class LqrConf(msgspec.Struct, frozen=True, kw_only=True):
+    q: list[float]
+    q_int: list[float]
+    r: list[float]
+
+
+class UquadConfig(msgspec.Struct, frozen=True, kw_only=True):
+    ROBOT: str = "uquad"
+    HOME_LAT: float
+    HOME_LON: float
+    HOME_ALT: float = 0.0
+    IMU_PORT: str = ""
+    IMU_BAUD: int = 115200
+    IMU_MODE: Literal["binary", "ascii"] = "binary"
+    IMU_CALIB_FILE: str
+    IMU_CALIB_SAMPLES: int = 512
+    IMU_CALIB_GYRO_STD_MAX: float = 0.02
+    IMU_CALIB_ACC_STD_MAX: float = 0.3
+    GPS_MODE: Literal["real", "zeros", "random", "none"] = "real"
+    GPS_PORT: str = ""
+    GPS_FAKE_RANGE: float = 5.0
+    CONTROL_EVERY: int = 1
+    K_PROP_FILE: str
+    K_INT_FILE: str
+    MAX_POS_ERR: float = 1.5
+    TAKEOFF_HEIGHT: float = 3.0
+    WAYPOINT_RADIUS: float = 0.5
+    WAYPOINT_SPEED_MAX: float = 0.5
+    CRUISE_SPEED: float = 2.0
+    LAND_SPEED: float = 0.5
+    GROUND_HEIGHT: float = 0.15
+    MOTOR_MIN: float = 300.0
+    MOTOR_MAX: float = 750.0
+    MOTOR_RAMP_S: float = 1.5
+    MOTOR_SEND_PERIOD: float = 0.01
+    MOTOR_CMD_TIMEOUT: float = 0.2
+    MOTOR_ACK_TIMEOUT: float = 0.1
+    MOTOR_ERROR_ACTION: Literal["land", "cut"] = "land"
+    LOG_DIR: str = "runs/uquad"
+
+
+class Config:
+    """The parsed .conf plus its groups and the paths it names (resolved next to the file)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        doc = load_conf(path)
+        self.doc = doc
+        self.values = doc.to_struct(UquadConfig)
+        self.quad = doc.group("QUAD", "model").to_struct(QuadParams)
+        self.lqr = doc.group("LQR", "weights").to_struct(LqrConf)
+        self.anti_windup = doc.group("ANTI_WINDUP", "integral").to_struct(AntiWindupConf)
+        v = self.values
+        for key, n, got in (("q", 12, self.lqr.q), ("q_int", 4, self.lqr.q_int), ("r", 4, self.lqr.r),
+                            ("th_dist", 4, self.anti_windup.th_dist), ("th_max", 4, self.anti_windup.th_max),
+                            ("th_accum", 4, self.anti_windup.th_accum)):
+            if len(got) != n:
+                group = self.lqr_group if key in ("q", "q_int", "r") else self.aw_group
+                entry = group.entries[key]
+                raise ConfError(f"key {key!r} must have {n} values, has {len(got)}", path=str(path), line=entry.line)
+        if not 0 < v.MOTOR_MIN < v.MOTOR_MAX:
+            entry = doc.entries.get("MOTOR_MIN")
+            raise ConfError("MOTOR_MIN must be > 0 and below MOTOR_MAX", path=str(path),
+                            line=entry.line if entry else None)
+        if v.CONTROL_EVERY < 1:
+            raise ConfError("CONTROL_EVERY must be ≥ 1", path=str(path), line=doc.entries["CONTROL_EVERY"].line)
+
+    @property
+    def lqr_group(self):  # noqa: ANN201 - a ConfGroup
+        return self.doc.group("LQR", "weights")
+
+    @property
+    def aw_group(self):  # noqa: ANN201
+        return self.doc.group("ANTI_WINDUP", "integral")
+
+    def file(self, name: str) -> Path:
+        return (self.path.parent / name).resolve()
+
+    # short names the code uses
+    @property
+    def home_lat(self) -> float:
+        return self.values.HOME_LAT
+
+    @property
+    def home_lon(self) -> float:
+        return self.values.HOME_LON
+
+    @property
+    def home_alt(self) -> float:
+        return self.values.HOME_ALT
+
+    @property
+    def imu_mode(self) -> str:
+        return self.values.IMU_MODE
+
+    @property
+    def imu_calib_file(self) -> Path:
+        return self.file(self.values.IMU_CALIB_FILE)
+
+
+def load_config(path: str | Path) -> Config:
+    return Config(Path(path))
+
+
+def load_matrix(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """A plain-text matrix (rows of whitespace-separated numbers, ``#`` comments), checked against ``shape``."""
+    try:
+        m = np.loadtxt(path, comments="#", ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise ConfError(f"cannot read matrix: {exc}", path=str(path)) from None
+    if m.shape != shape:
+        raise ConfError(f"matrix is {m.shape[0]}×{m.shape[1]}, expected {shape[0]}×{shape[1]}", path=str(path))
+    return m

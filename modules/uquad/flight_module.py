@@ -1,0 +1,310 @@
+"""The uQuad's main process (the seed's ``main``) as a bus module: ``python -m modules.uquad``.
+
+One flight thread runs the seed's loop with ``select()``: read every IMU byte available (never fall behind the
+IMU), GPS when there is some, then the FlightCore (calibration, Kalman, planner, controller) and the motor
+command to the driver process, whose acks it checks. Bus handlers only queue the task mode and the waypoints
+for the flight thread, so the bus never delays the control loop; the loop publishes the generic
+RobotTelemetry (10 Hz) and its data slots (raw IMU frames, state, control actions) for the logging processes.
+
+Inputs (routed by CONTROL_ENTRADA): ``modo`` (UquadMode, the manager's mode slot for the running task) and
+``path`` (the RAL's waypoint slot). Params: ``imu`` (tcp://host:port, a serial device, or file://raw-log for
+the seed's fake mode), ``gps`` (tcp://…, a device; GPS_MODE in the .conf decides real/fake/none), ``motor``
+(tcp://… of the driver, or ``sim``: actuators simulated, commands only published), ``controller`` (hover |
+setpoint), ``clock`` (wall: Ts from elapsed wall time, as the seed; imu: 10 ms per frame, for replay and
+faster-than-real-time simulation), ``record_raw`` (a file: every IMU byte read is appended, a raw log for the
+fake mode).
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+import queue
+import select
+import threading
+import time
+from typing import Any, ClassVar
+
+import numpy as np
+
+from bbcs.conf import ConfError
+from bbcs.contracts.path_follower import DatosSegCam  # the RAL's path slot type
+from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
+from bbcs.module import Control, Module
+from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
+from modules.uquad import model
+from modules.uquad.calibration import load_calibration
+from modules.uquad.config import load_config
+from modules.uquad.core import FlightCore
+from modules.uquad.geo import Home
+from modules.uquad.gps import FakeGps, LocalGps, NmeaReader
+from modules.uquad.imu_protocol import ImuParser
+from modules.uquad.motor_client import MotorClient
+from modules.uquad.planner import Mode, heading_deg
+from modules.uquad.structs import ControlEntradaUquad, ImuRaw, MotorCommandLog, UquadError, UquadMode, UquadState
+from modules.uquad.transport import Stream
+
+TELEMETRY_PERIOD_S = 0.1
+STATE_EVERY = 2  # state published every this many IMU frames (50 Hz)
+OUTBOX_SIZE = 2000
+"""Data waiting for the bus writer thread; when full (a logger or the bus is slower than the IMU), the newest
+datum is dropped and counted: the control loop never waits for the bus (seed 002 §1.2.1)."""
+
+
+class UquadErrorCode(enum.IntEnum):
+    DRIVER_ERROR = 701
+    """The motor driver refused a command, lost the ESCs, or did not ack in time: MOTOR_ERROR_ACTION follows."""
+    CALIBRATION_REFUSED = 702
+    """The quadrotor moved during the start calibration; it starts over."""
+    IMU_LOST = 703
+    """The IMU link closed."""
+    BAD_PATH = 704
+    """A path whose count does not match its points was refused."""
+
+
+class UquadModule(Module):
+    name: ClassVar[str] = "uquad"
+    slots = (
+        InputSlot("modo", UquadMode),
+        InputSlot("path", DatosSegCam, kind=Kind.STREAM),
+        OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE),
+        OutputSlot("imu_raw", ImuRaw, kind=Kind.STREAM),
+        OutputSlot("state", UquadState, safety=Safety.UNSAFE),
+        OutputSlot("control", MotorCommandLog, kind=Kind.STREAM),
+        OutputSlot("error", UquadError),
+    )
+    control = Control(ControlEntradaUquad, {"slot_entrada_modo": "modo", "slot_entrada_path": "path"})
+    error_slot = "error"
+
+    def __init__(self, context: Any) -> None:
+        super().__init__(context)
+        if not context.conf:
+            raise ConfError("the uquad module needs the robot .conf", path="<none>")
+        self.cfg = load_config(context.conf)
+        p = context.params
+        self.imu_url = p.get("imu") or self.cfg.values.IMU_PORT
+        self.gps_url = p.get("gps") or self.cfg.values.GPS_PORT
+        self.motor_url = p.get("motor", "sim")
+        self.clock_mode = p.get("clock", "wall")
+        if self.clock_mode not in ("wall", "imu"):
+            raise ValueError(f"param clock must be 'wall' or 'imu', not {self.clock_mode!r}")
+        self.record_raw = p.get("record_raw", "")
+        self.core = FlightCore(self.cfg, load_calibration(self.cfg.imu_calib_file), p.get("controller", "hover"))
+        self.home = Home(self.cfg.home_lat, self.cfg.home_lon, self.cfg.home_alt)
+        self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
+        self._outbox: queue.Queue[tuple[str, Any] | None] = queue.Queue(OUTBOX_SIZE)
+        self.outbox_dropped = 0
+        self._thread: threading.Thread | None = None
+        self._writer: threading.Thread | None = None
+        self._wake_r, self._wake_w = os.pipe()
+        self.latencies: list[float] = []
+        self.driver_error = ""
+
+    # ------------------------------------------------------------ bus side
+
+    def on_start(self) -> None:
+        self._writer = threading.Thread(target=self._write_bus, name="uquad.bus_writer", daemon=True)
+        self._writer.start()
+        self._thread = threading.Thread(target=self._flight, name="uquad.flight", daemon=True)
+        self._thread.start()
+
+    def on_stop(self) -> None:
+        os.write(self._wake_w, b"x")
+        if self._thread is not None:
+            self._thread.join(5.0)
+        try:
+            self._outbox.put(None, timeout=1.0)
+        except queue.Full:
+            pass
+        if self._writer is not None:
+            self._writer.join(5.0)
+
+    def _send(self, slot: str, value: Any) -> None:
+        """Queue a datum for the bus writer thread; never blocks the flight loop."""
+        try:
+            self._outbox.put_nowait((slot, value))
+        except queue.Full:
+            self.outbox_dropped += 1
+
+    def _write_bus(self) -> None:
+        while (item := self._outbox.get()) is not None:
+            try:
+                self.publish(*item)
+            except Exception:  # a closed session at shutdown: nothing more to write
+                self.log.exception("publishing %s failed", item[0])
+                return
+
+    def on_modo(self, m: UquadMode) -> None:
+        self._inbox.put(("mode", Mode(m.modo)))
+
+    def on_path(self, d: DatosSegCam) -> None:
+        if d.n_points != len(d.puntos):
+            self.report_error(UquadErrorCode.BAD_PATH, f"path says {d.n_points} points, carries {len(d.puntos)}")
+            return
+        points = [np.array(self.home.to_local(pt.latitud, pt.longitud, pt.altura)) for pt in d.puntos]
+        self._inbox.put(("path", points))
+
+    # ------------------------------------------------------------ flight thread
+
+    def _flight(self) -> None:
+        try:
+            self._loop()
+        except Exception as exc:  # the loop must never die silently
+            self.log.exception("flight loop failed")
+            self.report_error(UquadErrorCode.IMU_LOST, f"flight loop stopped: {exc}")
+            self.request_stop()  # no flight loop, no module: the process exits and the manager reports it
+
+    def _loop(self) -> None:
+        v = self.cfg.values
+        imu = Stream(self.imu_url, v.IMU_BAUD)
+        parser = ImuParser(v.IMU_MODE)
+        gps = Stream(self.gps_url) if v.GPS_MODE == "real" and self.gps_url else None
+        nmea = NmeaReader()
+        fake_gps = FakeGps(v.GPS_MODE, v.GPS_FAKE_RANGE) if v.GPS_MODE in ("zeros", "random") else None
+        motor = None
+        if self.motor_url != "sim":
+            link = Stream(self.motor_url)
+            assert link.socket is not None
+            motor = MotorClient(link.socket, v.MOTOR_MIN, v.MOTOR_MAX, v.MOTOR_ACK_TIMEOUT)
+        raw_log = open(self.record_raw, "ab") if self.record_raw else None  # noqa: SIM115 - closed below
+        self.parser, self.nmea, self.motor = parser, nmea, motor
+        fds = [imu.fileno(), self._wake_r] + ([gps.fileno()] if gps else []) + ([motor.fileno()] if motor else [])
+        next_tel = 0.0
+        frames = 0
+        try:
+            while not self.stopping:
+                ready, _, _ = select.select(fds, [], [], 0.5)
+                self._apply_inbox()
+                now = time.monotonic()
+                if motor is not None and motor.fileno() in ready:
+                    motor.on_readable(now)
+                if gps is not None and gps.fileno() in ready:
+                    try:
+                        gps_data = gps.read()
+                    except EOFError as exc:  # without GPS the estimator goes on (the seed's reduced mode)
+                        self.log.warning("GPS lost, flying on the IMU and barometer: %s", exc)
+                        fds.remove(gps.fileno())
+                        gps.close()
+                        gps = None
+                        gps_data = b""
+                    for fix in nmea.feed(gps_data):
+                        self.core.on_gps(LocalGps(*self.home.to_local(fix.lat, fix.lon, fix.alt), fix.ve, fix.vn))
+                if imu.fileno() not in ready:
+                    continue
+                try:
+                    data = imu.read()
+                except EOFError as exc:
+                    self.report_error(UquadErrorCode.IMU_LOST, str(exc))
+                    break
+                t_read = time.monotonic()
+                if raw_log is not None:
+                    raw_log.write(data)
+                for frame in parser.feed(data):
+                    if self.stopping:
+                        break
+                    frames += 1
+                    now = frames * 0.01 if self.clock_mode == "imu" else time.monotonic()
+                    refusals = self.core.stats.calibration_refusals
+                    cmd = self.core.on_imu(frame, now)
+                    if self.core.stats.calibration_refusals != refusals:
+                        self.report_error(UquadErrorCode.CALIBRATION_REFUSED, self.core.stats.errors[-1])
+                    if fake_gps is not None and self.core.calibrated and (g := fake_gps.poll(now)) is not None:
+                        self.core.on_gps(g)
+                    if cmd is not None:
+                        self._command(cmd, now, t_read, motor)
+                    stamp = time.time()
+                    self._send("imu_raw", ImuRaw(stamp=stamp, **frame._asdict()))
+                    if frames % STATE_EVERY == 0 and self.core.calibrated:
+                        self._publish_state(stamp)
+                wall = time.monotonic()
+                if wall >= next_tel:
+                    next_tel = wall + TELEMETRY_PERIOD_S
+                    self._publish_telemetry()
+        finally:
+            st = parser.stats
+            self.log.info("flight loop stopped: frames=%d bad_frames=%d bytes_discarded=%d control_actions=%d",
+                          st.frames, st.bad_frames, st.bytes_discarded, self.core.stats.control_actions)
+            self.log.info("bus data dropped by the outbox (bus slower than the IMU): %d", self.outbox_dropped)
+            if motor is not None:
+                motor.send(time.monotonic(), [0.0] * 4)
+                motor.close()
+            imu.close()
+            if gps is not None:
+                gps.close()
+            if raw_log is not None:
+                raw_log.close()
+
+    def _apply_inbox(self) -> None:
+        while True:
+            try:
+                kind, value = self._inbox.get_nowait()
+            except queue.Empty:
+                return
+            if kind == "mode":
+                if self.driver_error and value is not Mode.LAND:
+                    self.log.warning("mode %s ignored after a driver error", value.name)
+                    continue
+                self.core.set_mode(value)
+            else:
+                self.core.set_waypoints(value)
+
+    def _command(self, cmd: np.ndarray, now: float, t_read: float, motor: MotorClient | None) -> None:
+        sent = list(cmd)
+        if motor is not None:  # the driver link always runs on the wall clock (its acks arrive in real time)
+            sent = motor.send(time.monotonic(), cmd)
+            motor.on_readable(time.monotonic())  # acks already here count, even while a burst of frames is handled
+            error = motor.check(time.monotonic())
+            if error and not self.driver_error:
+                self.driver_error = error
+                action = self.cfg.values.MOTOR_ERROR_ACTION
+                self.report_error(UquadErrorCode.DRIVER_ERROR, f"{error}: {action}")
+                if action == "cut":
+                    self.core.set_mode(Mode.IDLE)
+                    motor.send(time.monotonic(), [0.0] * 4)
+                else:
+                    self.core.set_mode(Mode.LAND)
+        latency = time.monotonic() - t_read
+        self.latencies.append(latency)
+        self._send("control", MotorCommandLog(stamp=time.time(), speeds=_vec(sent),
+                                                ts=float(self.core.stats.last_ts), latency_s=latency))
+
+    def _publish_state(self, stamp: float) -> None:
+        k = self.core.kalman
+        self._send("state", UquadState(
+            stamp=stamp, position=_vec(k.position), velocity=_vec(k.velocity), euler=_vec(k.euler),
+            rates=_vec(self.core.gyro), acc_bias=_vec(k.acc_bias), mode=int(self.core.planner.mode),
+            setpoint=_vec(self.core.planner.sp)))
+
+    def _publish_telemetry(self) -> None:
+        core = self.core
+        if not core.calibrated:
+            self._send("telemetry", RobotTelemetry(stamp=time.time(), mode=int(Mode.IDLE), mode_name="calibrating",
+                                                   airborne=False))
+            return
+        k = core.kalman
+        e, n, u = (float(c) for c in k.position)
+        lat, lon, alt = self.home.to_geo(e, n, u)
+        psi, phi, theta = (float(a) for a in k.euler)
+        planner = core.planner
+        queued = len(planner.waypoints) if planner.mode is Mode.GOTO else 0
+        self._send("telemetry", RobotTelemetry(
+            stamp=time.time(),
+            position=GeoPoint(lat=lat, lon=lon, alt=alt),
+            attitude=Attitude(roll=float(np.degrees(psi)), pitch=float(np.degrees(phi)), yaw=heading_deg(theta)),
+            velocity=VelocityNED(vn=float(k.velocity[1]), ve=float(k.velocity[0]), vd=-float(k.velocity[2])),
+            heading_deg=heading_deg(theta),
+            mode=int(planner.mode), mode_name=planner.mode.name.lower(),
+            airborne=planner.airborne, waypoints_queued=queued,
+            error_code=UquadErrorCode.DRIVER_ERROR if self.driver_error else 0,
+        ))
+
+
+def _vec(values: Any) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return UquadModule.main(argv)
+
+
+__all__ = ["UquadModule", "main", "model"]

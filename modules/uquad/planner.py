@@ -1,0 +1,159 @@
+"""The path planner (seed 002 §1.2.6): set points from the current task; completion detection.
+
+Pure state machine, injected time. Task modes (the manifest's ``uquad_mode`` slot): IDLE (on the ground, motors
+off), HOLD (stay where the set point is), GOTO (fly the waypoints the RAL put on the path slot), TAKE_OFF
+(climb TAKEOFF_HEIGHT above the take-off point), LAND (descend at LAND_SPEED, motors off once on the ground),
+ABORT (stop where the quadrotor is now: the set point jumps to the estimated position, zero velocity).
+
+Completion (the seed's flag to the controller): a waypoint is reached when the estimate is within
+WAYPOINT_RADIUS of it and slower than WAYPOINT_SPEED_MAX; then the next one becomes the target and
+``new_target`` is raised (the set-point controller relinearises). Take-off completes at the target height
+(then HOLD); landing when below GROUND_HEIGHT above the take-off point and still for ``still_s`` (then IDLE).
+The set point moves toward the target no faster than CRUISE_SPEED (a carrot), so the errors stay small.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from modules.uquad import model
+
+
+class Mode(enum.IntEnum):
+    HOLD = 0
+    GOTO = 1
+    TAKE_OFF = 2
+    LAND = 3
+    ABORT = 4
+    IDLE = 5
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    takeoff_height: float = 3.0
+    waypoint_radius: float = 0.5
+    waypoint_speed_max: float = 0.5
+    cruise_speed: float = 2.0
+    climb_speed: float = 1.0
+    land_speed: float = 0.5
+    ground_height: float = 0.15
+    still_s: float = 0.5
+
+
+@dataclass
+class PlanOutput:
+    position: np.ndarray
+    velocity: np.ndarray
+    yaw: float
+    motors_on: bool
+    new_target: bool
+
+
+@dataclass
+class Planner:
+    cfg: PlannerConfig = field(default_factory=PlannerConfig)
+    mode: Mode = Mode.IDLE
+    ground_z: float = 0.0
+    sp: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    yaw: float = 0.0
+    waypoints: deque[np.ndarray] = field(default_factory=deque)
+    _still_since: float | None = None
+    _flag: bool = False
+    completed: list[str] = field(default_factory=list)
+    """What finished, in order ('take_off', 'waypoint', 'goto', 'land'), for logs and tests."""
+
+    @property
+    def airborne(self) -> bool:
+        return self.mode is not Mode.IDLE
+
+    def set_mode(self, mode: Mode, position: np.ndarray, yaw: float) -> None:
+        """A new task mode; ``position``/``yaw`` are the current estimate."""
+        if mode is Mode.IDLE:
+            self.mode = Mode.IDLE
+            return
+        if self.mode is Mode.IDLE:  # leaving the ground: everything relative to here
+            if mode in (Mode.LAND, Mode.HOLD, Mode.ABORT):
+                return  # nothing to land or hold on the ground
+            self.ground_z = float(position[2])
+            self.sp = np.array(position, dtype=float)
+            self.yaw = yaw
+        if mode is Mode.ABORT:
+            self.sp = np.array(position, dtype=float)
+            self.waypoints.clear()
+        if mode is not Mode.GOTO:
+            self.waypoints.clear()
+        self.mode = mode
+        self._still_since = None
+        self._flag = True
+
+    def set_waypoints(self, points: list[np.ndarray]) -> None:
+        self.waypoints = deque(np.array(p, dtype=float) for p in points)
+        self._flag = True
+
+    def step(self, now: float, dt: float, position: np.ndarray, velocity: np.ndarray) -> PlanOutput:
+        c = self.cfg
+        target: np.ndarray | None = None
+        speed = c.cruise_speed
+        if self.mode is Mode.TAKE_OFF:
+            target = np.array([self.sp[0], self.sp[1], self.ground_z + c.takeoff_height])
+            speed = c.climb_speed
+            if self._reached(target, position, velocity):
+                self.completed.append("take_off")
+                self.mode = Mode.HOLD
+                self._flag = True
+        elif self.mode is Mode.GOTO:
+            if self.waypoints:
+                target = self.waypoints[0]
+                if self._reached(target, position, velocity):
+                    self.waypoints.popleft()
+                    self.completed.append("waypoint")
+                    self._flag = True
+                    target = self.waypoints[0] if self.waypoints else None
+                    if target is None:
+                        self.completed.append("goto")
+                        self.mode = Mode.HOLD
+        elif self.mode is Mode.LAND:
+            target = np.array([self.sp[0], self.sp[1], self.ground_z - 1.0])
+            speed = c.land_speed
+            low = position[2] - self.ground_z < c.ground_height
+            if low and abs(velocity[2]) < 0.2:
+                self._still_since = now if self._still_since is None else self._still_since
+                if now - self._still_since >= c.still_s:
+                    self.completed.append("land")
+                    self.mode = Mode.IDLE
+            else:
+                self._still_since = None
+        vel = np.zeros(3)
+        if target is not None:
+            delta = target - self.sp
+            dist = float(np.linalg.norm(delta))
+            step = min(dist, speed * dt)
+            if dist > 1e-9:
+                self.sp = self.sp + delta / dist * step
+                if step < dist:
+                    vel = delta / dist * speed
+        flag, self._flag = self._flag, False
+        return PlanOutput(self.sp.copy(), vel, self.yaw, self.mode is not Mode.IDLE, flag)
+
+    def _reached(self, target: np.ndarray, position: np.ndarray, velocity: np.ndarray) -> bool:
+        return (float(np.linalg.norm(target - position)) <= self.cfg.waypoint_radius
+                and float(np.linalg.norm(velocity)) <= self.cfg.waypoint_speed_max
+                and float(np.linalg.norm(target - self.sp)) < 1e-6)
+
+    def setpoint_state(self, out: PlanOutput) -> np.ndarray:
+        """The 12-state set point for the controller (model order)."""
+        s = np.zeros(model.N_STATES)
+        s[model.IX:model.IZ + 1] = out.position
+        s[model.IVX:model.IVZ + 1] = out.velocity
+        s[model.ITHETA] = out.yaw
+        return s
+
+
+def heading_deg(theta: float) -> float:
+    """Seed yaw (0 = world x = east, counter-clockwise) → compass heading (0 = north, clockwise)."""
+    return (90.0 - math.degrees(theta)) % 360.0

@@ -1,0 +1,57 @@
+"""``python -m modules.uquad.sim --conf bbcs_conf/uquad1.conf --imu 127.0.0.1:0 --esc 127.0.0.1:0 ...``"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+
+from modules.uquad.calibration import load_calibration
+from modules.uquad.config import load_config
+from modules.uquad.geo import Home
+from modules.uquad.sim.quad import QuadSim
+from modules.uquad.sim.server import PtyEnd, SimServer, TcpEnd
+
+
+def _tcp(name: str, spec: str) -> TcpEnd:
+    host, _, port = spec.rpartition(":")
+    return TcpEnd(name, host or "127.0.0.1", int(port))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m modules.uquad.sim", description=__doc__)
+    ap.add_argument("--conf", required=True, help="robot .conf (QUAD group, HOME_*, IMU_CALIB_FILE, IMU_MODE)")
+    ap.add_argument("--imu", default="127.0.0.1:0", help="host:port, or 'pty'")
+    ap.add_argument("--gps", default="127.0.0.1:0", help="host:port, 'pty', or 'none'")
+    ap.add_argument("--esc", default="127.0.0.1:0", help="host:port")
+    ap.add_argument("--truth", default="127.0.0.1:0", help="host:port or 'none'")
+    ap.add_argument("--imu-mode", choices=("binary", "ascii"), default=None, help="override IMU_MODE of the .conf")
+    ap.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--duration", type=float, default=None, help="simulated seconds, then exit")
+    args = ap.parse_args(argv)
+    cfg = load_config(Path(args.conf))
+    sim = QuadSim(params=cfg.quad, calib=load_calibration(cfg.imu_calib_file),
+                  home=Home(cfg.home_lat, cfg.home_lon, cfg.home_alt), seed=args.seed)
+    imu = PtyEnd("imu") if args.imu == "pty" else _tcp("imu", args.imu)
+    gps = None if args.gps == "none" else PtyEnd("gps") if args.gps == "pty" else _tcp("gps", args.gps)
+    truth = None if args.truth == "none" else _tcp("truth", args.truth)
+    server = SimServer(sim, imu, gps, _tcp("esc", args.esc), truth, imu_mode=args.imu_mode or cfg.imu_mode,
+                       speed=args.speed)
+    signal.signal(signal.SIGTERM, lambda *_: server.stop())
+    signal.signal(signal.SIGINT, lambda *_: server.stop())
+    parts = " ".join(f"{e.name}={e.url}" for e in server.ends())
+    print(f"uquad sim ready {parts}", flush=True)
+    try:
+        server.run(args.duration)
+    finally:
+        server.close()
+        s = server.stats
+        print(f"uquad sim stopped t={sim.t:.2f} imu_frames={s.imu_frames} imu_bytes_lost={s.imu_bytes_lost} "
+              f"esc_frames={s.esc_frames} esc_timeouts={s.esc_timeouts}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

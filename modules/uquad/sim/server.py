@@ -1,0 +1,208 @@
+"""The simulator's far ends: IMU bytes out, GPS NMEA out, ESC set-points in, and a ``truth`` stream (JSON lines:
+the true state, for tests and the benchmark), each on its own 127.0.0.1 TCP port (one client at a time, a new
+one replaces the old) or, for the IMU and GPS, a pty.
+
+Simulated time runs ``speed`` times faster than the wall clock (1 = real time). Writes never block: bytes a
+client does not drain are lost and counted, as on a UART. The ESCs stop the motors when no set-point arrived
+for ``esc_timeout_s`` (seed: the motors stop when commands stop).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import socket
+import time
+import tty
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from modules.uquad import motor_protocol as mp
+from modules.uquad.gps import encode as encode_nmea
+from modules.uquad.imu_protocol import encode_ascii, encode_binary
+from modules.uquad.sim.quad import QuadSim
+
+PHYSICS_DT = 0.002
+IMU_PERIOD = 0.010
+
+
+class TcpEnd:
+    """A listening socket that serves its latest client."""
+
+    def __init__(self, name: str, host: str, port: int) -> None:
+        self.name = name
+        self.listener = socket.create_server((host, port))
+        self.listener.setblocking(False)
+        self.client: socket.socket | None = None
+        host, port = self.listener.getsockname()[:2]
+        self.url = f"tcp://{host}:{port}"
+
+    @property
+    def connected(self) -> bool:
+        return self.client is not None
+
+    def fds(self) -> list[int]:
+        return [self.listener.fileno()] + ([self.client.fileno()] if self.client else [])
+
+    def readable(self, fd: int) -> bytes:
+        if fd == self.listener.fileno():
+            conn, _ = self.listener.accept()
+            conn.setblocking(False)
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            if self.client is not None:
+                self.client.close()
+            self.client = conn
+            return b""
+        assert self.client is not None
+        try:
+            data = self.client.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:
+            data = b""
+        if not data:
+            self.client.close()
+            self.client = None
+        return data
+
+    def write(self, data: bytes) -> int:
+        if self.client is None:
+            return 0
+        try:
+            return self.client.send(data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError:
+            self.client.close()
+            self.client = None
+            return 0
+
+    def close(self) -> None:
+        if self.client:
+            self.client.close()
+        self.listener.close()
+
+
+class PtyEnd:
+    """A pty pair; the robot opens ``path`` like a serial port."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self.master, False)
+        self.url = os.ttyname(self._slave)
+        self.connected = True  # a pty is always "connected": unread bytes wait in its buffer
+
+    def fds(self) -> list[int]:
+        return [self.master]
+
+    def readable(self, fd: int) -> bytes:
+        try:
+            return os.read(self.master, 65536)
+        except OSError:
+            return b""
+
+    def write(self, data: bytes) -> int:
+        try:
+            return os.write(self.master, data)
+        except OSError:
+            return 0
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self._slave)
+
+
+@dataclass
+class SimStats:
+    imu_frames: int = 0
+    """Frames written while a client was connected."""
+    imu_bytes_lost: int = 0
+    gps_fixes: int = 0
+    esc_frames: int = 0
+    esc_bad: int = 0
+    esc_timeouts: int = 0
+    last_esc: list[float] = field(default_factory=lambda: [0.0] * 4)
+
+
+class SimServer:
+    def __init__(self, sim: QuadSim, imu: TcpEnd | PtyEnd, gps: TcpEnd | PtyEnd | None, esc: TcpEnd,
+                 truth: TcpEnd | None, *, imu_mode: str = "binary", speed: float = 1.0, gps_period: float = 0.2,
+                 esc_timeout_s: float = 0.1, truth_period: float = 0.05) -> None:
+        self.sim, self.imu, self.gps, self.esc, self.truth = sim, imu, gps, esc, truth
+        self.encode = encode_binary if imu_mode == "binary" else encode_ascii
+        self.speed = speed
+        self.gps_period = gps_period
+        self.esc_timeout_s = esc_timeout_s
+        self.truth_period = truth_period
+        self.stats = SimStats()
+        self.esc_parser = mp.FrameParser("E")
+        self._last_esc_t = -1e9
+        self._stop = False
+
+    def stop(self) -> None:
+        self._stop = True
+
+    def ends(self) -> list[TcpEnd | PtyEnd]:
+        return [e for e in (self.imu, self.gps, self.esc, self.truth) if e is not None]
+
+    def _poll(self, timeout: float) -> None:
+        owners = {fd: end for end in self.ends() for fd in end.fds()}
+        ready, _, _ = select.select(list(owners), [], [], max(0.0, timeout))
+        for fd in ready:
+            end = owners[fd]
+            data = end.readable(fd)
+            if end is self.esc and data:
+                for frame in self.esc_parser.feed(data):
+                    self.stats.esc_frames += 1
+                    self.stats.last_esc = list(mp.speeds(frame))
+                    self.sim.command(self.stats.last_esc)
+                    self._last_esc_t = self.sim.t
+                self.stats.esc_bad = self.esc_parser.bad_frames
+
+    def _truth_line(self) -> bytes:
+        s = self.sim
+        doc = {"t": round(s.t, 4), "x": [round(float(v), 5) for v in s.x], "w": [round(float(v), 2) for v in s.w],
+               "on_ground": s.on_ground, "imu_frames": self.stats.imu_frames, "esc_frames": self.stats.esc_frames,
+               "esc_timeouts": self.stats.esc_timeouts, "imu_bytes_lost": self.stats.imu_bytes_lost}
+        return (json.dumps(doc) + "\n").encode()
+
+    def run(self, duration_s: float | None = None) -> None:
+        """Serve until ``stop()`` (or ``duration_s`` of simulated time)."""
+        sim = self.sim
+        wall0 = time.monotonic()
+        next_imu = IMU_PERIOD
+        next_gps = self.gps_period
+        next_truth = 0.0
+        while not self._stop and (duration_s is None or sim.t < duration_s):
+            target_wall = wall0 + next_imu / self.speed
+            self._poll(target_wall - time.monotonic())
+            if time.monotonic() < target_wall:
+                continue
+            while sim.t + PHYSICS_DT / 2 < next_imu:
+                sim.step(PHYSICS_DT)
+                sim.t += PHYSICS_DT
+            sim.t = next_imu
+            if sim.t - self._last_esc_t > self.esc_timeout_s and np.any(sim.w_cmd):
+                sim.command([0.0] * 4)  # commands stopped: the ESCs stop the motors
+                self.stats.esc_timeouts += 1
+            frame = self.encode(sim.imu_frame())
+            if self.imu.connected:
+                sent = self.imu.write(frame)
+                self.stats.imu_frames += 1
+                self.stats.imu_bytes_lost += len(frame) - sent
+            next_imu += IMU_PERIOD
+            if self.gps is not None and sim.t >= next_gps:
+                next_gps += self.gps_period
+                if self.gps.write(encode_nmea(sim.gps_fix(), 43_200.0 + sim.t)):
+                    self.stats.gps_fixes += 1
+            if self.truth is not None and sim.t >= next_truth:
+                next_truth += self.truth_period
+                self.truth.write(self._truth_line())
+
+    def close(self) -> None:
+        for end in self.ends():
+            end.close()

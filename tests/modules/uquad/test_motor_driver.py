@@ -1,0 +1,144 @@
+"""Motor driver: refuses out-of-range values, ramps at start, acks every command, stops when commands stop;
+the process tested across real TCP links with an ESC recorder at the far end."""
+
+import re
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from modules.uquad import motor_protocol as mp
+from modules.uquad.motor_client import MotorClient
+from modules.uquad.motor_driver import DriverLogic, DriverState
+from modules.uquad.motor_protocol import AckStatus
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def logic() -> DriverLogic:
+    return DriverLogic(min_speed=300, max_speed=750, ramp_s=1.0, cmd_timeout_s=0.2)
+
+
+def test_out_of_range_refused_and_previous_kept():
+    d = logic()
+    assert d.on_command(0.0, (400, 400, 400, 400)) is AckStatus.RAMPING
+    for bad in ((299, 400, 400, 400), (400, 400, 751, 400), (0, 400, 400, 400)):
+        assert d.on_command(0.05, bad) is AckStatus.OUT_OF_RANGE
+    assert d.refused == 3 and d.target == [400] * 4
+
+
+def test_ramp_from_zero_to_min_jumping_around_it_then_commands():
+    d = logic()
+    d.on_command(0.0, (500, 500, 500, 500))
+    values = []
+    for i in range(1, 10):
+        d.on_command(i * 0.1, (500, 500, 500, 500))  # keep commanding
+        values.append(d.output(i * 0.1)[0])
+    assert all(0 <= v <= 300 for v in values)
+    assert values[-1] > values[0]  # rising
+    assert any(values[i] > values[i + 1] for i in range(len(values) - 1))  # jumps below the ramp too
+    assert d.on_command(1.0, (500, 510, 520, 530)) is AckStatus.OK
+    assert d.output(1.0) == [500, 510, 520, 530] and d.state is DriverState.RUNNING
+
+
+def test_motors_stop_when_commands_stop_and_on_stop_command():
+    d = logic()
+    d.on_command(0.0, (400,) * 4)
+    d.on_command(1.1, (400,) * 4)
+    assert d.output(1.2) == [400] * 4
+    assert d.output(1.31) == [0.0] * 4 and d.timeouts == 1 and d.state is DriverState.STOPPED
+    d.on_command(2.0, (400,) * 4)
+    assert d.on_command(2.05, (0, 0, 0, 0)) is AckStatus.STOPPED and d.output(2.06) == [0.0] * 4
+
+
+class EscRecorder:
+    """The ESCs' far end: records every set-point frame the driver sends."""
+
+    def __init__(self) -> None:
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self.conn: socket.socket | None = None
+        self.parser = mp.FrameParser("E")
+        self.frames: list[tuple[float, ...]] = []
+
+    def pump(self, until: float) -> None:
+        while time.monotonic() < until:
+            if self.conn is None:
+                self.listener.settimeout(max(0.01, until - time.monotonic()))
+                try:
+                    self.conn, _ = self.listener.accept()
+                except TimeoutError:
+                    continue
+                self.conn.settimeout(0.02)
+            try:
+                data = self.conn.recv(4096)
+            except TimeoutError:
+                continue
+            self.frames += [mp.speeds(f) for f in self.parser.feed(data)]
+
+    def close(self) -> None:
+        if self.conn:
+            self.conn.close()
+        self.listener.close()
+
+
+@pytest.fixture
+def driver(tmp_path):
+    conf = tmp_path / "u.conf"
+    text = (ROOT / "bbcs_conf" / "uquad1.conf").read_text()
+    for old, new in (("MOTOR_RAMP_S: 1.5", "MOTOR_RAMP_S: 0.3"), ("MOTOR_CMD_TIMEOUT: 0.5", "MOTOR_CMD_TIMEOUT: 0.2")):
+        assert old in text
+        text = text.replace(old, new)
+    conf.write_text(text)
+    esc = EscRecorder()
+    proc = subprocess.Popen([sys.executable, "-m", "modules.uquad.motor_driver", "--conf", str(conf), "--esc",
+                             f"127.0.0.1:{esc.port}"], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        line = proc.stdout.readline()
+        port = int(re.search(r"tcp://127.0.0.1:(\d+)", line).group(1))
+        yield esc, port
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        esc.close()
+
+
+def test_driver_process_end_to_end(driver):
+    esc, port = driver
+    client = MotorClient(socket.create_connection(("127.0.0.1", port)), 300, 750, ack_timeout_s=0.5)
+    try:
+        # commands every 20 ms for 0.6 s: ramp (0.3 s) then the commanded speeds reach the ESCs
+        for _ in range(30):
+            t = time.monotonic()
+            sent = client.send(t, [900, 500, 200, 500])  # the client clamps: 750, 500, 300, 500
+            esc.pump(t + 0.02)
+            client.on_readable(time.monotonic())
+        assert sent == [750, 500, 300, 500]
+        assert client.acks >= 25 and client.check(time.monotonic()) == ""
+        ramp = [f[0] for f in esc.frames if f[0] <= 300 and len(set(f)) == 1]
+        assert ramp and max(ramp) <= 300
+        assert esc.frames[-1] == (750, 500, 300, 500)
+        # an out-of-range value sent raw (bypassing the clamp) is refused: the ESCs keep the last good set-point
+        client.sock.send(mp.command(999, [100, 500, 500, 500]))
+        esc.pump(time.monotonic() + 0.1)
+        client.on_readable(time.monotonic())
+        assert "OUT_OF_RANGE" in client.check(time.monotonic())
+        assert esc.frames[-1] == (750, 500, 300, 500)
+        # commands stop: the driver stops the motors within MOTOR_CMD_TIMEOUT (0.2 s) + a send period
+        esc.pump(time.monotonic() + 0.4)
+        assert esc.frames[-1] == (0.0, 0.0, 0.0, 0.0)
+    finally:
+        client.close()
+
+
+def test_missing_ack_is_a_driver_error():
+    a, b = socket.socketpair()
+    client = MotorClient(a, 300, 750, ack_timeout_s=0.1)
+    client.send(10.0, [400] * 4)
+    assert client.check(10.05) == ""
+    assert "no ack" in client.check(10.2)
+    b.close()
+    a.close()

@@ -1,0 +1,140 @@
+"""End to end: ``cromat launch`` of uquad1_sim.toml (router, quadrotor simulator, motor driver, flight module,
+three loggers, the RAL — the real Module Manager) and a ground station on the GCS API: take off, fly a
+4-waypoint square, land. Checked by effect: the simulator's true state (its truth port) follows the square and
+ends on the ground with the motors stopped; the ground station is told each task completed; the loggers wrote.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import socket
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bbcs.testing import wait_until
+from modules.uquad.config import load_config
+from modules.uquad.geo import Home
+from ral import gri
+from ral.gcs.api import Gcs, session_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "module_manager"))
+from launch_support import ROOT, Launch  # noqa: E402
+
+ROBOT = "uquad1"
+MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
+SIDE_M = 4.0
+HEIGHT_M = 3.0
+
+
+class Truth:
+    """Reads the simulator's truth stream (JSON lines of the true state)."""
+
+    def __init__(self, port: int) -> None:
+        self.sock = socket.create_connection(("127.0.0.1", port))
+        self.lines: list[dict] = []
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        buf = b""
+        while True:
+            try:
+                data = self.sock.recv(65536)
+            except OSError:
+                return
+            if not data:
+                return
+            buf += data
+            *done, buf = buf.split(b"\n")
+            self.lines += [json.loads(line) for line in done if line]
+
+    @property
+    def last(self) -> dict:
+        return self.lines[-1]
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def manifest(tmp_path: Path) -> Path:
+    text = MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{MANIFEST.parent / "uquad1.conf"}"')
+    text = text.replace('params = { kind = "imu_raw" }', f'params = {{ kind = "imu_raw", dir = "{tmp_path}" }}')
+    text = text.replace('params = { kind = "control" }', f'params = {{ kind = "control", dir = "{tmp_path}" }}')
+    text = text.replace('params = { kind = "state" }', f'params = {{ kind = "state", dir = "{tmp_path}" }}')
+    path = tmp_path / "uquad1_sim.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.timeout(300)
+def test_take_off_square_land_from_the_ground_station(tmp_path):
+    launch = Launch(manifest(tmp_path), tmp_path)
+    gcs = truth = None
+    try:
+        launch.wait_line("modules up in", 120)
+        sim_log = (tmp_path / "logs" / "uquad_sim.log").read_text()
+        truth = Truth(int(re.search(r"truth=tcp://127.0.0.1:(\d+)", sim_log).group(1)))
+        gcs = Gcs(session_config([f"tcp/127.0.0.1:{launch.port}"]), timeout_s=10.0)
+        events: list[gri.GriEvent] = []
+        gcs.events(ROBOT, events.append)
+        states: list[gri.GriState] = []
+        gcs.watch(ROBOT, states.append)
+
+        def completed(reply: gri.TaskReply, what: str, timeout_s: float) -> None:
+            assert reply.accepted, reply.reason
+            wait_until(lambda: any(e.kind == "task_completed" and e.task_id == reply.task_id for e in events),
+                       timeout_s, what)
+
+        wait_until(lambda: states and states[-1].position is not None and states[-1].kind == "uquad", 60,
+                   "calibrated uquad telemetry in the GRI state")
+        home = states[-1].position
+        assert states[-1].airborne is False
+        completed(gcs.send(ROBOT, gri.TakeOff(height=HEIGHT_M)), "take-off completed", 60)
+        assert truth.last["x"][2] > HEIGHT_M - 0.6 and not truth.last["on_ground"]
+
+        cfg = load_config(MANIFEST.parent / "uquad1.conf")
+        local = Home(cfg.home_lat, cfg.home_lon, cfg.home_alt)  # the simulator's (truth's) origin
+        corners = [(SIDE_M, 0.0), (SIDE_M, SIDE_M), (0.0, SIDE_M), (0.0, 0.0)]
+        waypoints = []
+        for e, n in corners:
+            lat, lon, _ = local.to_geo(e, n, HEIGHT_M)
+            waypoints.append(gri.Waypoint(lat=lat, lon=lon, alt=home.alt + HEIGHT_M))
+        start = len(truth.lines)
+        completed(gcs.send(ROBOT, gri.Goto(waypoints=waypoints)), "square completed", 120)
+        flown = np.array([line["x"][:3] for line in truth.lines[start:]])
+        for e, n in corners:  # the aircraft itself passed within a metre of every corner, at the right height
+            d = np.hypot(flown[:, 0] - e, flown[:, 1] - n)
+            assert d.min() < 1.0, (e, n, d.min())
+            assert abs(flown[d.argmin(), 2] - HEIGHT_M) < 0.7
+
+        # hold, then a goto interrupted by abort: the aircraft stops where it is, still flying
+        assert gcs.send(ROBOT, gri.Hold()).accepted
+        far = local.to_geo(SIDE_M * 3, 0.0, HEIGHT_M)
+        reply = gcs.send(ROBOT, gri.Goto(waypoints=[gri.Waypoint(lat=far[0], lon=far[1], alt=home.alt + HEIGHT_M)]))
+        assert reply.accepted, reply.reason
+        wait_until(lambda: truth.last["x"][0] > 1.0, 20, "moving toward the far waypoint")
+        assert gcs.abort(ROBOT).accepted
+        wait_until(lambda: any(e.kind == "aborted" for e in events), 10, "the ground station told of the abort")
+        wait_until(lambda: np.linalg.norm(truth.last["x"][6:9]) < 0.3, 20, "stopped after the abort")
+        stopped_at = truth.last["x"][0]
+        assert stopped_at < SIDE_M * 3 - 2.0 and not truth.last["on_ground"]
+
+        completed(gcs.send(ROBOT, gri.Land()), "landing completed", 60)
+        wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 10,
+                   "on the ground, motors stopped")
+        assert states[-1].kind == "uquad"
+        assert truth.last["esc_frames"] > 1000  # the driver commanded the ESCs continuously
+    finally:
+        if gcs is not None:
+            gcs.close()
+        if truth is not None:
+            truth.close()
+        launch.stop()
+    for kind in ("imu_raw", "state", "control"):  # one logging process per data type wrote its file
+        lines = (tmp_path / f"{ROBOT}_{kind}.jsonl").read_text().splitlines()
+        assert len(lines) > 100, kind
