@@ -32,9 +32,9 @@ from benchlib import ROOT, pct, write_results
 
 from bbcs import keys
 from bbcs.testing import free_port
-from module_manager import mri
+from bbcs.contracts import mri
 from modules.dsp import protocol as p
-from ral import gri
+from bbcs.contracts import gri
 from ral.gcs.api import Gcs, session_config
 
 ROBOT = "uav1"

@@ -13,7 +13,10 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
+import msgspec
+
 from bbcs.conf import ConfError, load_conf
+from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
@@ -65,6 +68,7 @@ class PathFollowerModule(Module):
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
         dsp_bus.commands_output(),
+        OutputSlot(MODE_ACK_SLOT, ModeAck),
         OutputSlot("error", ErrorSegCam),
     )
     control = Control(
@@ -89,6 +93,12 @@ class PathFollowerModule(Module):
         self._mode_batches: dict[int, int | None] = {}
         self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
 
+    def _ack_mode(self, msg: msgspec.Struct, decision: logic.Decision) -> None:
+        """Answer the mode on MODE_ACK (after applying it): the manager's barrier before data for the new mode."""
+        code = decision.errors[0] if decision.errors else None
+        self.publish(MODE_ACK_SLOT, ModeAck(mode=msgspec.to_builtins(msg), accepted=code is None, code=code,
+                                            reason=decision.detail if code is not None else ""))
+
     def _apply(self, decision: logic.Decision) -> int | None:
         self.state = decision.state
         for code in decision.errors:
@@ -102,6 +112,7 @@ class PathFollowerModule(Module):
         before = self.state.mode
         decision = logic.on_control_modo(self.state, msg)
         batch = self._apply(decision)
+        self._ack_mode(msg, decision)
         if batch is not None and msg.modo_o_comando == logic.MODE_CHANGE:
             self._mode_batches[batch] = before
             while len(self._mode_batches) > MODE_BATCH_MEMORY:

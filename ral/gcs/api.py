@@ -20,10 +20,9 @@ import zenoh
 import zenoh.ext
 
 from bbcs import keys
+from bbcs.contracts import gri, mri
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
-from module_manager import mri
-from ral import gri
 
 HEARTBEAT_S = 0.5
 

@@ -12,7 +12,7 @@ import threading
 import time
 from typing import TextIO
 
-from ral import gri
+from bbcs.contracts import gri
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
 from ral.gcs.waypoints import WaypointFileError, load_waypoints
 

@@ -12,7 +12,7 @@ import zenoh
 
 from bbcs.robot import RobotTelemetry
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import mri
+from bbcs.contracts import mri
 
 ROBOT = "uav1"
 AVAILABLE = {

@@ -21,9 +21,9 @@ from bbcs.context import ModuleContext
 from bbcs.robot import GeoPoint, RobotTelemetry
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
-from module_manager import mri
+from bbcs.contracts import mri
 from modules.path_follower.structs import DatosSegCam
-from ral import gri
+from bbcs.contracts import gri
 from ral.gcs.api import Gcs
 from ral.process import Ral
 

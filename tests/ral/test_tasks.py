@@ -6,7 +6,7 @@ import msgspec
 import pytest
 
 from bbcs.robot import GeoPoint, RobotTelemetry
-from ral import gri
+from bbcs.contracts import gri
 from ral.tasks import Plan, QueueConfig, Rejected, TaskQueue, distance_m
 
 AVAILABLE = {

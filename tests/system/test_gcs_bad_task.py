@@ -12,7 +12,7 @@ from pathlib import Path
 import msgspec
 
 from bbcs.testing import wait_until
-from ral import gri
+from bbcs.contracts import gri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from bbcs.testing import child_env, wait_until
-from ral import gri
+from bbcs.contracts import gri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from bbcs.testing import wait_until
-from ral import gri
+from bbcs.contracts import gri
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))

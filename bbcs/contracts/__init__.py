@@ -1,0 +1,1 @@
+"""Cross-process types: what modules, the Module Manager, the RAL and ground stations exchange."""
