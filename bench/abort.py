@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     gcs = watch = None
     try:
         launch.wait_up()
-        gcs = Gcs(session_config([f"tcp/127.0.0.1:{port}"]), name="bench", link=True, timeout_s=10.0)
+        gcs = Gcs(session_config([f"tcp/127.0.0.1:{port}"]), name="bench", link=[ROBOT], timeout_s=10.0)
         watch = DspWatch(gcs)
         t_end = time.monotonic() + 20
         while watch.position is None and time.monotonic() < t_end:

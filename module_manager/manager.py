@@ -724,7 +724,7 @@ class Manager:
                         why = f": {sup.reason}" if sup.reason else ""
                         return mri.MriReply(ok=False, reason=f"task {req.name!r} needs module {name}, which is "
                                                              f"{sup.state}{why}", data=self.task_list())
-                changes = self.tasks.start(req.name, req.params, now, routes, modes, req.origin)
+                changes = self.tasks.start(req.name, req.params, now, routes, modes, req.origin, req.replaced_as)
             else:
                 if req.task_type not in self.m.task_types:
                     return mri.MriReply(ok=False, reason=f"unknown task type {req.task_type!r}")

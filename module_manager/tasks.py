@@ -53,13 +53,14 @@ class TaskBook:
         return None if run is None else run.task
 
     def start(self, name: str, params: TaskParams | None, now: float, routes: dict[RouteKey, int],
-              modes: dict[str, dict[str, int] | None], origin: Origin = "mri") -> Changes:
+              modes: dict[str, dict[str, int] | None], origin: Origin = "mri",
+              replaced_as: str = "replaced") -> Changes:
         """Changes that start task ``name`` given the current ``routes``/``modes``; KeyError if unknown."""
         t = self.tasks[name]
         task = TaskInfo(id=self.next_id, name=name, task_type=t.type, kind=kind_of(params) if params else "",
                         params=params, started=now, origin=origin)
         self.next_id += 1
-        restore = (self.end(t.type, now, "replaced", f"replaced by task {task.id} ({name})")
+        restore = (self.end(t.type, now, replaced_as, f"{replaced_as} by task {task.id} ({name})")
                    if t.type in self._running else Changes())
         base_routes = {**routes, **restore.routes}
         base_modes = {**modes, **restore.modes}

@@ -140,7 +140,7 @@ class Ral(Module):
         # the manager's task book as last seen (a view: never changed here, only replaced by a newer one)
         self._epoch: float | None = None
         self._version = -1
-        self._running: dict[int, t.TaskInfo] = {}
+        self._live: dict[int, t.TaskInfo] = {}
         self._finished: set[int] = set()
         self._progress: dict[int, Progress] = {}
         self._seen_errors = 0.0
@@ -256,10 +256,10 @@ class Ral(Module):
         out: list[tuple[str, t.TaskInfo, str]] = []
         with self.lock:
             if self._epoch is not None and epoch != self._epoch:
-                for info in self._running.values():
+                for info in self._live.values():
                     out.append(("task_failed", info, "Module Manager restarted: the task was lost"))
                     self._finished.add(info.id)
-                self._running.clear()
+                self._live.clear()
                 self._progress.clear()
                 self._version = -1
             self._epoch = epoch
@@ -271,17 +271,17 @@ class Ral(Module):
                     if info.id in self._finished:
                         continue
                     self._finished.add(info.id)
-                    self._running.pop(info.id, None)
+                    self._live.pop(info.id, None)
                     self._progress.pop(info.id, None)
                     out.append((END_EVENTS[info.status], info, info.detail))
                 for info in active:
-                    if info.id not in self._running and info.id not in self._finished:
-                        self._running[info.id] = info
+                    if info.id not in self._live and info.id not in self._finished:
+                        self._live[info.id] = info
                         self._progress[info.id] = Progress(started=self.clock())
                         out.append(("task_accepted", info, f"{info.kind or '-'} as {info.name} ({info.origin})"))
-                gone = set(self._running) - {i.id for i in active}
+                gone = set(self._live) - {i.id for i in active}
                 for task_id in gone:  # ended but no longer in the bounded history
-                    info = self._running.pop(task_id)
+                    info = self._live.pop(task_id)
                     self._progress.pop(task_id, None)
                     self._finished.add(task_id)
                     out.append(("task_cancelled", info, "ended (no record of how)"))
@@ -329,7 +329,7 @@ class Ral(Module):
             if tel.airborne is False and tel.position is not None:
                 self.home = tel.position
             verdicts = []
-            for task_id, info in self._running.items():
+            for task_id, info in self._live.items():
                 v = judge(info, self._progress[task_id], tel, self.home, self.limits, self.judge_cfg, now)
                 self._progress[task_id] = v.progress
                 if v.status != "running":
@@ -345,7 +345,7 @@ class Ral(Module):
             return
         self._seen_errors = max(e.stamp for e in fresh)
         with self.lock:
-            running = list(self._running.values())
+            running = list(self._live.values())
         for info in running:
             for e in fresh:
                 if info.task_type in serves.get(e.module, set()) and e.stamp >= info.started:
@@ -358,7 +358,7 @@ class Ral(Module):
         ms = self._manager_state
         errors = sorted([*(ms.errors if ms else []), *self._error_log], key=lambda e: e.stamp)[-MAX_ERRORS:]
         with self.lock:
-            tasks = sorted(self._running.values(), key=lambda i: i.task_type)
+            tasks = sorted(self._live.values(), key=lambda i: i.task_type)
             kinds = available_kinds(self.available, self.task_names)
         state = gri.GriState(
             robot=self.robot,
@@ -491,23 +491,27 @@ class Ral(Module):
             self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
 
     def _abort(self) -> gri.TaskReply:
-        """The manifest's ``abort`` task if it has one (empties both queues, stops motion), then end the rest."""
+        """The manifest's ``abort`` task if it has one (empties both queues, stops motion; the task it replaces
+        ends as aborted), then every other task ends as aborted; the abort task ends once done (the robot holds)."""
         abort_name = self.task_names.get("abort", "abort")
         abort_type = self.available.get(abort_name)
         problems = []
+        abort_id = 0
         if abort_type is not None:
-            reply = self._mri("task", mri.SetTask(name=abort_name, origin="gcs"))
+            reply = self._mri("task", mri.SetTask(name=abort_name, origin="gcs", replaced_as="aborted"))
             if reply is None or not reply.ok:
                 problems.append(f"abort task: {'no reply' if reply is None else reply.reason}")
+            elif isinstance(reply.data, mri.TaskList):
+                abort_id = next((i.id for i in reply.data.active if i.task_type == abort_type), 0)
         with self.lock:
-            others = sorted({i.task_type for i in self._running.values() if i.task_type != abort_type})
+            others = sorted({i.task_type for i in self._live.values() if i.task_type != abort_type})
         for task_type in others:
             reply = self._mri("task", mri.EndTask(task_type=task_type, status="aborted", detail="abort"))
             if reply is None or not reply.ok:
                 problems.append(f"end {task_type}: {'no reply' if reply is None else reply.reason}")
-        if abort_type is not None:
-            reply = self._mri("task", mri.EndTask(task_type=abort_type, status="aborted", detail="abort"))
-        self.emit("aborted", detail="; ".join(problems) or "every task ended, the robot holds")
+        if abort_id:
+            self._mri("task", mri.EndTask(task_type=str(abort_type), task_id=abort_id, status="completed",
+                                          detail="abort done: both waypoint queues empty, the robot holds"))
         if problems:
             return gri.TaskReply(accepted=False, reason="abort incomplete: " + "; ".join(problems))
         return gri.TaskReply(accepted=True)

@@ -73,6 +73,8 @@ class SetTask(msgspec.Struct, frozen=True, kw_only=True, tag=True):
     name: str
     params: TaskParams | None = None
     origin: Origin = "mri"
+    replaced_as: Literal["replaced", "aborted"] = "replaced"
+    """How the task it replaces is recorded as having ended (an abort ends it as ``aborted``)."""
 
 
 class EndTask(msgspec.Struct, frozen=True, kw_only=True, tag=True):
