@@ -112,8 +112,14 @@ class Gcs:
         self._subs: list[Subscription] = []
         if isinstance(link, str):
             raise TypeError("link takes a list of robot names")
-        self.linked = [keys.validate_name(r, "robot name") for r in link]
-        if self.linked:
+        self.linked: list[str] = []
+        for robot in link:
+            self.hold_link(robot)
+
+    def hold_link(self, robot: str) -> None:
+        """From now on this station is a ground station of ``robot`` (its failsafe counts it)."""
+        self.linked.append(keys.validate_name(robot, "robot name"))
+        if self._token is None:
             self._token = self.session.liveliness().declare_token(gri.gcs_alive_key(self.name))
             self._hb_pub = self.session.declare_publisher(gri.gcs_heartbeat_key(self.name))
             self._beat = threading.Thread(target=self._heartbeat, name="gcs.heartbeat", daemon=True)
@@ -123,7 +129,8 @@ class Gcs:
         seq = 0
         while not self._stop.is_set():
             seq += 1
-            self._hb_pub.put(gri.encode(gri.GcsHeartbeat(gcs=self.name, seq=seq, stamp=time.time(), robots=list(self.linked))))
+            beat = gri.GcsHeartbeat(gcs=self.name, seq=seq, stamp=time.time(), robots=list(self.linked))
+            self._hb_pub.put(gri.encode(beat))
             self._stop.wait(HEARTBEAT_S)
 
     def close(self) -> None:
@@ -210,6 +217,10 @@ class Gcs:
 
     def errors(self, robot: str) -> list[gri.ErrorRecord]:
         return self.state(robot).errors
+
+    def restart(self, robot: str, module: str) -> gri.TaskReply:
+        """Restart one module; its running tasks fail with that reason."""
+        return self.send(robot, gri.RestartModule(module=module))
 
     # ------------------------------------------------------------ tasks
 

@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 import msgspec
 import zenoh
 
+from bbcs.contracts import mri
 from bbcs.robot import RobotTelemetry
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from bbcs.contracts import mri
 from module_manager.manifest import TaskDef
 from module_manager.tasks import TaskBook
 

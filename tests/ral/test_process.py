@@ -18,12 +18,11 @@ import pytest
 
 from bbcs import keys
 from bbcs.context import ModuleContext
+from bbcs.contracts import gri, mri
 from bbcs.robot import GeoPoint, RobotTelemetry
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
-from bbcs.contracts import mri
 from modules.path_follower.structs import DatosSegCam
-from bbcs.contracts import gri
 from ral.gcs.api import Gcs
 from ral.process import Ral
 
