@@ -31,10 +31,9 @@ import msgspec
 from benchlib import ROOT, pct, write_results
 
 from bbcs import keys
+from bbcs.contracts import gri, mri
 from bbcs.testing import free_port
-from bbcs.contracts import mri
 from modules.dsp import protocol as p
-from bbcs.contracts import gri
 from ral.gcs.api import Gcs, session_config
 
 ROBOT = "uav1"

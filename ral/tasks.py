@@ -22,7 +22,8 @@ from bbcs.contracts import tasks as t
 from bbcs.robot import GeoPoint, RobotTelemetry
 
 EARTH_RADIUS_M = 6_371_000.0
-PATH_KINDS = ("goto", "follow_path")
+HEADING_TASK = "follow_path_heading"
+"""The manifest task a follow_path with a heading runs (path mode 1, HEADING routed to the RAL)."""
 MIN_PROGRESS_M = 0.5
 """Movement smaller than this (towards the target, or in altitude) is not progress."""
 
@@ -98,9 +99,13 @@ def admit(request: t.TaskParams, *, available: dict[str, str], task_names: dict[
     """Check a decoded task against the robot; nothing changes here."""
     kind = t.kind_of(request)
     name = task_names.get(kind, kind)
+    if isinstance(request, t.FollowPath) and request.heading is not None:
+        name = task_names.get(HEADING_TASK, HEADING_TASK)
     if not available:
         return Rejected("the robot's task list is unknown (Module Manager not answering)")
     task_type = available.get(name)
+    if task_type is None and name == task_names.get(HEADING_TASK, HEADING_TASK):
+        return Rejected(f"follow_path with a heading: this robot has no {HEADING_TASK!r} task (path mode 1)")
     if task_type is None:
         offered = ", ".join(sorted(available_kinds(available, task_names))) or "none"
         return Rejected(f"this robot has no task {kind!r} (it offers: {offered})")

@@ -126,6 +126,31 @@ class GriState(msgspec.Struct, frozen=True, kw_only=True):
     manager_up: bool = False
     """A Module Manager state arrived recently."""
 
+    # views of the telemetry (not encoded: the telemetry is the one copy)
+    @property
+    def position(self) -> GeoPoint | None:
+        return self.telemetry.position if self.telemetry else None
+
+    @property
+    def airborne(self) -> bool | None:
+        return self.telemetry.airborne if self.telemetry else None
+
+    @property
+    def waypoints_queued(self) -> int | None:
+        return self.telemetry.waypoints_queued if self.telemetry else None
+
+    @property
+    def pan_deg(self) -> float | None:
+        return self.telemetry.pan_deg if self.telemetry else None
+
+    @property
+    def tilt_deg(self) -> float | None:
+        return self.telemetry.tilt_deg if self.telemetry else None
+
+    @property
+    def mode(self) -> int | None:
+        return self.telemetry.mode if self.telemetry else None
+
 
 EventKind = Literal[
     "task_accepted",

@@ -13,8 +13,8 @@ import msgspec
 import pytest
 
 from bbcs import keys
+from bbcs.contracts import mri
 from bbcs.testing import wait_until
-from module_manager import mri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_support import Launch, group_members, write_manifest  # noqa: E402

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import msgspec
 
-from bbcs.testing import wait_until
 from bbcs.contracts import gri
+from bbcs.testing import wait_until
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402

@@ -11,8 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from bbcs.testing import child_env, wait_until
 from bbcs.contracts import gri
+from bbcs.testing import child_env, wait_until
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402
