@@ -34,12 +34,16 @@ from bbcs.contracts import tasks as t
 from bbcs.module import Module
 from bbcs.robot import GeoPoint, RobotTelemetry
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
+from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE
+from modules.dsp.errors import LinkErrorCode
 from modules.pan_tilt.structs import DatosPT
 from modules.path_follower.structs import DatoPuntoSegCam, DatosSegCam, HeadingSegCam, RefsSegCam, SpeedSegCam
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.tasks import JudgeConfig, Limits, Plan, Progress, Rejected, admit, available_kinds, judge, load_limits
 
 MAX_ERRORS = 20
+HARMLESS_CODES = frozenset({FORWARDED_DSP_ERROR_BASE + LinkErrorCode.FLUSHED})
+"""Module errors that do not affect a running task (unsent commands dropped because an abort overtook them)."""
 MANAGER_STALE_S = 3.0
 TASKS_REFRESH_S = 1.0
 
@@ -340,7 +344,7 @@ class Ral(Module):
     def _check_errors(self, ms: mri.RobotState) -> None:
         """A module error after a task started fails the running tasks of the types that module serves."""
         serves = {m.name: set(m.task_types) for m in ms.modules}
-        fresh = [e for e in ms.errors if e.stamp > self._seen_errors]
+        fresh = [e for e in ms.errors if e.stamp > self._seen_errors and e.code not in HARMLESS_CODES]
         if not fresh:
             return
         self._seen_errors = max(e.stamp for e in fresh)

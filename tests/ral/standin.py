@@ -82,6 +82,14 @@ class StandIn:
                                               ended=list(self.book.ended), task_version=self.book.version,
                                               task_epoch=self.epoch))
 
+    def publish_state(self, modules: list[mri.ModuleStatus] | None = None,
+                      errors: list[mri.ErrorEvent] | None = None) -> None:
+        assert self.state_pub is not None
+        self.state_pub.publish(mri.RobotState(robot=ROBOT, kind="uav", stamp=1.0, telemetry=self.tel,
+                                              modules=modules or [], errors=errors or [], tasks=self.book.active(),
+                                              ended=list(self.book.ended), task_version=self.book.version,
+                                              task_epoch=self.epoch))
+
     def end_tasks(self) -> list[mri.EndTask]:
         return [r for r in self.requests if isinstance(r, mri.EndTask)]
 

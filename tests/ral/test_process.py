@@ -223,3 +223,27 @@ def test_link_loss_runs_the_failsafe_and_regain_does_not_resume(rig: Rig) -> Non
 def test_robots_lists_the_ral(rig: Rig) -> None:
     assert rig.gcs.robots() == [ROBOT]
     assert rig.gcs.state(ROBOT).robot == ROBOT
+
+
+def test_a_lost_effect_fails_the_task_with_a_reason(rig: Rig) -> None:
+    """Supervision: a module error after the task started, and a manager restart (new task-book epoch)."""
+    goto = rig.gcs.send(ROBOT, ten_waypoints())
+    assert goto.accepted
+    rig.manager.publish_state(
+        modules=[mri.ModuleStatus(name="path_follower", state="up", task_types=["movement"])],
+        errors=[mri.ErrorEvent(module="path_follower", code=1007, stamp=10.0, name="DSP_LOW_BATTERY")],
+    )
+    wait_until(lambda: any(e.kind == "task_failed" and e.task_id == goto.task_id for e in list(rig.events)),
+               what="task_failed after a module error")
+    failed = next(e for e in rig.events if e.kind == "task_failed")
+    assert "path_follower" in failed.detail and "1007" in failed.detail
+    assert rig.manager.end_tasks()[-1].status == "failed" and rig.manager.end_tasks()[-1].task_id == goto.task_id
+    look = rig.gcs.send(ROBOT, gri.LookAt(lat=37.41, lon=-6.0, alt=12.0))
+    assert look.accepted
+    rig.manager.epoch = 2.0  # the manager restarted: its book no longer holds the look_at
+    rig.manager.book = type(rig.manager.book)(rig.manager.book.tasks)
+    rig.manager.publish_state()
+    wait_until(lambda: any(e.kind == "task_failed" and e.task_id == look.task_id for e in list(rig.events)),
+               what="task_failed after a manager restart")
+    assert "Module Manager restarted" in next(e for e in rig.events if e.task_id == look.task_id
+                                              and e.kind == "task_failed").detail

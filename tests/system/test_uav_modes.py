@@ -27,7 +27,8 @@ PF = "path_follower"
 # far waypoints (≈ 1 km north of home): queued, never reached while a test looks at the queue
 POINTS = [DatoPuntoSegCam(latitud=37.4217 + i * 1e-4, longitud=-6.0025, altura=30.0) for i in range(3)]
 PATH = DatosSegCam(n_points=len(POINTS), puntos=POINTS)
-WAYPOINTS = [p.AddWaypoint(lat=pt.latitud, lon=pt.longitud, alt=pt.altura) for pt in POINTS]
+WAYPOINTS = [p.InvalidatePath(), *(p.AddWaypoint(lat=pt.latitud, lon=pt.longitud, alt=pt.altura) for pt in POINTS)]
+"""A path replaces the DSP's queue: emptied (acknowledged) first, then every waypoint."""
 REFS = RefsSegCam(
     ref_altura=30.0, error_longitudinal=2.0, error_lateral=-1.0, ref_heading=0.25, ref_rpm_motor=1500.0
 )
