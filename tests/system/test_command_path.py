@@ -343,3 +343,27 @@ def test_case10_every_offered_task_can_be_sent_and_is_seen_whoever_started_it(ma
     assert stop.ok, stop.reason
     refused = robot.gcs.send(ROBOT, t.SetPanTilt(pan=1.0, tilt=1.0))
     assert not refused.accepted and "needs module pan_tilt, which is stopped" in refused.reason
+
+
+# ------------------------------------------------------------------ case 11 on the launched robot (the race with
+# an injected delay is in test_mode_data_order.py)
+
+
+def test_case11_look_at_after_angles_never_sends_angles_under_the_old_mode(make_robot: Factory) -> None:
+    robot = make_robot()
+    reply = robot.gcs.send(ROBOT, t.SetPanTilt(pan=30.0, tilt=-20.0))
+    assert reply.accepted, reply.reason
+    wait_until(lambda: "SET_PT_ANGLES" in names(robot.commands()), 20, "angles at the DSP")
+    for _ in range(5):  # look_at and back, a few times: every time, mode first, then the datum it governs
+        mark = len(robot.commands())
+        look = robot.gcs.send(ROBOT, t.LookAt(lat=37.4127, lon=-6.0025, alt=HOME_ALT))
+        assert look.accepted, look.reason
+        wait_until(lambda m=mark: "SET_PT_TARGET" in names(robot.commands()[m:]), 20, "the target at the DSP")
+        sent = names(robot.commands()[mark:])
+        assert sent.index("SET_PT_MODE") < sent.index("SET_PT_TARGET") and "SET_PT_ANGLES" not in sent, sent
+        mark = len(robot.commands())
+        back = robot.gcs.send(ROBOT, t.SetPanTilt(pan=10.0, tilt=-10.0))
+        assert back.accepted, back.reason
+        wait_until(lambda m=mark: "SET_PT_ANGLES" in names(robot.commands()[m:]), 20, "angles at the DSP")
+        sent = names(robot.commands()[mark:])
+        assert sent.index("SET_PT_MODE") < sent.index("SET_PT_ANGLES") and "SET_PT_TARGET" not in sent, sent

@@ -132,7 +132,13 @@ class SimRobot:
             "take-off completed",
             after=start,
         )
-        return self.wait_state(lambda s: bool(s.airborne), 15, "airborne")
+        # the GRI state's telemetry comes with the manager's state, later than the event: wait for the height
+        return self.wait_state(
+            lambda s: bool(s.airborne) and s.position is not None and s.home is not None
+            and s.position.alt >= s.home.alt + height - 2.0,
+            15,
+            "airborne at the take-off height",
+        )
 
 
 GRID_DEG = 1e-4

@@ -218,11 +218,12 @@ def test_path_reaches_the_dsp_in_modes_0_and_1_only(stack: Stack) -> None:
     stack.send("path", PATH)
     stack.expect(mark, WAYPOINTS, "path in mode 1")
     stack.wait_state("path in mode 1", mode=1, path_valid=True, queue=3)
-    enter(stack, 0, "mode 0 after mode 1")  # keeps the queued path and adds to it
+    enter(stack, 0, "mode 0 after mode 1")  # keeps the queued path until a new one replaces it
+    stack.wait_state("mode 0 keeps the path", mode=0, tracking=True, path_valid=True, queue=3)
     mark = stack.mark()
     stack.send("path", PATH)
     stack.expect(mark, WAYPOINTS, "path in mode 0")
-    stack.wait_state("path in mode 0", mode=0, tracking=True, path_valid=True, queue=6)
+    stack.wait_state("a new path replaces the queue", mode=0, tracking=True, path_valid=True, queue=3)
 
 
 def test_refs_reach_the_dsp_in_mode_6_only(stack: Stack) -> None:
