@@ -151,6 +151,10 @@ class GriState(msgspec.Struct, frozen=True, kw_only=True):
     def mode(self) -> int | None:
         return self.telemetry.mode if self.telemetry else None
 
+    @property
+    def heading_deg(self) -> float | None:
+        return self.telemetry.heading_deg if self.telemetry else None
+
 
 EventKind = Literal[
     "task_accepted",
