@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
             reply = gcs.send(ROBOT, wait_list)
             if not reply.accepted:
                 raise RuntimeError(f"path task rejected: {reply.reason}")
-            watch.wait(lambda q: q > 0, t_task)
+            watch.wait(lambda q: q > 0, t_task, 15.0)
             # replace: a new movement task mid-path, until the DSP queue holds only the new path
             t0 = time.monotonic()
             reply = gcs.send(ROBOT, other)
