@@ -587,6 +587,7 @@ class Manager:
         wanted = msgspec.to_builtins(struct)
         with self.lock:
             self._mode_acks[mode.module] = None
+            previous = self.modes.get(slot)
             self._mode_pubs[slot].publish(struct)
             self.modes[slot] = dict(value)
             mod = self.modules.get(mode.module)
@@ -599,9 +600,11 @@ class Manager:
                     if ack.accepted:
                         return True, "", None
                     why = f"module {mode.module} refused mode {wanted}: error {ack.code}: {ack.reason}"
+                    self.modes[slot] = previous  # the module kept its mode
                     return False, why, ack.code
                 left = end - self.clock()
                 if left <= 0 or not mod.sup.running:
+                    self.modes[slot] = previous
                     return False, f"module {mode.module} did not answer mode {wanted} within {ACK_TIMEOUT_S:g} s", None
                 self.changed.wait(min(left, 0.1))
 
@@ -609,7 +612,9 @@ class Manager:
         ok, why = self.apply_routes(dict(changes.routes))
         code = None
         for slot, value in changes.modes.items():
-            if value is not None:
+            with self.lock:
+                same = value is not None and self.modes.get(slot) == value
+            if value is not None and not same:  # the module already runs this mode (a restart gets it again)
                 mode_ok, mode_why, mode_code = self.publish_mode(slot, value)
                 if not mode_ok:
                     ok, why, code = False, "; ".join(w for w in (why, mode_why) if w), mode_code
