@@ -612,9 +612,7 @@ class Manager:
         ok, why = self.apply_routes(dict(changes.routes))
         code = None
         for slot, value in changes.modes.items():
-            with self.lock:
-                same = value is not None and self.modes.get(slot) == value
-            if value is not None and not same:  # the module already runs this mode (a restart gets it again)
+            if value is not None:  # always sent: what the mode set up below (the DSP) may have been lost since
                 mode_ok, mode_why, mode_code = self.publish_mode(slot, value)
                 if not mode_ok:
                     ok, why, code = False, "; ".join(w for w in (why, mode_why) if w), mode_code
