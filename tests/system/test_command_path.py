@@ -144,8 +144,9 @@ def test_case2_return_failsafe_empties_the_mission_and_flies_home(make_robot: Fa
     assert abs(added[0]["fields"]["lat"] - home.lat) < 1e-4 and abs(added[0]["fields"]["lon"] - home.lon) < 1e-4
     done = ended(robot, back.task_id, 60, start)
     assert done.kind == "task_completed", done
-    end = robot.state
-    assert end.position is not None and abs(end.position.lat - home.lat) * M_PER_DEG < 8.0
+    # the GRI state's telemetry lags the event (it comes with the manager's state): wait for it with a deadline
+    robot.wait_state(lambda s: s.position is not None and abs(s.position.lat - home.lat) * M_PER_DEG < 8.0
+                     and abs(s.position.lon - home.lon) * M_PER_DEG < 8.0, 15, "the aircraft home")
 
 
 # ------------------------------------------------------------------ case 3: every path flies at a known speed
