@@ -23,9 +23,9 @@ from pathlib import Path
 
 from benchlib import ROOT, pct, write_results
 
+from bbcs.contracts import mri
 from bbcs.session import local_client, open_session
 from bbcs.testing import child_env, free_port
-from module_manager import mri
 
 PROBE = ROOT / "tests" / "module_manager"
 

@@ -128,7 +128,7 @@ def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
 
 
 def flight(tmp: Path, side: float) -> dict:
-    from ral import gri
+    from bbcs.contracts import gri
     from ral.gcs.api import Gcs, session_config
 
     launch = Launch(manifest(tmp), tmp / "logs_rt")

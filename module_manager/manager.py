@@ -27,6 +27,7 @@ import zenoh
 
 from bbcs import keys
 from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
+from bbcs.contracts import mri
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.module import Heartbeat
@@ -34,7 +35,7 @@ from bbcs.net import free_port, wait_tcp
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import mri, secure
+from module_manager import secure
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
 from module_manager.process import Child, stop_children
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor
@@ -117,10 +118,14 @@ class Manager:
         self.modules = {name: _Module(info, Supervisor(info.policy, needs_ack=bool(info.inputs)))
                         for name, info in manifest.modules.items()}
         self.tasks = TaskBook(manifest.tasks)
+        self.task_uses = task_modules(manifest)
         self.modes: dict[str, dict[str, int] | None] = {
             name: (msgspec.to_builtins(m.initial) if m.initial is not None else None)
             for name, m in manifest.modes.items()}
         self.telemetry: RobotTelemetry | None = None
+        self._mode_acks: dict[str, mri.ModeAck | None] = {}
+        self._mode_ack_decode = msgspec.msgpack.Decoder(mri.ModeAck).decode
+        self.epoch = time.time()
         self.errors: deque[mri.ErrorEvent] = deque(maxlen=MAX_ERRORS)
         self.router: Child | None = None
         self.processes: dict[str, Child] = {}
@@ -225,6 +230,10 @@ class Manager:
                 self._publishers.append(mod.control)
                 self._publish_control(mod)
         for name, mode in self.m.modes.items():
+            if mode.ack:
+                self._entities.append(s.declare_subscriber(
+                    keys.slot_key(robot, mode.module, mri.MODE_ACK_SLOT),
+                    lambda smp, n=mode.module: self._on_mode_ack(n, _bytes(smp))))
             spec = SlotSpec(name, mode.type, Direction.OUT, Kind.STATE, Safety.SAFE)
             pub = self._mode_pubs[name] = Publisher(s, keys.slot_key(robot, MANAGER_MODULE, name), spec)
             self._publishers.append(pub)
@@ -271,6 +280,15 @@ class Manager:
             matches = ack.accepted and all(ack.routes.get(i) == n for i, n in mod.routes.items())
             mod.sup.routes_acknowledged(self.clock(), matches)
             self._touch()
+
+    def _on_mode_ack(self, name: str, payload: bytes) -> None:
+        try:
+            ack = self._mode_ack_decode(payload)
+        except msgspec.MsgspecError:
+            return
+        with self.lock:
+            self._mode_acks[name] = ack
+            self.changed.notify_all()
 
     def _on_beat(self, name: str, payload: bytes) -> None:
         try:
@@ -353,6 +371,8 @@ class Manager:
                         child.close()
                         mod.child = None
                         mod.sup.exited(now, code)
+                        self._fail_tasks_using(mod.info.name, f"module {mod.info.name} exited ({code}): "
+                                                              "the task's effect is lost")
                         self._touch()
                     elif mod.kill_deadline is not None and now > mod.kill_deadline:
                         child.signal(signal.SIGKILL)
@@ -366,6 +386,13 @@ class Manager:
                 self.all_up_at = now
                 self.out(f"all {len(self.modules)} modules up in {now - self.t0:.2f} s")
                 self.print_status()
+
+    def _fail_tasks_using(self, module: str, detail: str) -> None:
+        """A module the running tasks rely on went down: those tasks end as failed (their routes/modes restored
+        off the main thread, which must not wait for acknowledgements)."""
+        for changes in self.tasks.fail_needing({module}, self.task_uses, time.time(), detail):
+            threading.Thread(target=self.apply_changes, args=(changes,), name="task-fail", daemon=True).start()
+        self._touch()
 
     def _report_changes(self) -> None:
         for name, mod in self.modules.items():
@@ -405,7 +432,8 @@ class Manager:
         with self.lock:
             return mri.RobotState(robot=self.m.robot, kind=self.m.kind, stamp=time.time(), telemetry=self.telemetry,
                                   modules=[self.module_status(n) for n in self.modules], tasks=self.tasks.active(),
-                                  errors=list(self.errors))
+                                  ended=list(self.tasks.ended), task_version=self.tasks.version,
+                                  task_epoch=self.epoch, errors=list(self.errors))
 
     # ------------------------------------------------------------------------------------------ main loop
 
@@ -553,19 +581,43 @@ class Manager:
                     return False, f"no route acknowledgement within {ACK_TIMEOUT_S:g} s (module {mod.sup.state})"
                 self.changed.wait(min(left, 0.1))
 
-    def publish_mode(self, slot: str, value: dict[str, int]) -> None:
+    def publish_mode(self, slot: str, value: dict[str, int]) -> tuple[bool, str, int | None]:
+        """Publish a mode; when its module answers modes (``ack``), wait for the answer: (ok, why, code)."""
         mode = self.m.modes[slot]
         struct = msgspec.convert(value, mode.type)
-        self._mode_pubs[slot].publish(struct)
+        wanted = msgspec.to_builtins(struct)
         with self.lock:
+            self._mode_acks[mode.module] = None
+            previous = self.modes.get(slot)
+            self._mode_pubs[slot].publish(struct)
             self.modes[slot] = dict(value)
+            mod = self.modules.get(mode.module)
+            if not mode.ack or mod is None or mod.sup.phase is not Phase.UP:
+                return True, "", None
+            end = self.clock() + ACK_TIMEOUT_S
+            while True:
+                ack = self._mode_acks.get(mode.module)
+                if ack is not None and ack.mode == wanted:
+                    if ack.accepted:
+                        return True, "", None
+                    why = f"module {mode.module} refused mode {wanted}: error {ack.code}: {ack.reason}"
+                    self.modes[slot] = previous  # the module kept its mode
+                    return False, why, ack.code
+                left = end - self.clock()
+                if left <= 0 or not mod.sup.running:
+                    self.modes[slot] = previous
+                    return False, f"module {mode.module} did not answer mode {wanted} within {ACK_TIMEOUT_S:g} s", None
+                self.changed.wait(min(left, 0.1))
 
-    def apply_changes(self, changes: Changes) -> tuple[bool, str]:
+    def apply_changes(self, changes: Changes) -> tuple[bool, str, int | None]:
         ok, why = self.apply_routes(dict(changes.routes))
+        code = None
         for slot, value in changes.modes.items():
-            if value is not None:
-                self.publish_mode(slot, value)
-        return ok, why
+            if value is not None:  # always sent: what the mode set up below (the DSP) may have been lost since
+                mode_ok, mode_why, mode_code = self.publish_mode(slot, value)
+                if not mode_ok:
+                    ok, why, code = False, "; ".join(w for w in (why, mode_why) if w), mode_code
+        return ok, why, code
 
     # ------------------------------------------------------------------------------------------ MRI
 
@@ -620,10 +672,10 @@ class Manager:
         if slot is None:
             return mri.MriReply(ok=False, reason=f"no mode slot drives module {req.module!r}")
         try:
-            self.publish_mode(slot, req.mode)
+            ok, why, code = self.publish_mode(slot, req.mode)
         except msgspec.ValidationError as exc:
             return mri.MriReply(ok=False, reason=f"mode for {req.module!r} refused: {exc}")
-        return mri.MriReply(ok=True)
+        return mri.MriReply(ok=ok, reason=why, code=code)
 
     def route_list(self) -> mri.RouteList:
         with self.lock:
@@ -632,7 +684,9 @@ class Manager:
 
     def task_list(self) -> mri.TaskList:
         with self.lock:
-            return mri.TaskList(active=self.tasks.active(), available={n: t.type for n, t in self.m.tasks.items()})
+            return mri.TaskList(active=self.tasks.active(), ended=list(self.tasks.ended),
+                                available={n: t.type for n, t in self.m.tasks.items()}, version=self.tasks.version,
+                                epoch=self.epoch)
 
     def module_command(self, req: mri.ModuleCommand) -> mri.MriReply:
         with self.lock:
@@ -659,25 +713,52 @@ class Manager:
                             data=status)
 
     def task_request(self, req: mri.SetTask | mri.EndTask) -> mri.MriReply:
+        """Start or end a task in the task book (the only one), then apply its routes and modes."""
         with self.lock:
             routes = {(n, i): v for n, m in self.modules.items() for i, v in m.routes.items()}
             modes = dict(self.modes)
-            try:
-                if isinstance(req, mri.SetTask):
-                    if req.name not in self.m.tasks:
-                        known = ", ".join(self.m.tasks) or "none"
-                        return mri.MriReply(ok=False, reason=f"unknown task {req.name!r} (tasks: {known})")
-                    changes = self.tasks.start(req.name, req.params, time.time(), routes, modes)
-                else:
-                    if req.task_type not in self.m.task_types:
-                        return mri.MriReply(ok=False, reason=f"unknown task type {req.task_type!r}")
-                    changes = self.tasks.end(req.task_type)
-            except KeyError:
-                return mri.MriReply(ok=False, reason=f"no {getattr(req, 'task_type', '')} task is running",
-                                    data=self.task_list())
+            now = time.time()
+            if isinstance(req, mri.SetTask):
+                if req.name not in self.m.tasks:
+                    known = ", ".join(self.m.tasks) or "none"
+                    return mri.MriReply(ok=False, reason=f"unknown task {req.name!r} (tasks: {known})")
+                for name in sorted(self.task_uses.get(req.name, set())):
+                    sup = self.modules[name].sup
+                    if sup.phase is not Phase.UP:
+                        why = f": {sup.reason}" if sup.reason else ""
+                        return mri.MriReply(ok=False, reason=f"task {req.name!r} needs module {name}, which is "
+                                                             f"{sup.state}{why}", data=self.task_list())
+                changes = self.tasks.start(req.name, req.params, now, routes, modes, req.origin, req.replaced_as)
+            else:
+                if req.task_type not in self.m.task_types:
+                    return mri.MriReply(ok=False, reason=f"unknown task type {req.task_type!r}")
+                running = self.tasks.running(req.task_type)
+                if running is None or (req.task_id and running.id != req.task_id):
+                    what = f"task {req.task_id}" if req.task_id else f"{req.task_type} task"
+                    return mri.MriReply(ok=False, reason=f"no {what} is running", data=self.task_list())
+                changes = self.tasks.end(req.task_type, now, req.status, req.detail)
             self._touch()
-        ok, why = self.apply_changes(changes)
-        return mri.MriReply(ok=ok, reason=why, data=self.task_list())
+        ok, why, code = self.apply_changes(changes)
+        if not ok and isinstance(req, mri.SetTask):
+            with self.lock:  # refused: the task never ran; what it changed is put back
+                task = self.tasks.running(self.m.tasks[req.name].type)
+                undo = self.tasks.end(task.task_type, time.time(), "failed", why) if task is not None else None
+                self._touch()
+            if undo is not None:
+                self.apply_changes(undo)
+        return mri.MriReply(ok=ok, reason=why, code=code, data=self.task_list())
+
+
+def task_modules(manifest: Manifest) -> dict[str, set[str]]:
+    """Manifest task → the modules its effect relies on: those its routes and modes drive, and those that declare
+    its task type (``task_types`` of a module entry)."""
+    out: dict[str, set[str]] = {}
+    for name, t in manifest.tasks.items():
+        used = {target.partition(".")[0] for target in t.routes}
+        used |= {manifest.modes[slot].module for slot in t.modes if slot in manifest.modes}
+        used |= {m for m, info in manifest.modules.items() if t.type in info.spec.task_types}
+        out[name] = used & set(manifest.modules)
+    return out
 
 
 def _bytes(sample: zenoh.Sample) -> bytes:

@@ -154,6 +154,10 @@ class ModeDef(_Section):
     module: str
     """The module this mode slot drives (``SetModuleMode.module``)."""
     initial: dict[str, int] | None = None
+    ack: bool = False
+    """The module answers every mode on its ``mode_ack`` slot (:class:`bbcs.contracts.mri.ModeAck`): the manager
+    waits for that answer before it replies, so a refused mode is reported and data sent after the reply are
+    handled under the new mode (docs/bus.md, "Mode and data in order")."""
 
 
 class TaskDef(_Section):
@@ -201,6 +205,7 @@ class ModeSlot:
     type: type[msgspec.Struct]
     module: str
     initial: msgspec.Struct | None
+    ack: bool = False
 
 
 @dataclass(frozen=True)
@@ -470,7 +475,7 @@ class _Checker:
                 raise self.fail(f"{key}.type", f"slot {number} ({MANAGER_MODULE}/{m.slot}) is declared as "
                                                f"{table.slots[number].type} in the slot table, not {type_name(cls)}")
             initial = None if m.initial is None else self.convert(m.initial, cls, f"{key}.initial")
-            out[m.slot] = ModeSlot(name=m.slot, type=cls, module=m.module, initial=initial)
+            out[m.slot] = ModeSlot(name=m.slot, type=cls, module=m.module, initial=initial, ack=m.ack)
         return out
 
     def convert(self, value: dict[str, int], cls: type[msgspec.Struct], key: str) -> msgspec.Struct:

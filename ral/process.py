@@ -4,9 +4,14 @@ It is a bbcs :class:`~bbcs.module.Module` named ``ral`` so the manager launches 
 other module. Its own output slots carry the data a task needs (the manifest's task map routes the robot's
 modules to them): ``path`` (waypoints), ``speed``, ``pt_datos`` (pan & tilt angles or target point).
 
-One worker thread handles task queries and failsafe actions in arrival order, so a task is admitted, sent to
-the manager and recorded before the next one is looked at. The main loop's tick folds in the manager's robot
-state (completion detection), advances the link-loss failsafe and publishes the GRI state.
+The RAL keeps no task book: the Module Manager's is the only record of the running task of each type. The RAL
+translates a GRI task into an MRI ``SetTask`` carrying the task's typed parameters, and derives GRI events from
+the manager's task lists (its replies and its robot state), so a task started by anyone is shown and announced.
+
+One worker thread handles task queries and failsafe actions in arrival order. Data go out only after the
+manager's reply, which comes after the module answered the task's mode: the data are handled under that mode.
+The main loop's tick judges the running tasks against telemetry (complete, stalled), fails those a module
+error affects, advances the link-loss failsafe and publishes the GRI state.
 """
 
 from __future__ import annotations
@@ -22,18 +27,24 @@ import msgspec
 import zenoh
 import zenoh.ext
 
+from bbcs import keys
 from bbcs.context import ModuleContext
+from bbcs.contracts import gri, mri
+from bbcs.contracts import tasks as t
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import DatosPT
-from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam, SpeedSegCam
+from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam, HeadingSegCam, RefsSegCam, SpeedSegCam
+from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.module import Module
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
-from module_manager import mri
-from ral import gri
+from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE
+from modules.dsp.errors import LinkErrorCode
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
-from ral.tasks import Plan, QueueConfig, Rejected, TaskQueue
+from ral.tasks import JudgeConfig, Limits, Plan, Progress, Rejected, admit, available_kinds, judge, load_limits
 
 MAX_ERRORS = 20
+HARMLESS_CODES = frozenset({FORWARDED_DSP_ERROR_BASE + LinkErrorCode.FLUSHED})
+"""Module errors that do not affect a running task (unsent commands dropped because an abort overtook them)."""
 MANAGER_STALE_S = 3.0
 TASKS_REFRESH_S = 1.0
 
@@ -43,6 +54,8 @@ class RalErrorCode(enum.IntEnum):
     """The Module Manager did not answer an MRI request."""
     MRI_REFUSED = 602
     """The Module Manager refused a request the RAL had admitted."""
+    TASK_FAILED = 603
+    """A running task's effect was lost (module restart or error, no progress, manager restart)."""
 
 
 class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
@@ -56,6 +69,8 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     altitude_tolerance_m: float = 2.0
     settle_s: float = 2.0
     max_range_m: float = 20_000.0
+    stall_s: float = 30.0
+    """A movement task that makes no progress for this long fails (task_failed)."""
     return_height_m: float = 10.0
     """The ``return`` failsafe flies home at least this high above the take-off point."""
     mri_timeout_s: float = mri.REPLY_TIMEOUT_S
@@ -90,6 +105,7 @@ class Ral(Module):
     slots = (
         OutputSlot("path", DatosSegCam, kind=Kind.STREAM),
         OutputSlot("speed", SpeedSegCam),
+        OutputSlot("heading", HeadingSegCam),
         OutputSlot("pt_datos", DatosPT),
         OutputSlot("error", ErrorReport),
     )
@@ -98,17 +114,15 @@ class Ral(Module):
 
     def __init__(self, context: ModuleContext, clock: Any = time.time) -> None:
         super().__init__(context)
-        self.cfg, names = RalConfig.from_params(context.params)
+        self.cfg, self.task_names = RalConfig.from_params(context.params)
+        self.limits = load_limits(context.conf) if context.conf else Limits(max_speed=p_max_speed())
         self.clock = clock
-        self.queue = TaskQueue(
-            context.robot,
-            QueueConfig(
-                position_tolerance_m=self.cfg.position_tolerance_m,
-                altitude_tolerance_m=self.cfg.altitude_tolerance_m,
-                settle_s=self.cfg.settle_s,
-                max_range_m=self.cfg.max_range_m,
-            ),
-            task_names=names,
+        self.judge_cfg = JudgeConfig(
+            position_tolerance_m=self.cfg.position_tolerance_m,
+            altitude_tolerance_m=self.cfg.altitude_tolerance_m,
+            settle_s=self.cfg.settle_s,
+            stall_s=self.cfg.stall_s,
+            max_range_m=self.cfg.max_range_m,
         )
         self.link = LinkMonitor(
             FailsafeConfig(
@@ -118,17 +132,29 @@ class Ral(Module):
                 action=self.cfg.failsafe_action,
             )
         )
+        self.available: dict[str, str] = {}
+        """Manifest task → type, from the manager."""
+        self.telemetry: RobotTelemetry | None = None
+        self.home: GeoPoint | None = None
+        # the manager's task book as last seen (a view: never changed here, only replaced by a newer one)
+        self._epoch: float | None = None
+        self._version = -1
+        self._live: dict[int, t.TaskInfo] = {}
+        self._finished: set[int] = set()
+        self._progress: dict[int, Progress] = {}
+        self._seen_errors = 0.0
         self._jobs: queue.Queue[Any] = queue.Queue()
         self._bus_lock = threading.Lock()
         self._manager_state: mri.RobotState | None = None
         self._manager_seen = 0.0
         self._manager_new = False
         self._manager_up = False
-        self._error_log: deque[gri.ErrorRecord] = deque(maxlen=MAX_ERRORS)
+        self._error_log: deque[mri.ErrorEvent] = deque(maxlen=MAX_ERRORS)
         self._ral_entities: list[Any] = []
         self._worker: threading.Thread | None = None
         self._state_pub: Publisher[gri.GriState] | None = None
         self._event_pub: Publisher[gri.GriEvent] | None = None
+        self._refs_pub: Publisher[RefsSegCam] | None = None
         self._next_state = 0.0
         self._tasks_fetched = 0.0
 
@@ -146,6 +172,12 @@ class Ral(Module):
             s,
             gri.events_key(self.robot),
             SlotSpec("events", gri.GriEvent, Direction.OUT, Kind.STREAM, Safety.SAFE),
+        )
+        # REFS is not routed (the seed's CONTROL_ENTRADA has no field for it): written on the follower's own key
+        self._refs_pub = Publisher(
+            s,
+            keys.slot_key(self.robot, "path_follower", "refs"),
+            SlotSpec("refs", RefsSegCam, Direction.OUT, Kind.STATE, Safety.UNSAFE),
         )
         self._ral_entities = [
             zenoh.ext.declare_advanced_subscriber(
@@ -169,7 +201,7 @@ class Ral(Module):
         for entity in reversed(self._ral_entities):
             entity.undeclare()
         self._ral_entities.clear()
-        for pub in (self._state_pub, self._event_pub):
+        for pub in (self._state_pub, self._event_pub, self._refs_pub):
             if pub is not None:
                 pub.close()
 
@@ -185,16 +217,21 @@ class Ral(Module):
             self._manager_new = True
 
     def _on_gcs_token(self, sample: zenoh.Sample) -> None:
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
-        with self.lock:
-            self.link.token(name, sample.kind == zenoh.SampleKind.PUT)
+        if sample.kind != zenoh.SampleKind.PUT:  # a station that leaves stops linking every robot
+            name = str(sample.key_expr).rsplit("/", 1)[-1]
+            with self.lock:
+                self.link.token(name, False)
 
     def _on_gcs_heartbeat(self, sample: zenoh.Sample) -> None:
+        """A station links this robot only while its heartbeats name it (the link is per robot)."""
         try:
-            gri.decode_heartbeat(sample.payload.to_bytes())
+            beat = gri.decode_heartbeat(sample.payload.to_bytes())
         except msgspec.MsgspecError:
             return
+        if self.robot not in beat.robots:
+            return
         with self.lock:
+            self.link.token(beat.gcs, True)
             self.link.heartbeat(self.clock())
 
     def emit(self, kind: str, *, task_id: int = 0, task_type: str = "", detail: str = "") -> None:
@@ -211,32 +248,69 @@ class Ral(Module):
             with self._bus_lock:
                 self._event_pub.publish(event)
 
-    def _emit_end(self, info: gri.TaskInfo) -> None:
-        kind = {
-            "completed": "task_completed",
-            "cancelled": "task_cancelled",
-            "replaced": "task_replaced",
-            "aborted": "aborted",
-            "failed": "task_failed",
-        }[info.status]
-        self.emit(kind, task_id=info.id, task_type=info.task_type, detail=info.detail or info.kind)
+    # ------------------------------------------------------------ the manager's task book, as events
+
+    def _sync(self, epoch: float, version: int, active: list[t.TaskInfo], ended: list[t.TaskInfo]) -> None:
+        """Fold in a task list from the manager; announce what started and what ended since the last one."""
+        out: list[tuple[str, t.TaskInfo, str]] = []
+        with self.lock:
+            if self._epoch is not None and epoch != self._epoch:
+                for info in self._live.values():
+                    out.append(("task_failed", info, "Module Manager restarted: the task was lost"))
+                    self._finished.add(info.id)
+                self._live.clear()
+                self._progress.clear()
+                self._version = -1
+            self._epoch = epoch
+            if version <= self._version:
+                pass  # an older (or the same) list: what it says is already known
+            else:
+                self._version = version
+                for info in ended:
+                    if info.id in self._finished:
+                        continue
+                    self._finished.add(info.id)
+                    self._live.pop(info.id, None)
+                    self._progress.pop(info.id, None)
+                    out.append((END_EVENTS[info.status], info, info.detail))
+                for info in active:
+                    if info.id not in self._live and info.id not in self._finished:
+                        self._live[info.id] = info
+                        self._progress[info.id] = Progress(started=self.clock())
+                        out.append(("task_accepted", info, f"{info.kind or '-'} as {info.name} ({info.origin})"))
+                gone = set(self._live) - {i.id for i in active}
+                for task_id in gone:  # ended but no longer in the bounded history
+                    info = self._live.pop(task_id)
+                    self._progress.pop(task_id, None)
+                    self._finished.add(task_id)
+                    out.append(("task_cancelled", info, "ended (no record of how)"))
+        for kind, info, detail in out:
+            self.emit(kind, task_id=info.id, task_type=info.task_type, detail=detail)
+
+    def _sync_list(self, data: Any) -> None:
+        if isinstance(data, mri.TaskList):
+            with self.lock:
+                self.available = dict(data.available)
+            self._sync(data.epoch, data.version, data.active, data.ended)
 
     # ------------------------------------------------------------ main loop
 
     def on_tick(self) -> None:
         now = self.clock()
-        if self._manager_new and self._manager_state is not None:
+        ms = self._manager_state
+        if self._manager_new and ms is not None:
             self._manager_new = False
-            if self._manager_state.telemetry is not None:
-                for info in self.queue.on_telemetry(self._manager_state.telemetry, now):
-                    self._emit_end(info)
-        up = self._manager_state is not None and now - self._manager_seen <= MANAGER_STALE_S
+            self._sync(ms.task_epoch, ms.task_version, ms.tasks, ms.ended)
+            if ms.telemetry is not None:
+                self._fold_telemetry(ms.telemetry, now)
+            self._check_errors(ms)
+        up = ms is not None and now - self._manager_seen <= MANAGER_STALE_S
         if up != self._manager_up:
             self._manager_up = up
             self.emit("manager_back" if up else "manager_lost")
             if up:
                 self._jobs.put("refresh_tasks")
-        if not self.queue.available and now - self._tasks_fetched >= TASKS_REFRESH_S:
+        if not self.available and now - self._tasks_fetched >= TASKS_REFRESH_S:
             self._tasks_fetched = now
             self._jobs.put("refresh_tasks")
         for event in self.link.update(now):
@@ -247,42 +321,53 @@ class Ral(Module):
             self._next_state = now + self.cfg.state_period_s
             self._publish_state(now)
 
+    def _fold_telemetry(self, tel: RobotTelemetry, now: float) -> None:
+        """Judge every running task against new telemetry; a verdict goes to the manager as an EndTask."""
+        with self.lock:
+            self.telemetry = tel
+            if tel.airborne is False and tel.position is not None:
+                self.home = tel.position
+            verdicts = []
+            for task_id, info in self._live.items():
+                v = judge(info, self._progress[task_id], tel, self.home, self.limits, self.judge_cfg, now)
+                self._progress[task_id] = v.progress
+                if v.status != "running":
+                    verdicts.append((info, v.status, v.detail))
+        for info, status, detail in verdicts:
+            self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status=status, detail=detail))
+
+    def _check_errors(self, ms: mri.RobotState) -> None:
+        """A module error after a task started fails the running tasks of the types that module serves."""
+        serves = {m.name: set(m.task_types) for m in ms.modules}
+        fresh = [e for e in ms.errors if e.stamp > self._seen_errors and e.code not in HARMLESS_CODES]
+        if not fresh:
+            return
+        self._seen_errors = max(e.stamp for e in fresh)
+        with self.lock:
+            running = list(self._live.values())
+        for info in running:
+            for e in fresh:
+                if info.task_type in serves.get(e.module, set()) and e.stamp >= info.started:
+                    detail = f"module {e.module} reported error {e.code}{' ' + e.name if e.name else ''}"
+                    self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status="failed",
+                                               detail=detail))
+                    break
+
     def _publish_state(self, now: float) -> None:
         ms = self._manager_state
-        tel = ms.telemetry if ms else None
-        errors = [
-            gri.ErrorRecord(source=e.module, code=e.code, stamp=e.stamp) for e in (ms.errors if ms else [])
-        ]
-        errors = sorted([*errors, *self._error_log], key=lambda e: e.stamp)[-MAX_ERRORS:]
+        errors = sorted([*(ms.errors if ms else []), *self._error_log], key=lambda e: e.stamp)[-MAX_ERRORS:]
+        with self.lock:
+            tasks = sorted(self._live.values(), key=lambda i: i.task_type)
+            kinds = available_kinds(self.available, self.task_names)
         state = gri.GriState(
             robot=self.robot,
             kind=(ms.kind if ms and ms.kind else self.cfg.kind),
             stamp=now,
-            position=tel.position if tel else None,
-            attitude=tel.attitude if tel else None,
-            velocity=tel.velocity if tel else None,
-            heading_deg=tel.heading_deg if tel else None,
-            mode=tel.mode if tel else None,
-            mode_name=tel.mode_name if tel else "",
-            airborne=tel.airborne if tel else None,
-            waypoints_queued=tel.waypoints_queued if tel else None,
-            pan_deg=tel.pan_deg if tel else None,
-            tilt_deg=tel.tilt_deg if tel else None,
-            home=self.queue.home,
-            tasks=self.queue.tasks(),
-            available=dict(self.queue.available),
-            modules=[
-                gri.ModuleHealth(
-                    name=m.name,
-                    state=m.state,
-                    restarts=m.restarts,
-                    last_exit=m.last_exit,
-                    reason=m.reason,
-                    last_error=m.last_error,
-                    routes=dict(m.routes),
-                )
-                for m in (ms.modules if ms else [])
-            ],
+            telemetry=ms.telemetry if ms else None,
+            home=self.home,
+            tasks=tasks,
+            available=kinds,
+            modules=list(ms.modules) if ms else [],
             errors=errors,
             link=self.link.state,
             manager_up=self._manager_up,
@@ -303,6 +388,8 @@ class Ral(Module):
                     self._refresh_tasks()
                 elif isinstance(job, LinkEvent):
                     self._run_failsafe(job)
+                elif isinstance(job, mri.EndTask):
+                    self._end(job)
                 else:
                     self._answer(job)
             except Exception:
@@ -311,23 +398,29 @@ class Ral(Module):
     def _mri(self, verb: str, request: msgspec.Struct) -> mri.MriReply | None:
         assert self.session is not None
         try:
-            return mri.call(self.session, self.robot, verb, request, self.cfg.mri_timeout_s)
+            reply = mri.call(self.session, self.robot, verb, request, self.cfg.mri_timeout_s)
         except mri.MriError as exc:
             self._record_error(RalErrorCode.MRI_NO_REPLY, str(exc))
             return None
+        self._sync_list(reply.data)
+        return reply
 
     def _record_error(self, code: int, detail: str) -> None:
         with self.lock:
             self._error_log.append(
-                gri.ErrorRecord(source="ral", code=int(code), stamp=self.clock(), detail=detail)
+                mri.ErrorEvent(module="ral", code=int(code), name=RalErrorCode(code).name, stamp=self.clock(),
+                               detail=detail)
             )
             self.report_error(int(code), detail)
 
     def _refresh_tasks(self) -> None:
-        reply = self._mri("tasks", mri.ListTasks())
-        if reply is not None and reply.ok and isinstance(reply.data, mri.TaskList):
-            with self.lock:
-                self.queue.available = dict(reply.data.available)
+        self._mri("tasks", mri.ListTasks())
+
+    def _end(self, request: mri.EndTask) -> None:
+        """End a task the RAL judged completed or failed (only if it is still that task)."""
+        reply = self._mri("task", request)
+        if reply is not None and reply.ok and request.status == "failed":
+            self._record_error(RalErrorCode.TASK_FAILED, f"task {request.task_id}: {request.detail}")
 
     def _answer(self, query: zenoh.Query) -> None:
         try:
@@ -343,92 +436,103 @@ class Ral(Module):
         finally:
             query.drop()
 
-    def handle(self, request: gri.TaskRequest, origin: str = "gcs") -> gri.TaskReply:
-        """Admit, send to the manager, record; the reply says accepted or why not."""
+    def handle(self, request: gri.TaskRequest, origin: t.Origin = "gcs") -> gri.TaskReply:
+        """Admit, start in the manager's task book, send the task's data; the reply says accepted or why not."""
         if isinstance(request, gri.Abort):
             return self._abort()
         if isinstance(request, gri.Cancel):
             return self._cancel(request.task_type)
-        if not self.queue.available:
+        if isinstance(request, gri.RestartModule):
+            return self._restart(request.module)
+        if not self.available:
             self._refresh_tasks()
         with self.lock:
-            plan = self.queue.admit(request)
+            plan = admit(request, available=self.available, task_names=self.task_names, limits=self.limits,
+                         cfg=self.judge_cfg, telemetry=self.telemetry, home=self.home)
         if isinstance(plan, Rejected):
-            self.emit("task_rejected", task_type="", detail=f"{gri.kind_of(request)}: {plan.reason}")
+            self.emit("task_rejected", detail=plan.reason)
             return gri.TaskReply(accepted=False, reason=plan.reason)
-        reply = self._mri("task", mri.SetTask(name=plan.name, params=plan.params))
+        reply = self._mri("task", mri.SetTask(name=plan.name, params=plan.params, origin=origin))
         if reply is None or not reply.ok:
             reason = (
                 "Module Manager did not answer"
                 if reply is None
-                else f"Module Manager refused task {plan.name!r}: {reply.reason}"
+                else f"task {plan.name!r} refused: {reply.reason}"
             )
             if reply is not None:
                 self._record_error(RalErrorCode.MRI_REFUSED, reason)
             self.emit("task_rejected", task_type=plan.task_type, detail=reason)
-            return gri.TaskReply(accepted=False, reason=reason, task_type=plan.task_type)
-        with self.lock:
-            info, replaced = self.queue.start(plan, self.clock(), origin)
+            return gri.TaskReply(accepted=False, reason=reason, task_type=plan.task_type,
+                                 code=reply.code if reply else None)
+        running = next((i for i in reply.data.active if i.task_type == plan.task_type), None) if isinstance(
+            reply.data, mri.TaskList) else None
         self._publish_data(plan)
-        if replaced is not None:
-            self._emit_end(replaced)
-        self.emit(
-            "task_accepted",
-            task_id=info.id,
-            task_type=info.task_type,
-            detail=f"{info.kind} as {info.name}" + (" (failsafe)" if origin == "failsafe" else ""),
-        )
-        return gri.TaskReply(accepted=True, task_id=info.id, task_type=info.task_type)
+        return gri.TaskReply(accepted=True, task_id=running.id if running else 0, task_type=plan.task_type)
 
     def _publish_data(self, plan: Plan) -> None:
-        req = plan.request
-        if isinstance(req, gri.Goto | gri.FollowPath):
-            if req.speed is not None:
-                self.publish("speed", SpeedSegCam(speed=req.speed))
+        """The task's data, after the manager's reply (so after the module answered the task's mode)."""
+        req = plan.params
+        if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath):
+            assert req.speed is not None, "admission fills in the cruise speed"
+            self.publish("speed", SpeedSegCam(speed=req.speed))
+        if isinstance(req, t.FollowPath) and req.heading is not None:
+            self.publish("heading", HeadingSegCam(heading=req.heading))
+        if isinstance(req, t.Goto | t.FollowPath):
             points = [DatoPuntoSegCam(latitud=w.lat, longitud=w.lon, altura=w.alt) for w in req.waypoints]
             self.publish("path", DatosSegCam(n_points=len(points), puntos=points))
-        elif isinstance(req, gri.LookAt):
+        elif isinstance(req, t.Bridge) and self._refs_pub is not None:
+            self._refs_pub.publish(RefsSegCam(ref_altura=req.ref_altura, error_longitudinal=req.error_longitudinal,
+                                              error_lateral=req.error_lateral, ref_heading=req.ref_heading,
+                                              ref_rpm_motor=req.ref_rpm_motor))
+        elif isinstance(req, t.LookAt):
             self.publish("pt_datos", DatosPT(latitud=req.lat, longitud=req.lon, altura=req.alt))
-        elif isinstance(req, gri.SetPanTilt):
+        elif isinstance(req, t.SetPanTilt):
             self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
 
     def _abort(self) -> gri.TaskReply:
-        """The manifest's ``abort`` task if it has one (stops motion at once), then end the rest."""
-        abort_name = self.queue.name_for("abort")
-        abort_type = self.queue.available.get(abort_name)
+        """The manifest's ``abort`` task if it has one (empties both queues, stops motion; the task it replaces
+        ends as aborted), then every other task ends as aborted; the abort task ends once done (the robot holds)."""
+        abort_name = self.task_names.get("abort", "abort")
+        abort_type = self.available.get(abort_name)
         problems = []
+        abort_id = 0
         if abort_type is not None:
-            reply = self._mri("task", mri.SetTask(name=abort_name))
+            reply = self._mri("task", mri.SetTask(name=abort_name, origin="gcs", replaced_as="aborted"))
             if reply is None or not reply.ok:
                 problems.append(f"abort task: {'no reply' if reply is None else reply.reason}")
+            elif isinstance(reply.data, mri.TaskList):
+                abort_id = next((i.id for i in reply.data.active if i.task_type == abort_type), 0)
         with self.lock:
-            active = [t for t in sorted(self.queue.current) if t != abort_type]
-        for task_type in active:
-            reply = self._mri("task", mri.EndTask(task_type=task_type))
+            others = sorted({i.task_type for i in self._live.values() if i.task_type != abort_type})
+        for task_type in others:
+            reply = self._mri("task", mri.EndTask(task_type=task_type, status="aborted", detail="abort"))
             if reply is None or not reply.ok:
                 problems.append(f"end {task_type}: {'no reply' if reply is None else reply.reason}")
-        with self.lock:
-            ended = self.queue.abort(self.clock())
-        for info in ended:
-            self._emit_end(info)
+        if abort_id:
+            self._mri("task", mri.EndTask(task_type=str(abort_type), task_id=abort_id, status="completed",
+                                          detail="abort done: both waypoint queues empty, the robot holds"))
         if problems:
             return gri.TaskReply(accepted=False, reason="abort incomplete: " + "; ".join(problems))
         return gri.TaskReply(accepted=True)
 
     def _cancel(self, task_type: str) -> gri.TaskReply:
         with self.lock:
-            known = task_type in self.queue.current or task_type in set(self.queue.available.values())
+            known = task_type in set(self.available.values())
         if not known:
             return gri.TaskReply(accepted=False, reason=f"no task type {task_type!r} on robot {self.robot}")
-        reply = self._mri("task", mri.EndTask(task_type=task_type))
+        reply = self._mri("task", mri.EndTask(task_type=task_type, status="cancelled", detail="cancelled"))
         if reply is None or not reply.ok:
             reason = "Module Manager did not answer" if reply is None else reply.reason
             return gri.TaskReply(accepted=False, reason=reason, task_type=task_type)
-        with self.lock:
-            info = self.queue.cancel(task_type, self.clock())
-        if info is not None:
-            self._emit_end(info)
-        return gri.TaskReply(accepted=True, task_type=task_type, task_id=info.id if info else 0)
+        return gri.TaskReply(accepted=True, task_type=task_type)
+
+    def _restart(self, module: str) -> gri.TaskReply:
+        reply = self._mri("module", mri.ModuleCommand(module=module, action="restart"))
+        if reply is None or not reply.ok:
+            reason = "Module Manager did not answer" if reply is None else reply.reason
+            return gri.TaskReply(accepted=False, reason=f"restart {module}: {reason}")
+        self.emit("module_restarted", detail=module)
+        return gri.TaskReply(accepted=True)
 
     def _run_failsafe(self, event: LinkEvent) -> None:
         request = self._failsafe_request(event.action)
@@ -437,21 +541,38 @@ class Ral(Module):
             self.emit("failsafe", detail=f"{event.action} refused ({reply.reason}); aborting instead")
             self._abort()
 
-    def _failsafe_request(self, action: FailsafeAction | None) -> gri.Task:
+    def _failsafe_request(self, action: FailsafeAction | None) -> t.TaskParams:
         if action is FailsafeAction.LAND:
-            return gri.Land()
+            return t.Land()
         if action is FailsafeAction.RETURN:
             with self.lock:
-                home = self.queue.home
-                tel = self.queue.telemetry
+                home = self.home
+                tel = self.telemetry
             if home is not None:
                 alt = max(
                     home.alt + self.cfg.return_height_m,
                     tel.position.alt if tel and tel.position else home.alt,
                 )
-                return gri.Goto(waypoints=[gri.Waypoint(lat=home.lat, lon=home.lon, alt=alt)])
+                return t.Goto(waypoints=[t.Waypoint(lat=home.lat, lon=home.lon, alt=alt)])
             self.emit("failsafe", detail="return: take-off point unknown, holding instead")
-        return gri.Hold()
+        return t.Hold()
+
+
+END_EVENTS = {
+    "completed": "task_completed",
+    "cancelled": "task_cancelled",
+    "replaced": "task_replaced",
+    "aborted": "aborted",
+    "failed": "task_failed",
+    "running": "task_accepted",
+}
+
+
+def p_max_speed() -> float:
+    """Without a robot .conf, the protocol's ceiling is the only speed limit known."""
+    from modules.dsp.protocol import MAX_SPEED_LIMIT
+
+    return MAX_SPEED_LIMIT
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,27 +1,31 @@
-"""The RAL's task queue: one current task per task type, admission, cancel, completion from telemetry.
+"""What the RAL decides about tasks, with no bus and no clock of its own (every call takes ``now``).
 
-Pure logic, no bus and no clock of its own (every call takes ``now``), so it is tested in microseconds. The
-RAL process turns what it returns into MRI requests and GRI events.
+- :func:`admit`: a GRI task against what the robot offers, where it is and its .conf limits (:class:`Limits`):
+  speed (the task's, else the cruise speed; never above MAX_SPEED), clearance above the take-off point,
+  geofence, ceiling, take-off height. A refusal says why; nothing is sent.
+- :func:`judge`: one running task (as the Module Manager's task book lists it) against new telemetry: completed,
+  failed (no progress for ``stall_s``), or still running. Its per-task memory is a :class:`Progress`.
 
-Nothing here is robot-specific: the manifest's task map (``available``: task name → task type) says which
-task names a robot has; a GRI task kind is mapped to a manifest task name by ``task_names`` (identity unless
-configured), and a kind the robot lacks is rejected with a reason.
+The RAL keeps no task book: the Module Manager's is the only record of the running task of each type.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
+from typing import Annotated
 
 import msgspec
 
-from bbcs.contracts.geo import GeoPoint
-from bbcs.contracts.robot import RobotTelemetry
-from ral import gri
+from bbcs.conf import ConfError, load_conf
+from bbcs.contracts import tasks as t
+from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 
 EARTH_RADIUS_M = 6_371_000.0
-CONTINUOUS = frozenset({"look_at", "pan_tilt", "hold", "track"})
-"""Kinds that keep their task type busy until replaced, cancelled or aborted (they never 'complete')."""
+HEADING_TASK = "follow_path_heading"
+"""The manifest task a follow_path with a heading runs (path mode 1, HEADING routed to the RAL)."""
+MIN_PROGRESS_M = 0.5
+"""Movement smaller than this (towards the target, or in altitude) is not progress."""
 
 
 def distance_m(a_lat: float, a_lon: float, b_lat: float, b_lon: float) -> float:
@@ -33,13 +37,36 @@ def distance_m(a_lat: float, a_lon: float, b_lat: float, b_lon: float) -> float:
 
 
 @dataclass(frozen=True)
-class QueueConfig:
+class Geofence:
+    """A circle: centre (WGS84 degrees) and radius in metres."""
+
+    lat: float
+    lon: float
+    radius_m: float
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What the robot's .conf allows (docs/gcs.md): speeds in m/s, heights in metres above the take-off point."""
+
+    max_speed: float
+    cruise_speed: float | None = None
+    min_clearance_m: float | None = None
+    max_height_m: float | None = None
+    geofence: Geofence | None = None
+    takeoff_height_m: float | None = None
+    """The height the DSP climbs to in take-off mode (it takes no other)."""
+
+
+@dataclass(frozen=True)
+class JudgeConfig:
     position_tolerance_m: float = 3.0
     altitude_tolerance_m: float = 2.0
     settle_s: float = 2.0
     """Without the waypoint queue seen non-empty, a path task may complete only after this."""
+    stall_s: float = 30.0
+    """A movement task that makes no progress for this long fails."""
     max_range_m: float = 20_000.0
-    """Waypoints farther than this from the robot's position (when known) are rejected."""
 
 
 @dataclass(frozen=True)
@@ -49,163 +76,191 @@ class Rejected:
 
 @dataclass(frozen=True)
 class Plan:
-    """An admitted task: what to ask the manager for."""
+    """An admitted task: the manifest task to start and its parameters (speed filled in)."""
 
     kind: str
     name: str
     task_type: str
-    params: dict[str, str]
-    request: gri.Task
+    params: t.TaskParams
 
 
-@dataclass
-class _Running:
-    info: gri.TaskInfo
-    request: gri.Task
+def available_kinds(available: dict[str, str], task_names: dict[str, str]) -> dict[str, str]:
+    """GRI kind → task type: only the kinds a ground station can send that the manifest maps."""
+    out = {}
+    for kind in t.TASK_KINDS:
+        task_type = available.get(task_names.get(kind, kind))
+        if task_type is not None:
+            out[kind] = task_type
+    return out
+
+
+def admit(request: t.TaskParams, *, available: dict[str, str], task_names: dict[str, str], limits: Limits,
+          cfg: JudgeConfig, telemetry: RobotTelemetry | None, home: GeoPoint | None) -> Plan | Rejected:
+    """Check a decoded task against the robot; nothing changes here."""
+    kind = t.kind_of(request)
+    name = task_names.get(kind, kind)
+    if isinstance(request, t.FollowPath) and request.heading is not None:
+        name = task_names.get(HEADING_TASK, HEADING_TASK)
+    if not available:
+        return Rejected("the robot's task list is unknown (Module Manager not answering)")
+    task_type = available.get(name)
+    if task_type is None and name == task_names.get(HEADING_TASK, HEADING_TASK):
+        return Rejected(f"follow_path with a heading: this robot has no {HEADING_TASK!r} task (path mode 1)")
+    if task_type is None:
+        offered = ", ".join(sorted(available_kinds(available, task_names))) or "none"
+        return Rejected(f"this robot has no task {kind!r} (it offers: {offered})")
+    params: t.TaskParams = request
+    speed = getattr(request, "speed", "absent")
+    if speed != "absent":
+        if speed is None:
+            if limits.cruise_speed is None:
+                return Rejected(f"{kind}: no speed given and the robot's .conf has no CRUISE_SPEED")
+            params = msgspec.structs.replace(request, speed=limits.cruise_speed)  # type: ignore[type-var]
+        elif speed > limits.max_speed:
+            return Rejected(f"{kind}: speed {speed:g} m/s is above MAX_SPEED {limits.max_speed:g} m/s")
+    if isinstance(request, t.TakeOff) and limits.takeoff_height_m is not None:
+        if abs(request.height - limits.takeoff_height_m) > cfg.altitude_tolerance_m:
+            return Rejected(f"take_off: the DSP climbs to its fixed take-off height {limits.takeoff_height_m:g} m "
+                            f"above home; {request.height:g} m cannot be honoured")
+    points = _points(request)
+    if points:
+        why = _check_points(points, limits, cfg, telemetry, home)
+        if why:
+            return Rejected(f"{kind}: {why}")
+    return Plan(kind, name, task_type, params)
+
+
+def _points(request: t.TaskParams) -> list[tuple[str, float, float, float | None]]:
+    """(label, lat, lon, alt above sea level or None) of every place a task sends the robot to."""
+    if isinstance(request, t.Goto | t.FollowPath):
+        return [(f"waypoint {i}", w.lat, w.lon, w.alt) for i, w in enumerate(request.waypoints)]
+    if isinstance(request, t.Bridge):
+        return [("ref_altura", math.nan, math.nan, request.ref_altura)]
+    return []
+
+
+def _check_points(points: list[tuple[str, float, float, float | None]], limits: Limits, cfg: JudgeConfig,
+                  telemetry: RobotTelemetry | None, home: GeoPoint | None) -> str:
+    pos = telemetry.position if telemetry else None
+    ground = home.alt if home is not None else None
+    if ground is None and (limits.min_clearance_m is not None or limits.max_height_m is not None):
+        return "the take-off point (ground reference for heights) is not known yet; no telemetry position"
+    for label, lat, lon, alt in points:
+        if not math.isnan(lat):
+            if pos is not None:
+                d = distance_m(pos.lat, pos.lon, lat, lon)
+                if d > cfg.max_range_m:
+                    return f"{label} is {d / 1000:.1f} km from the robot (max {cfg.max_range_m / 1000:g} km)"
+            fence = limits.geofence
+            if fence is not None:
+                d = distance_m(fence.lat, fence.lon, lat, lon)
+                if d > fence.radius_m:
+                    return (f"{label} ({lat:.6f}, {lon:.6f}) is outside the geofence: {d:.0f} m from its centre, "
+                            f"radius {fence.radius_m:g} m")
+        if alt is not None and ground is not None:
+            height = alt - ground
+            if limits.min_clearance_m is not None and height < limits.min_clearance_m:
+                return (f"{label} altitude {alt:g} m above sea level is {height:g} m above the take-off point "
+                        f"({ground:g} m); the minimum clearance is {limits.min_clearance_m:g} m")
+            if limits.max_height_m is not None and height > limits.max_height_m:
+                return (f"{label} altitude {alt:g} m above sea level is {height:g} m above the take-off point; "
+                        f"the ceiling is {limits.max_height_m:g} m")
+    return ""
+
+
+# ---------------------------------------------------------------- judging a running task
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What the judge remembers about one running task."""
+
+    started: float
     seen_queue: bool = False
     seen_airborne: bool = False
-    target_alt: float | None = None
+    best: float | None = None
+    """Best (smallest) distance-to-go seen so far, metres."""
+    progress_at: float = 0.0
 
 
-@dataclass
-class TaskQueue:
-    robot: str
-    config: QueueConfig = field(default_factory=QueueConfig)
-    task_names: dict[str, str] = field(default_factory=dict)
-    """GRI kind → manifest task name (missing: the same name)."""
-    available: dict[str, str] = field(default_factory=dict)
-    """Manifest task name → task type (from the manager's task list)."""
-    current: dict[str, _Running] = field(default_factory=dict)
-    next_id: int = 1
-    telemetry: RobotTelemetry | None = None
-    home: GeoPoint | None = None
-
-    def name_for(self, kind: str) -> str:
-        return self.task_names.get(kind, kind)
-
-    # ------------------------------------------------------------ admission
-
-    def admit(self, request: gri.Task) -> Plan | Rejected:
-        """Check a decoded task against what this robot has and where it is; nothing changes here."""
-        kind = gri.kind_of(request)
-        name = self.name_for(kind)
-        if not self.available:
-            return Rejected("the robot's task list is unknown (Module Manager not answering)")
-        task_type = self.available.get(name)
-        if task_type is None:
-            return Rejected(
-                f"robot {self.robot} has no task {name!r} for {kind} "
-                f"(available: {', '.join(sorted(self.available)) or 'none'})"
-            )
-        if isinstance(request, gri.Goto | gri.FollowPath):
-            pos = self.telemetry.position if self.telemetry else None
-            if pos is not None:
-                for i, wp in enumerate(request.waypoints):
-                    d = distance_m(pos.lat, pos.lon, wp.lat, wp.lon)
-                    if d > self.config.max_range_m:
-                        return Rejected(
-                            f"waypoint {i} is {d / 1000:.1f} km from the robot "
-                            f"(max {self.config.max_range_m / 1000:g} km)"
-                        )
-        return Plan(kind, name, task_type, _params(request), request)
-
-    # ------------------------------------------------------------ lifecycle
-
-    def start(self, plan: Plan, now: float, origin: str = "gcs") -> tuple[gri.TaskInfo, gri.TaskInfo | None]:
-        """Make ``plan`` the current task of its type; returns it and the task it replaced (if any)."""
-        info = gri.TaskInfo(
-            id=self.next_id,
-            kind=plan.kind,
-            name=plan.name,
-            task_type=plan.task_type,
-            status="running",
-            started=now,
-            origin=origin,
-        )  # type: ignore[arg-type]
-        self.next_id += 1
-        old = self.current.pop(plan.task_type, None)
-        replaced = _end(old.info, "replaced", now, f"replaced by task {info.id}") if old else None
-        running = _Running(info, plan.request)
-        if isinstance(plan.request, gri.TakeOff):
-            base = self.home or (self.telemetry.position if self.telemetry else None)
-            running.target_alt = None if base is None else base.alt + plan.request.height
-        self.current[plan.task_type] = running
-        return info, replaced
-
-    def cancel(
-        self, task_type: str, now: float, status: str = "cancelled", detail: str = ""
-    ) -> gri.TaskInfo | None:
-        run = self.current.pop(task_type, None)
-        return None if run is None else _end(run.info, status, now, detail)
-
-    def abort(self, now: float) -> list[gri.TaskInfo]:
-        return [info for t in sorted(self.current) if (info := self.cancel(t, now, "aborted", "abort"))]
-
-    def fail(self, task_type: str, now: float, detail: str) -> gri.TaskInfo | None:
-        return self.cancel(task_type, now, "failed", detail)
-
-    def tasks(self) -> list[gri.TaskInfo]:
-        return [self.current[t].info for t in sorted(self.current)]
-
-    # ------------------------------------------------------------ completion
-
-    def on_telemetry(self, tel: RobotTelemetry, now: float) -> list[gri.TaskInfo]:
-        """Fold in new telemetry; returns the tasks it completed (removed from the queue)."""
-        self.telemetry = tel
-        if tel.airborne is False and tel.position is not None:
-            self.home = tel.position
-        done = []
-        for task_type, run in list(self.current.items()):
-            if self._complete(run, tel, now):
-                del self.current[task_type]
-                done.append(_end(run.info, "completed", now, ""))
-        return done
-
-    def _complete(self, run: _Running, tel: RobotTelemetry, now: float) -> bool:
-        req = run.request
-        cfg = self.config
-        if tel.waypoints_queued:
-            run.seen_queue = True
-        if tel.airborne:
-            run.seen_airborne = True
-        settled = now - run.info.started >= cfg.settle_s
-        pos = tel.position
-        if isinstance(req, gri.Goto | gri.FollowPath):
-            if pos is None or tel.waypoints_queued not in (0, None):
-                return False
-            last = req.waypoints[-1]
-            near = (
-                distance_m(pos.lat, pos.lon, last.lat, last.lon) <= cfg.position_tolerance_m
-                and abs(pos.alt - last.alt) <= cfg.altitude_tolerance_m
-            )
-            return near and (run.seen_queue or settled)
-        if isinstance(req, gri.TakeOff):
-            if pos is None or tel.airborne is False:
-                return False
-            if run.target_alt is None:
-                base = self.home or pos
-                run.target_alt = base.alt + req.height
-            return pos.alt >= run.target_alt - cfg.altitude_tolerance_m
-        if isinstance(req, gri.Land):
-            return tel.airborne is False and (run.seen_airborne or settled)
-        return False
+@dataclass(frozen=True)
+class Verdict:
+    progress: Progress
+    status: str = "running"
+    """``running``, ``completed`` or ``failed``."""
+    detail: str = ""
 
 
-def _end(info: gri.TaskInfo, status: str, now: float, detail: str) -> gri.TaskInfo:
-    return msgspec.structs.replace(info, status=status, ended=now, detail=detail)
+def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPoint | None, limits: Limits,
+          cfg: JudgeConfig, now: float) -> Verdict:
+    """Has ``task`` completed, stalled, or is it still running, given ``tel`` at ``now``?"""
+    req = task.params
+    if req is None or isinstance(req, t.LookAt | t.SetPanTilt | t.Hold | t.Track | t.FollowVisionPath | t.Bridge):
+        return Verdict(progress)  # continuous: runs until replaced, cancelled or aborted
+    pr = replace(progress, seen_queue=progress.seen_queue or bool(tel.waypoints_queued),
+                 seen_airborne=progress.seen_airborne or bool(tel.airborne))
+    pos = tel.position
+    if pos is None:
+        return _stalled(pr, cfg, now)
+    settled = now - pr.started >= cfg.settle_s
+    if isinstance(req, t.Goto | t.FollowPath):
+        last = req.waypoints[-1]
+        horiz = distance_m(pos.lat, pos.lon, last.lat, last.lon)
+        togo = horiz + abs(pos.alt - last.alt) + 50.0 * (tel.waypoints_queued or 0)
+        near = horiz <= cfg.position_tolerance_m and abs(pos.alt - last.alt) <= cfg.altitude_tolerance_m
+        if near and tel.waypoints_queued in (0, None) and (pr.seen_queue or settled):
+            return Verdict(pr, "completed")
+    elif isinstance(req, t.TakeOff):
+        base = home.alt if home is not None else None
+        if base is None:
+            return _stalled(pr, cfg, now)
+        target = base + (limits.takeoff_height_m if limits.takeoff_height_m is not None else req.height)
+        if tel.airborne is not False and pos.alt >= target - cfg.altitude_tolerance_m:
+            return Verdict(pr, "completed")
+        togo = target - pos.alt
+    else:  # Land
+        if tel.airborne is False and (pr.seen_airborne or settled):
+            return Verdict(pr, "completed")
+        togo = pos.alt - (home.alt if home is not None else 0.0)
+    if pr.best is None or togo < pr.best - MIN_PROGRESS_M:
+        pr = replace(pr, best=togo, progress_at=now)
+    return _stalled(pr, cfg, now)
 
 
-def _params(request: gri.Task) -> dict[str, str]:
-    """The strings the manager's SetTask carries (a summary; the data itself goes on the RAL's slots)."""
-    if isinstance(request, gri.Goto | gri.FollowPath):
-        out = {"n_points": str(len(request.waypoints))}
-        if request.speed is not None:
-            out["speed"] = f"{request.speed:g}"
-        return out
-    if isinstance(request, gri.TakeOff):
-        return {"height": f"{request.height:g}"}
-    if isinstance(request, gri.LookAt):
-        return {"lat": repr(request.lat), "lon": repr(request.lon), "alt": repr(request.alt)}
-    if isinstance(request, gri.SetPanTilt):
-        return {"pan": f"{request.pan:g}", "tilt": f"{request.tilt:g}"}
-    return {}
+def _stalled(pr: Progress, cfg: JudgeConfig, now: float) -> Verdict:
+    since = max(pr.progress_at, pr.started)
+    if now - since >= cfg.stall_s:
+        return Verdict(pr, "failed", f"no progress for {now - since:.0f} s (the aircraft is not doing the task)")
+    return Verdict(pr)
+
+
+# ---------------------------------------------------------------- limits from the robot's .conf
+
+
+class _ConfLimits(msgspec.Struct, kw_only=True):
+    MAX_SPEED: Annotated[float, msgspec.Meta(gt=0.0)]
+    CRUISE_SPEED: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    MIN_CLEARANCE: float | None = None
+    MAX_HEIGHT: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    TAKEOFF_HEIGHT: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    GEOFENCE: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
+
+
+def load_limits(conf_path: str) -> Limits:
+    """The RAL's :class:`Limits` from the robot .conf; ConfError (file, line) when a key is wrong."""
+    doc = load_conf(conf_path)
+    raw = doc.to_struct(_ConfLimits)
+    if raw.CRUISE_SPEED is not None and raw.CRUISE_SPEED > raw.MAX_SPEED:
+        entry = doc.entries["CRUISE_SPEED"]
+        raise ConfError(f"CRUISE_SPEED {raw.CRUISE_SPEED:g} is above MAX_SPEED {raw.MAX_SPEED:g}", path=doc.path,
+                        line=entry.line, column=entry.column)
+    fence = None
+    if raw.GEOFENCE is not None:
+        lat, lon, radius = raw.GEOFENCE
+        if not (-90 <= lat <= 90 and -180 <= lon <= 180 and radius > 0):
+            entry = doc.entries["GEOFENCE"]
+            raise ConfError("GEOFENCE must be [latitude, longitude, radius in m > 0]", path=doc.path,
+                            line=entry.line, column=entry.column)
+        fence = Geofence(lat, lon, radius)
+    return Limits(max_speed=raw.MAX_SPEED, cruise_speed=raw.CRUISE_SPEED, min_clearance_m=raw.MIN_CLEARANCE,
+                  max_height_m=raw.MAX_HEIGHT, geofence=fence, takeoff_height_m=raw.TAKEOFF_HEIGHT)

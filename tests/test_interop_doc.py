@@ -8,9 +8,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from bbcs.contracts import geo, robot
-from module_manager import mri
-from ral import gri
+from bbcs.contracts import geo, gri, mri, robot
 
 DOC = (Path(__file__).resolve().parents[1] / "docs" / "interop.md").read_text()
 STRUCTS = [gri.GriState, gri.TaskInfo, gri.ModuleHealth, gri.ErrorRecord, gri.GriEvent, gri.GcsHeartbeat,

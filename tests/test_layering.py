@@ -23,8 +23,8 @@ KNOWN: dict[tuple[str, str], str] = {
     ("modules/telemetry", "modules.dsp"): "DSP telemetry contract in modules/dsp",
     ("modules/pan_tilt", "modules.dsp"): "DSP command contract in modules/dsp",
     ("modules/path_follower", "modules.dsp"): "DSP command contract in modules/dsp",
-    # MRI types move to bbcs/contracts/mri.py (cmdpath).
-    ("ral", "module_manager"): "MRI types in module_manager/mri.py",
+    # `cromat certs --manifest` reads a manifest to list its identities (an operator tool, not the RAL process).
+    ("ral", "module_manager"): "ral/certs.py reads manifests",
 }
 
 

@@ -10,4 +10,8 @@ Every struct that crosses a process boundary and is shared by more than one pack
 | :mod:`bbcs.contracts.errors` | ``ErrorReport``: the one shape of every module's ERROR slot |
 | :mod:`bbcs.contracts.pan_tilt` | the pan & tilt module's slot structs (seed 004 §5.3.2.2) |
 | :mod:`bbcs.contracts.path_follower` | the path follower's slot structs (seed 004 §5.3.2.3) |
+| :mod:`bbcs.contracts.tasks` | typed task parameters, the tagged union a task carries from GRI to the manager |
+| :mod:`bbcs.contracts.gri` | the GRI: what ground stations and the RAL exchange |
+| :mod:`bbcs.contracts.mri` | the MRI: requests to a robot's Module Manager and its robot state |
+| :mod:`bbcs.contracts.trajectory` | requests to the trajectory generator and its answers |
 """

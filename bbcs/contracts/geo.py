@@ -16,8 +16,11 @@ Latitude = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
 Longitude = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
 """WGS84 longitude, degrees, [-180, 180]."""
 
-AltitudeEllipsoid = Annotated[float, msgspec.Meta(ge=-500.0, le=10_000.0)]
-"""Metres above the WGS84 ellipsoid, a sanity range for a robot's commanded points (not a flight envelope)."""
+AltitudeAMSL = Annotated[float, msgspec.Meta(ge=-500.0, le=10_000.0)]
+"""Metres above mean sea level: the DSP's reference for waypoints and telemetry positions (GPS altitude). A sanity
+range for a robot's points, not a flight envelope (the RAL checks the robot's own limits)."""
+HeightAboveHome = Annotated[float, msgspec.Meta(ge=1.0, le=500.0)]
+"""Metres above the take-off point (home)."""
 SensorAltitudeEllipsoid = Annotated[float, msgspec.Meta(ge=-10_000.0, le=100_000.0)]
 """Metres above the WGS84 ellipsoid as an INS may report it (wider than a commanded point: a sensor's range)."""
 

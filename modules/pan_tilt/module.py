@@ -11,7 +11,10 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+import msgspec
+
 from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, OutputSlot, Safety
@@ -29,6 +32,7 @@ class PanTiltModule(Module):
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
         dsp_bus.commands_output(),
+        OutputSlot(MODE_ACK_SLOT, ModeAck),
     )
     control = Control(
         ControlEntradaPT, {"slot_entrada_control_modos": "control_modo", "slot_entrada_datos": "datos"}
@@ -41,6 +45,12 @@ class PanTiltModule(Module):
         self.state = logic.PanTiltState()
         self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
 
+    def _ack_mode(self, msg: msgspec.Struct, decision: logic.Decision) -> None:
+        """Answer the mode on MODE_ACK (after applying it): the manager's barrier before data for the new mode."""
+        code = decision.errors[0] if decision.errors else None
+        self.publish(MODE_ACK_SLOT, ModeAck(mode=msgspec.to_builtins(msg), accepted=code is None, code=code,
+                                            reason=decision.detail if code is not None else ""))
+
     def _apply(self, decision: logic.Decision) -> None:
         self.state = decision.state
         for code in decision.errors:
@@ -50,7 +60,9 @@ class PanTiltModule(Module):
             self.log.debug("%s: %d command(s)", decision.detail, len(decision.commands))
 
     def on_control_modo(self, msg: ModoFuncionamientoPT) -> None:
-        self._apply(logic.on_control_modo(self.state, msg))
+        decision = logic.on_control_modo(self.state, msg)
+        self._apply(decision)
+        self._ack_mode(msg, decision)
 
     def on_datos(self, msg: DatosPT) -> None:
         self._apply(logic.on_datos(self.state, msg))

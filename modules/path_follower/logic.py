@@ -6,7 +6,8 @@ the DSP commands to send in order, and the error codes to report. A datum with a
 and leaves the state as it was (the seed's rule: no datum affected by an error is computed, sent or used).
 
 The "onboard queue" is the trajectory this module keeps (the whole DATOS message arrives at once so an onboard
-follower can use it); the abort command empties it together with the DSP's queue.
+follower can use it). A new DATOS replaces the path (both queues emptied, the DSP's acknowledged empty, before its
+first waypoint goes out); the abort command empties both queues.
 """
 
 from __future__ import annotations
@@ -181,7 +182,7 @@ def on_velocidad(state: FollowerState, msg: SpeedSegCam, max_speed: float) -> De
 
 
 def on_datos(state: FollowerState, msg: DatosSegCam, capacity: int = p.WAYPOINT_QUEUE_CAPACITY) -> Decision:
-    """DATOS: in modes 0/1 every waypoint to the DSP (and the onboard queue); ignored otherwise.
+    """DATOS: in modes 0/1 a new path: both queues (onboard and DSP) emptied, then every waypoint; ignored otherwise.
 
     The whole message is checked first: a count that does not match, or any bad point, rejects all of it.
     """
@@ -208,10 +209,12 @@ def on_datos(state: FollowerState, msg: DatosSegCam, capacity: int = p.WAYPOINT_
             FollowerError.PATH_TOO_LONG,
             f"{msg.n_points} points exceed the DSP's waypoint queue ({capacity}); whole path rejected",
         )
-    cmds = tuple(p.AddWaypoint(lat=pt.latitud, lon=pt.longitud, alt=pt.altura) for pt in msg.puntos)
-    return Decision(
-        replace(state, path=state.path + tuple(msg.puntos)), cmds, detail=f"{msg.n_points} waypoints"
+    # replace means replace: the DSP's queue is emptied first, and the link sends each command only after the
+    # previous one is acknowledged, so no new waypoint goes out before the DSP has confirmed its queue is empty
+    cmds = (p.InvalidatePath(),) + tuple(
+        p.AddWaypoint(lat=pt.latitud, lon=pt.longitud, alt=pt.altura) for pt in msg.puntos
     )
+    return Decision(replace(state, path=tuple(msg.puntos)), cmds, detail=f"{msg.n_points} waypoints (replacing)")
 
 
 def on_refs(state: FollowerState, msg: RefsSegCam) -> Decision:

@@ -13,8 +13,11 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
+import msgspec
+
 from bbcs.conf import ConfError, load_conf
 from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.path_follower import (
     ControlEntradaSegCam,
     ControlModoSegCam,
@@ -65,6 +68,7 @@ class PathFollowerModule(Module):
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
         dsp_bus.commands_output(),
+        OutputSlot(MODE_ACK_SLOT, ModeAck),
         OutputSlot("error", ErrorReport),
     )
     control = Control(
@@ -90,6 +94,12 @@ class PathFollowerModule(Module):
         self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
         self.onboard = onboard.OnboardFollower(onboard.OnboardParams(max_speed=self.max_speed))  # mode 3
 
+    def _ack_mode(self, msg: msgspec.Struct, decision: logic.Decision) -> None:
+        """Answer the mode on MODE_ACK (after applying it): the manager's barrier before data for the new mode."""
+        code = decision.errors[0] if decision.errors else None
+        self.publish(MODE_ACK_SLOT, ModeAck(mode=msgspec.to_builtins(msg), accepted=code is None, code=code,
+                                            reason=decision.detail if code is not None else ""))
+
     def _apply(self, decision: logic.Decision) -> int | None:
         self.state = decision.state
         for code in decision.errors:
@@ -103,6 +113,7 @@ class PathFollowerModule(Module):
         before = self.state.mode
         decision = logic.on_control_modo(self.state, msg)
         batch = self._apply(decision)
+        self._ack_mode(msg, decision)
         if batch is not None and msg.modo_o_comando == logic.MODE_CHANGE:
             self._mode_batches[batch] = before
             while len(self._mode_batches) > MODE_BATCH_MEMORY:

@@ -1,8 +1,8 @@
 """The ground-station Python API: everything ``cromat gcs`` does, for scripts and other programs.
 
 A :class:`Gcs` is one Zenoh client session to a robot router (plain TCP, TLS with a client certificate, or a
-Zenoh config file). With ``link=True`` it also holds a liveliness token and sends heartbeats, so the robots'
-link-loss failsafe counts it as a ground station; one-shot commands leave it off.
+Zenoh config file). With ``link=[robots]`` it also holds a liveliness token and sends heartbeats naming those
+robots, so their link-loss failsafe counts it as their ground station; one-shot commands leave it off.
 
 Errors: :class:`Unreachable` when the router cannot be reached or refuses the credentials, :class:`NoReply`
 when no robot answers (not running, or this identity is not allowed to ask), :class:`GcsError` otherwise.
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import msgspec
@@ -20,10 +20,9 @@ import zenoh
 import zenoh.ext
 
 from bbcs import keys
+from bbcs.contracts import gri, mri
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
-from module_manager import mri
-from ral import gri
 
 HEARTBEAT_S = 0.5
 
@@ -93,8 +92,10 @@ class Gcs:
     """One ground station's connection to the robots behind one router."""
 
     def __init__(
-        self, config: SessionConfig, *, name: str = "gcs", link: bool = False, timeout_s: float = 5.0
+        self, config: SessionConfig, *, name: str = "gcs", link: Sequence[str] = (), timeout_s: float = 5.0
     ) -> None:
+        """``link``: the robots this station holds a link with (liveliness token + heartbeats naming them);
+        the link is per robot, so a robot not named here never counts this station as its ground station."""
         self.name = keys.validate_name(name, "GCS name")
         self.timeout_s = timeout_s
         try:
@@ -109,7 +110,16 @@ class Gcs:
         self._token: Any = None
         self._beat: threading.Thread | None = None
         self._subs: list[Subscription] = []
-        if link:
+        if isinstance(link, str):
+            raise TypeError("link takes a list of robot names")
+        self.linked: list[str] = []
+        for robot in link:
+            self.hold_link(robot)
+
+    def hold_link(self, robot: str) -> None:
+        """From now on this station is a ground station of ``robot`` (its failsafe counts it)."""
+        self.linked.append(keys.validate_name(robot, "robot name"))
+        if self._token is None:
             self._token = self.session.liveliness().declare_token(gri.gcs_alive_key(self.name))
             self._hb_pub = self.session.declare_publisher(gri.gcs_heartbeat_key(self.name))
             self._beat = threading.Thread(target=self._heartbeat, name="gcs.heartbeat", daemon=True)
@@ -119,7 +129,8 @@ class Gcs:
         seq = 0
         while not self._stop.is_set():
             seq += 1
-            self._hb_pub.put(gri.encode(gri.GcsHeartbeat(gcs=self.name, seq=seq, stamp=time.time())))
+            beat = gri.GcsHeartbeat(gcs=self.name, seq=seq, stamp=time.time(), robots=list(self.linked))
+            self._hb_pub.put(gri.encode(beat))
             self._stop.wait(HEARTBEAT_S)
 
     def close(self) -> None:
@@ -206,6 +217,10 @@ class Gcs:
 
     def errors(self, robot: str) -> list[gri.ErrorRecord]:
         return self.state(robot).errors
+
+    def restart(self, robot: str, module: str) -> gri.TaskReply:
+        """Restart one module; its running tasks fail with that reason."""
+        return self.send(robot, gri.RestartModule(module=module))
 
     # ------------------------------------------------------------ tasks
 

@@ -1,35 +1,49 @@
 """``cromat gcs``: the ground-station command line, a thin shell over :mod:`ral.gcs.api`.
 
 Exit codes: 0 done, 1 the robot rejected or refused the request, 2 usage or file error, 3 unreachable, refused
-credentials, or no answer.
+credentials, no answer, or no such robot.
+
+``--connect``, ``--ca``, ``--cert``, ``--key``, ``--config`` and ``--name`` default to the environment variables
+``CROMAT_GCS_CONNECT`` (comma-separated endpoints), ``CROMAT_GCS_CA``, ``CROMAT_GCS_CERT``, ``CROMAT_GCS_KEY``,
+``CROMAT_GCS_CONFIG`` and ``CROMAT_GCS_NAME``.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 import threading
 import time
 from typing import TextIO
 
-from ral import gri
+from bbcs.contracts import gri
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
 from ral.gcs.waypoints import WaypointFileError, load_waypoints
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cromat gcs", description="Ground control station for cromat robots.")
+    env = os.environ
     p.add_argument(
         "--connect",
         action="append",
         metavar="ENDPOINT",
-        help="robot router endpoint, e.g. tls/robot1:7447 (repeatable; default tcp/127.0.0.1:7447)",
+        default=[e for e in env.get("CROMAT_GCS_CONNECT", "").split(",") if e.strip()] or None,
+        help="robot router endpoint, e.g. tls/robot1:7447 (repeatable; env CROMAT_GCS_CONNECT, comma-separated; "
+        "default tcp/127.0.0.1:7447)",
     )
-    p.add_argument("--ca", help="CA certificate (PEM) that signed the router's certificate (tls/)")
-    p.add_argument("--cert", help="this station's certificate (PEM) for mutual TLS")
-    p.add_argument("--key", help="this station's private key (PEM)")
-    p.add_argument("--config", metavar="FILE", help="Zenoh JSON5 config file (applied first)")
-    p.add_argument("--name", default="gcs", help="station name (liveliness token), default gcs")
+    p.add_argument("--ca", default=env.get("CROMAT_GCS_CA"),
+                   help="CA certificate (PEM) that signed the router's certificate (tls/; env CROMAT_GCS_CA)")
+    p.add_argument("--cert", default=env.get("CROMAT_GCS_CERT"),
+                   help="this station's certificate (PEM) for mutual TLS (env CROMAT_GCS_CERT)")
+    p.add_argument("--key", default=env.get("CROMAT_GCS_KEY"),
+                   help="this station's private key (PEM) (env CROMAT_GCS_KEY)")
+    p.add_argument("--config", metavar="FILE", default=env.get("CROMAT_GCS_CONFIG"),
+                   help="Zenoh JSON5 config file, applied first (env CROMAT_GCS_CONFIG)")
+    p.add_argument("--name", default=env.get("CROMAT_GCS_NAME", "gcs"),
+                   help="station name (liveliness token), default gcs (env CROMAT_GCS_NAME)")
     p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for answers (default 5)")
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("robots", help="list live robots")
@@ -40,15 +54,26 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("task", help="submit a task")
     t.add_argument("robot")
     kinds = t.add_subparsers(dest="kind", required=True)
-    k = kinds.add_parser("take_off")
-    k.add_argument("--height", type=float, default=10.0)
+    k = kinds.add_parser("take_off", help="climb to the DSP's take-off height above the take-off point")
+    k.add_argument("--height", type=float, default=10.0, help="metres above the take-off point (default 10)")
     kinds.add_parser("land")
-    kinds.add_parser("hold")
+    kinds.add_parser("hold", help="stop here: both waypoint queues emptied")
     kinds.add_parser("track", help="pan & tilt follows the perception module's target")
     for name in ("goto", "follow_path"):
-        k = kinds.add_parser(name, help="waypoints from a CSV (lat,lon,alt) or GeoJSON file")
+        k = kinds.add_parser(name, help="waypoints from a CSV (lat,lon,alt above sea level) or GeoJSON file")
         k.add_argument("file")
-        k.add_argument("--speed", type=float)
+        k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
+        if name == "follow_path":
+            k.add_argument("--heading", type=float, metavar="DEG",
+                           help="hold this heading (degrees, path mode 1 with the HEADING slot)")
+    k = kinds.add_parser("follow_vision_path", help="follow the paths the perception module writes")
+    k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
+    k = kinds.add_parser("bridge", help="path mode 6: the DSP flies these references (REFS)")
+    k.add_argument("ref_altura", type=float, help="metres above sea level")
+    k.add_argument("--error-longitudinal", type=float, default=0.0, help="metres")
+    k.add_argument("--error-lateral", type=float, default=0.0, help="metres")
+    k.add_argument("--ref-heading", type=float, default=0.0, metavar="DEG", help="degrees")
+    k.add_argument("--ref-rpm", type=float, default=1500.0, help="rotor rpm [0, 1800]")
     k = kinds.add_parser("look_at")
     k.add_argument("lat", type=float)
     k.add_argument("lon", type=float)
@@ -67,9 +92,18 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("module")
     r.add_argument("input")
     r.add_argument("slot", type=int)
-    e = sub.add_parser("errors", help="a robot's most recent errors")
+    e = sub.add_parser("errors", help="a robot's most recent errors: module, code, name, detail")
     e.add_argument("robot")
+    rs = sub.add_parser("restart", help="restart one module (its running tasks fail)")
+    rs.add_argument("robot")
+    rs.add_argument("module")
     return p
+
+
+def _heading_rad(deg: float) -> float:
+    """Degrees → radians in [-π, π)."""
+    rad = math.radians(deg)
+    return (rad + math.pi) % (2 * math.pi) - math.pi
 
 
 def task_request(args: argparse.Namespace) -> gri.TaskRequest:
@@ -83,6 +117,14 @@ def task_request(args: argparse.Namespace) -> gri.TaskRequest:
             "waypoints": [msgspec.to_builtins(w) for w in load_waypoints(args.file)],
             "speed": args.speed,
         }
+        if kind == "follow_path" and args.heading is not None:
+            raw["heading"] = _heading_rad(args.heading)
+    elif kind == "follow_vision_path":
+        raw = {"type": kind, "speed": args.speed}
+    elif kind == "bridge":
+        raw = {"type": kind, "ref_altura": args.ref_altura, "error_longitudinal": args.error_longitudinal,
+               "error_lateral": args.error_lateral, "ref_heading": _heading_rad(args.ref_heading),
+               "ref_rpm_motor": args.ref_rpm}
     elif kind == "take_off":
         raw = {"type": kind, "height": args.height}
     elif kind == "look_at":
@@ -100,21 +142,52 @@ def task_request(args: argparse.Namespace) -> gri.TaskRequest:
 
 
 def format_state(s: gri.GriState) -> str:
-    pos = f"{s.position.lat:.6f} {s.position.lon:.6f} {s.position.alt:.1f} m" if s.position else "unknown"
-    tasks = ", ".join(f"{t.task_type}:{t.kind}#{t.id}" for t in s.tasks) or "none"
+    tel = s.telemetry
+    p = tel.position if tel else None
+    pos = f"{p.lat:.6f} {p.lon:.6f} {p.alt:.1f} m above sea level" if p else "unknown"
+    tasks = ", ".join(f"{t.task_type}:{t.kind or t.name}#{t.id}({t.origin})" for t in s.tasks) or "none"
     mods = " ".join(f"{m.name}={m.state}" for m in s.modules) or "-"
+    mode = (tel.mode_name or tel.mode) if tel else None
     return (
-        f"{s.robot} [{s.kind or '?'}] pos {pos}  mode {s.mode_name or s.mode}  airborne {s.airborne}  "
-        f"wp {s.waypoints_queued}  link {s.link}  manager {'up' if s.manager_up else 'DOWN'}\n"
+        f"{s.robot} [{s.kind or '?'}] pos {pos}  mode {mode}  airborne {tel.airborne if tel else None}  "
+        f"wp {tel.waypoints_queued if tel else None}  link {s.link}  manager {'up' if s.manager_up else 'DOWN'}\n"
         f"  tasks: {tasks}\n  modules: {mods}"
     )
+
+
+def format_error(err: gri.ErrorRecord) -> str:
+    """One error: when, which module, its code and name, and what happened."""
+    stamp = time.strftime("%H:%M:%S", time.localtime(err.stamp))
+    name = err.name or code_name(err.module, err.code)
+    return f"{stamp} {err.module:<14} {err.code:>5} {name or '-':<28} {err.detail}".rstrip()
+
+
+def code_name(module: str, code: int) -> str:
+    """The documented name of a module's error code (docs/error_codes.md), when this station knows it."""
+    from bbcs.errors import BusErrorCode
+    from modules.dsp.protocol import ErrorCode
+    from modules.pan_tilt.logic import PanTiltError
+    from modules.path_follower.logic import FollowerError
+
+    tables: dict[str, type] = {"path_follower": FollowerError, "pan_tilt": PanTiltError}
+    try:
+        if code < 100:
+            return BusErrorCode(code).name
+        if code >= 1000:
+            return "DSP_" + ErrorCode(code - 1000).name
+        if module in tables:
+            return tables[module](code).name
+    except ValueError:
+        return ""
+    return ""
 
 
 def _print_reply(reply: gri.TaskReply, out: TextIO) -> int:
     if reply.accepted:
         print(f"accepted task {reply.task_id} ({reply.task_type or '-'})", file=out)
         return 0
-    print(f"rejected: {reply.reason}", file=out)
+    code = f" [code {reply.code}]" if reply.code is not None else ""
+    print(f"rejected{code}: {reply.reason}", file=out)
     return 1
 
 
@@ -142,6 +215,12 @@ def _watch(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
             out.write(f"event {ev.kind} {ev.task_type} #{ev.task_id} {ev.detail}\n")
             out.flush()
 
+    try:  # a robot that does not answer is not linked: its failsafe (or another robot's) never counts this station
+        gcs.state(args.robot, args.timeout)
+    except NoReply:
+        known = ", ".join(gcs.robots(1.0)) or "none"
+        raise NoReply(f"no robot {args.robot!r} answered within {args.timeout:g} s (robots seen: {known})") from None
+    gcs.hold_link(args.robot)
     gcs.watch(args.robot, show)
     if args.events:
         gcs.events(args.robot, event)
@@ -163,7 +242,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         config_file=args.config,
         connect_timeout_s=args.timeout,
     )
-    with Gcs(cfg, name=args.name, link=args.command == "watch", timeout_s=args.timeout) as gcs:
+    with Gcs(cfg, name=args.name, timeout_s=args.timeout) as gcs:
         if args.command == "robots":
             for robot in gcs.robots():
                 print(robot, file=out)
@@ -197,9 +276,10 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             return 0
         if args.command == "errors":
             for err in gcs.errors(args.robot):
-                stamp = time.strftime("%H:%M:%S", time.localtime(err.stamp))
-                print(f"{stamp} {err.source:<14} {err.code:>5}  {err.detail}", file=out)
+                print(format_error(err), file=out)
             return 0
+        if args.command == "restart":
+            return _print_reply(gcs.restart(args.robot, args.module), out)
     return 2
 
 

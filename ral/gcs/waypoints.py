@@ -11,7 +11,7 @@ from pathlib import Path
 
 import msgspec
 
-from ral import gri
+from bbcs.contracts import gri
 
 _LAT = {"lat", "latitude", "latitud"}
 _LON = {"lon", "lng", "long", "longitude", "longitud"}

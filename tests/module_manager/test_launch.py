@@ -14,9 +14,9 @@ import msgspec
 import pytest
 
 from bbcs import keys
+from bbcs.contracts import mri
 from bbcs.errors import EXIT_CONFIG
 from bbcs.testing import wait_until
-from module_manager import mri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_support import ROOT, Launch, group_members, write_manifest  # noqa: E402

@@ -11,9 +11,9 @@ from pathlib import Path
 import msgspec
 
 from bbcs import keys
+from bbcs.contracts import mri
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
-from module_manager import mri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_support import ROOT, Launch, group_members  # noqa: E402

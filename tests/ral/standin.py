@@ -1,6 +1,6 @@
-"""A stand-in Module Manager for the RAL's request/reply tests: a real Zenoh queryable answering
-MRI requests per module_manager/mri.py and a RobotState publisher.
-Not a system test: the real manager is in module_manager/
+"""A stand-in Module Manager for the RAL's request/reply tests: a real Zenoh queryable answering MRI requests
+(bbcs/contracts/mri.py) with the manager's own task book, and a RobotState publisher.
+Not a system test: the real manager is in module_manager/ (tests/system run it).
 """
 
 from __future__ import annotations
@@ -10,9 +10,11 @@ from dataclasses import dataclass, field
 import msgspec
 import zenoh
 
+from bbcs.contracts import mri
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import mri
+from module_manager.manifest import TaskDef
+from module_manager.tasks import TaskBook
 
 ROBOT = "uav1"
 AVAILABLE = {
@@ -35,6 +37,9 @@ class StandIn:
     refuse: str = ""
     entities: list = field(default_factory=list)
     state_pub: Publisher | None = None
+    book: TaskBook = field(default_factory=lambda: TaskBook({n: TaskDef(type=t) for n, t in AVAILABLE.items()}))
+    epoch: float = 1.0
+    tel: RobotTelemetry | None = None
 
     def start(self) -> None:
         for verb in ("tasks", "task"):
@@ -49,14 +54,44 @@ class StandIn:
         request = mri.decode_request(query.payload.to_bytes())
         self.requests.append(request)
         if isinstance(request, mri.SetTask) and self.refuse:
-            reply = mri.MriReply(ok=False, reason=self.refuse)
+            reply = mri.MriReply(ok=False, reason=self.refuse, code=117)
+        elif isinstance(request, mri.SetTask):
+            self.book.start(request.name, request.params, 0.0, {}, {}, request.origin, request.replaced_as)
+            reply = mri.MriReply(ok=True, data=self.task_list())
+        elif isinstance(request, mri.EndTask):
+            running = self.book.running(request.task_type)
+            if running is None or (request.task_id and running.id != request.task_id):
+                reply = mri.MriReply(ok=False, reason="no such task running", data=self.task_list())
+            else:
+                self.book.end(request.task_type, 0.0, request.status, request.detail)
+                reply = mri.MriReply(ok=True, data=self.task_list())
         else:
-            reply = mri.MriReply(ok=True, data=mri.TaskList(active=[], available=AVAILABLE))
+            reply = mri.MriReply(ok=True, data=self.task_list())
         query.reply(query.key_expr, mri.encode(reply))
 
-    def telemetry(self, tel: RobotTelemetry) -> None:
+    def task_list(self) -> mri.TaskList:
+        return mri.TaskList(active=self.book.active(), ended=list(self.book.ended), available=AVAILABLE,
+                            version=self.book.version, epoch=self.epoch)
+
+    def telemetry(self, tel: RobotTelemetry | None = None) -> None:
+        """Publish the robot state (with this telemetry, or the last one) and the task book as it is."""
         assert self.state_pub is not None
-        self.state_pub.publish(mri.RobotState(robot=ROBOT, kind="uav", stamp=tel.stamp, telemetry=tel))
+        self.tel = tel or self.tel
+        self.state_pub.publish(mri.RobotState(robot=ROBOT, kind="uav", stamp=tel.stamp if tel else 0.0,
+                                              telemetry=self.tel, tasks=self.book.active(),
+                                              ended=list(self.book.ended), task_version=self.book.version,
+                                              task_epoch=self.epoch))
+
+    def publish_state(self, modules: list[mri.ModuleStatus] | None = None,
+                      errors: list[mri.ErrorEvent] | None = None) -> None:
+        assert self.state_pub is not None
+        self.state_pub.publish(mri.RobotState(robot=ROBOT, kind="uav", stamp=1.0, telemetry=self.tel,
+                                              modules=modules or [], errors=errors or [], tasks=self.book.active(),
+                                              ended=list(self.book.ended), task_version=self.book.version,
+                                              task_epoch=self.epoch))
+
+    def end_tasks(self) -> list[mri.EndTask]:
+        return [r for r in self.requests if isinstance(r, mri.EndTask)]
 
     def set_tasks(self) -> list[mri.SetTask]:
         return [r for r in self.requests if isinstance(r, mri.SetTask)]

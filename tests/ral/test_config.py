@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from module_manager import mri
+from bbcs.contracts import mri
 from ral.process import RalConfig
 
 

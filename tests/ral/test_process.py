@@ -18,13 +18,11 @@ import pytest
 
 from bbcs import keys
 from bbcs.context import ModuleContext
-from bbcs.contracts.geo import GeoPoint
+from bbcs.contracts import gri, mri
 from bbcs.contracts.path_follower import DatosSegCam
-from bbcs.contracts.robot import RobotTelemetry
+from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
-from module_manager import mri
-from ral import gri
 from ral.gcs.api import Gcs
 from ral.process import Ral
 
@@ -98,8 +96,8 @@ def test_goto_is_sent_to_the_manager_published_and_completed_from_telemetry(rig:
         task = ten_waypoints()
         reply = rig.gcs.send(ROBOT, task)
         assert reply.accepted and reply.task_type == "movement" and reply.task_id > 0
-        assert rig.manager.set_tasks()[-1] == mri.SetTask(
-            name="goto", params={"n_points": "10", "speed": "4"}
+        assert rig.manager.set_tasks()[-1] == mri.SetTask(name="goto", params=task, origin="gcs"), (
+            "the typed task travels to the manager"
         )
         wait_until(lambda: len(paths) == 1, what="path on ral/path")
         assert paths[0].n_points == 10 and paths[0].puntos[-1].latitud == task.waypoints[-1].lat
@@ -124,8 +122,11 @@ def test_goto_is_sent_to_the_manager_published_and_completed_from_telemetry(rig:
         wait_until(lambda: "task_completed" in rig.kinds(), what="task_completed event")
         done = next(e for e in rig.events if e.kind == "task_completed")
         assert done.task_id == reply.task_id
+        assert rig.manager.end_tasks()[-1] == mri.EndTask(
+            task_type="movement", task_id=reply.task_id, status="completed", detail=""
+        ), "the RAL's verdict goes to the manager's task book"
         wait_until(
-            lambda: rig.states[-1].tasks == [] and rig.states[-1].position is not None,
+            lambda: rig.states[-1].tasks == [] and rig.states[-1].telemetry is not None,
             what="state without the task",
         )
     finally:
@@ -157,30 +158,39 @@ def test_manager_refusal_is_passed_on(rig: Rig) -> None:
     rig.manager.refuse = "module pan_tilt is failed"
     reply = rig.gcs.send(ROBOT, gri.SetPanTilt(pan=10.0, tilt=-10.0))
     assert not reply.accepted and "module pan_tilt is failed" in reply.reason
-    wait_until(lambda: any(e.source == "ral" for e in rig.states[-1].errors), what="error in the GRI state")
+    assert reply.code == 117, "the refusing module's code reaches the ground station"
+    wait_until(lambda: any(e.module == "ral" for e in rig.states[-1].errors), what="error in the GRI state")
 
 
 def test_abort_ends_every_task(rig: Rig) -> None:
-    assert rig.gcs.send(ROBOT, ten_waypoints()).accepted
-    assert rig.gcs.send(ROBOT, gri.LookAt(lat=37.0, lon=-6.0, alt=0.0)).accepted
+    goto = rig.gcs.send(ROBOT, ten_waypoints())
+    look = rig.gcs.send(ROBOT, gri.LookAt(lat=37.0, lon=-6.0, alt=0.0))
+    assert goto.accepted and look.accepted
     reply = rig.gcs.abort(ROBOT)
     assert reply.accepted, reply.reason
-    after = rig.manager.requests[-2:]
-    assert after == [mri.SetTask(name="abort"), mri.EndTask(task_type="pan_tilt")]
-    wait_until(lambda: rig.kinds().count("aborted") == 2, what="two aborted events")
+    after = rig.manager.requests[-3:]
+    assert after[:2] == [
+        mri.SetTask(name="abort", origin="gcs", replaced_as="aborted"),
+        mri.EndTask(task_type="pan_tilt", status="aborted", detail="abort"),
+    ]
+    assert isinstance(after[2], mri.EndTask) and after[2].status == "completed", "the abort task ends once done"
+    wait_until(lambda: {e.task_id for e in list(rig.events) if e.kind == "aborted"} == {goto.task_id, look.task_id},
+               what="an aborted event for each running task")
     wait_until(lambda: rig.states[-1].tasks == [], what="no task in the state")
 
 
 def test_cancel_ends_one_type(rig: Rig) -> None:
     assert rig.gcs.send(ROBOT, gri.SetPanTilt(pan=1.0, tilt=2.0)).accepted
     reply = rig.gcs.send(ROBOT, gri.Cancel(task_type="pan_tilt"))
-    assert reply.accepted and rig.manager.requests[-1] == mri.EndTask(task_type="pan_tilt")
+    assert reply.accepted
+    assert rig.manager.requests[-1] == mri.EndTask(task_type="pan_tilt", status="cancelled", detail="cancelled")
+    wait_until(lambda: "task_cancelled" in rig.kinds(), what="task_cancelled event")
     bad = rig.gcs.send(ROBOT, gri.Cancel(task_type="swimming"))
     assert not bad.accepted and "swimming" in bad.reason
 
 
 def test_link_loss_runs_the_failsafe_and_regain_does_not_resume(rig: Rig) -> None:
-    link = Gcs(local_client(rig.port), name="pilot", link=True)
+    link = Gcs(local_client(rig.port), name="pilot", link=[ROBOT])
     try:
         wait_until(lambda: "link_up" in rig.kinds(), what="link_up")
         assert rig.gcs.send(ROBOT, ten_waypoints()).accepted
@@ -189,13 +199,14 @@ def test_link_loss_runs_the_failsafe_and_regain_does_not_resume(rig: Rig) -> Non
     wait_until(lambda: "link_lost" in rig.kinds(), what="link_lost")
     wait_until(lambda: "failsafe" in rig.kinds(), what="failsafe event")
     wait_until(
-        lambda: rig.manager.set_tasks()[-1] == mri.SetTask(name="hold"), what="hold sent to the manager"
+        lambda: rig.manager.set_tasks()[-1] == mri.SetTask(name="hold", params=gri.Hold(), origin="failsafe"),
+        what="hold sent to the manager",
     )
-    # the stand-in sees the request before the RAL records the accepted task: wait for the record too
-    wait_until(lambda: any(t.kind == "hold" and t.origin == "failsafe" for t in rig.ral.queue.tasks()),
-               what="the failsafe hold recorded as the current task")
+    # the stand-in sees the request before the RAL hears the reply: wait for the GRI state to show it too
+    wait_until(lambda: any(t.kind == "hold" and t.origin == "failsafe" for t in rig.states[-1].tasks),
+               what="the failsafe hold shown as the current task")
     sent = len(rig.manager.set_tasks())
-    back = Gcs(local_client(rig.port), name="pilot", link=True)
+    back = Gcs(local_client(rig.port), name="pilot", link=[ROBOT])
     try:
         wait_until(lambda: "link_regained" in rig.kinds(), what="link_regained")
         regained = next(e for e in rig.events if e.kind == "link_regained")
@@ -212,3 +223,27 @@ def test_link_loss_runs_the_failsafe_and_regain_does_not_resume(rig: Rig) -> Non
 def test_robots_lists_the_ral(rig: Rig) -> None:
     assert rig.gcs.robots() == [ROBOT]
     assert rig.gcs.state(ROBOT).robot == ROBOT
+
+
+def test_a_lost_effect_fails_the_task_with_a_reason(rig: Rig) -> None:
+    """Supervision: a module error after the task started, and a manager restart (new task-book epoch)."""
+    goto = rig.gcs.send(ROBOT, ten_waypoints())
+    assert goto.accepted
+    rig.manager.publish_state(
+        modules=[mri.ModuleStatus(name="path_follower", state="up", task_types=["movement"])],
+        errors=[mri.ErrorEvent(module="path_follower", code=1007, stamp=10.0, name="DSP_LOW_BATTERY")],
+    )
+    wait_until(lambda: any(e.kind == "task_failed" and e.task_id == goto.task_id for e in list(rig.events)),
+               what="task_failed after a module error")
+    failed = next(e for e in rig.events if e.kind == "task_failed")
+    assert "path_follower" in failed.detail and "1007" in failed.detail
+    assert rig.manager.end_tasks()[-1].status == "failed" and rig.manager.end_tasks()[-1].task_id == goto.task_id
+    look = rig.gcs.send(ROBOT, gri.LookAt(lat=37.41, lon=-6.0, alt=12.0))
+    assert look.accepted
+    rig.manager.epoch = 2.0  # the manager restarted: its book no longer holds the look_at
+    rig.manager.book = type(rig.manager.book)(rig.manager.book.tasks)
+    rig.manager.publish_state()
+    wait_until(lambda: any(e.kind == "task_failed" and e.task_id == look.task_id for e in list(rig.events)),
+               what="task_failed after a manager restart")
+    assert "Module Manager restarted" in next(e for e in rig.events if e.task_id == look.task_id
+                                              and e.kind == "task_failed").detail

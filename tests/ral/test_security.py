@@ -16,9 +16,9 @@ import pytest
 
 from bbcs import keys
 from bbcs.context import ModuleContext
+from bbcs.contracts import mri
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
-from module_manager import mri
 from ral import certs, gri
 from ral.gcs.api import Gcs, NoReply, Unreachable
 from ral.process import Ral
@@ -131,12 +131,12 @@ def test_gcs_identity_submits_tasks(secure: Secure) -> None:
     with Gcs(secure.client("gcs"), timeout_s=10.0) as gcs:
         reply = gcs.send(ROBOT, gri.Hold())
         assert reply.accepted, reply.reason
-        assert secure.manager.set_tasks()[-1] == mri.SetTask(name="hold")
+        assert secure.manager.set_tasks()[-1] == mri.SetTask(name="hold", params=gri.Hold(), origin="gcs")
 
 
 def test_module_identity_submitting_a_task_is_denied_and_robot_unaffected(secure: Secure) -> None:
     before = len(secure.manager.requests)
-    tasks_before = secure.ral.queue.tasks()
+    tasks_before = secure.manager.book.active()  # the task book (the stand-in manager's, as on a robot)
     with Gcs(secure.client("pan_tilt"), timeout_s=2.0) as module:
         with pytest.raises(NoReply, match="may not submit"):
             module.send(ROBOT, gri.Land())
@@ -147,7 +147,7 @@ def test_module_identity_submitting_a_task_is_denied_and_robot_unaffected(secure
         # answered, anything that had got through has been handled (and sent to the manager) too
         assert not gcs.send(ROBOT, gri.Cancel(task_type="no_such_type")).accepted
         assert len(secure.manager.requests) == before
-        assert secure.ral.queue.tasks() == tasks_before
+        assert secure.manager.book.active() == tasks_before
         assert gcs.state(ROBOT).robot == ROBOT
 
 

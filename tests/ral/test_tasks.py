@@ -1,57 +1,60 @@
-"""Task admission, one task per type, cancel/abort, and completion detected from telemetry."""
+"""What the RAL decides about tasks, as pure functions: admission against the robot's .conf limits, and the
+judge (completed / failed for lack of progress / running) with an injected clock."""
 
 from __future__ import annotations
 
 import msgspec
 import pytest
 
-from bbcs.contracts.geo import GeoPoint
-from bbcs.contracts.robot import RobotTelemetry
-from ral import gri
-from ral.tasks import Plan, QueueConfig, Rejected, TaskQueue, distance_m
+from bbcs.contracts import gri
+from bbcs.contracts import tasks as t
+from bbcs.contracts.robot import GeoPoint, RobotTelemetry
+from ral.tasks import (
+    Geofence,
+    JudgeConfig,
+    Limits,
+    Plan,
+    Progress,
+    Rejected,
+    admit,
+    available_kinds,
+    distance_m,
+    judge,
+    load_limits,
+)
 
 AVAILABLE = {
     "take_off": "movement",
     "land": "movement",
     "goto": "movement",
+    "follow_path": "movement",
     "hold": "movement",
     "look_at": "pan_tilt",
     "pan_tilt": "pan_tilt",
     "abort": "movement",
 }
-HOME = GeoPoint(lat=37.41, lon=-6.0, alt=10.0)
+HOME = GeoPoint(lat=37.41, lon=-6.0, alt=12.0)
+LIMITS = Limits(max_speed=8.0, cruise_speed=5.0, min_clearance_m=5.0, max_height_m=120.0,
+                geofence=Geofence(37.41, -6.0, 3000.0), takeoff_height_m=10.0)
+CFG = JudgeConfig(position_tolerance_m=3.0, altitude_tolerance_m=2.0, settle_s=2.0, stall_s=30.0)
 
 
-def tel(
-    lat: float = 37.41,
-    lon: float = -6.0,
-    alt: float = 10.0,
-    *,
-    queued: int | None = 0,
-    airborne: bool | None = True,
-) -> RobotTelemetry:
-    return RobotTelemetry(
-        stamp=0.0, position=GeoPoint(lat=lat, lon=lon, alt=alt), waypoints_queued=queued, airborne=airborne
-    )
+def tel(lat: float = 37.41, lon: float = -6.0, alt: float = 12.0, *, queued: int | None = 0,
+        airborne: bool | None = True) -> RobotTelemetry:
+    return RobotTelemetry(stamp=0.0, position=GeoPoint(lat=lat, lon=lon, alt=alt), waypoints_queued=queued,
+                          airborne=airborne)
 
 
-def queue(**cfg: float) -> TaskQueue:
-    q = TaskQueue("uav1", QueueConfig(**cfg), available=dict(AVAILABLE))
-    q.on_telemetry(tel(airborne=False), 0.0)
-    return q
+def path(n: int = 3, alt: float = 30.0, speed: float | None = None) -> t.Goto:
+    return t.Goto(waypoints=[t.Waypoint(lat=37.41 + 0.0001 * i, lon=-6.0, alt=alt) for i in range(1, n + 1)],
+                  speed=speed)
 
 
-def path(n: int = 3) -> gri.Goto:
-    return gri.Goto(
-        waypoints=[gri.Waypoint(lat=37.41 + 0.0001 * i, lon=-6.0, alt=30.0) for i in range(1, n + 1)]
-    )
-
-
-def start(q: TaskQueue, task: gri.Task, now: float = 0.0) -> gri.TaskInfo:
-    plan = q.admit(task)
-    assert isinstance(plan, Plan), plan
-    info, _ = q.start(plan, now)
-    return info
+def check(request: t.TaskParams, limits: Limits = LIMITS, **kw) -> Plan | Rejected:
+    args = dict(available=AVAILABLE, task_names={}, limits=limits, cfg=CFG, telemetry=tel(airborne=False),
+                home=HOME)
+    args.update(kw)
+    return admit(request, **args)  # type: ignore[arg-type]
 
 
 def test_distance_is_metres() -> None:
@@ -60,122 +63,129 @@ def test_distance_is_metres() -> None:
 
 
 def test_admission_maps_kind_to_manifest_task_and_type() -> None:
-    plan = queue().admit(path(10))
-    assert isinstance(plan, Plan)
-    assert (plan.kind, plan.name, plan.task_type, plan.params) == (
-        "goto",
-        "goto",
-        "movement",
-        {"n_points": "10"},
-    )
+    plan = check(t.LookAt(lat=37.41, lon=-6.0, alt=12.0))
+    assert isinstance(plan, Plan) and (plan.name, plan.task_type) == ("look_at", "pan_tilt")
+    remapped = check(t.Hold(), task_names={"hold": "abort"})
+    assert isinstance(remapped, Plan) and remapped.name == "abort"
 
 
-def test_task_names_can_be_remapped() -> None:
-    q = queue()
-    q.task_names = {"goto": "follow_dsp"}
-    q.available["follow_dsp"] = "movement"
-    plan = q.admit(path())
-    assert isinstance(plan, Plan) and plan.name == "follow_dsp"
+def test_a_task_the_robot_lacks_is_rejected_with_what_it_offers() -> None:
+    r = check(t.Track())
+    assert isinstance(r, Rejected) and "no task 'track'" in r.reason and "goto" in r.reason
+    assert "abort" not in r.reason, "abort is not a task a station sends as a task"
+    assert isinstance(check(t.Hold(), available={}), Rejected)
 
 
-def test_a_task_the_robot_lacks_is_rejected_with_a_reason() -> None:
-    result = queue().admit(gri.FollowPath(waypoints=path().waypoints))
-    assert isinstance(result, Rejected)
-    assert "no task 'follow_path'" in result.reason and "available:" in result.reason
+def test_available_lists_only_what_a_ground_station_can_send() -> None:
+    kinds = available_kinds({**AVAILABLE, "bridge": "movement", "custom": "movement"}, {})
+    assert "abort" not in kinds and "custom" not in kinds and kinds["bridge"] == "movement"
 
 
-def test_nothing_is_admitted_while_the_task_list_is_unknown() -> None:
-    q = TaskQueue("uav1")
-    result = q.admit(gri.Hold())
-    assert isinstance(result, Rejected) and "Module Manager" in result.reason
+def test_no_speed_flies_at_the_cruise_speed_and_without_one_is_refused() -> None:
+    plan = check(path())
+    assert isinstance(plan, Plan) and plan.params.speed == 5.0  # type: ignore[union-attr]
+    r = check(path(), limits=Limits(max_speed=8.0))
+    assert isinstance(r, Rejected) and "CRUISE_SPEED" in r.reason
 
 
-def test_far_waypoint_is_rejected() -> None:
-    q = queue(max_range_m=1000.0)
-    far = gri.Goto(
-        waypoints=[gri.Waypoint(lat=37.41, lon=-6.0, alt=20.0), gri.Waypoint(lat=37.5, lon=-6.0, alt=20.0)]
-    )
-    result = q.admit(far)
-    assert isinstance(result, Rejected) and "waypoint 1" in result.reason
+def test_speed_above_max_speed_is_refused() -> None:  # issue 11 case 5
+    r = check(path(speed=12.0))
+    assert isinstance(r, Rejected) and "12 m/s is above MAX_SPEED 8 m/s" in r.reason
+    assert isinstance(check(path(speed=8.0)), Plan)
 
 
-def test_one_task_per_type_and_replacement_is_reported() -> None:
-    q = queue()
-    first = start(q, path())
-    look = start(q, gri.LookAt(lat=37.0, lon=-6.0, alt=0.0))
-    plan = q.admit(gri.Hold())
-    assert isinstance(plan, Plan)
-    second, replaced = q.start(plan, 1.0)
-    assert replaced is not None and replaced.id == first.id and replaced.status == "replaced"
-    assert [t.id for t in q.tasks()] == [second.id, look.id]
-    assert second.id > look.id > first.id
+def test_waypoint_below_the_clearance_above_home_is_refused() -> None:  # issue 11 case 7
+    r = check(path(alt=5.0))
+    assert isinstance(r, Rejected)
+    assert "5 m above sea level" in r.reason and "minimum clearance is 5 m" in r.reason
+    assert isinstance(check(path(alt=17.0)), Plan)
+    assert isinstance(check(path(alt=133.0)), Rejected), "above the ceiling"
 
 
-def test_cancel_and_abort() -> None:
-    q = queue()
-    start(q, path())
-    start(q, gri.SetPanTilt(pan=10.0, tilt=-20.0))
-    cancelled = q.cancel("pan_tilt", 2.0)
-    assert cancelled is not None and cancelled.status == "cancelled" and cancelled.ended == 2.0
-    assert q.cancel("pan_tilt", 2.0) is None
-    start(q, gri.SetPanTilt(pan=0.0, tilt=0.0))
-    ended = q.abort(3.0)
-    assert sorted(i.task_type for i in ended) == ["movement", "pan_tilt"]
-    assert all(i.status == "aborted" for i in ended) and q.tasks() == []
+def test_clearance_needs_a_known_ground_reference() -> None:
+    r = check(path(), home=None)
+    assert isinstance(r, Rejected) and "take-off point" in r.reason
+
+
+def test_waypoint_outside_the_geofence_is_refused() -> None:
+    far = t.Goto(waypoints=[t.Waypoint(lat=37.41 + 0.04, lon=-6.0, alt=30.0)])
+    r = check(far)
+    assert isinstance(r, Rejected) and "outside the geofence" in r.reason
+
+
+def test_take_off_to_a_height_the_dsp_cannot_honour_is_refused() -> None:  # issue 11 case 4
+    r = check(t.TakeOff(height=20.0))
+    assert isinstance(r, Rejected) and "fixed take-off height 10 m" in r.reason
+    assert isinstance(check(t.TakeOff(height=10.0)), Plan)
+
+
+def test_uav1_conf_limits() -> None:
+    from pathlib import Path
+
+    limits = load_limits(str(Path(__file__).resolve().parents[2] / "bbcs_conf" / "uav1.conf"))
+    assert limits.max_speed == 8.0 and limits.cruise_speed == 5.0 and limits.takeoff_height_m == 10.0
+    assert limits.geofence is not None and limits.min_clearance_m == 5.0
+
+
+def running(request: t.TaskParams, started: float = 0.0) -> t.TaskInfo:
+    return t.TaskInfo(id=1, name=t.kind_of(request), task_type="movement", kind=t.kind_of(request),
+                      params=request, started=started)
+
+
+def run(task: t.TaskInfo, steps: list[tuple[float, RobotTelemetry]], start: float = 0.0) -> list[str]:
+    progress = Progress(started=start)
+    out = []
+    for now, telemetry in steps:
+        v = judge(task, progress, telemetry, HOME, LIMITS, CFG, now)
+        progress = v.progress
+        out.append(v.status)
+    return out
 
 
 def test_goto_completes_when_queue_empty_and_at_last_waypoint() -> None:
-    q = queue(position_tolerance_m=3.0, altitude_tolerance_m=2.0)
     task = path(3)
-    info = start(q, task)
     last = task.waypoints[-1]
-    assert q.on_telemetry(tel(alt=10.0, queued=0), 0.1) == []  # not there yet
-    assert q.on_telemetry(tel(alt=30.0, queued=3), 0.5) == []
-    assert q.on_telemetry(tel(last.lat, last.lon, 30.0, queued=1), 5.0) == []  # there, queue not empty
-    assert q.on_telemetry(tel(last.lat, last.lon, 35.0, queued=0), 5.5) == []  # too high
-    done = q.on_telemetry(tel(last.lat + 0.00001, last.lon, 31.0, queued=0), 6.0)
-    assert [(d.id, d.status) for d in done] == [(info.id, "completed")]
-    assert q.tasks() == []
+    assert run(running(task), [
+        (0.1, tel(alt=12.0, queued=0)),
+        (0.5, tel(alt=30.0, queued=3)),
+        (5.0, tel(last.lat, last.lon, 30.0, queued=1)),
+        (5.5, tel(last.lat, last.lon, 35.0, queued=0)),
+        (6.0, tel(last.lat + 0.00001, last.lon, 31.0, queued=0)),
+    ]) == ["running"] * 4 + ["completed"]
 
 
 def test_goto_at_last_waypoint_before_the_path_arrives_waits_to_settle() -> None:
-    q = queue(settle_s=2.0)
-    task = gri.Goto(waypoints=[gri.Waypoint(lat=37.41, lon=-6.0, alt=10.0)])
-    start(q, task, now=10.0)
-    assert q.on_telemetry(tel(queued=0), 10.5) == []
-    assert len(q.on_telemetry(tel(queued=0), 12.0)) == 1
+    task = t.Goto(waypoints=[t.Waypoint(lat=37.41, lon=-6.0, alt=12.0)])
+    assert run(running(task, 10.0), [(10.5, tel()), (12.0, tel())], start=10.0) == ["running", "completed"]
 
 
-def test_take_off_completes_at_height_above_home() -> None:
-    q = queue(altitude_tolerance_m=1.0)
-    start(q, gri.TakeOff(height=20.0))
-    assert q.on_telemetry(tel(alt=10.0, airborne=False), 1.0) == []
-    assert q.on_telemetry(tel(alt=25.0), 2.0) == []
-    assert len(q.on_telemetry(tel(alt=29.2), 3.0)) == 1
+def test_a_path_that_makes_no_progress_fails_after_stall_s() -> None:  # issue 11 cases 3 and 6
+    task = path(3)
+    still = tel(alt=30.0, queued=3)
+    statuses = run(running(task), [(float(s), still) for s in range(0, 31, 5)])
+    assert statuses[:-1] == ["running"] * 6 and statuses[-1] == "failed"
+
+
+def test_progress_keeps_a_path_running() -> None:
+    task = path(3)
+    steps = [(float(s), tel(lat=37.41 + 0.00001 * s, alt=30.0, queued=3)) for s in range(0, 60, 5)]
+    assert set(run(running(task), steps)) == {"running"}
+
+
+def test_take_off_completes_at_the_dsp_take_off_height_above_home() -> None:
+    task = running(t.TakeOff(height=10.0))
+    assert run(task, [(1.0, tel(alt=12.0, airborne=False)), (2.0, tel(alt=15.0)), (3.0, tel(alt=20.5))]) == [
+        "running", "running", "completed"]
 
 
 def test_land_completes_on_touchdown() -> None:
-    q = queue(settle_s=5.0)
-    q.on_telemetry(tel(alt=30.0), 0.0)
-    start(q, gri.Land())
-    assert q.on_telemetry(tel(alt=15.0), 1.0) == []
-    assert len(q.on_telemetry(tel(alt=10.0, airborne=False), 2.0)) == 1
+    task = running(t.Land())
+    assert run(task, [(1.0, tel(alt=25.0)), (3.0, tel(alt=12.0, airborne=False))]) == ["running", "completed"]
 
 
-def test_continuous_tasks_never_complete_by_themselves() -> None:
-    q = queue()
-    start(q, gri.Hold())
-    start(q, gri.SetPanTilt(pan=0.0, tilt=0.0))
-    for t in range(20):
-        assert q.on_telemetry(tel(queued=0), float(t)) == []
-    assert len(q.tasks()) == 2
-
-
-def test_home_follows_the_robot_on_the_ground_only() -> None:
-    q = queue()
-    q.on_telemetry(tel(lat=37.42, alt=12.0, airborne=False), 0.0)
-    q.on_telemetry(tel(lat=37.43, alt=40.0, airborne=True), 1.0)
-    assert q.home == GeoPoint(lat=37.42, lon=-6.0, alt=12.0)
+def test_continuous_tasks_never_complete_or_stall() -> None:
+    for request in (t.Hold(), t.SetPanTilt(pan=0.0, tilt=0.0), t.Track()):
+        assert set(run(running(request), [(float(s), tel()) for s in range(0, 100, 10)])) == {"running"}
 
 
 @pytest.mark.parametrize(
@@ -194,6 +204,9 @@ def test_bad_requests_fail_at_decoding(payload: dict) -> None:
         gri.decode_request(msgspec.msgpack.encode(payload))
 
 
-def test_requests_round_trip() -> None:
-    for request in [path(2), gri.Abort(), gri.Cancel(task_type="pan_tilt"), gri.TakeOff(height=5.0)]:
+def test_requests_round_trip_with_every_kind() -> None:
+    requests = [path(2), gri.Abort(), gri.Cancel(task_type="pan_tilt"), t.TakeOff(height=5.0),
+                t.FollowPath(waypoints=path(1).waypoints, heading=1.0), t.FollowVisionPath(speed=3.0),
+                t.Bridge(ref_altura=30.0), gri.RestartModule(module="dsp")]
+    for request in requests:
         assert gri.decode_request(gri.encode(request)) == request

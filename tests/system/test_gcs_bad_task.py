@@ -11,8 +11,8 @@ from pathlib import Path
 
 import msgspec
 
+from bbcs.contracts import gri
 from bbcs.testing import wait_until
-from ral import gri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402
@@ -56,6 +56,7 @@ def test_bad_tasks_rejected_with_reason_state_unchanged(tmp_path: Path) -> None:
         assert not reply.accepted and "lat" in reply.reason and "<= 90" in reply.reason
         # waypoint beyond max_range_m (5 km in the manifest) from the robot
         far = [*grid_path(pos)[:3], gri.Waypoint(lat=pos.lat + 0.1, lon=pos.lon, alt=pos.alt + 10)]
+        far = [gri.Waypoint(lat=w.lat, lon=w.lon, alt=pos.alt + 10) for w in far]  # above the clearance
         reply = gcs.send(ROBOT, gri.FollowPath(waypoints=far))
         assert not reply.accepted and "waypoint 3" in reply.reason and "km from the robot" in reply.reason
         # unknown task

@@ -11,8 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from bbcs.contracts import gri
 from bbcs.testing import child_env, wait_until
-from ral import gri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402
@@ -21,7 +21,7 @@ FAILSAFE_S = 1.5
 GCS_SCRIPT = """
 import sys, time
 from ral.gcs.api import Gcs, session_config
-gcs = Gcs(session_config([sys.argv[1]]), name="field_station", link=True)
+gcs = Gcs(session_config([sys.argv[1]]), name="field_station", link=["uav1"])
 print("linked", flush=True)
 while True:
     time.sleep(1)
@@ -81,7 +81,7 @@ def test_gcs_killed_mid_mission_triggers_failsafe_then_gcs_back_sees_robot(tmp_p
 
         # a ground station comes back: it sees the robot within seconds; the failsafe stays in force
         start = len(robot.events)
-        back = connect(la.port, "field_station_2", link=True)
+        back = connect(la.port, "field_station_2", link=[ROBOT])
         wait_until(lambda: back.robots(1.0) == [ROBOT], 20, "robot listed again")
         regained = robot.wait_event(lambda e: e.kind == "link_regained", 20, "link regained", after=start)
         assert "stays in force" in regained.detail

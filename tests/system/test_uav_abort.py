@@ -77,10 +77,11 @@ def abort_and_check(uav: Stack, mark: int) -> tuple[int, float]:
     sent = uav.received(mark)
     names = [r["name"] for r in sent]
     waypoints = names.count("ADD_WAYPOINT")
-    assert names == ["ADD_WAYPOINT"] * waypoints + ["ABORT"], names[-5:]
+    # a path replaces the DSP's queue: INVALIDATE_PATH, acknowledged, before its first waypoint
+    assert names == ["INVALIDATE_PATH"] + ["ADD_WAYPOINT"] * waypoints + ["ABORT"], names[-5:]
     assert all(
         r["fields"]["lat"] == pytest.approx(pt.latitud, abs=1e-6)
-        for r, pt in zip(sent[:waypoints], PATH.puntos[:waypoints], strict=True)
+        for r, pt in zip(sent[1 : 1 + waypoints], PATH.puntos[:waypoints], strict=True)
     )
     if waypoints < N:  # the ABORT overtook the rest of the path: dropped, and said so to the path follower
         wait_until(
@@ -99,7 +100,7 @@ def abort_and_check(uav: Stack, mark: int) -> tuple[int, float]:
     )
     assert uav.status().queue_length == 0
     uav.barrier()
-    assert uav.received(mark)[waypoints + 1 :] == [], "the PC sent more after the abort"
+    assert uav.received(mark)[waypoints + 2 :] == [], "the PC sent more after the abort"
     return waypoints, held
 
 

@@ -27,7 +27,8 @@ PF = "path_follower"
 # far waypoints (≈ 1 km north of home): queued, never reached while a test looks at the queue
 POINTS = [DatoPuntoSegCam(latitud=37.4217 + i * 1e-4, longitud=-6.0025, altura=30.0) for i in range(3)]
 PATH = DatosSegCam(n_points=len(POINTS), puntos=POINTS)
-WAYPOINTS = [p.AddWaypoint(lat=pt.latitud, lon=pt.longitud, alt=pt.altura) for pt in POINTS]
+WAYPOINTS = [p.InvalidatePath(), *(p.AddWaypoint(lat=pt.latitud, lon=pt.longitud, alt=pt.altura) for pt in POINTS)]
+"""A path replaces the DSP's queue: emptied (acknowledged) first, then every waypoint."""
 REFS = RefsSegCam(
     ref_altura=30.0, error_longitudinal=2.0, error_lateral=-1.0, ref_heading=0.25, ref_rpm_motor=1500.0
 )
@@ -247,11 +248,12 @@ def test_path_reaches_the_dsp_in_modes_0_and_1_only(stack: Stack) -> None:
     stack.send("path", PATH)
     stack.expect(mark, WAYPOINTS, "path in mode 1")
     stack.wait_state("path in mode 1", mode=1, path_valid=True, queue=3)
-    enter(stack, 0, "mode 0 after mode 1")  # keeps the queued path and adds to it
+    enter(stack, 0, "mode 0 after mode 1")  # keeps the queued path until a new one replaces it
+    stack.wait_state("mode 0 keeps the path", mode=0, tracking=True, path_valid=True, queue=3)
     mark = stack.mark()
     stack.send("path", PATH)
     stack.expect(mark, WAYPOINTS, "path in mode 0")
-    stack.wait_state("path in mode 0", mode=0, tracking=True, path_valid=True, queue=6)
+    stack.wait_state("a new path replaces the queue", mode=0, tracking=True, path_valid=True, queue=3)
 
 
 def test_refs_reach_the_dsp_in_mode_6_only(stack: Stack) -> None:

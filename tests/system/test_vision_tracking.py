@@ -15,6 +15,7 @@ telemetry's own delay. Each sample must lie within atan(q / r) + 3°.
 from __future__ import annotations
 
 import math
+import re
 import sys
 import threading
 import time
@@ -23,17 +24,18 @@ from pathlib import Path
 import msgspec
 
 from bbcs import keys
+from bbcs.contracts import gri
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
 from modules.vision.geodesy import LocalFrame
 from modules.vision.process import VisionStatus
-from ral import gri
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect, launch_robot  # noqa: E402
 
 TARGET_EAST, TARGET_VE, GROUND_ALT = 30.0, 0.5, 12.0
 HEIGHT = 30.0
+CONF = Path(__file__).resolve().parents[2] / "bbcs_conf" / "uav1.conf"
 Q_M = 0.5 * math.hypot(11.13, 8.84)
 MARGIN_DEG = 3.0
 
@@ -52,8 +54,16 @@ def pointing_error_deg(state: gri.GriState, target_enu: tuple[float, float, floa
 
 
 def test_vision_tracks_a_walking_target_until_the_gcs_takes_datos_back(tmp_path: Path) -> None:
-    la, record = launch_robot(tmp_path, edit=lambda text: text.replace(
-        '"--tcp", "127.0.0.1:{port:dsp}",', f'"--tcp", "127.0.0.1:{{port:dsp}}", "--takeoff-height", "{HEIGHT}",'))
+    # this DSP takes off to HEIGHT: the robot's .conf says so (TAKEOFF_HEIGHT), or the RAL refuses the take-off
+    conf = tmp_path / "uav1.conf"
+    conf.write_text(re.sub(r"^TAKEOFF_HEIGHT:.*$", f"TAKEOFF_HEIGHT: {HEIGHT}", CONF.read_text(), flags=re.M))
+
+    def edit(text: str) -> str:
+        text = text.replace('"--tcp", "127.0.0.1:{port:dsp}",',
+                            f'"--tcp", "127.0.0.1:{{port:dsp}}", "--takeoff-height", "{HEIGHT}",')
+        return re.sub(r'^conf = ".*"$', f'conf = "{conf}"', text, count=1, flags=re.M)
+
+    la, record = launch_robot(tmp_path, edit=edit)
     gcs = connect(la.port, "ground1")
     bus = open_session(local_client(la.port))
     first_frame: list[float] = []

@@ -13,7 +13,7 @@ from bbcs.contracts import geo
 class Sample(msgspec.Struct):
     lat: geo.Latitude
     lon: geo.Longitude
-    alt: geo.AltitudeEllipsoid
+    alt: geo.AltitudeAMSL
     pan: geo.DegreesSigned180
     tilt: geo.DegreesSigned90
     heading: geo.HeadingDegrees

@@ -120,8 +120,20 @@ def test_speed_above_max_refused(speed):
 def test_datos_in_modes_0_and_1_sends_every_waypoint(m):
     pts = [DatoPuntoSegCam(latitud=37.0 + i / 1e4, longitud=-6.0, altura=10.0 + i) for i in range(3)]
     d = logic.on_datos(FollowerState(mode=m), DatosSegCam(n_points=3, puntos=pts))
-    assert d.commands == tuple(p.AddWaypoint(lat=q.latitud, lon=q.longitud, alt=q.altura) for q in pts)
+    assert d.commands == (p.InvalidatePath(),) + tuple(
+        p.AddWaypoint(lat=q.latitud, lon=q.longitud, alt=q.altura) for q in pts
+    )
     assert d.state.path == tuple(pts)
+
+
+def test_a_new_path_replaces_the_old_one_in_both_queues():
+    old = [DatoPuntoSegCam(latitud=37.0 + i / 1e4, longitud=-6.0, altura=20.0) for i in range(6)]
+    new = [DatoPuntoSegCam(latitud=38.0 + i / 1e4, longitud=-6.0, altura=20.0) for i in range(2)]
+    first = logic.on_datos(FollowerState(mode=0), DatosSegCam(n_points=6, puntos=old))
+    d = logic.on_datos(first.state, DatosSegCam(n_points=2, puntos=new))
+    assert d.commands[0] == p.InvalidatePath(), "the DSP's queue is emptied before the new path's first waypoint"
+    assert d.commands[1:] == tuple(p.AddWaypoint(lat=q.latitud, lon=q.longitud, alt=q.altura) for q in new)
+    assert d.state.path == tuple(new), "the onboard queue holds only the new path"
 
 
 @pytest.mark.parametrize("m", [None, 2, 4, 5, 6])
@@ -143,7 +155,7 @@ def test_datos_one_bad_altitude_rejects_the_whole_message():
 
 
 def test_datos_longer_than_the_dsp_queue_is_refused():
-    assert len(logic.on_datos(FollowerState(mode=0), path(512)).commands) == 512
+    assert len(logic.on_datos(FollowerState(mode=0), path(512)).commands) == 1 + 512
     d = logic.on_datos(FollowerState(mode=0), path(513))
     assert d.commands == () and d.errors == (FollowerError.PATH_TOO_LONG,)
 

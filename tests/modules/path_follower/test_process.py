@@ -110,7 +110,7 @@ def test_mode_table_and_slot_gating(rig):
         src,
         "path",
         DatosSegCam(n_points=2, puntos=[PT, PT]),
-        [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)] * 2,
+        [p.InvalidatePath(), *[p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)] * 2],
         "path in mode 0",
     )
     step(
@@ -138,7 +138,7 @@ def test_mode_table_and_slot_gating(rig):
         src,
         "path",
         DatosSegCam(n_points=1, puntos=[PT]),
-        [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)],
+        [p.InvalidatePath(), p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)],
         "path in mode 1",
     )
     step(
@@ -233,7 +233,7 @@ def test_every_out_of_range_datum_gives_its_code_and_nothing_reaches_the_dsp(rig
         src,
         "path",
         DatosSegCam(n_points=1, puntos=[PT]),
-        [p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)],
+        [p.InvalidatePath(), p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura)],
         "routes kept",
     )
     assert not [a for a in watch.acks if not a.accepted]

@@ -14,10 +14,10 @@ import msgspec
 import pytest
 
 from bbcs import keys
+from bbcs.contracts import mri
 from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import GeoPoint, SurveyRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.testing import wait_until
-from module_manager import mri
 
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "tests" / "module_manager"))

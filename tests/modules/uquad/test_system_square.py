@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bbcs.contracts import gri
 from bbcs.testing import wait_until
 from modules.uquad.config import load_config
 from modules.uquad.geo import Home
-from ral import gri
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "module_manager"))

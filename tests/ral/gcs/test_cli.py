@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -84,3 +86,72 @@ def test_commands_against_a_robot(robot: int, tmp_path: Path, capsys: pytest.Cap
     assert cli.main([*base, "abort", ROBOT]) == 0
     assert "abort answered in" in capsys.readouterr().out
     assert cli.main([*base, "errors", ROBOT]) == 0
+
+
+def test_watch_of_a_robot_that_does_not_exist_exits_3_and_links_nobody(
+    robot: int, capsys: pytest.CaptureFixture[str]
+) -> None:  # issue 11 case 8
+    events = []
+    with Gcs(local_client(robot)) as observer:
+        observer.events(ROBOT, events.append)
+        t0 = time.monotonic()
+        code = cli.main(["--connect", f"tcp/127.0.0.1:{robot}", "--timeout", "1.5", "watch", "uav2"])
+        elapsed = time.monotonic() - t0
+        err = capsys.readouterr().err
+        assert code == 3 and "no robot 'uav2' answered within 1.5 s" in err and ROBOT in err
+        assert elapsed < 10.0, f"watch took {elapsed:.1f} s to give up"
+        # a real link for uav1 does come up: the marker that the RAL would have seen the first one
+        with Gcs(local_client(robot), name="pilot", link=[ROBOT]):
+            wait_until(lambda: any(e.kind == "link_up" for e in events), 15, "link_up from a real uav1 link")
+        up = [e for e in events if e.kind == "link_up"]
+        assert len(up) == 1 and "pilot" in up[0].detail and "gcs" not in up[0].detail.replace("pilot", "")
+
+
+def test_a_station_linked_to_another_robot_is_not_a_link_here(robot: int) -> None:
+    events = []
+    with Gcs(local_client(robot)) as observer:
+        observer.events(ROBOT, events.append)
+        with Gcs(local_client(robot), name="other", link=["uav2"]):
+            with Gcs(local_client(robot), name="pilot", link=[ROBOT]):
+                wait_until(lambda: any(e.kind == "link_up" for e in events), 15, "link_up")
+        assert "other" not in next(e for e in events if e.kind == "link_up").detail
+
+
+def test_connection_options_come_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CROMAT_GCS_CONNECT", "tls/robot1:7447,tls/robot2:7447")
+    monkeypatch.setenv("CROMAT_GCS_CA", "/pki/ca.pem")
+    monkeypatch.setenv("CROMAT_GCS_NAME", "field")
+    args = cli.build_parser().parse_args(["robots"])
+    assert args.connect == ["tls/robot1:7447", "tls/robot2:7447"] and args.ca == "/pki/ca.pem"
+    assert args.name == "field"
+    assert cli.build_parser().parse_args(["--connect", "tcp/h:1", "robots"]).connect[-1] == "tcp/h:1"
+
+
+def test_every_task_kind_has_a_command(tmp_path: Path) -> None:
+    from bbcs.contracts import tasks as t
+
+    f = tmp_path / "wp.csv"
+    f.write_text("37.41,-6.0,30\n")
+    argv = {
+        "take_off": ["take_off", "--height", "10"], "land": ["land"], "hold": ["hold"], "track": ["track"],
+        "goto": ["goto", str(f)], "follow_path": ["follow_path", str(f), "--heading", "90"],
+        "follow_vision_path": ["follow_vision_path", "--speed", "3"],
+        "bridge": ["bridge", "40", "--error-lateral", "2", "--ref-heading", "180"],
+        "look_at": ["look_at", "37.41", "-6.0", "12"], "pan_tilt": ["pan_tilt", "10", "-20"],
+    }
+    assert set(argv) == set(t.TASK_KINDS)
+    for kind, rest in argv.items():
+        request = cli.task_request(cli.build_parser().parse_args(["task", ROBOT, *rest]))
+        assert t.kind_of(request) == kind
+    heading = cli.task_request(cli.build_parser().parse_args(["task", ROBOT, *argv["follow_path"]]))
+    assert heading.heading == pytest.approx(math.pi / 2)  # type: ignore[union-attr]
+    bridge = cli.task_request(cli.build_parser().parse_args(["task", ROBOT, *argv["bridge"]]))
+    assert bridge.ref_heading == pytest.approx(-math.pi) and bridge.error_lateral == 2.0  # type: ignore[union-attr]
+
+
+def test_errors_print_names_and_detail() -> None:
+    from bbcs.contracts import mri
+
+    line = cli.format_error(mri.ErrorEvent(module="path_follower", code=106, stamp=0.0, detail="speed 12"))
+    assert "SPEED_ABOVE_MAX" in line and "speed 12" in line and "path_follower" in line
+    assert "DSP_" in cli.format_error(mri.ErrorEvent(module="path_follower", code=1001, stamp=0.0))

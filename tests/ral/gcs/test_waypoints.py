@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from ral import gri
+from bbcs.contracts import gri
 from ral.gcs.waypoints import WaypointFileError, load_waypoints
 
 

@@ -24,8 +24,10 @@ import zenoh
 
 from bbcs import keys
 from bbcs.contracts.robot import RobotTelemetry
+from bbcs.contracts.tasks import Origin, TaskInfo, TaskParams
 
 ModuleState = Literal["starting", "up", "restarting", "failed", "stopped"]
+EndStatus = Literal["cancelled", "completed", "failed", "aborted"]
 TaskType = str
 """A task type the manifest declares (UAV: ``perception``, ``movement``, ``pan_tilt``)."""
 
@@ -64,16 +66,25 @@ class ModuleCommand(msgspec.Struct, frozen=True, kw_only=True, tag=True):
 
 
 class SetTask(msgspec.Struct, frozen=True, kw_only=True, tag=True):
-    """Start task ``name`` (from the manifest's task map); it replaces the running task of the same type."""
+    """Start task ``name`` (from the manifest's task map); it replaces the running task of the same type.
+
+    ``params`` (typed, :mod:`bbcs.contracts.tasks`) travel with the task and are shown wherever it is listed."""
 
     name: str
-    params: dict[str, str] = msgspec.field(default_factory=dict)
+    params: TaskParams | None = None
+    origin: Origin = "mri"
+    replaced_as: Literal["replaced", "aborted"] = "replaced"
+    """How the task it replaces is recorded as having ended (an abort ends it as ``aborted``)."""
 
 
 class EndTask(msgspec.Struct, frozen=True, kw_only=True, tag=True):
-    """End the running task of ``task_type``; its routes and modes are restored to what they were before."""
+    """End the running task of ``task_type`` (only if it is still task ``task_id``, when that is not 0); its routes
+    and modes are restored to what they were before. ``status``/``detail`` say why it ended."""
 
     task_type: str
+    task_id: int = 0
+    status: EndStatus = "cancelled"
+    detail: str = ""
 
 
 class SetModuleMode(msgspec.Struct, frozen=True, kw_only=True, tag=True):
@@ -112,23 +123,30 @@ class RouteList(msgspec.Struct, frozen=True, kw_only=True, tag=True):
     """slot number → ``module/slot`` (type in the manifest)."""
 
 
-class ActiveTask(msgspec.Struct, frozen=True, kw_only=True):
-    task_type: str
-    name: str
-    params: dict[str, str] = msgspec.field(default_factory=dict)
-    started: float = 0.0
+ActiveTask = TaskInfo
+"""The task book's record of a task (one type, :class:`bbcs.contracts.tasks.TaskInfo`, for the MRI and the GRI)."""
 
 
 class TaskList(msgspec.Struct, frozen=True, kw_only=True, tag=True):
-    active: list[ActiveTask]
+    active: list[TaskInfo]
+    ended: list[TaskInfo] = msgspec.field(default_factory=list)
+    """The most recently ended tasks, newest last (bounded): how each one ended and why."""
     available: dict[str, str] = msgspec.field(default_factory=dict)
-    """task name → task type, from the manifest."""
+    """task name → task type: the manifest tasks a ground station can send (a GRI task kind of that name)."""
+    version: int = 0
+    """Grows with every change of the task book: an older list never overrides a newer one."""
+    epoch: float = 0.0
+    """When this task book began (the manager's start): a new epoch means every earlier task was lost."""
 
 
 class ErrorEvent(msgspec.Struct, frozen=True, kw_only=True):
     module: str
+    """Module name, or ``ral``."""
     code: int
     stamp: float
+    name: str = ""
+    """The code's name (``SPEED_ABOVE_MAX``) when the reporter knows it."""
+    detail: str = ""
 
 
 class RobotState(msgspec.Struct, frozen=True, kw_only=True):
@@ -139,14 +157,35 @@ class RobotState(msgspec.Struct, frozen=True, kw_only=True):
     stamp: float
     telemetry: RobotTelemetry | None = None
     modules: list[ModuleStatus] = msgspec.field(default_factory=list)
-    tasks: list[ActiveTask] = msgspec.field(default_factory=list)
+    tasks: list[TaskInfo] = msgspec.field(default_factory=list)
+    ended: list[TaskInfo] = msgspec.field(default_factory=list)
+    task_version: int = 0
+    task_epoch: float = 0.0
     errors: list[ErrorEvent] = msgspec.field(default_factory=list)
     """The most recent error codes from the modules' ERROR slots, newest last (bounded)."""
+
+
+MODE_ACK_SLOT = "mode_ack"
+"""Output slot on which a module that takes a mode answers every mode it receives."""
+
+
+class ModeAck(msgspec.Struct, frozen=True, kw_only=True):
+    """A module's answer to one mode (its fields as received): applied, or refused with its error code and why.
+
+    Published after the module has applied the mode, from the thread that handles its data: anything sent after
+    this answer is handled under the new mode."""
+
+    mode: dict[str, int]
+    accepted: bool
+    code: int | None = None
+    reason: str = ""
 
 
 class MriReply(msgspec.Struct, frozen=True, kw_only=True):
     ok: bool
     reason: str = ""
+    code: int | None = None
+    """The refusing module's error code, when a module refused the request."""
     data: ModuleList | RouteList | ModuleStatus | TaskList | None = None
 
 

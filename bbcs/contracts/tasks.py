@@ -1,0 +1,136 @@
+"""Tasks as one typed value that travels GRI → RAL → MRI → Module Manager: the task's parameters and its record.
+
+A task request is a tagged union (the tag is the GRI task kind). Ranges live in the types, so a request that
+decodes is in range; what depends on the robot (MAX_SPEED, clearance, geofence) is checked by the RAL.
+
+Altitude references (docs/gcs.md): :data:`AltitudeAMSL` is metres above mean sea level, the reference of the
+DSP's waypoints and telemetry positions; :data:`HeightAboveHome` is metres above the take-off point.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import msgspec
+
+from bbcs.contracts.geo import (
+    AltitudeAMSL,
+    DegreesSigned90,
+    DegreesSigned180,
+    HeightAboveHome,
+    Latitude,
+    Longitude,
+    Radians,
+)
+
+Speed = Annotated[float, msgspec.Meta(gt=0.0, le=100.0)]
+"""m/s; above the robot's MAX_SPEED is refused by the RAL."""
+MAX_WAYPOINTS = 10_000
+
+
+class Waypoint(msgspec.Struct, frozen=True, kw_only=True):
+    """WGS84 degrees; ``alt`` in metres above mean sea level."""
+
+    lat: Latitude
+    lon: Longitude
+    alt: AltitudeAMSL
+
+
+Waypoints = Annotated[list[Waypoint], msgspec.Meta(min_length=1, max_length=MAX_WAYPOINTS)]
+
+
+class TakeOff(msgspec.Struct, frozen=True, kw_only=True, tag="take_off"):
+    """Climb to ``height`` metres above the take-off point."""
+
+    height: HeightAboveHome = 10.0
+
+
+class Land(msgspec.Struct, frozen=True, kw_only=True, tag="land"):
+    """Land where the robot is."""
+
+
+class Goto(msgspec.Struct, frozen=True, kw_only=True, tag="goto"):
+    """Fly through ``waypoints`` in order and stop at the last one (speed: the task's, else the cruise speed)."""
+
+    waypoints: Waypoints
+    speed: Speed | None = None
+
+
+class FollowPath(msgspec.Struct, frozen=True, kw_only=True, tag="follow_path"):
+    """Follow the path through ``waypoints``; with ``heading`` (radians) the nose holds it (path mode 1)."""
+
+    waypoints: Waypoints
+    speed: Speed | None = None
+    heading: Radians | None = None
+
+
+class FollowVisionPath(msgspec.Struct, frozen=True, kw_only=True, tag="follow_vision_path"):
+    """Follow the paths the perception module writes (each new one replaces the last)."""
+
+    speed: Speed | None = None
+
+
+class Bridge(msgspec.Struct, frozen=True, kw_only=True, tag="bridge"):
+    """Path mode 6: the DSP flies these references (REFS) as they are; ``ref_altura`` above mean sea level."""
+
+    ref_altura: AltitudeAMSL
+    error_longitudinal: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0)] = 0.0
+    error_lateral: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0)] = 0.0
+    ref_heading: Radians = 0.0
+    ref_rpm_motor: Annotated[float, msgspec.Meta(ge=0.0, le=1800.0)] = 1500.0
+
+
+class LookAt(msgspec.Struct, frozen=True, kw_only=True, tag="look_at"):
+    """Point the pan & tilt at a geographic point (``alt`` above mean sea level) and keep pointing at it."""
+
+    lat: Latitude
+    lon: Longitude
+    alt: AltitudeAMSL
+
+
+class SetPanTilt(msgspec.Struct, frozen=True, kw_only=True, tag="pan_tilt"):
+    """Hold the pan & tilt at these angles (degrees)."""
+
+    pan: DegreesSigned180
+    tilt: DegreesSigned90
+
+
+class Hold(msgspec.Struct, frozen=True, kw_only=True, tag="hold"):
+    """Stay where the robot is (both waypoint queues emptied)."""
+
+
+class Track(msgspec.Struct, frozen=True, kw_only=True, tag="track"):
+    """Point the pan & tilt at what the perception module tracks, until replaced."""
+
+
+TaskParams = TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | LookAt | SetPanTilt | Hold | Track
+"""Every task a ground station can send; each occupies its task type until it ends."""
+TASK_KINDS: tuple[str, ...] = tuple(t.__struct_config__.tag for t in TaskParams.__args__)  # type: ignore[attr-defined]
+MOVEMENT_KINDS = frozenset({"take_off", "land", "goto", "follow_path", "follow_vision_path", "bridge", "hold"})
+"""Kinds that move the aircraft: a new one empties both waypoint queues before anything else goes out."""
+
+
+def kind_of(task: msgspec.Struct) -> str:
+    """The wire tag of a task (``goto``, ``abort``, ...)."""
+    return str(type(task).__struct_config__.tag)
+
+
+TaskStatus = Literal["running", "completed", "cancelled", "replaced", "aborted", "failed"]
+Origin = Literal["gcs", "failsafe", "mri"]
+
+
+class TaskInfo(msgspec.Struct, frozen=True, kw_only=True):
+    """One task as the Module Manager's task book records it (the only record of it anywhere)."""
+
+    id: int
+    name: str
+    """The manifest task it runs."""
+    task_type: str
+    kind: str = ""
+    """The GRI kind (tag of ``params``), empty when started without parameters."""
+    params: TaskParams | None = None
+    status: TaskStatus = "running"
+    started: float = 0.0
+    ended: float | None = None
+    detail: str = ""
+    origin: Origin = "mri"
