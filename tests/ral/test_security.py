@@ -16,10 +16,10 @@ import pytest
 
 from bbcs import keys
 from bbcs.context import ModuleContext
-from bbcs.contracts import mri
+from bbcs.contracts import gri, mri
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
-from ral import certs, gri
+from ral import certs
 from ral.gcs.api import Gcs, NoReply, Unreachable
 from ral.process import Ral
 
