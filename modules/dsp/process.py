@@ -179,6 +179,14 @@ class DspModule(Module):
     # --- DSP → bus ---------------------------------------------------------------------------------------
 
     def _on_telemetry(self, telemetry: p.Telemetry) -> None:
+        try:  # a frame the CRC let through with a value outside its physical range is never published
+            p.check(telemetry)
+        except p.DspValueError as exc:
+            self.telemetry_dropped = getattr(self, "telemetry_dropped", 0) + 1
+            detail = f"telemetry frame dropped ({self.telemetry_dropped} so far): {exc}"
+            self.report_error(BusErrorCode.OUT_OF_RANGE, detail)
+            self._publish_report(exc.code, detail)
+            return
         self.publish(bus.TELEMETRY_SLOT, telemetry)
 
     def _on_dsp_error(self, error: p.DspError) -> None:

@@ -317,28 +317,50 @@ class DspError(Message, frozen=True, kw_only=True):
     related_id: U8 = 0
 
 
+def _sensor(lo: float, hi: float) -> Any:
+    """A decoded telemetry float with its physical range; a value outside it (NaN and ±inf included) means
+    a fault the CRC let through or a faulty sensor, so the declaration names DSP error SENSOR_FAULT."""
+    return Annotated[float, Meta(ge=lo, le=hi, extra={"error_code": 9})]  # ErrorCode.SENSOR_FAULT
+
+
+# Physical ranges of what the DSP reports (degrees, metres, m/s, deg/s, rpm, volts). Wide enough for any
+# attitude a helicopter can report and any place it can fly; narrow enough that a corrupted float is caught.
+TelLat = _sensor(-90.0, 90.0)
+TelLon = _sensor(-180.0, 180.0)
+TelAlt = _sensor(-500.0, 10_000.0)  # m MSL: Dead Sea shore to above any helicopter's ceiling
+Angle180 = _sensor(-180.0, 180.0)  # roll, yaw, heading, pan (binary32 may round 179.99999 up to 180)
+Angle90 = _sensor(-90.0, 90.0)  # pitch, tilt
+TelSpeed = _sensor(-150.0, 150.0)  # m/s per axis
+TelRate = _sensor(-2000.0, 2000.0)  # deg/s: full scale of the MEMS gyros such DSPs use
+TelDistance = _sensor(-1.0, 20_100_000.0)  # m; -1 = no target; half the Earth's circumference at most
+TelGroundSpeed = _sensor(0.0, 150.0)
+TelCommandedSpeed = _sensor(0.0, MAX_SPEED_LIMIT)
+TelRpm = _sensor(0.0, 5_000.0)
+TelVolts = _sensor(0.0, 100.0)
+
+
 class Position(msgspec.Struct, frozen=True, kw_only=True):
-    lat: float
-    lon: float
-    alt: float
+    lat: TelLat
+    lon: TelLon
+    alt: TelAlt
 
 
 class Attitude(msgspec.Struct, frozen=True, kw_only=True):
-    roll: float
-    pitch: float
-    yaw: float
+    roll: Angle180
+    pitch: Angle90
+    yaw: Angle180
 
 
 class Velocity(msgspec.Struct, frozen=True, kw_only=True):
-    vn: float
-    ve: float
-    vd: float
+    vn: TelSpeed
+    ve: TelSpeed
+    vd: TelSpeed
 
 
 class AngularRate(msgspec.Struct, frozen=True, kw_only=True):
-    p: float
-    q: float
-    r: float
+    p: TelRate
+    q: TelRate
+    r: TelRate
 
 
 class DspStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -352,10 +374,10 @@ class DspStatus(msgspec.Struct, frozen=True, kw_only=True):
 class NavTarget(msgspec.Struct, frozen=True, kw_only=True):
     """Current target waypoint; ``distance < 0`` means there is none."""
 
-    lat: float
-    lon: float
-    alt: float
-    distance: float
+    lat: TelLat
+    lon: TelLon
+    alt: TelAlt
+    distance: TelDistance
 
     @property
     def active(self) -> bool:
@@ -363,19 +385,19 @@ class NavTarget(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class SpeedInfo(msgspec.Struct, frozen=True, kw_only=True):
-    commanded: float
-    ground: float
+    commanded: TelCommandedSpeed
+    ground: TelGroundSpeed
 
 
 class PanTiltState(msgspec.Struct, frozen=True, kw_only=True):
     mode: Annotated[int, Meta(ge=0, le=2)]
-    pan: float
-    tilt: float
+    pan: Angle180
+    tilt: Angle90
 
 
 class Engine(msgspec.Struct, frozen=True, kw_only=True):
-    rotor_rpm: float
-    battery_v: float
+    rotor_rpm: TelRpm
+    battery_v: TelVolts
 
 
 class Telemetry(Message, frozen=True, kw_only=True):
@@ -387,7 +409,7 @@ class Telemetry(Message, frozen=True, kw_only=True):
     attitude: Attitude | None = None
     velocity: Velocity | None = None
     angular_rate: AngularRate | None = None
-    heading: float | None = None
+    heading: Angle180 | None = None
     status: DspStatus | None = None
     nav: NavTarget | None = None
     speed: SpeedInfo | None = None
@@ -416,11 +438,24 @@ COMMANDS: tuple[type[Command], ...] = (
 REPLIES: tuple[type[Message], ...] = (Ack, Telemetry, DspError)
 
 
-# --- range checks (used by the codec before encoding, and by the DSP simulator after decoding) -------------
+# --- range checks: msgspec validates against the declarations above (codec before encoding, the DSP simulator
+# after decoding a command, the DSP process after decoding telemetry) ----------------------------------------
 
 
 class DspValueError(ValueError):
-    """A message field is out of its range or of the wrong type; nothing was encoded or sent."""
+    """A message field is out of its range or of the wrong type; nothing was encoded, sent or published.
+
+    ``field`` is the failing field's path (``attitude.roll``); ``code`` the DSP error code its declaration
+    names (``Meta(extra={"error_code": ...})``), OUT_OF_RANGE when it names none.
+    """
+
+    def __init__(self, message: str, *, field: str = "", code: int = ErrorCode.OUT_OF_RANGE) -> None:
+        super().__init__(message)
+        self.field = field
+        self.code = int(code)
+
+
+_VALIDATED: frozenset[type] = frozenset((*COMMANDS, *REPLIES))
 
 
 def _bounds_text(t: Any) -> str:
@@ -429,47 +464,51 @@ def _bounds_text(t: Any) -> str:
     return f"{lo}, {hi}"
 
 
-def _field_checker(owner: str, name: str, t: Any):
-    """Return a function value -> error text (or None) for one field type from msgspec.inspect."""
-    where = f"{owner}.{name}"
+def _declaration(cls: type, path: list[str]) -> tuple[Any, dict]:
+    """The inspected type and ``extra`` metadata of the field at ``path`` inside struct ``cls``."""
+    t: Any = msgspec.inspect.type_info(cls)
+    extra: dict = {}
+    for name in path:
+        while isinstance(t, msgspec.inspect.UnionType):  # ``X | None``: the struct member
+            t = next(m for m in t.types if not isinstance(m, msgspec.inspect.NoneType))
+        t = next(f.type for f in t.fields if f.name == name)
+    if isinstance(t, msgspec.inspect.UnionType):
+        t = next(m for m in t.types if not isinstance(m, msgspec.inspect.NoneType))
+    if isinstance(t, msgspec.inspect.Metadata):
+        extra = t.extra or {}
+        t = t.type
+    return t, extra
+
+
+def _explain(cls: type, msg: Message, exc: msgspec.ValidationError) -> DspValueError:
+    """Turn msgspec's ``... - at `$.a.b` `` into the project's message naming field, value and range."""
+    text = str(exc)
+    at = text.rfind(" - at `$.")
+    if at < 0:
+        return DspValueError(f"{cls.__name__}: {text}")
+    path = text[at + len(" - at `$."):].rstrip("`").split(".")
+    value: Any = msg
+    for name in path:
+        value = getattr(value, name, None)
+    t, extra = _declaration(cls, path)
+    where = f"{cls.__name__}.{'.'.join(path)}"
+    code = int(extra.get("error_code", ErrorCode.OUT_OF_RANGE))
     insp = msgspec.inspect
-
-    def bounded(value: float) -> str | None:
-        if (t.ge is not None and not value >= t.ge) or (t.gt is not None and not value > t.gt) or (
-                t.le is not None and not value <= t.le) or (t.lt is not None and not value < t.lt):
-            return f"{where}={value!r} is out of range {_bounds_text(t)}"
-        return None
-
-    if isinstance(t, insp.FloatType):
-        def check_float(value: Any) -> str | None:
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                return f"{where} must be a number, got {type(value).__name__}"
-            if not math.isfinite(value):
-                return f"{where}={value!r} must be finite"
-            return bounded(float(value))
-        return check_float
-    if isinstance(t, insp.BoolType):
-        def check_bool(value: Any) -> str | None:
-            return None if isinstance(value, bool) else f"{where} must be a bool, got {type(value).__name__}"
-        return check_bool
-    if isinstance(t, insp.IntType):
-        def check_int(value: Any) -> str | None:
-            if isinstance(value, bool) or not isinstance(value, int):
-                return f"{where} must be an int, got {type(value).__name__}"
-            return bounded(value)
-        return check_int
-    if isinstance(t, insp.EnumType):
-        enum_cls = t.cls
-
-        def check_enum(value: Any) -> str | None:
-            if isinstance(value, bool) or not isinstance(value, int):
-                return f"{where} must be a {enum_cls.__name__}, got {type(value).__name__}"
-            if value not in enum_cls._value2member_map_:
-                names = ", ".join(f"{m.value}={m.name}" for m in enum_cls)
-                return f"{where}={value!r} is not a {enum_cls.__name__} ({names})"
-            return None
-        return check_enum
-    raise TypeError(f"{where}: no range check for field type {t!r}")
+    if isinstance(t, insp.FloatType) and (isinstance(value, bool) or not isinstance(value, (int, float))):
+        problem = f"{where} must be a number, got {type(value).__name__}"
+    elif isinstance(t, insp.FloatType) and not math.isfinite(value):
+        problem = f"{where}={value!r} must be finite"
+    elif isinstance(t, insp.BoolType):
+        problem = f"{where} must be a bool, got {type(value).__name__}"
+    elif isinstance(t, insp.EnumType):
+        names = ", ".join(f"{m.value}={m.name}" for m in t.cls)
+        problem = f"{where}={value!r} is not a {t.cls.__name__} ({names})"
+    elif isinstance(t, (insp.FloatType, insp.IntType)) and isinstance(value, (int, float)) \
+            and not isinstance(value, bool):
+        problem = f"{where}={value!r} is out of range {_bounds_text(t)}"
+    else:
+        problem = f"{where}: {text[:at]}"
+    return DspValueError(problem, field=".".join(path), code=code)
 
 
 def _cross_checks(msg: Message) -> str | None:
@@ -481,23 +520,26 @@ def _cross_checks(msg: Message) -> str | None:
     return None
 
 
-_CHECKERS: dict[type, tuple[tuple[str, Any], ...]] = {}
-for _cls in (*COMMANDS, Ack, DspError):
-    _info = msgspec.inspect.type_info(_cls)
-    _CHECKERS[_cls] = tuple((f.name, _field_checker(_cls.__name__, f.name, f.type)) for f in _info.fields)
+def _plain(value: Any) -> Any:
+    """numpy scalars (the simulator's physics) become Python numbers; anything else stays unchecked."""
+    item = getattr(value, "item", None)
+    if item is None:
+        raise TypeError(f"{type(value).__name__} is not a number")
+    return item()
 
 
 def check(msg: Message) -> None:
-    """Raise DspValueError naming the first field outside its range (SPEC: out of range is an error)."""
-    checkers = _CHECKERS.get(type(msg))
-    if checkers is None:
-        if isinstance(msg, Telemetry):
-            return
-        raise DspValueError(f"{type(msg).__name__} is not a DSP protocol message")
-    for name, checker in checkers:
-        problem = checker(getattr(msg, name))
-        if problem is not None:
-            raise DspValueError(problem)
+    """Raise DspValueError naming the first field outside the range its type declares (SPEC: out of range
+    is an error; the seed: no datum affected by an error is used). Telemetry is checked like commands."""
+    cls = type(msg)
+    if cls not in _VALIDATED:
+        raise DspValueError(f"{cls.__name__} is not a DSP protocol message")
+    try:
+        msgspec.convert(msgspec.to_builtins(msg, enc_hook=_plain), cls)
+    except TypeError as exc:
+        raise DspValueError(f"{cls.__name__}: {exc}") from None
+    except msgspec.ValidationError as exc:
+        raise _explain(cls, msg, exc) from None
     problem = _cross_checks(msg)
     if problem is not None:
         raise DspValueError(problem)
