@@ -27,7 +27,7 @@ class PanTiltModule(Module):
         OutputSlot("error", ErrorPT),
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
-        dsp_bus.commands_output(),
+        dsp_bus.commands_output("pan_tilt"),
     )
     control = Control(
         ControlEntradaPT, {"slot_entrada_control_modos": "control_modo", "slot_entrada_datos": "datos"}

@@ -64,7 +64,7 @@ class PathFollowerModule(Module):
         InputSlot("refs", RefsSegCam, safety=Safety.UNSAFE),
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
-        dsp_bus.commands_output(),
+        dsp_bus.commands_output("path_follower"),
         OutputSlot("error", ErrorSegCam),
     )
     control = Control(
