@@ -279,3 +279,59 @@ def test_everyone_reads(who: Sessions) -> None:
     finally:
         for o in observers:
             o.close()
+
+
+# --- the DSP: only the module that owns a command class gets it to the aircraft (the simulator's record) ---
+
+def _batch(sender: str, *commands: object) -> bytes:
+    from modules.dsp import bus
+
+    return msgspec.msgpack.encode(bus.DspCommands(sender=sender, commands=list(commands), batch_id=7))
+
+
+def test_dsp_commands_reach_the_simulator_only_from_their_owner(rig: Rig, who: Sessions, tmp_path: Path) -> None:
+    import json
+    import select
+
+    from modules.dsp import protocol as p
+
+    record = tmp_path / "dsp.jsonl"
+    conf = Path(__file__).resolve().parents[2] / "bbcs_conf" / "uav1.conf"
+    procs = Processes()
+    try:
+        sim = procs.start(["-m", "modules.dsp.sim", "--pty", "--record", str(record)], stdout=subprocess.PIPE,
+                          text=True)
+        assert select.select([sim.stdout], [], [], 15.0)[0], "the simulator printed nothing"
+        pty = sim.stdout.readline().strip()
+        procs.start(["-m", "modules.dsp", "--robot", ROBOT, "--bus", msgspec.json.encode(rig.config("dsp")).decode(),
+                     "--conf", str(conf), "--param", f"port={pty}"], stderr=subprocess.DEVNULL)
+        observer = Observer(who("gcs"), f"{R}/dsp/link", f"{R}/dsp/errors", f"{R}/*/@heartbeat")
+        try:
+            wait_until(lambda: observer.values(f"{R}/dsp/link"), 60, "the DSP process started up")
+
+            def names() -> list[str]:
+                text = record.read_text()
+                return [json.loads(line)["name"] for line in text[: text.rfind("\n") + 1].splitlines()]
+
+            startup = len(names())
+            # refused: the vision identity on the path follower's key (router), the shared mailbox (router),
+            # the pan & tilt identity sending a class it does not own on its own key (DSP, reported)
+            who("vision").put(f"{R}/dsp/commands_path_follower", _batch("path_follower", p.Abort()))
+            who("vision").put(f"{R}/dsp/commands", _batch("path_follower", p.Abort()))
+            who("pan_tilt").put(f"{R}/dsp/commands_pan_tilt", _batch("path_follower", p.SetMode(mode=p.Mode.LANDING)))
+            wait_until(lambda: any(b"NOT_OWNER" in v or b"does not own" in v
+                                   for v in observer.values(f"{R}/dsp/errors")), 30, "the DSP's NOT_OWNER report")
+            # accepted: each owner's own class on its own key; the record then shows exactly these
+            who("pan_tilt").put(f"{R}/dsp/commands_pan_tilt", _batch("x", p.SetPanTiltAngles(pan_deg=10, tilt_deg=5)))
+            wait_until(lambda: "SET_PT_ANGLES" in names(), 30, "the pan & tilt command at the simulator")
+            who("path_follower").put(f"{R}/dsp/commands_path_follower", _batch("x", p.Abort()))
+            wait_until(lambda: "ABORT" in names(), 30, "the path follower's ABORT at the simulator")
+            assert names()[startup:] == ["SET_PT_ANGLES", "ABORT"]  # nothing refused reached the aircraft
+            report = next(msgspec.msgpack.decode(v) for v in observer.values(f"{R}/dsp/errors")
+                          if b"does not own" in v)
+            # the key's sender, not the field's
+            assert report["sender"] == "pan_tilt" and report["command"] == "SetMode"
+        finally:
+            observer.close()
+    finally:
+        procs.stop_all()
