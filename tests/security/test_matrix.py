@@ -41,6 +41,8 @@ class Rig:
 
     def config(self, name: str | None, pki: Path | None = None, timeout_s: float = 10.0) -> SessionConfig:
         pki = pki or self.pki
+        if name == "gcs":  # ground-station pairs live in the ground folder, never on the robot
+            pki = pki.with_name(pki.name + "-ground")
         tls = TlsConfig(root_ca=str(pki / "ca.pem"), cert=str(pki / f"{name}.pem") if name else None,
                         key=str(pki / f"{name}.key") if name else None, mtls=name is not None)
         return SessionConfig(connect=[f"tls/localhost:{self.port}"], tls=tls, connect_timeout_s=timeout_s)
@@ -53,7 +55,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     pki, other, cfg = tmp / "robot", tmp / "other", tmp / "router.json5"
     assert certs.main([str(pki), "--gcs", "gcs", "--modules", ",".join(MODULES), "--robot", ROBOT,
                        "--acl", str(cfg), "--listen", f"tls/127.0.0.1:{port}"]) == 0
-    certs.make_leaf(pki, "expired", days=-1)  # notAfter yesterday, signed by the robot's own CA
+    certs.make_leaf(pki, "expired", days=-1, ca_dir=tmp / "robot-ca")  # notAfter yesterday, the robot's own CA
     assert certs.main([str(other), "--ca-name", "intruder-ca", "--gcs", "gcs", "--no-local"]) == 0
     procs = Processes()
     try:
