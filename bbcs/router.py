@@ -7,10 +7,12 @@ from a Zenoh JSON5 file (``--config``) or the TLS options.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
 
+from bbcs import router_audit
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
 
@@ -26,6 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tls-cert", metavar="PEM", help="router certificate for tls/ endpoints")
     p.add_argument("--tls-key", metavar="PEM", help="router private key for tls/ endpoints")
     p.add_argument("--scouting", action="store_true", help="enable UDP multicast scouting (off by default)")
+    p.add_argument("--log-refusals", action="store_true",
+                   help="log denied messages and refused TLS links, counted and rate limited (bbcs/router_audit.py)")
     return p
 
 
@@ -36,6 +40,9 @@ def main(argv: list[str] | None = None) -> int:
         tls = TlsConfig(root_ca=args.tls_ca, cert=args.tls_cert, key=args.tls_key)
     cfg = SessionConfig(mode="router", listen=args.listen or ["tcp/127.0.0.1:7447"], connect=args.connect,
                         multicast_scouting=args.scouting, tls=tls, config_file=args.config)
+    if args.log_refusals:  # before the session: Zenoh's log must already go through the reader
+        sys.stdout = os.fdopen(os.dup(1), "w", buffering=1)
+        router_audit.install(sys.stdout)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
