@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 from enum import IntEnum
 
 from bbcs.codec import leaf_field
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
 from modules.pan_tilt.structs import DatosPT, ModoFuncionamientoPT
 

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from bbcs.contracts import dsp as p
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
-from modules.dsp import protocol as p
 from modules.pan_tilt import logic
 from modules.pan_tilt.structs import ControlEntradaPT, DatosPT, ErrorPT, ModoFuncionamientoPT
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 from enum import IntEnum
 
 from bbcs.codec import leaf_field
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
 from modules.path_follower.structs import (
     ControlModoSegCam,

@@ -14,10 +14,10 @@ import math
 from typing import ClassVar
 
 from bbcs.conf import ConfError, load_conf
+from bbcs.contracts import dsp as p
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
-from modules.dsp import protocol as p
 from modules.path_follower import logic
 from modules.path_follower.structs import (
     ControlEntradaSegCam,

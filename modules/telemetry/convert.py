@@ -12,8 +12,8 @@ from typing import TypeVar
 
 import msgspec
 
+from bbcs.contracts import dsp as p
 from bbcs.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
-from modules.dsp import protocol as p
 
 _S = TypeVar("_S", bound=msgspec.Struct)
 
