@@ -8,8 +8,9 @@ certificates", "invalid peer certificate: …"). That log goes to the process's 
 refusal, counts them by kind, and prints at most ``burst`` of them per ``period_s`` (then one line saying how
 many were left out), passing every other line through unchanged.
 
-Cost: the ACL target logs at TRACE also for allowed messages the first time a key is seen (results are cached
-per key), so the option is off by default; it is meant for commissioning and for investigating a refusal.
+Cost: Zenoh has no level for denials alone; at TRACE the ACL target writes a line for every message it checks,
+allowed ones included, which this reader parses and drops. So the option is off by default; it is meant for
+commissioning and for investigating a refusal.
 """
 
 from __future__ import annotations
