@@ -130,7 +130,10 @@ def test_the_simulator_serves_one_client_and_refuses_a_second() -> None:
         ping(1)
         second = socket.create_connection((endpoint.host, endpoint.port), timeout=10)
         second.sendall(codec.encode(p.Ping(), 99))
-        assert second.recv(4096) == b""  # closed by the simulator without a byte
+        try:  # closed by the simulator without a byte (a reset when our unread frame was still queued)
+            assert second.recv(4096) == b""
+        except ConnectionResetError:
+            pass
         ping(2)  # the first PC keeps its line
         assert endpoint.refused == 1
         assert [c.seq for c in sim.commands] == [1, 2]  # the second client's frame never reached the DSP
