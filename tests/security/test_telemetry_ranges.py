@@ -142,3 +142,23 @@ def test_the_simulator_serves_one_client_and_refuses_a_second() -> None:
             if s is not None:
                 s.close()
         sim.stop()
+
+
+def test_ldmrs_scans_outside_the_scanner_ranges_are_refused_whole() -> None:
+    import numpy as np
+    import pytest
+
+    from modules.lidar_logger.ldmrs_proto import LdmrsProtocolError
+    from modules.lidar_logger.ldmrs_scan import SCAN_HEADER, decode_scan, make_points
+
+    def scan(angle: int, layer: int = 1, ticks: int = 11520, start: int = 1600) -> bytes:
+        pts = make_points(np.array([layer]), np.array([0]), np.array([0]), np.array([angle]), np.array([1000]),
+                          np.array([100]))
+        return SCAN_HEADER.pack(7, 0, 0, 0, 0, ticks, start, -1920, 1, 0, 0, 0, 0, 0, 0, 0) + pts.tobytes()
+
+    assert decode_scan(scan(0)).n_points == 1
+    for bad, match in ((scan(2000), "point angle 2000"), (scan(-1921), "point angle -1921"),
+                       (scan(0, ticks=11000), "ticks per rotation"), (scan(0, start=1700), "start angle"),
+                       (scan(0, layer=5), "layer")):
+        with pytest.raises(LdmrsProtocolError, match=match):
+            decode_scan(bad)
