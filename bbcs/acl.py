@@ -1,16 +1,24 @@
-"""The robot router's access policy, generated from the identities it must know.
+"""The robot router's access policy, generated from the identities it must know: write rights follow ownership.
 
 Zenoh enforces access control on the links that arrive at the router that configures it, so this policy
 goes on the robot's router (``cromat router --config FILE``). Identities are certificate common names under
-mutual TLS. Default deny; then:
+mutual TLS (the router reads the CN of the certificate the TLS handshake verified; nothing in a message counts).
+Default deny; then:
 
-* every authenticated identity may observe: subscribe, liveliness, schema and read-only MRI queries, and
-  receive everything (so reading state works for all);
-* the bookkeeping of zenoh.ext advanced pub/sub (``…/@adv/**``: caches, heartbeats, liveliness) is open to
-  all, because ``**`` never matches the verbatim ``@adv`` chunk;
-* only a GCS identity may submit tasks (``@ral/task``) and swap routes (``@manager/route``);
-* the RAL writes its own keys and asks the manager anything; the manager writes control slots and its keys;
-* a module writes only its own slots (plus the mailbox slots named, e.g. ``dsp/commands``).
+* every authenticated identity may observe: declare subscribers, liveliness subscribers and queries, ask
+  late-joiner history (``query`` on ``…/@adv/**``), read-only queries (schemas, MRI lists), receive everything;
+* a key has one writer. Writing is ``put``/``delete``, and also ``reply`` (a reply to a history or get query is
+  a value the querier will use) and ``declare_queryable``/``liveliness_token`` on ``…/@adv/**`` (an advanced
+  publisher's cache and presence). All of them are granted only to the key's owner:
+
+  - a module: its own slots ``cromat/<robot>/<name>/*`` (``@route``, ``@heartbeat``, ``@schema`` included) except
+    its CONTROL_ENTRADA, which an explicit **deny** keeps for the manager; a DSP sender also its own command key
+    ``cromat/<robot>/dsp/commands_<name>`` (bbcs.contracts.dsp: one key per sender, so the router can tell
+    senders apart, and the DSP checks the command classes that key's sender owns);
+  - the manager: its mode slots ``cromat/<robot>/manager/*``, every module's CONTROL_ENTRADA and ``@manager/**``;
+  - the RAL: its slots and the GRI keys ``@ral/**``;
+  - a ground station: only ``cromat/@gcs/**`` (its link tokens and heartbeats); it may query ``@ral/task``
+    (tasks) and ``@manager/route`` (route swaps), which no other identity may.
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from bbcs import keys
+from bbcs.contracts.dsp import COMMAND_RIGHTS, commands_slot
 
 ALL_MESSAGES = [
     "put",
@@ -34,36 +43,49 @@ ALL_MESSAGES = [
 ]
 
 
-def _keys() -> dict[str, list[str]]:
+WRITE = ["put", "delete", "reply"]
+"""What makes a value others will use: publications and answers to queries (history included)."""
+SERVE = ["declare_queryable", "liveliness_token"]
+"""What makes an identity a source others will ask: a queryable (an advanced publisher's cache) or a token."""
+OBSERVE = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query"]
+
+
+def _adv(keys_: list[str]) -> list[str]:
+    """The advanced pub/sub keys of ``keys_``: ``**`` never matches the verbatim ``@adv`` chunk."""
+    return [f"{k}/@adv/**" for k in keys_]
+
+
+def _read_keys(r: str = "*") -> list[str]:
     """Keys anyone authenticated may observe, for every robot (a GCS lists robots with ``cromat/*/...``)."""
-    return {
-        "read": [
-            keys.slot_pattern(),
-            keys.schema_pattern(),
-            keys.route_ack_pattern(),
-            keys.heartbeat_pattern(),
-            keys.alive_pattern(),
-            keys.manager_pattern(),
-            keys.ral_pattern(),
-            keys.gcs_pattern(),
-        ],
-        "adv": [
-            keys.adv_pattern(keys.slot_pattern()),
-            keys.adv_pattern(keys.route_ack_pattern()),
-            keys.adv_pattern(keys.manager_key("*") + "/*"),
-            keys.adv_pattern(keys.ral_key("*") + "/*"),
-        ],
-        "read_queries": [
-            keys.schema_pattern(),
-            keys.manager_key("*", "modules"),
-            keys.manager_key("*", "routes"),
-            keys.manager_key("*", "tasks"),
-        ],
-    }
+    return [
+        f"cromat/{r}/*/*",
+        f"cromat/{r}/*/@schema",
+        f"cromat/{r}/*/@route",
+        f"cromat/{r}/*/@heartbeat",
+        f"cromat/{r}/@alive/*",
+        f"cromat/{r}/@manager/**",
+        f"cromat/{r}/@ral/**",
+        "cromat/@gcs/**",
+    ]
+
+
+def _adv_keys(r: str = "*") -> list[str]:
+    return _adv([f"cromat/{r}/*/*", f"cromat/{r}/*/@route", f"cromat/{r}/*/@heartbeat", f"cromat/{r}/@manager/*",
+                 f"cromat/{r}/@ral/*"])
+
+
+READ_QUERIES = ["*/@schema", "@manager/modules", "@manager/routes", "@manager/tasks"]
 
 
 def _own(robot: str, name: str) -> list[str]:
-    return [keys.slot_pattern(robot, name), keys.route_ack_pattern(robot, name), keys.heartbeat_pattern(robot, name)]
+    own = [f"cromat/{robot}/{name}/*", f"cromat/{robot}/{name}/@route", f"cromat/{robot}/{name}/@heartbeat"]
+    return [*own, *_adv(own), f"cromat/{robot}/{name}/@schema"]
+
+
+def _rule(rid: str, messages: list[str], key_exprs: list[str], permission: str = "allow",
+          flow: str = "ingress") -> dict[str, Any]:
+    return {"id": rid, "permission": permission, "flows": [flow], "messages": list(messages),
+            "key_exprs": list(dict.fromkeys(key_exprs))}
 
 
 def router_config(
@@ -77,13 +99,16 @@ def router_config(
     modules: list[str],
     ral: str = "ral",
     manager: str = "manager",
-    mailboxes: tuple[str, ...] = ("dsp/commands",),
     identities: dict[str, str] | None = None,
+    controls: dict[str, str] | None = None,
+    dsp_senders: list[str] | None = None,
 ) -> dict[str, Any]:
     """A complete Zenoh router config: ``tls/`` listeners with mTLS and the access policy above.
 
     ``identities`` maps a module name (or ``ral``) to the certificate CN it presents when that differs from the
-    name; the module's rights stay keyed by its name (its slots are ``cromat/<robot>/<name>/*``).
+    name; the module's rights stay keyed by its name (its slots are ``cromat/<robot>/<name>/*``). ``controls``
+    maps a module to its CONTROL_ENTRADA slot (default ``control_entrada``); ``dsp_senders`` are the modules
+    given a DSP command key (default: those of ``modules`` that own command classes in bbcs.contracts.dsp).
     """
     cn = dict(identities or {})
     if robot != "*":
@@ -92,103 +117,24 @@ def router_config(
         keys.validate_name(name, "identity")
     if not gcs:
         raise ValueError("at least one GCS identity is needed")
-    k = _keys()
+    control = {m: (controls or {}).get(m, "control_entrada") for m in modules}
+    senders = [m for m in modules if m in COMMAND_RIGHTS] if dsp_senders is None else list(dsp_senders)
+    r = robot
+    control_keys = [f"cromat/{r}/{m}/{slot}" for m, slot in control.items()]
     rules: list[dict[str, Any]] = [
-        {
-            "id": "observe",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"],
-            "key_exprs": k["read"] + k["adv"],
-        },
-        {
-            "id": "deliver",
-            "permission": "allow",
-            "flows": ["egress"],
-            "messages": ALL_MESSAGES,
-            "key_exprs": k["read"] + k["adv"],
-        },
-        {
-            "id": "adv",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ALL_MESSAGES,
-            "key_exprs": k["adv"],
-        },
-        {
-            "id": "replies",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["reply"],
-            "key_exprs": k["read"],
-        },
-        {
-            "id": "read-queries",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["query"],
-            "key_exprs": k["read_queries"],
-        },
-        {
-            "id": "gcs-command",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["query"],
-            "key_exprs": [keys.ral_key(robot, "task"), keys.manager_key(robot, "route")],
-        },
-        {
-            "id": "gcs-link",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["put", "delete", "liveliness_token"],
-            "key_exprs": [keys.gcs_pattern()],
-        },
-        {
-            "id": "ral-write",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["put", "delete"],
-            "key_exprs": [*_own(robot, ral), keys.ral_pattern(robot)],
-        },
-        {
-            "id": "ral-serve",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["declare_queryable"],
-            "key_exprs": [keys.ral_pattern(robot), keys.schema_pattern(robot, ral)],
-        },
-        {
-            "id": "ral-token",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["liveliness_token"],
-            "key_exprs": [keys.alive_pattern(robot, ral)],
-        },
-        {
-            "id": "ral-mri",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["query"],
-            "key_exprs": [keys.manager_pattern(robot)],
-        },
-        {
-            "id": "manager-write",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["put", "delete"],
-            "key_exprs": [keys.slot_pattern(robot), keys.manager_pattern(robot), *_own(robot, manager)],
-        },
-        {
-            "id": "manager-serve",
-            "permission": "allow",
-            "flows": ["ingress"],
-            "messages": ["declare_queryable", "liveliness_token"],
-            "key_exprs": [
-                keys.manager_pattern(robot),
-                keys.schema_pattern(robot, manager),
-                keys.alive_pattern(robot),
-            ],
-        },
+        _rule("observe", OBSERVE[:3], _read_keys() + _adv_keys()),
+        _rule("history", ["query", "liveliness_token"], _adv_keys()),  # ask history; an advanced subscriber's token
+        _rule("read-queries", ["query"], [f"cromat/*/{q}" for q in READ_QUERIES]),
+        _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
+        _rule("gcs-command", ["query"], [f"cromat/{r}/@ral/task", f"cromat/{r}/@manager/route"]),
+        _rule("gcs-link", ["put", "delete", "liveliness_token"], ["cromat/@gcs/**"]),
+        _rule("ral-write", WRITE + SERVE, [*_own(r, ral), f"cromat/{r}/@ral/**", *_adv([f"cromat/{r}/@ral/*"])]),
+        _rule("ral-token", ["liveliness_token"], [f"cromat/{r}/@alive/{ral}"]),
+        _rule("ral-mri", ["query"], [f"cromat/{r}/@manager/**"]),
+        _rule("manager-write", WRITE + SERVE, [
+            *_own(r, manager), *control_keys, *_adv(control_keys), f"cromat/{r}/@manager/**",
+            *_adv([f"cromat/{r}/@manager/*"])]),
+        _rule("manager-token", ["liveliness_token"], [f"cromat/{r}/@alive/*"]),
     ]
     subjects: list[dict[str, Any]] = [
         {"id": "gcs", "cert_common_names": list(gcs)},
@@ -197,50 +143,27 @@ def router_config(
     ]
     policies: list[dict[str, Any]] = [
         {"id": "gcs", "subjects": ["gcs"], "rules": ["gcs-command", "gcs-link"]},
-        {"id": "ral", "subjects": ["ral"], "rules": ["ral-write", "ral-serve", "ral-token", "ral-mri"]},
-        {"id": "manager", "subjects": ["manager"], "rules": ["manager-write", "manager-serve"]},
+        {"id": "ral", "subjects": ["ral"], "rules": ["ral-write", "ral-token", "ral-mri"]},
+        {"id": "manager", "subjects": ["manager"], "rules": ["manager-write", "manager-token"]},
     ]
     for name in modules:
-        own = _own(robot, name)
+        own = _own(r, name)
+        if name in senders:
+            dsp_key = f"cromat/{r}/dsp/{commands_slot(name)}"
+            own += [dsp_key, *_adv([dsp_key])]
+        ctl = f"cromat/{r}/{name}/{control[name]}"
         rules += [
-            {
-                "id": f"m-{name}-write",
-                "permission": "allow",
-                "flows": ["ingress"],
-                "messages": ["put", "delete"],
-                "key_exprs": own + [keys.slot_pattern(robot, *box.split("/", 1)) for box in mailboxes],
-            },
-            {
-                "id": f"m-{name}-serve",
-                "permission": "allow",
-                "flows": ["ingress"],
-                "messages": ["declare_queryable"],
-                "key_exprs": [keys.schema_pattern(robot, name)],
-            },
-            {
-                "id": f"m-{name}-token",
-                "permission": "allow",
-                "flows": ["ingress"],
-                "messages": ["liveliness_token"],
-                "key_exprs": [keys.alive_pattern(robot, name)],
-            },
+            _rule(f"m-{name}-write", WRITE + SERVE, own),
+            _rule(f"m-{name}-token", ["liveliness_token"], [f"cromat/{r}/@alive/{name}"]),
+            # its own CONTROL_ENTRADA is the manager's to write: a deny wins over the allow on cromat/r/name/*
+            _rule(f"m-{name}-no-control", WRITE + SERVE, [ctl, *_adv([ctl])], permission="deny"),
         ]
         subjects.append({"id": f"m-{name}", "cert_common_names": [cn.get(name, name)]})
-        policies.append(
-            {
-                "id": f"m-{name}",
-                "subjects": [f"m-{name}"],
-                "rules": [f"m-{name}-write", f"m-{name}-serve", f"m-{name}-token"],
-            }
-        )
+        policies.append({"id": f"m-{name}", "subjects": [f"m-{name}"],
+                         "rules": [f"m-{name}-write", f"m-{name}-token", f"m-{name}-no-control"]})
     everyone = [s["id"] for s in subjects]
-    policies.append(
-        {
-            "id": "everyone",
-            "subjects": everyone,
-            "rules": ["observe", "deliver", "adv", "replies", "read-queries"],
-        }
-    )
+    policies.append({"id": "everyone", "subjects": everyone,
+                     "rules": ["observe", "history", "read-queries", "deliver"]})
     return {
         "mode": "router",
         "listen": {"endpoints": list(listen)},

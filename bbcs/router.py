@@ -7,10 +7,12 @@ from a Zenoh JSON5 file (``--config``) or the TLS options.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
 
+from bbcs import router_audit
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
 
@@ -28,6 +30,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scouting", action="store_true", help="enable UDP multicast scouting (off by default)")
     p.add_argument("--admin-space", action="store_true",
                    help="answer queries on Zenoh's admin space @/<zid>/router/** (read-only; off by default)")
+    p.add_argument("--log-refusals", action="store_true",
+                   help="log denied messages and refused TLS links, counted and rate limited (bbcs/router_audit.py)")
     return p
 
 
@@ -39,6 +43,9 @@ def main(argv: list[str] | None = None) -> int:
     cfg = SessionConfig(mode="router", listen=args.listen or ["tcp/127.0.0.1:7447"], connect=args.connect,
                         multicast_scouting=args.scouting, tls=tls, config_file=args.config,
                         admin_space=args.admin_space)
+    if args.log_refusals:  # before the session: Zenoh's log must already go through the reader
+        sys.stdout = os.fdopen(os.dup(1), "w", buffering=1)
+        router_audit.install(sys.stdout)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -35,7 +35,7 @@ from bbcs.net import free_port, wait_tcp
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import secure
+from module_manager import route_audit, secure
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
 from module_manager.process import Child, stop_children
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor
@@ -139,6 +139,7 @@ class Manager:
         self.t0 = clock()
         self.all_up_at: float | None = None
         self._ack_decode = msgspec.msgpack.Decoder(RouteAck).decode
+        self.route_drifts = 0  # routes found differing from the manager's view (module_manager/route_audit.py)
         self._beat_decode = msgspec.msgpack.Decoder(Heartbeat).decode
         proto = "tls" if manifest.pki is not None else "tcp"
         if proto == "tls" and not all(e.startswith("tls/") for e in self.listen):
@@ -278,6 +279,11 @@ class Manager:
                 return  # from an earlier run of the module
             mod.last_ack = ack
             matches = ack.accepted and all(ack.routes.get(i) == n for i, n in mod.routes.items())
+            drift = route_audit.route_drift(name, mod.routes, ack.routes) if ack.accepted else []
+            if drift:  # the module reads routes the manager never set: say so, and set them again
+                self.route_drifts += len(drift)
+                self.out(f"manager: {route_audit.describe(drift)}")
+                self._publish_control(mod)
             mod.sup.routes_acknowledged(self.clock(), matches)
             self._touch()
 

@@ -50,7 +50,8 @@ def router_config(manifest: Manifest, listen: list[str]) -> dict[str, Any]:
     cfg = acl.router_config(
         listen=list(listen), ca=str(pki / "ca.pem"), cert=str(pki / f"{ROUTER}.pem"),
         key=str(pki / f"{ROUTER}.key"), robot=manifest.robot, gcs=list(tls.gcs), modules=modules,
-        ral=ral_module or tls.ral, manager=MANAGER_MODULE, identities=cn)
+        ral=ral_module or tls.ral, manager=MANAGER_MODULE, identities=cn,
+        controls={n: manifest.modules[n].control_slot for n in modules})
     if not tls.acl:
         del cfg["access_control"]
     return cfg

@@ -1,10 +1,19 @@
 """``cromat certs DIR``: a CA and certificates for a robot router, ground stations and modules (openssl CLI).
 
+Three folders, so that no key ends up where it does not belong (docs/security.md, threat model):
+
+* the **CA folder** (``--ca``, default ``DIR-ca``): ``ca.key`` and ``ca.pem``. The operator's; it never goes to
+  the robot. ``--init-ca`` only creates it;
+* the **robot folder** (``DIR``): ``ca.pem`` and one certificate and key per robot-side identity (router,
+  manager, RAL, each module). No CA key and no ground-station key: a robot that is taken cannot mint
+  identities or pose as a ground station. A CA key found there is refused;
+* the **ground folder** (``--ground``, default ``DIR-ground``): ``ca.pem`` and each ground station's pair.
+
 Each certificate's common name is the identity the router's access policy knows it by (``gcs``, ``ral``,
 ``manager``, a module's instance name). The router's certificate carries the host names clients connect to
-(default ``localhost`` and ``127.0.0.1``). An existing CA in DIR is reused, so new identities can be added
-later. With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + access policy, see
-:mod:`bbcs.acl`) pointing at these files. Keys are written mode 0600 and must never be committed.
+(default ``localhost`` and ``127.0.0.1``). An existing CA is reused, so new identities can be added later.
+With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + access policy, see
+:mod:`bbcs.acl`) pointing at the robot folder. Keys are written mode 0600 and must never be committed.
 
 The openssl commands are listed in docs/security.md. (The ``cryptography`` package is not a dependency; the
 openssl command-line tool is used.)
@@ -85,12 +94,18 @@ def _san(hosts: list[str]) -> str:
 
 
 def make_leaf(
-    directory: Path, name: str, hosts: list[str] | None = None, days: int = 825
+    directory: Path, name: str, hosts: list[str] | None = None, days: int = 825, ca_dir: Path | None = None
 ) -> tuple[Path, Path]:
-    """``NAME.key``/``NAME.pem`` signed by the CA in ``directory``, CN=NAME, server+client use."""
-    ca_key, ca_pem = directory / f"{CA}.key", directory / f"{CA}.pem"
+    """``NAME.key``/``NAME.pem`` in ``directory``, signed by the CA in ``ca_dir`` (default ``directory``),
+    CN=NAME, server+client use; ``directory`` also gets the CA's certificate (never its key)."""
+    ca_dir = ca_dir or directory
+    ca_key, ca_pem = ca_dir / f"{CA}.key", ca_dir / f"{CA}.pem"
     if not ca_key.exists():
-        raise CertError(f"{directory}: no CA (ca.key); create one first")
+        raise CertError(f"{ca_dir}: no CA (ca.key); create one first (cromat certs --init-ca --ca {ca_dir})")
+    directory.mkdir(parents=True, exist_ok=True)
+    if ca_dir != directory and (not (directory / f"{CA}.pem").exists()
+                                or (directory / f"{CA}.pem").read_bytes() != ca_pem.read_bytes()):
+        shutil.copyfile(ca_pem, directory / f"{CA}.pem")
     key, pem = directory / f"{name}.key", directory / f"{name}.pem"
     _new_key(key)
     with tempfile.TemporaryDirectory() as tmp:
@@ -139,6 +154,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="make exactly the certificates this launch manifest's [bus.tls] needs (router, manager, its GCS "
         "identities, one per module); --robot comes from it",
     )
+    p.add_argument("--ca", metavar="DIR", help="the operator's CA folder (ca.key, ca.pem; created if missing; "
+                   "never copy it to the robot); default: DIR-ca next to the robot folder")
+    p.add_argument("--ground", metavar="DIR", help="where ground-station certificates and keys go (default: "
+                   "DIR-ground next to the robot folder); never the robot folder")
+    p.add_argument("--init-ca", action="store_true", help="only create the CA in --ca (the operator's first step)")
     p.add_argument("--ca-name", default="cromat-ca", help="common name of a new CA")
     p.add_argument(
         "--router-host",
@@ -187,6 +207,19 @@ def _from_manifest(path: str) -> tuple[Path, str, list[str], list[str]]:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.init_ca:
+        if not args.ca:
+            print("cromat certs: --init-ca needs --ca DIR (the operator's CA folder)", file=sys.stderr)
+            return 2
+        try:
+            Path(args.ca).mkdir(parents=True, exist_ok=True)
+            os.chmod(args.ca, 0o700)
+            make_ca(Path(args.ca), args.ca_name)
+        except (CertError, OSError) as exc:
+            print(f"cromat certs: {exc}", file=sys.stderr)
+            return 2
+        print(f"cromat certs: CA in {args.ca} (keep it off the robot)")
+        return 0
     listed = [m.strip() for m in (args.modules or "").split(",") if m.strip()]
     try:
         if args.manifest:
@@ -206,11 +239,23 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cromat certs: {exc}", file=sys.stderr)
         return 2
     out.mkdir(parents=True, exist_ok=True)
+    ca_dir = Path(args.ca) if args.ca else out.with_name(out.name + "-ca")
+    ground = Path(args.ground) if args.ground else out.with_name(out.name + "-ground")
     try:
-        make_ca(out, args.ca_name)
-        make_leaf(out, "router", args.router_host or list(DEFAULT_HOSTS), args.days)
-        for name in dict.fromkeys([*gcs, *local, *modules]):
-            make_leaf(out, name, None, args.days)
+        if (out / f"{CA}.key").exists():
+            raise CertError(f"{out / 'ca.key'}: a CA key in the robot's folder; move it to the operator's CA folder "
+                            f"(--ca) and delete it here: whoever holds it can mint any identity")
+        if ground.resolve() == out.resolve() or ca_dir.resolve() == out.resolve():
+            raise CertError("the CA and ground-station folders must not be the robot folder")
+        robot_side = [n for n in dict.fromkeys([*local, *modules]) if n not in gcs]
+        ca_dir.mkdir(parents=True, exist_ok=True)
+        os.chmod(ca_dir, 0o700)
+        make_ca(ca_dir, args.ca_name)
+        make_leaf(out, "router", args.router_host or list(DEFAULT_HOSTS), args.days, ca_dir)
+        for name in robot_side:
+            make_leaf(out, name, None, args.days, ca_dir)
+        for name in dict.fromkeys(gcs):
+            make_leaf(ground, name, None, args.days, ca_dir)
         if args.acl:
             cfg = acl.router_config(
                 listen=args.listen or ["tls/0.0.0.0:7447"],
@@ -226,8 +271,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cromat certs: {exc}", file=sys.stderr)
         return 2
     print(
-        f"cromat certs: CA and certificates for router, {', '.join(dict.fromkeys([*gcs, *local, *modules]))} "
-        f"in {out}"
+        f"cromat certs: robot folder {out} (router, {', '.join(robot_side)}; no CA key), ground folder {ground} "
+        f"({', '.join(dict.fromkeys(gcs))}), CA in {ca_dir} (keep it off the robot)"
         + (f"; router config {args.acl}" if args.acl else "")
     )
     return 0

@@ -26,6 +26,7 @@ from typing import Annotated, Any
 
 import msgspec
 
+from bbcs.contracts.dsp import commands_slot
 from bbcs.slots import InputSlot, Kind, OutputSlot, Publisher, Safety
 from modules.dsp import protocol as p
 
@@ -87,9 +88,12 @@ def errors_input() -> Any:
     return InputSlot("dsp_errors", DspErrorReport, kind=Kind.STREAM, peer=f"{MODULE}/{ERRORS_SLOT}")
 
 
-def commands_output() -> Any:
-    """Output ``dsp_commands``: writes into the DSP process's command mailbox (``self.output("dsp_commands")``)."""
-    return OutputSlot("dsp_commands", DspCommands, kind=Kind.STREAM, peer=f"{MODULE}/{COMMANDS_SLOT}")
+def commands_output(sender: str | None = None) -> Any:
+    """Output ``dsp_commands``: writes into the DSP process's command input for ``sender``
+    (``dsp/commands_<sender>``, the key only that identity may write under access control, see
+    bbcs.contracts.dsp); without a sender, the shared ``dsp/commands`` mailbox no identity may write under it."""
+    slot = COMMANDS_SLOT if sender is None else commands_slot(sender)
+    return OutputSlot("dsp_commands", DspCommands, kind=Kind.STREAM, peer=f"{MODULE}/{slot}")
 
 
 class DspCommander:

@@ -17,6 +17,7 @@ class LinkErrorCode(IntEnum):
     LINK_DOWN = 101  # the port is missing, busy or failed
     OVER_MAX_SPEED = 102  # SET_SPEED above the .conf MAX_SPEED: the batch was not sent
     FLUSHED = 103  # commands of a batch were dropped, unsent, by an ABORT
+    NOT_OWNER = 104  # a sender's batch holds a command class it does not own (bbcs.contracts.dsp): not sent
 
 
 class DspLinkError(RuntimeError):

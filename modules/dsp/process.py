@@ -24,6 +24,7 @@ from collections import deque
 from typing import ClassVar, NoReturn
 
 from bbcs.conf import ConfError
+from bbcs.contracts.dsp import COMMAND_RIGHTS, commands_slot, refused_classes
 from bbcs.contracts.errors import ErrorReport
 from bbcs.errors import EXIT_CONFIG, BusErrorCode
 from bbcs.module import Module
@@ -49,6 +50,7 @@ class DspModule(Module):
     name: ClassVar[str] = bus.MODULE
     slots = (
         InputSlot(bus.COMMANDS_SLOT, bus.DspCommands, kind=Kind.STREAM),
+        *(InputSlot(commands_slot(sender), bus.DspCommands, kind=Kind.STREAM) for sender in COMMAND_RIGHTS),
         OutputSlot(bus.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
         OutputSlot(bus.ERRORS_SLOT, bus.DspErrorReport, kind=Kind.STREAM),
         OutputSlot(bus.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
@@ -135,6 +137,25 @@ class DspModule(Module):
 
     # --- commands ----------------------------------------------------------------------------------------
 
+    # one input per sending module (bbcs.contracts.dsp): the key names the sender, the router checked who wrote it
+    def on_commands_pan_tilt(self, batch: bus.DspCommands) -> None:
+        self._on_owned_batch("pan_tilt", batch)
+
+    def on_commands_path_follower(self, batch: bus.DspCommands) -> None:
+        self._on_owned_batch("path_follower", batch)
+
+    def _on_owned_batch(self, sender: str, batch: bus.DspCommands) -> None:
+        """Send ``sender``'s batch only if it owns every command class in it; the batch's own ``sender``
+        field is replaced by the key's, so reports name who really wrote it."""
+        batch = bus.DspCommands(sender=sender, commands=batch.commands, batch_id=batch.batch_id)
+        refused = refused_classes(sender, [type(cmd).__name__ for cmd in batch.commands])
+        if refused:
+            detail = f"{sender} does not own {', '.join(refused)}: batch {batch.batch_id} not sent"
+            self.report_error(LinkErrorCode.NOT_OWNER, detail)
+            self._publish_report(LinkErrorCode.NOT_OWNER, detail, batch, refused[0])
+            return
+        self.on_commands(batch)
+
     def on_commands(self, batch: bus.DspCommands) -> None:
         """Check run-time limits, then queue the batch; an ABORT flushes what is queued and goes first."""
         for cmd in batch.commands:
@@ -190,6 +211,14 @@ class DspModule(Module):
     # --- DSP → bus ---------------------------------------------------------------------------------------
 
     def _on_telemetry(self, telemetry: p.Telemetry) -> None:
+        try:  # a frame the CRC let through with a value outside its physical range is never published
+            p.check(telemetry)
+        except p.DspValueError as exc:
+            self.telemetry_dropped = getattr(self, "telemetry_dropped", 0) + 1
+            detail = f"telemetry frame dropped ({self.telemetry_dropped} so far): {exc}"
+            self.report_error(BusErrorCode.OUT_OF_RANGE, detail)
+            self._publish_report(exc.code, detail)
+            return
         self.publish(bus.TELEMETRY_SLOT, telemetry)
 
     def _on_dsp_error(self, error: p.DspError) -> None:

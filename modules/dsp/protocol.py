@@ -1,503 +1,173 @@
-"""The DSP protocol's vocabulary: message ids, enums, one msgspec Struct per message (docs/dsp_protocol.md).
+"""The DSP serial protocol (docs/dsp_protocol.md): the wire framing constants, and the message vocabulary.
 
-Ranges live in the types (``Annotated[..., Meta(...)]``) so the same limits drive ``check()`` — which the
-codec runs before encoding, so an out-of-range value is refused with a message naming the field — and any
-JSON schema generated from these structs. Units: degrees for angles sent to the DSP (except
-``SetRefs.ref_heading``, radians, sent as SPEC says "as they are"), metres, m/s.
+The messages, their ranges and ``check()`` are the DSP's bus contract and live in :mod:`bbcs.contracts.dsp`
+(modules read and write them on the bus); they are re-exported here so the codec, the link and the simulator
+keep one name for them.
 """
 
 from __future__ import annotations
 
-import math
-from enum import IntEnum, IntFlag
-from typing import Annotated, Any, ClassVar
-
-import msgspec
-from msgspec import Meta
+from bbcs.contracts.dsp import (
+    COMMAND_RIGHTS,
+    COMMANDS,
+    COMMANDS_SLOT_PREFIX,
+    F32,
+    F32_MAX,
+    LATLON_SCALE,
+    MAX_SPEED_LIMIT,
+    REPLIES,
+    TELEMETRY_ALL,
+    TELEMETRY_ATTRS,
+    TELEMETRY_LATLON_SCALE,
+    U8,
+    U16,
+    U32,
+    WAYPOINT_QUEUE_CAPACITY,
+    Abort,
+    Ack,
+    AddWaypoint,
+    Angle90,
+    Angle180,
+    AngularRate,
+    Attitude,
+    Axis,
+    ClearError,
+    Command,
+    DspError,
+    DspStatus,
+    DspValueError,
+    Engine,
+    ErrorCode,
+    HeliType,
+    InvalidatePath,
+    Lat,
+    Lon,
+    Message,
+    Mode,
+    MsgId,
+    NavTarget,
+    PanTiltMode,
+    PanTiltState,
+    Ping,
+    Position,
+    SetHeading,
+    SetHelicopterType,
+    SetMode,
+    SetPanTiltAngles,
+    SetPanTiltMode,
+    SetPanTiltTarget,
+    SetPid,
+    SetRefs,
+    SetSpeed,
+    SetStateTransmission,
+    SetTelemetryMask,
+    SetTracking,
+    SpeedInfo,
+    TelAlt,
+    TelCommandedSpeed,
+    TelDistance,
+    Telemetry,
+    TelemetryField,
+    TelGroundSpeed,
+    TelLat,
+    TelLon,
+    TelRate,
+    TelRpm,
+    TelSpeed,
+    TelVolts,
+    Velocity,
+    check,
+    commands_slot,
+    error_name,
+    heading_deg_from_rad,
+    parse_telemetry_fields,
+    refused_classes,
+)
 
 SYNC = b"\xa5\x5a"
 HEADER_SIZE = 5  # sync ×2, LEN, ID, SEQ
 CRC_SIZE = 2
 MAX_PAYLOAD = 128
 MAX_FRAME = HEADER_SIZE + MAX_PAYLOAD + CRC_SIZE
-LATLON_SCALE = 10_000  # SPEC §3: lat/lon × 10^4 → int32 for the DSP (1e-4° ≈ 11.1 m)
-TELEMETRY_LATLON_SCALE = 10_000_000  # telemetry positions: 1e-7° ≈ 1.1 cm
-WAYPOINT_QUEUE_CAPACITY = 512
-MAX_SPEED_LIMIT = 30.0  # m/s, protocol ceiling; the airframe's MAX_SPEED (conf) is lower
 
-F32_MAX = 3.4028234663852886e38
-F32 = Annotated[float, Meta(ge=-F32_MAX, le=F32_MAX)]
-Lat = Annotated[float, Meta(ge=-90.0, le=90.0)]
-Lon = Annotated[float, Meta(ge=-180.0, le=180.0)]
-U8 = Annotated[int, Meta(ge=0, le=0xFF)]
-U16 = Annotated[int, Meta(ge=0, le=0xFFFF)]
-U32 = Annotated[int, Meta(ge=0, le=0xFFFFFFFF)]
-
-
-class MsgId(IntEnum):
-    """Message ids: 0x01-0x3F PC → DSP, 0x80-0xFF DSP → PC."""
-
-    SET_SPEED = 0x01
-    SET_TELEMETRY_MASK = 0x02
-    SET_STATE_TX = 0x03
-    CLEAR_ERROR = 0x04
-    SET_TRACKING = 0x05
-    INVALIDATE_PATH = 0x06
-    SET_HELI_TYPE = 0x07
-    SET_PID = 0x08
-    SET_MODE = 0x10
-    SET_HEADING = 0x11
-    ADD_WAYPOINT = 0x12
-    SET_REFS = 0x13
-    SET_PT_MODE = 0x20
-    SET_PT_ANGLES = 0x21
-    SET_PT_TARGET = 0x22
-    ABORT = 0x30
-    PING = 0x3F
-    ACK = 0x80
-    TELEMETRY = 0x81
-    ERROR = 0x82
-
-
-class Mode(IntEnum):
-    """Operating modes of SPEC §3.3 (modo_de_funcionamiento)."""
-
-    PATH_AUTO_HEADING = 0
-    PATH_GIVEN_HEADING = 1
-    SEMI_AUTOMATIC = 2
-    ONBOARD_FOLLOWER = 3
-    TAKE_OFF = 4
-    LANDING = 5
-    BRIDGE = 6
-
-
-class HeliType(IntEnum):
-    """Main-rotor servo configuration (SPEC §3 start-up step 3)."""
-
-    H1_MECHANICAL = 1
-    H3_CCPM_120 = 2
-    H3_CCPM_140 = 3
-    H4_CCPM_90 = 4
-
-
-class Axis(IntEnum):
-    """Controlled axes, one PID group each."""
-
-    ROLL = 0
-    PITCH = 1
-    YAW = 2
-    ALTITUDE = 3
-    LONGITUDINAL = 4
-    LATERAL = 5
-    ROTOR_RPM = 6
-    PAN = 7
-    TILT = 8
-
-
-class PanTiltMode(IntEnum):
-    """Pan & tilt modes of SPEC §3.2."""
-
-    ANGLES = 0
-    TARGET = 1
-    HOLD = 2
-
-
-class ErrorCode(IntEnum):
-    """DSP error codes: ACK statuses (1-4) and spontaneous ERROR messages (5-9)."""
-
-    NONE = 0
-    OUT_OF_RANGE = 1
-    WRONG_MODE = 2
-    NOT_CONFIGURED = 3
-    QUEUE_FULL = 4
-    RX_ERRORS = 5
-    GPS_LOST = 6
-    LOW_BATTERY = 7
-    ROTOR_RPM = 8
-    SENSOR_FAULT = 9
-
-
-def error_name(code: int) -> str:
-    """Readable name of a DSP error code, also for codes newer firmware may add."""
-    try:
-        return ErrorCode(code).name
-    except ValueError:
-        return f"UNKNOWN_{code}"
-
-
-class TelemetryField(IntFlag):
-    """Telemetry mask bits, in wire order."""
-
-    POSITION = 1 << 0
-    ATTITUDE = 1 << 1
-    VELOCITY = 1 << 2
-    ANGULAR_RATE = 1 << 3
-    HEADING = 1 << 4
-    STATUS = 1 << 5
-    NAV = 1 << 6
-    SPEED = 1 << 7
-    PAN_TILT = 1 << 8
-    ERROR = 1 << 9
-    ENGINE = 1 << 10
-
-
-TELEMETRY_ALL = int(TelemetryField(0x7FF))
-
-
-def parse_telemetry_fields(names: list[str] | tuple[str, ...]) -> int:
-    """Mask for a list of field names (``["POSITION", "STATUS"]``); ValueError names an unknown one."""
-    mask = 0
-    for name in names:
-        try:
-            mask |= TelemetryField[name.strip().upper()]
-        except KeyError:
-            known = ", ".join(f.name for f in TelemetryField)  # type: ignore[misc]
-            raise ValueError(f"unknown telemetry field {name!r} (known: {known})") from None
-    return mask
-
-
-def heading_deg_from_rad(rad: float) -> float:
-    """Radians (SPEC's HEADING slot) → degrees in [-180, 180) for SET_HEADING."""
-    deg = math.degrees(rad)
-    deg = (deg + 180.0) % 360.0 - 180.0
-    return deg - 360.0 if deg >= 180.0 else deg
-
-
-class Message(msgspec.Struct, frozen=True, kw_only=True):
-    """Base of every protocol message; ``MSG_ID`` is its wire id."""
-
-    MSG_ID: ClassVar[MsgId]
-
-
-class Command(Message, frozen=True, kw_only=True, tag=True):
-    """A PC → DSP message; every command is acknowledged. Tagged (by class name) so a list of commands can
-    travel on the bus as one typed union (modules/dsp/bus.py)."""
-
-
-# --- PC → DSP ----------------------------------------------------------------------------------------------
-
-
-class SetSpeed(Command, frozen=True, kw_only=True):
-    """Navigation speed along the path (also the start-up "speed 0")."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_SPEED
-    speed: Annotated[float, Meta(ge=0.0, le=MAX_SPEED_LIMIT)]
-
-
-class SetTelemetryMask(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_TELEMETRY_MASK
-    mask: Annotated[int, Meta(ge=0, le=TELEMETRY_ALL)]
-
-
-class SetStateTransmission(Command, frozen=True, kw_only=True):
-    """Telemetry on/off and its period."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_STATE_TX
-    enable: bool
-    period_ms: Annotated[int, Meta(ge=10, le=60_000)] = 50
-
-
-class ClearError(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.CLEAR_ERROR
-
-
-class SetTracking(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_TRACKING
-    enable: bool
-
-
-class InvalidatePath(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.INVALIDATE_PATH
-
-
-class SetHelicopterType(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_HELI_TYPE
-    heli_type: HeliType
-
-
-class SetPid(Command, frozen=True, kw_only=True):
-    """One controller parameter group (SPEC §4's ``PID: NAME { ... }``)."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_PID
-    axis: Axis
-    kp: F32
-    ki: F32
-    kd: F32
-    integral: F32
-    awu_max: F32
-    awu_min: F32
-    reference: F32
-    offset: F32
-    sat_high: F32
-    sat_low: F32
-
-
-class SetMode(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_MODE
-    mode: Mode
-
-
-class SetHeading(Command, frozen=True, kw_only=True):
-    """Heading reference for mode 1, degrees (0 north, clockwise)."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_HEADING
-    heading_deg: Annotated[float, Meta(ge=-180.0, lt=180.0)]
-
-
-class AddWaypoint(Command, frozen=True, kw_only=True):
-    """One waypoint; lat/lon travel as degrees × 10^4 (resolution ≈ 11 m)."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.ADD_WAYPOINT
-    lat: Lat
-    lon: Lon
-    alt: F32
-
-
-class SetRefs(Command, frozen=True, kw_only=True):
-    """Bridge references (SPEC §3.3 REFS_SEG_CAM), sent as received."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_REFS
-    ref_altura: F32
-    error_longitudinal: F32
-    error_lateral: F32
-    ref_heading: Annotated[float, Meta(ge=-math.pi, lt=math.pi)]
-    ref_rpm_motor: Annotated[float, Meta(ge=0.0, le=1800.0)]
-
-
-class SetPanTiltMode(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_PT_MODE
-    mode: PanTiltMode
-
-
-class SetPanTiltAngles(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_PT_ANGLES
-    pan_deg: Annotated[float, Meta(ge=-180.0, le=180.0)]
-    tilt_deg: Annotated[float, Meta(ge=-90.0, le=90.0)]
-
-
-class SetPanTiltTarget(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.SET_PT_TARGET
-    lat: Lat
-    lon: Lon
-    alt: F32
-
-
-class Abort(Command, frozen=True, kw_only=True):
-    """Flush the waypoint queue and hold position."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.ABORT
-
-
-class Ping(Command, frozen=True, kw_only=True):
-    MSG_ID: ClassVar[MsgId] = MsgId.PING
-
-
-# --- DSP → PC ----------------------------------------------------------------------------------------------
-
-
-class Ack(Message, frozen=True, kw_only=True):
-    """Answer to a command: ``status`` 0 = applied, else the ErrorCode that refused it."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.ACK
-    acked_id: U8
-    acked_seq: U8
-    status: U16 = 0
-
-    @property
-    def ok(self) -> bool:
-        return self.status == 0
-
-
-class DspError(Message, frozen=True, kw_only=True):
-    """A fault the DSP reports on its own (not the answer to a command)."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.ERROR
-    time_ms: U32
-    code: U16
-    related_id: U8 = 0
-
-
-class Position(msgspec.Struct, frozen=True, kw_only=True):
-    lat: float
-    lon: float
-    alt: float
-
-
-class Attitude(msgspec.Struct, frozen=True, kw_only=True):
-    roll: float
-    pitch: float
-    yaw: float
-
-
-class Velocity(msgspec.Struct, frozen=True, kw_only=True):
-    vn: float
-    ve: float
-    vd: float
-
-
-class AngularRate(msgspec.Struct, frozen=True, kw_only=True):
-    p: float
-    q: float
-    r: float
-
-
-class DspStatus(msgspec.Struct, frozen=True, kw_only=True):
-    mode: Annotated[int, Meta(ge=0, le=6)]
-    tracking: bool
-    path_valid: bool
-    airborne: bool
-    queue_length: U16
-
-
-class NavTarget(msgspec.Struct, frozen=True, kw_only=True):
-    """Current target waypoint; ``distance < 0`` means there is none."""
-
-    lat: float
-    lon: float
-    alt: float
-    distance: float
-
-    @property
-    def active(self) -> bool:
-        return self.distance >= 0.0
-
-
-class SpeedInfo(msgspec.Struct, frozen=True, kw_only=True):
-    commanded: float
-    ground: float
-
-
-class PanTiltState(msgspec.Struct, frozen=True, kw_only=True):
-    mode: Annotated[int, Meta(ge=0, le=2)]
-    pan: float
-    tilt: float
-
-
-class Engine(msgspec.Struct, frozen=True, kw_only=True):
-    rotor_rpm: float
-    battery_v: float
-
-
-class Telemetry(Message, frozen=True, kw_only=True):
-    """One state frame; a field is None when the mask did not ask for it."""
-
-    MSG_ID: ClassVar[MsgId] = MsgId.TELEMETRY
-    time_ms: U32
-    position: Position | None = None
-    attitude: Attitude | None = None
-    velocity: Velocity | None = None
-    angular_rate: AngularRate | None = None
-    heading: float | None = None
-    status: DspStatus | None = None
-    nav: NavTarget | None = None
-    speed: SpeedInfo | None = None
-    pan_tilt: PanTiltState | None = None
-    error_code: U16 | None = None
-    engine: Engine | None = None
-
-    @property
-    def mask(self) -> int:
-        """The mask bits of the fields present."""
-        bits = 0
-        for bit, name in enumerate(TELEMETRY_ATTRS):
-            if getattr(self, name) is not None:
-                bits |= 1 << bit
-        return bits
-
-
-TELEMETRY_ATTRS = ("position", "attitude", "velocity", "angular_rate", "heading", "status", "nav", "speed",
-                   "pan_tilt", "error_code", "engine")
-
-COMMANDS: tuple[type[Command], ...] = (
-    SetSpeed, SetTelemetryMask, SetStateTransmission, ClearError, SetTracking, InvalidatePath,
-    SetHelicopterType, SetPid, SetMode, SetHeading, AddWaypoint, SetRefs, SetPanTiltMode, SetPanTiltAngles,
-    SetPanTiltTarget, Abort, Ping,
-)
-REPLIES: tuple[type[Message], ...] = (Ack, Telemetry, DspError)
-
-
-# --- range checks (used by the codec before encoding, and by the DSP simulator after decoding) -------------
-
-
-class DspValueError(ValueError):
-    """A message field is out of its range or of the wrong type; nothing was encoded or sent."""
-
-
-def _bounds_text(t: Any) -> str:
-    lo = "[" + repr(t.ge) if t.ge is not None else "(" + repr(t.gt) if t.gt is not None else "(-inf"
-    hi = repr(t.le) + "]" if t.le is not None else repr(t.lt) + ")" if t.lt is not None else "inf)"
-    return f"{lo}, {hi}"
-
-
-def _field_checker(owner: str, name: str, t: Any):
-    """Return a function value -> error text (or None) for one field type from msgspec.inspect."""
-    where = f"{owner}.{name}"
-    insp = msgspec.inspect
-
-    def bounded(value: float) -> str | None:
-        if (t.ge is not None and not value >= t.ge) or (t.gt is not None and not value > t.gt) or (
-                t.le is not None and not value <= t.le) or (t.lt is not None and not value < t.lt):
-            return f"{where}={value!r} is out of range {_bounds_text(t)}"
-        return None
-
-    if isinstance(t, insp.FloatType):
-        def check_float(value: Any) -> str | None:
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                return f"{where} must be a number, got {type(value).__name__}"
-            if not math.isfinite(value):
-                return f"{where}={value!r} must be finite"
-            return bounded(float(value))
-        return check_float
-    if isinstance(t, insp.BoolType):
-        def check_bool(value: Any) -> str | None:
-            return None if isinstance(value, bool) else f"{where} must be a bool, got {type(value).__name__}"
-        return check_bool
-    if isinstance(t, insp.IntType):
-        def check_int(value: Any) -> str | None:
-            if isinstance(value, bool) or not isinstance(value, int):
-                return f"{where} must be an int, got {type(value).__name__}"
-            return bounded(value)
-        return check_int
-    if isinstance(t, insp.EnumType):
-        enum_cls = t.cls
-
-        def check_enum(value: Any) -> str | None:
-            if isinstance(value, bool) or not isinstance(value, int):
-                return f"{where} must be a {enum_cls.__name__}, got {type(value).__name__}"
-            if value not in enum_cls._value2member_map_:
-                names = ", ".join(f"{m.value}={m.name}" for m in enum_cls)
-                return f"{where}={value!r} is not a {enum_cls.__name__} ({names})"
-            return None
-        return check_enum
-    raise TypeError(f"{where}: no range check for field type {t!r}")
-
-
-def _cross_checks(msg: Message) -> str | None:
-    if isinstance(msg, SetPid):
-        if msg.awu_min > msg.awu_max:
-            return f"SetPid({msg.axis.name}): awu_min={msg.awu_min} > awu_max={msg.awu_max}"
-        if msg.sat_low > msg.sat_high:
-            return f"SetPid({msg.axis.name}): sat_low={msg.sat_low} > sat_high={msg.sat_high}"
-    return None
-
-
-_CHECKERS: dict[type, tuple[tuple[str, Any], ...]] = {}
-for _cls in (*COMMANDS, Ack, DspError):
-    _info = msgspec.inspect.type_info(_cls)
-    _CHECKERS[_cls] = tuple((f.name, _field_checker(_cls.__name__, f.name, f.type)) for f in _info.fields)
-
-
-def check(msg: Message) -> None:
-    """Raise DspValueError naming the first field outside its range (SPEC: out of range is an error)."""
-    checkers = _CHECKERS.get(type(msg))
-    if checkers is None:
-        if isinstance(msg, Telemetry):
-            return
-        raise DspValueError(f"{type(msg).__name__} is not a DSP protocol message")
-    for name, checker in checkers:
-        problem = checker(getattr(msg, name))
-        if problem is not None:
-            raise DspValueError(problem)
-    problem = _cross_checks(msg)
-    if problem is not None:
-        raise DspValueError(problem)
+__all__ = [
+    "Abort",
+    "Ack",
+    "AddWaypoint",
+    "Angle180",
+    "Angle90",
+    "AngularRate",
+    "Attitude",
+    "Axis",
+    "COMMANDS",
+    "COMMANDS_SLOT_PREFIX",
+    "COMMAND_RIGHTS",
+    "CRC_SIZE",
+    "ClearError",
+    "Command",
+    "DspError",
+    "DspStatus",
+    "DspValueError",
+    "Engine",
+    "ErrorCode",
+    "F32",
+    "F32_MAX",
+    "HEADER_SIZE",
+    "HeliType",
+    "InvalidatePath",
+    "LATLON_SCALE",
+    "Lat",
+    "Lon",
+    "MAX_FRAME",
+    "MAX_PAYLOAD",
+    "MAX_SPEED_LIMIT",
+    "Message",
+    "Mode",
+    "MsgId",
+    "NavTarget",
+    "PanTiltMode",
+    "PanTiltState",
+    "Ping",
+    "Position",
+    "REPLIES",
+    "SYNC",
+    "SetHeading",
+    "SetHelicopterType",
+    "SetMode",
+    "SetPanTiltAngles",
+    "SetPanTiltMode",
+    "SetPanTiltTarget",
+    "SetPid",
+    "SetRefs",
+    "SetSpeed",
+    "SetStateTransmission",
+    "SetTelemetryMask",
+    "SetTracking",
+    "SpeedInfo",
+    "TELEMETRY_ALL",
+    "TELEMETRY_ATTRS",
+    "TELEMETRY_LATLON_SCALE",
+    "TelAlt",
+    "TelCommandedSpeed",
+    "TelDistance",
+    "TelGroundSpeed",
+    "TelLat",
+    "TelLon",
+    "TelRate",
+    "TelRpm",
+    "TelSpeed",
+    "TelVolts",
+    "Telemetry",
+    "TelemetryField",
+    "U16",
+    "U32",
+    "U8",
+    "Velocity",
+    "WAYPOINT_QUEUE_CAPACITY",
+    "check",
+    "commands_slot",
+    "error_name",
+    "heading_deg_from_rad",
+    "parse_telemetry_fields",
+    "refused_classes",
+]

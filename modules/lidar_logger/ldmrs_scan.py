@@ -32,6 +32,14 @@ WIRE_POINT_DTYPE = np.dtype([
 ])
 assert SCAN_HEADER.size == SCAN_HEADER_SIZE and WIRE_POINT_DTYPE.itemsize == POINT_SIZE
 
+# Physical ranges of a decoded scan (LD-MRS operating manual): the horizontal field is +50°..-60° (1600..-1920
+# ticks), 4 layers, up to 4 echoes per beam (0..3), one rotation = 11520 ticks. A scan with anything outside is
+# damaged (or not an LD-MRS) and is dropped whole: no point of it is used.
+MIN_ANGLE_TICKS = -60 * TICKS_PER_DEGREE
+MAX_ANGLE_TICKS = 50 * TICKS_PER_DEGREE
+MAX_LAYER = 3
+MAX_ECHO = 3
+
 # scan-level flags word
 SCAN_GROUND_LABELED = 0x0001
 SCAN_DIRT_LABELED = 0x0002
@@ -172,8 +180,29 @@ def decode_scan(payload: bytes) -> Scan:
         raise LdmrsProtocolError(f"scan {number}: {n} points need {SCAN_HEADER_SIZE + POINT_SIZE * n} bytes, "
                                  f"payload has {len(payload)}")
     points = np.frombuffer(payload, dtype=WIRE_POINT_DTYPE, count=n, offset=SCAN_HEADER_SIZE)
+    _check_ranges(number, ticks, start_angle, end_angle, points)
     return Scan(number, status, sync, start_ntp, end_ntp, ticks, start_angle, end_angle,
                 (m_yaw, m_pitch, m_roll, m_x, m_y, m_z), flags, points)
+
+
+def _check_ranges(number: int, ticks: int, start: int, end: int, points: np.ndarray) -> None:
+    """LdmrsProtocolError naming the first value outside the scanner's physical ranges (vectorised)."""
+    if ticks != TICKS_PER_ROTATION:
+        raise LdmrsProtocolError(f"scan {number}: {ticks} ticks per rotation, an LD-MRS has {TICKS_PER_ROTATION}")
+    for name, value in (("start angle", start), ("end angle", end)):
+        if not MIN_ANGLE_TICKS <= value <= MAX_ANGLE_TICKS:
+            raise LdmrsProtocolError(f"scan {number}: {name} {value} ticks outside "
+                                     f"[{MIN_ANGLE_TICKS}, {MAX_ANGLE_TICKS}]")
+    if not len(points):
+        return
+    angle = points["angle"]
+    bad = (angle < MIN_ANGLE_TICKS) | (angle > MAX_ANGLE_TICKS)
+    if bad.any():
+        raise LdmrsProtocolError(f"scan {number}: point angle {int(angle[bad][0])} ticks outside "
+                                 f"[{MIN_ANGLE_TICKS}, {MAX_ANGLE_TICKS}]")
+    layer_echo = points["layer_echo"]
+    if int((layer_echo & 0x0F).max()) > MAX_LAYER or int((layer_echo >> 4).max()) > MAX_ECHO:
+        raise LdmrsProtocolError(f"scan {number}: a point's layer > {MAX_LAYER} or echo > {MAX_ECHO}")
 
 
 def encode_scan(scan: Scan) -> bytes:

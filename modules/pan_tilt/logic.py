@@ -12,8 +12,8 @@ from dataclasses import dataclass, replace
 from enum import IntEnum
 
 from bbcs.codec import leaf_field
+from bbcs.contracts import dsp as p
 from bbcs.contracts.pan_tilt import DatosPT, ModoFuncionamientoPT
-from modules.dsp import protocol as p
 from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
 
 

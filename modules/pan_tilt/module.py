@@ -13,13 +13,13 @@ from typing import ClassVar
 
 import msgspec
 
+from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
-from modules.dsp import protocol as p
 from modules.pan_tilt import logic
 
 
@@ -31,7 +31,7 @@ class PanTiltModule(Module):
         OutputSlot("error", ErrorReport),
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
-        dsp_bus.commands_output(),
+        dsp_bus.commands_output("pan_tilt"),
         OutputSlot(MODE_ACK_SLOT, ModeAck),
     )
     control = Control(

@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 from enum import IntEnum
 
 from bbcs.codec import leaf_field
+from bbcs.contracts import dsp as p
 from bbcs.contracts.path_follower import (
     ControlModoSegCam,
     DatoPuntoSegCam,
@@ -25,7 +26,6 @@ from bbcs.contracts.path_follower import (
     RefsSegCam,
     SpeedSegCam,
 )
-from modules.dsp import protocol as p
 from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
 
 MODE_CHANGE = 0

@@ -16,6 +16,7 @@ from typing import ClassVar
 import msgspec
 
 from bbcs.conf import ConfError, load_conf
+from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.path_follower import (
@@ -29,7 +30,6 @@ from bbcs.contracts.path_follower import (
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
-from modules.dsp import protocol as p
 from modules.path_follower import logic, onboard
 
 MODE_BATCH_MEMORY = 256
@@ -67,7 +67,7 @@ class PathFollowerModule(Module):
         InputSlot("refs", RefsSegCam, safety=Safety.UNSAFE),
         dsp_bus.telemetry_input(),
         dsp_bus.errors_input(),
-        dsp_bus.commands_output(),
+        dsp_bus.commands_output("path_follower"),
         OutputSlot(MODE_ACK_SLOT, ModeAck),
         OutputSlot("error", ErrorReport),
     )

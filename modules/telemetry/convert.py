@@ -12,9 +12,9 @@ from typing import TypeVar
 
 import msgspec
 
+from bbcs.contracts import dsp as p
 from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED
 from bbcs.contracts.robot import RobotTelemetry
-from modules.dsp import protocol as p
 
 _S = TypeVar("_S", bound=msgspec.Struct)
 

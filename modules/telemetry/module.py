@@ -9,11 +9,11 @@ from __future__ import annotations
 import time
 from typing import ClassVar
 
+from bbcs.contracts import dsp as p
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.module import Module
 from bbcs.slots import OutputSlot, Safety
 from modules.dsp import bus as dsp_bus
-from modules.dsp import protocol as p
 from modules.telemetry.convert import to_robot_telemetry
 
 

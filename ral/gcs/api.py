@@ -23,6 +23,7 @@ from bbcs import keys
 from bbcs.contracts import gri, mri
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
+from ral.gcs import diagnose
 
 HEARTBEAT_S = 0.5
 
@@ -101,10 +102,8 @@ class Gcs:
         try:
             self.session = open_session(config)
         except SessionError as exc:
-            raise Unreachable(
-                f"cannot reach the robot router ({', '.join(config.connect)}), or it refused "
-                f"this station's credentials: {exc}"
-            ) from None
+            raise Unreachable(f"cannot reach the robot router ({', '.join(config.connect)}): "
+                              f"{diagnose.diagnose_connect(config)}; {exc}") from None
         self._closed = False
         self._stop = threading.Event()
         self._token: Any = None
@@ -234,10 +233,7 @@ class Gcs:
                 return gri.decode_reply(reply.ok.payload.to_bytes())
             except msgspec.MsgspecError as exc:
                 raise GcsError(f"unreadable task reply from robot {robot!r}: {exc}") from None
-        raise NoReply(
-            f"no answer from robot {robot!r} to {gri.kind_of(request)} within {wait:g} s: the robot "
-            "is not running or unreachable, or this station's identity may not submit tasks"
-        )
+        raise NoReply(diagnose.explain_no_reply(robot, robot in self.robots(1.0), gri.kind_of(request)))
 
     def abort(self, robot: str) -> gri.TaskReply:
         return self.send(robot, gri.Abort())

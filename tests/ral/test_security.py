@@ -38,6 +38,8 @@ class Secure:
     def client(self, name: str | None, pki: Path | None = None, connect_timeout_s: float = 10.0) -> SessionConfig:
         """A TLS client; the generous connect deadline is for a loaded machine (refused ones pass a short one)."""
         pki = pki or self.pki
+        if name == "gcs":  # ground-station pairs are written to the ground folder, never the robot's (issue 12)
+            pki = pki.with_name(pki.name + "-ground")
         tls = TlsConfig(
             root_ca=str(pki / "ca.pem"),
             cert=str(pki / f"{name}.pem") if name else None,
@@ -119,8 +121,8 @@ def test_certificate_from_another_ca_is_refused(secure: Secure) -> None:
         connect_timeout_s=3.0,
         tls=TlsConfig(
             root_ca=str(secure.pki / "ca.pem"),
-            cert=str(secure.other / "gcs.pem"),
-            key=str(secure.other / "gcs.key"),
+            cert=str(secure.other.with_name("other-ground") / "gcs.pem"),
+            key=str(secure.other.with_name("other-ground") / "gcs.key"),
         ),
     )
     with pytest.raises(Unreachable):

@@ -73,8 +73,9 @@ class Robot:
 
     def client(self, identity: str | None, connect_timeout_s: float = 10.0, **kw: object) -> Gcs:
         """A TLS ground station; the generous connect deadline is for a loaded machine (a refused one: short)."""
-        cert = str(self.pki / f"{identity}.pem") if identity else None
-        key = str(self.pki / f"{identity}.key") if identity else None
+        folder = self.pki.with_name("pki-ground") if identity == "gcs" else self.pki  # GCS pairs: never on the robot
+        cert = str(folder / f"{identity}.pem") if identity else None
+        key = str(folder / f"{identity}.key") if identity else None
         cfg = session_config([f"tls/127.0.0.1:{self.launch.port}"], ca=str(self.pki / "ca.pem"), cert=cert,
                              key=key, connect_timeout_s=connect_timeout_s)
         return Gcs(cfg, **kw)  # type: ignore[arg-type]
@@ -99,8 +100,10 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
 
 def test_certificates_are_exactly_what_the_manifest_needs(robot: Robot) -> None:
     made = {p.stem for p in robot.pki.glob("*.pem")}
-    assert made == {"ca", "router", "manager", "gcs", *MODULES}
-    assert {p.stem for p in robot.pki.glob("*.key")} == made
+    assert made == {"ca", "router", "manager", *MODULES}
+    assert {p.stem for p in robot.pki.glob("*.key")} == made - {"ca"}  # no CA key, no GCS key on the robot
+    assert {p.name for p in robot.pki.with_name("pki-ground").iterdir()} == {"ca.pem", "gcs.pem", "gcs.key"}
+    assert (robot.pki.with_name("pki-ca") / "ca.key").is_file()
 
 
 def test_gcs_identity_sees_the_robot_and_gets_a_task_done(robot: Robot) -> None:

@@ -14,7 +14,7 @@ import threading
 
 from modules.dsp import protocol as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS
-from modules.dsp.sim.faults import FaultInjector
+from modules.dsp.sim.faults import BadTelemetry, FaultInjector
 from modules.dsp.sim.machine import DspParams
 from modules.dsp.sim.server import DspSimulator
 from modules.dsp.sim.transport import PtyEndpoint, TcpEndpoint
@@ -75,6 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="apply faults to what the DSP sends, receives, or both")
     ap.add_argument("--fail", type=_failure, action="append", default=[], metavar="CODE@SECONDS",
                     help="raise DSP error CODE at simulated time SECONDS (repeatable)")
+    ap.add_argument("--bad-telemetry", type=int, default=0, metavar="N",
+                    help="every Nth telemetry frame carries an out-of-range value with a good CRC (0: never)")
     ap.add_argument("--seed", type=int, help="random seed for faults")
     ap.add_argument("--duration", type=float, default=0.0,
                     help="exit after this many wall seconds (0: never)")
@@ -106,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
                                    takeoff_height=args.takeoff_height),
         vehicle_params=VehicleParams(max_speed=args.max_speed), rate_hz=args.rate, time_scale=args.time_scale,
         baud=args.baud, tx_faults=faults.get("tx"), rx_faults=faults.get("rx"), record_path=args.record,
-        fail_at=args.fail, seed=args.seed)
+        fail_at=args.fail, seed=args.seed,
+        bad_telemetry=BadTelemetry(every=args.bad_telemetry) if args.bad_telemetry > 0 else None)
 
     def on_signal(signum: int, frame: object) -> None:
         sim.stop()

@@ -7,11 +7,14 @@ whole claimed frame on a bad CRC loses the real one; ours must not (docs/dsp_pro
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+import msgspec
 import numpy as np
 
+from modules.dsp import protocol as p
 from modules.dsp.protocol import SYNC
 
 
@@ -96,6 +99,45 @@ class FaultInjector:
             self.counts.false_headers += 1
         self.counts.garbage_bytes += len(burst)
         return burst
+
+
+# (field, member, value): what a damaged frame that still passes CRC-16 can carry; member None = the field itself
+OUT_OF_RANGE_VALUES: tuple[tuple[str, str | None, float], ...] = (
+    ("position", "lat", 200.0),
+    ("attitude", "roll", math.inf),
+    ("heading", None, math.nan),
+)
+
+
+@dataclass
+class BadTelemetry:
+    """Every ``every``-th telemetry frame carries one out-of-range value (latitude 200°, roll +inf, heading NaN in
+    turn, among the fields the mask selects) and is then framed with a good CRC: what the receiver's range check
+    must catch, since the CRC cannot. ``sent`` counts the frames spoiled."""
+
+    every: int = 5
+    sent: int = 0
+    _frames: int = 0
+
+    def __post_init__(self) -> None:
+        if self.every < 1:
+            raise ValueError("every must be >= 1")
+
+    def spoil(self, msg: p.Telemetry) -> p.Telemetry | None:
+        """The spoiled frame when this one is due and a spoilable field is present, else None."""
+        self._frames += 1
+        if self._frames % self.every:
+            return None
+        start = self.sent
+        for i in range(len(OUT_OF_RANGE_VALUES)):
+            name, member, value = OUT_OF_RANGE_VALUES[(start + i) % len(OUT_OF_RANGE_VALUES)]
+            current = getattr(msg, name)
+            if current is None:
+                continue
+            bad = value if member is None else msgspec.structs.replace(current, **{member: value})
+            self.sent += 1
+            return msgspec.structs.replace(msg, **{name: bad})  # replace() does not validate: on purpose
+        return None
 
 
 def garble(data: bytes, rng: np.random.Generator, ratio: float) -> bytes:

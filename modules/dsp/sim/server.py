@@ -23,8 +23,9 @@ import numpy as np
 
 from modules.dsp import protocol as p
 from modules.dsp.codec import PC_TO_DSP_LENGTHS, encode, message_name
-from modules.dsp.framing import FrameParser
-from modules.dsp.sim.faults import FaultInjector, garble
+from modules.dsp.codec import _encode_telemetry as encode_telemetry_unchecked
+from modules.dsp.framing import FrameParser, build_frame
+from modules.dsp.sim.faults import BadTelemetry, FaultInjector, garble
 from modules.dsp.sim.machine import DspMachine, DspParams
 from modules.dsp.sim.transport import Endpoint
 from modules.dsp.sim.vehicle import VehicleParams
@@ -89,7 +90,7 @@ class DspSimulator:
                  baud: int = 921_600, tx_faults: FaultInjector | None = None,
                  rx_faults: FaultInjector | None = None, record_path: str | os.PathLike[str] | None = None,
                  fail_at: list[tuple[float, int]] | None = None, seed: int | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 bad_telemetry: BadTelemetry | None = None, clock: Callable[[], float] = time.monotonic) -> None:
         if rate_hz <= 0 or time_scale <= 0:
             raise ValueError("rate_hz and time_scale must be positive")
         self.endpoint = endpoint
@@ -100,6 +101,7 @@ class DspSimulator:
         self.baud = baud
         self.tx_faults = tx_faults
         self.rx_faults = rx_faults
+        self.bad_telemetry = bad_telemetry
         self._clock = clock
         self._rng = np.random.default_rng(seed)
         self._parser = FrameParser(PC_TO_DSP_LENGTHS)
@@ -264,7 +266,11 @@ class DspSimulator:
             self._send(ack)
 
     def _send(self, msg: p.Message) -> None:
-        frame = encode(msg, self._tx_seq)
+        bad = self.bad_telemetry.spoil(msg) if self.bad_telemetry and isinstance(msg, p.Telemetry) else None
+        if bad is not None:  # out of range with a good CRC: encode() would refuse it, so frame it by hand
+            frame = build_frame(int(p.MsgId.TELEMETRY), self._tx_seq, encode_telemetry_unchecked(bad))
+        else:
+            frame = encode(msg, self._tx_seq)
         self._tx_seq = (self._tx_seq + 1) & 0xFF
         if self.baud_mismatch:
             frame = garble(frame, self._rng, self.line_baud / self.baud)  # type: ignore[operator]

@@ -8,6 +8,7 @@ through intact; ``score`` matches what a receiver delivered against what was sen
 from __future__ import annotations
 
 import struct
+import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -27,21 +28,23 @@ TYPICAL_MASKS = (
 
 
 def random_telemetry(rng: np.random.Generator, mask: int) -> p.Telemetry:
-    """Telemetry with every field of ``mask`` filled with random (binary32-exact) values."""
-    def f() -> float:
-        return float(np.float32(rng.normal(0.0, 50.0)))
+    """Telemetry with every field of ``mask`` filled with random (binary32-exact) values within the ranges the
+    protocol's types declare (a frame outside them is dropped by the DSP process)."""
+    def f(alias: object = p.TelSpeed) -> float:
+        meta = typing.get_args(alias)[1]
+        return float(np.float32(np.clip(rng.normal(0.0, 50.0), meta.ge, meta.le)))
 
     fields: dict[str, object] = {}
     if mask & F.POSITION:
         fields["position"] = p.Position(lat=int(rng.integers(-9e8, 9e8)) / 1e7,
                                         lon=int(rng.integers(-18e8, 18e8)) / 1e7,
-                                        alt=f())
+                                        alt=f(p.TelAlt))
     if mask & F.ATTITUDE:
-        fields["attitude"] = p.Attitude(roll=f(), pitch=f(), yaw=f())
+        fields["attitude"] = p.Attitude(roll=f(p.Angle180), pitch=f(p.Angle90), yaw=f(p.Angle180))
     if mask & F.VELOCITY:
         fields["velocity"] = p.Velocity(vn=f(), ve=f(), vd=f())
     if mask & F.ANGULAR_RATE:
-        fields["angular_rate"] = p.AngularRate(p=f(), q=f(), r=f())
+        fields["angular_rate"] = p.AngularRate(p=f(p.TelRate), q=f(p.TelRate), r=f(p.TelRate))
     if mask & F.HEADING:
         fields["heading"] = float(np.float32(rng.uniform(-180, 179.9)))
     if mask & F.STATUS:
@@ -51,15 +54,15 @@ def random_telemetry(rng: np.random.Generator, mask: int) -> p.Telemetry:
     if mask & F.NAV:
         fields["nav"] = p.NavTarget(lat=int(rng.integers(-9e5, 9e5)) / 1e4,
                                     lon=int(rng.integers(-18e5, 18e5)) / 1e4,
-                                    alt=f(), distance=abs(f()))
+                                    alt=f(p.TelAlt), distance=abs(f(p.TelDistance)))
     if mask & F.SPEED:
-        fields["speed"] = p.SpeedInfo(commanded=abs(f()), ground=abs(f()))
+        fields["speed"] = p.SpeedInfo(commanded=abs(f(p.TelCommandedSpeed)), ground=abs(f(p.TelGroundSpeed)))
     if mask & F.PAN_TILT:
-        fields["pan_tilt"] = p.PanTiltState(mode=int(rng.integers(0, 3)), pan=f(), tilt=f())
+        fields["pan_tilt"] = p.PanTiltState(mode=int(rng.integers(0, 3)), pan=f(p.Angle180), tilt=f(p.Angle90))
     if mask & F.ERROR:
         fields["error_code"] = int(rng.integers(0, 10))
     if mask & F.ENGINE:
-        fields["engine"] = p.Engine(rotor_rpm=abs(f()) * 30, battery_v=abs(f()) / 2)
+        fields["engine"] = p.Engine(rotor_rpm=abs(f(p.TelRpm)) * 30, battery_v=abs(f(p.TelVolts)) / 2)
     return p.Telemetry(time_ms=0, **fields)  # type: ignore[arg-type]
 
 

@@ -8,11 +8,14 @@ PC set on the slave so the simulator can behave like a DSP at a different baud r
 from __future__ import annotations
 
 import errno
+import logging
 import os
 import socket
 import termios
 import tty
 from typing import Protocol
+
+log = logging.getLogger(__name__)
 
 _SPEEDS = {getattr(termios, f"B{rate}"): rate for rate in (
     50, 75, 110, 134, 150, 200, 300, 600, 1200, 1800, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400,
@@ -91,7 +94,10 @@ class PtyEndpoint:
 
 
 class TcpEndpoint:
-    """Listens on ``host:port`` (127.0.0.1 by default; port 0 picks a free one); one PC client at a time."""
+    """Listens on ``host:port`` (127.0.0.1 by default; port 0 picks a free one); one PC client at a time.
+
+    A second client is refused (closed at once, counted in ``refused``): a serial line has one PC on it, and a
+    stray connection must not knock the DSP process off its link."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0) -> None:
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -101,6 +107,7 @@ class TcpEndpoint:
         self._listener.setblocking(False)
         self.host, self.port = self._listener.getsockname()[:2]
         self._client: socket.socket | None = None
+        self.refused = 0
         self.description = f"tcp {self.host}:{self.port}"
 
     def fileno_list(self) -> list[int]:
@@ -115,8 +122,11 @@ class TcpEndpoint:
                 conn, _ = self._listener.accept()
             except (BlockingIOError, InterruptedError):
                 return b""
-            if self._client is not None:  # a new PC session replaces the old one
-                self._client.close()
+            if self._client is not None:  # the line is taken: refuse, keep the PC that has it
+                conn.close()
+                self.refused += 1
+                log.warning("refused a second client on %s: the line already has one", self.description)
+                return b""
             conn.setblocking(False)
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._client = conn

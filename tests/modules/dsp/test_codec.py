@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import struct
+import typing
 
 import pytest
 from hypothesis import given, settings
@@ -60,25 +61,33 @@ COMMAND_STRATEGIES = {
     p.Ping: st.just(p.Ping()),
 }
 
+def tel(alias: object) -> st.SearchStrategy[float]:
+    """Floats within the physical range a telemetry type declares (protocol.py)."""
+    meta = typing.get_args(alias)[1]
+    return bounded(meta.ge, meta.le)
+
+
 telemetry = st.builds(
     p.Telemetry,
     time_ms=st.integers(0, 0xFFFFFFFF),
     position=st.none() | st.builds(p.Position,
                                    lat=st.integers(-900_000_000, 900_000_000).map(lambda i: i / 1e7),
                                    lon=st.integers(-1_800_000_000, 1_800_000_000).map(lambda i: i / 1e7),
-                                   alt=finite),
-    attitude=st.none() | st.builds(p.Attitude, roll=finite, pitch=finite, yaw=finite),
-    velocity=st.none() | st.builds(p.Velocity, vn=finite, ve=finite, vd=finite),
-    angular_rate=st.none() | st.builds(p.AngularRate, p=finite, q=finite, r=finite),
+                                   alt=tel(p.TelAlt)),
+    attitude=st.none() | st.builds(p.Attitude, roll=tel(p.Angle180), pitch=tel(p.Angle90), yaw=tel(p.Angle180)),
+    velocity=st.none() | st.builds(p.Velocity, vn=tel(p.TelSpeed), ve=tel(p.TelSpeed), vd=tel(p.TelSpeed)),
+    angular_rate=st.none() | st.builds(p.AngularRate, p=tel(p.TelRate), q=tel(p.TelRate), r=tel(p.TelRate)),
     heading=st.none() | bounded(-180.0, 180.0, hi_open=True),
     status=st.none() | st.builds(p.DspStatus, mode=st.integers(0, 6), tracking=st.booleans(),
                                  path_valid=st.booleans(), airborne=st.booleans(),
                                  queue_length=st.integers(0, 0xFFFF)),
-    nav=st.none() | st.builds(p.NavTarget, lat=lat_grid, lon=lon_grid, alt=finite, distance=finite),
-    speed=st.none() | st.builds(p.SpeedInfo, commanded=finite, ground=finite),
-    pan_tilt=st.none() | st.builds(p.PanTiltState, mode=st.integers(0, 2), pan=finite, tilt=finite),
+    nav=st.none() | st.builds(p.NavTarget, lat=lat_grid, lon=lon_grid, alt=tel(p.TelAlt),
+                              distance=tel(p.TelDistance)),
+    speed=st.none() | st.builds(p.SpeedInfo, commanded=tel(p.TelCommandedSpeed), ground=tel(p.TelGroundSpeed)),
+    pan_tilt=st.none() | st.builds(p.PanTiltState, mode=st.integers(0, 2), pan=tel(p.Angle180),
+                                   tilt=tel(p.Angle90)),
     error_code=st.none() | st.integers(0, 0xFFFF),
-    engine=st.none() | st.builds(p.Engine, rotor_rpm=finite, battery_v=finite),
+    engine=st.none() | st.builds(p.Engine, rotor_rpm=tel(p.TelRpm), battery_v=tel(p.TelVolts)),
 )
 
 REPLY_STRATEGIES = {

@@ -17,6 +17,7 @@ import msgspec
 
 from bbcs import keys
 from bbcs.codec import type_name
+from bbcs.contracts.dsp import commands_slot
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from bbcs.contracts.path_follower import (
@@ -106,7 +107,7 @@ class Watch:
 
         self.subs = [
             session.declare_subscriber(
-                keys.slot_key(ROBOT, "dsp", "commands"),
+                keys.slot_key(ROBOT, "dsp", commands_slot(module)),
                 lambda s: keep(self.batches, dec_b(s.payload.to_bytes())),
             ),
             session.declare_subscriber(

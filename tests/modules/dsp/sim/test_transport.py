@@ -55,13 +55,13 @@ def test_tcp_one_client_at_a_time() -> None:
         first.sendall(b"hello")
         assert read_some(ep, ep.fileno_list()[1]) == b"hello"
         second = socket.create_connection(("127.0.0.1", ep.port))
-        read_some(ep, listener)  # the new PC session replaces the old one
-        assert first.recv(10) == b""
-        assert ep.write(b"to-second") == 9
-        assert second.recv(20) == b"to-second"
+        read_some(ep, listener)  # a second PC is refused (issue 12): the first keeps the line
+        assert second.recv(10) == b"" and ep.refused == 1
+        assert ep.write(b"to-first") == 8
+        assert first.recv(20) == b"to-first"
         second.close()
+        first.close()
         assert read_some(ep, ep.fileno_list()[1]) == b""
         assert len(ep.fileno_list()) == 1
-        first.close()
     finally:
         ep.close()

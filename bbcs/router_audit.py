@@ -1,0 +1,114 @@
+"""The router's refusals in its own log: denied messages and refused links, counted and rate limited.
+
+Zenoh decides access control and TLS in Rust and reports only through its tracing log: a denied message is a
+TRACE line of ``zenoh::net::routing::interceptor::access_control`` ("<zid> on …CertCommonName(<cn>)… is
+unauthorized to Put (ingress) on <key>"), a refused TLS link a WARN line of ``zenoh_link_tls`` ("peer sent no
+certificates", "invalid peer certificate: …"). That log goes to the process's stdout. With ``cromat router
+--log-refusals`` the router reads its own stdout through a pipe, turns those lines into one readable line per
+refusal, counts them by kind, and prints at most ``burst`` of them per ``period_s`` (then one line saying how
+many were left out), passing every other line through unchanged.
+
+Cost: Zenoh has no level for denials alone; at TRACE the ACL target writes a line for every message it checks,
+allowed ones included, which this reader parses and drops. So the option is off by default; it is meant for
+commissioning and for investigating a refusal.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TextIO
+
+LOG_FILTER = "warn,zenoh::net::routing::interceptor::access_control=trace"
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+_DENIED = re.compile(r"CertCommonName\((?P<cn>[^)]*)\).* is unauthorized to (?P<what>.+?) \((?P<flow>\w+)\) on "
+                     r"(?P<key>\S+)")
+_DENIED_NO_CN = re.compile(r"access_control: (?P<zid>\w+) .* is unauthorized to (?P<what>.+?) \((?P<flow>\w+)\) on "
+                           r"(?P<key>\S+)")
+_LINK = re.compile(r"zenoh_link_tls\S*: (?P<why>[^.]*(?:certificate|handshake failed|alert)[^.]*)", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class Refusal:
+    kind: str  # "denied" or "link refused"
+    text: str
+
+
+def parse(line: str) -> Refusal | None:
+    """The refusal a Zenoh log line reports, or None for any other line."""
+    line = _ANSI.sub("", line)
+    m = _DENIED.search(line) or _DENIED_NO_CN.search(line)
+    if m:
+        who = m.groupdict().get("cn") or m.groupdict().get("zid")
+        return Refusal("denied", f"{who} may not {m['what'].lower()} on {m['key']} ({m['flow']})")
+    m = _LINK.search(line)
+    if m and "eof" not in m["why"]:
+        return Refusal("link refused", m["why"].strip())
+    return None
+
+
+class RefusalLog:
+    """Counts refusals by kind and lets through at most ``burst`` lines of each kind per ``period_s`` (injected
+    clock), so a flood of denied messages never hides a refused link."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic, period_s: float = 10.0, burst: int = 5) -> None:
+        self.clock = clock
+        self.period_s = period_s
+        self.burst = burst
+        self.counts: Counter[str] = Counter()
+        self._window_start: dict[str, float] = {}
+        self._shown: Counter[str] = Counter()
+        self._hidden: Counter[str] = Counter()
+
+    def note(self, refusal: Refusal) -> list[str]:
+        """Lines to print for this refusal (none when rate limited; a summary when its window closes)."""
+        kind = refusal.kind
+        self.counts[kind] += 1
+        out: list[str] = []
+        now = self.clock()
+        if now - self._window_start.setdefault(kind, now) >= self.period_s:
+            if self._hidden[kind]:
+                out.append(f"cromat router: {self._hidden[kind]} more {kind} not shown in the last {self.period_s:g} s")
+            self._window_start[kind], self._shown[kind], self._hidden[kind] = now, 0, 0
+        if self._shown[kind] < self.burst:
+            self._shown[kind] += 1
+            out.append(f"cromat router: {kind}: {refusal.text} ({self.counts[kind]} {kind} so far)")
+        else:
+            self._hidden[kind] += 1
+        return out
+
+
+def install(out: TextIO, log: RefusalLog | None = None) -> RefusalLog:
+    """Route this process's stdout (where Zenoh logs) through a reader that reports refusals on ``out``.
+
+    Call before the Zenoh session is opened; ``out`` must be a stream on a *duplicate* of the real stdout.
+    """
+    import zenoh
+
+    log = log or RefusalLog()
+    read_fd, write_fd = os.pipe()
+    os.dup2(write_fd, 1)
+    os.close(write_fd)
+
+    def pump() -> None:
+        with os.fdopen(read_fd, "r", errors="replace") as pipe:
+            for line in pipe:
+                refusal = parse(line)
+                lines = log.note(refusal) if refusal is not None else ([] if _is_zenoh_log(line) else [line.rstrip()])
+                for text in lines:
+                    out.write(text + "\n")
+                out.flush()
+
+    threading.Thread(target=pump, name="router-refusals", daemon=True).start()
+    zenoh.init_log_from_env_or(LOG_FILTER)
+    return log
+
+
+def _is_zenoh_log(line: str) -> bool:
+    """A Zenoh tracing line that is not a refusal (allowed-message traces, warnings): kept out of the log."""
+    return bool(re.match(r"^\S*\d{4}-\d\d-\d\dT\S+Z", _ANSI.sub("", line)))

@@ -1,0 +1,339 @@
+"""The security matrix (issue 12) against a real robot router process with mTLS and the generated policy.
+
+Certificates are made at test time in tmp_path (``cromat certs``), with a second CA and an expired certificate.
+Every case is checked by its effect: what a legitimate observer received, what a server was asked, what reached
+the DSP simulator's record. Each refused case has its legitimate twin accepted, so a dead router or a typo in a
+key cannot make a refusal test pass.
+
+Marker technique: Zenoh keeps one link's messages in order through the router, so after an attempt that must be
+dropped the same session publishes a marker on a key it owns; once the observer has the marker, anything the
+attempt had let through would have arrived before it.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgspec
+import pytest
+import zenoh
+import zenoh.ext
+
+from bbcs.errors import SessionError
+from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs.testing import Processes, free_port, wait_port, wait_until
+from ral import certs
+
+ROBOT = "uav1"
+MODULES = ["dsp", "pan_tilt", "path_follower", "vision"]
+R = f"cromat/{ROBOT}"
+
+
+@dataclass
+class Rig:
+    port: int
+    pki: Path
+    other: Path
+
+    def config(self, name: str | None, pki: Path | None = None, timeout_s: float = 10.0) -> SessionConfig:
+        pki = pki or self.pki
+        if name == "gcs":  # ground-station pairs live in the ground folder, never on the robot
+            pki = pki.with_name(pki.name + "-ground")
+        tls = TlsConfig(root_ca=str(pki / "ca.pem"), cert=str(pki / f"{name}.pem") if name else None,
+                        key=str(pki / f"{name}.key") if name else None, mtls=name is not None)
+        return SessionConfig(connect=[f"tls/localhost:{self.port}"], tls=tls, connect_timeout_s=timeout_s)
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    tmp = tmp_path_factory.mktemp("matrix")
+    port = free_port()
+    pki, other, cfg = tmp / "robot", tmp / "other", tmp / "router.json5"
+    assert certs.main([str(pki), "--gcs", "gcs", "--modules", ",".join(MODULES), "--robot", ROBOT,
+                       "--acl", str(cfg), "--listen", f"tls/127.0.0.1:{port}"]) == 0
+    certs.make_leaf(pki, "expired", days=-1, ca_dir=tmp / "robot-ca")  # notAfter yesterday, the robot's own CA
+    assert certs.main([str(other), "--ca-name", "intruder-ca", "--gcs", "gcs", "--no-local"]) == 0
+    procs = Processes()
+    try:
+        procs.start(["-m", "bbcs.router", "--config", str(cfg), "--listen", f"tls/127.0.0.1:{port}"],
+                    stdout=subprocess.DEVNULL)
+        wait_port(port)
+        yield Rig(port, pki, other)
+    finally:
+        procs.stop_all()
+
+
+class Sessions:
+    """Sessions by identity, all closed at the end."""
+
+    def __init__(self, rig: Rig) -> None:
+        self.rig = rig
+        self.opened: dict[str, zenoh.Session] = {}
+
+    def __call__(self, name: str) -> zenoh.Session:
+        if name not in self.opened:
+            self.opened[name] = open_session(self.rig.config(name))
+        return self.opened[name]
+
+    def close(self) -> None:
+        for s in self.opened.values():
+            s.close()
+
+
+@pytest.fixture
+def who(rig: Rig) -> Iterator[Sessions]:
+    sessions = Sessions(rig)
+    try:
+        yield sessions
+    finally:
+        sessions.close()
+
+
+class Observer:
+    """A subscriber (of a legitimate reader) that records every payload on ``key``."""
+
+    def __init__(self, session: zenoh.Session, *keys: str) -> None:
+        self.got: list[tuple[str, bytes]] = []
+        self.lock = threading.Lock()
+        self.subs = [session.declare_subscriber(k, self._on) for k in keys]
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        with self.lock:
+            self.got.append((str(sample.key_expr), sample.payload.to_bytes()))
+
+    def values(self, key: str) -> list[bytes]:
+        with self.lock:
+            return [v for k, v in self.got if k == key]
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+
+
+def attempt_then_marker(who: Sessions, attacker: str, key: str, observer: Observer) -> None:
+    """``attacker`` puts b"forged" on ``key``, then a marker on its own heartbeat key; waits for the marker."""
+    s = who(attacker)
+    s.put(key, b"forged")
+    marker = f"{R}/{attacker}/@heartbeat" if attacker in MODULES else "cromat/@gcs/gcs/marker"
+    s.put(marker, b"marker")
+    wait_until(lambda: observer.values(marker), 20, f"{attacker}'s marker")
+
+
+# --- TLS: refused at connect --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("case", ["no certificate", "another CA", "expired"])
+def test_tls_refusals(rig: Rig, case: str) -> None:
+    cfg = {"no certificate": lambda: rig.config(None, timeout_s=3.0),
+           "another CA": lambda: rig.config("gcs", rig.other, timeout_s=3.0),
+           "expired": lambda: rig.config("expired", timeout_s=3.0)}[case]()
+    with pytest.raises(SessionError):
+        open_session(cfg).close()
+
+
+def test_legitimate_identity_connects(rig: Rig) -> None:
+    open_session(rig.config("gcs")).close()
+
+
+# --- plain writes: only the owner ------------------------------------------------------------------------
+
+# (key, attacker, owner): every kind of slot, and who may not write it
+WRITES = [
+    (f"{R}/pan_tilt/state_out", "vision", "pan_tilt"),  # a module's output slot, another module
+    (f"{R}/pan_tilt/state_out", "gcs", "pan_tilt"),  # ... the GCS identity writing a module slot directly
+    (f"{R}/pan_tilt/control_entrada", "pan_tilt", "manager"),  # CONTROL_ENTRADA: not even its module
+    (f"{R}/pan_tilt/control_entrada", "vision", "manager"),
+    (f"{R}/manager/pan_tilt_mode", "vision", "manager"),  # a mode slot
+    (f"{R}/manager/pan_tilt_mode", "gcs", "manager"),
+    (f"{R}/@ral/state", "vision", "ral"),  # a GRI key
+    (f"{R}/@ral/state", "gcs", "ral"),
+    (f"{R}/dsp/commands", "vision", None),  # the old shared DSP mailbox: nobody
+    (f"{R}/dsp/commands", "path_follower", None),
+    (f"{R}/dsp/commands_path_follower", "vision", "path_follower"),  # another sender's DSP command key
+    (f"{R}/dsp/commands_path_follower", "pan_tilt", "path_follower"),
+    (f"{R}/dsp/commands_pan_tilt", "gcs", "pan_tilt"),
+]
+
+
+@pytest.mark.parametrize(("key", "attacker", "owner"), WRITES, ids=[f"{a}->{k.split('/', 2)[2]}" for k, a, _ in WRITES])
+def test_only_the_owner_writes(who: Sessions, key: str, attacker: str, owner: str | None) -> None:
+    observer = Observer(who("ral" if attacker != "ral" else "gcs"), key, f"{R}/*/@heartbeat", "cromat/@gcs/**")
+    try:
+        attempt_then_marker(who, attacker, key, observer)
+        assert observer.values(key) == [], f"{attacker}'s put on {key} got through"
+        if owner is not None:
+            who(owner).put(key, b"legit")
+            wait_until(lambda: observer.values(key) == [b"legit"], 20, f"{owner}'s own put on {key}")
+    finally:
+        observer.close()
+
+
+# --- history injection: answering late-joiner queries is writing ---------------------------------------
+
+HISTORY = [
+    (f"{R}/pan_tilt/mode_out", "gcs", "pan_tilt"),  # state slot, the GCS identity
+    (f"{R}/path_follower/errors", "pan_tilt", "path_follower"),  # stream slot, another module
+    (f"{R}/pan_tilt/control_entrada", "vision", "manager"),  # CONTROL_ENTRADA, another module
+    (f"{R}/pan_tilt/control_entrada", "pan_tilt", "manager"),  # ... its own module
+    (f"{R}/manager/pan_tilt_mode", "pan_tilt", "manager"),  # mode slot
+    (f"{R}/@ral/state", "vision", "ral"),  # GRI state (the fake "pos 0 0 999 m mode SPOOFED")
+    (f"{R}/dsp/commands_path_follower", "pan_tilt", "path_follower"),  # a DSP command key
+]
+
+
+def late_history(session: zenoh.Session, key: str, expect_any: bool) -> list[bytes]:
+    """What a late-joining advanced subscriber gets as history on ``key``."""
+    got: list[bytes] = []
+    lock = threading.Lock()
+
+    def on(sample: zenoh.Sample) -> None:
+        with lock:
+            got.append(sample.payload.to_bytes())
+
+    sub = zenoh.ext.declare_advanced_subscriber(
+        session, key, on, history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1))
+    try:
+        if expect_any:
+            wait_until(lambda: bool(got), 20, f"history on {key}")
+        else:  # the policy must have kept the forged value out: give a wrongly admitted one time to arrive
+            threading.Event().wait(2.0)
+        with lock:
+            return list(got)
+    finally:
+        sub.undeclare()
+
+
+def advanced_publisher(session: zenoh.Session, key: str) -> object:
+    return zenoh.ext.declare_advanced_publisher(
+        session, key, cache=zenoh.ext.CacheConfig(1),
+        sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=0.5), publisher_detection=True)
+
+
+@pytest.mark.parametrize(("key", "attacker", "owner"), HISTORY,
+                         ids=[f"{a}->{k.split('/', 2)[2]}" for k, a, _ in HISTORY])
+def test_history_injection_is_refused_and_owner_history_served(who: Sessions, key: str, attacker: str,
+                                                              owner: str) -> None:
+    reader = "ral" if attacker != "ral" and owner != "ral" else "gcs"
+    forged = advanced_publisher(who(attacker), key)
+    try:
+        forged.put(b"forged")  # type: ignore[attr-defined]
+        assert late_history(who(reader), key, expect_any=False) == []
+    finally:
+        forged.undeclare()  # type: ignore[attr-defined]
+    legit = advanced_publisher(who(owner), key)
+    try:
+        legit.put(b"legit")  # type: ignore[attr-defined]
+        assert late_history(who(reader), key, expect_any=True) == [b"legit"]
+    finally:
+        legit.undeclare()  # type: ignore[attr-defined]
+
+
+# --- queries: tasks and route swaps are the GCS's; a query nobody may make never reaches the server ----------
+
+@pytest.mark.parametrize(("key", "server"), [(f"{R}/@ral/task", "ral"), (f"{R}/@manager/route", "manager")])
+def test_module_identity_cannot_command_the_gcs_tasks(who: Sessions, key: str, server: str) -> None:
+    asked: list[str] = []
+
+    def on_query(query: zenoh.Query) -> None:
+        asked.append(str(query.selector))
+        query.reply(query.key_expr, b"ok")
+
+    q = who(server).declare_queryable(key, on_query)
+    try:
+        for name in ("pan_tilt", "vision", "dsp"):
+            replies = list(who(name).get(key, timeout=2.0))
+            assert not [r for r in replies if r.ok is not None], f"{name} got an answer from {key}"
+        assert asked == []  # by effect: the server was never asked
+        replies = list(who("gcs").get(key, timeout=10.0))
+        assert [r.ok.payload.to_bytes() for r in replies if r.ok is not None] == [b"ok"]
+        assert len(asked) == 1
+    finally:
+        q.undeclare()
+
+
+def test_a_forged_answer_from_a_non_owner_is_dropped(who: Sessions) -> None:
+    """A module that declares a queryable on a GRI key (or a slot it does not own) never answers anyone."""
+    key = f"{R}/@ral/state"
+    asked: list[str] = []
+
+    def on_query(query: zenoh.Query) -> None:
+        asked.append(str(query.selector))
+        query.reply(query.key_expr, b"SPOOFED")
+
+    q = who("vision").declare_queryable(key, on_query)
+    try:
+        replies = list(who("gcs").get(key, timeout=2.0))
+        assert [r.ok.payload.to_bytes() for r in replies if r.ok is not None] == []
+    finally:
+        q.undeclare()
+
+
+def test_everyone_reads(who: Sessions) -> None:
+    key = f"{R}/pan_tilt/state_out"
+    observers = [Observer(who(n), key) for n in ("gcs", "vision", "dsp", "manager")]
+    try:
+        who("pan_tilt").put(key, msgspec.msgpack.encode({"v": 1}))
+        for o in observers:
+            wait_until(lambda o=o: bool(o.values(key)), 20, "every identity reads the slot")
+    finally:
+        for o in observers:
+            o.close()
+
+
+# --- the DSP: only the module that owns a command class gets it to the aircraft (the simulator's record) ---
+
+def _batch(sender: str, *commands: object) -> bytes:
+    from modules.dsp import bus
+
+    return msgspec.msgpack.encode(bus.DspCommands(sender=sender, commands=list(commands), batch_id=7))
+
+
+def test_dsp_commands_reach_the_simulator_only_from_their_owner(rig: Rig, who: Sessions, tmp_path: Path) -> None:
+    import json
+    import select
+
+    from modules.dsp import protocol as p
+
+    record = tmp_path / "dsp.jsonl"
+    conf = Path(__file__).resolve().parents[2] / "bbcs_conf" / "uav1.conf"
+    procs = Processes()
+    try:
+        sim = procs.start(["-m", "modules.dsp.sim", "--pty", "--record", str(record)], stdout=subprocess.PIPE,
+                          text=True)
+        assert select.select([sim.stdout], [], [], 15.0)[0], "the simulator printed nothing"
+        pty = sim.stdout.readline().strip()
+        procs.start(["-m", "modules.dsp", "--robot", ROBOT, "--bus", msgspec.json.encode(rig.config("dsp")).decode(),
+                     "--conf", str(conf), "--param", f"port={pty}"], stderr=subprocess.DEVNULL)
+        observer = Observer(who("gcs"), f"{R}/dsp/link", f"{R}/dsp/errors", f"{R}/*/@heartbeat")
+        try:
+            wait_until(lambda: observer.values(f"{R}/dsp/link"), 60, "the DSP process started up")
+
+            def names() -> list[str]:
+                text = record.read_text()
+                return [json.loads(line)["name"] for line in text[: text.rfind("\n") + 1].splitlines()]
+
+            startup = len(names())
+            # refused: the vision identity on the path follower's key (router), the shared mailbox (router),
+            # the pan & tilt identity sending a class it does not own on its own key (DSP, reported)
+            who("vision").put(f"{R}/dsp/commands_path_follower", _batch("path_follower", p.Abort()))
+            who("vision").put(f"{R}/dsp/commands", _batch("path_follower", p.Abort()))
+            who("pan_tilt").put(f"{R}/dsp/commands_pan_tilt", _batch("path_follower", p.SetMode(mode=p.Mode.LANDING)))
+            wait_until(lambda: any(b"NOT_OWNER" in v or b"does not own" in v
+                                   for v in observer.values(f"{R}/dsp/errors")), 30, "the DSP's NOT_OWNER report")
+            # accepted: each owner's own class on its own key; the record then shows exactly these
+            who("pan_tilt").put(f"{R}/dsp/commands_pan_tilt", _batch("x", p.SetPanTiltAngles(pan_deg=10, tilt_deg=5)))
+            wait_until(lambda: "SET_PT_ANGLES" in names(), 30, "the pan & tilt command at the simulator")
+            who("path_follower").put(f"{R}/dsp/commands_path_follower", _batch("x", p.Abort()))
+            wait_until(lambda: "ABORT" in names(), 30, "the path follower's ABORT at the simulator")
+            assert names()[startup:] == ["SET_PT_ANGLES", "ABORT"]  # nothing refused reached the aircraft
+            report = next(msgspec.msgpack.decode(v) for v in observer.values(f"{R}/dsp/errors")
+                          if b"does not own" in v)
+            # the key's sender, not the field's
+            assert report["sender"] == "pan_tilt" and report["command"] == "SetMode"
+        finally:
+            observer.close()
+    finally:
+        procs.stop_all()
