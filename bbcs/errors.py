@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+EXIT_CONFIG = 78
+
 
 class BbcsError(Exception):
     """Base class of every error the bus library raises."""
