@@ -587,6 +587,11 @@ class Module:
 
     # ---------------------------------------------------------------- schema query
 
+    def described_keys(self) -> Mapping[str, Any]:
+        """Keys this module publishes or answers besides its slots: key → struct type, or for a queryable
+        ``{"request": type, "reply": type}`` (override to add them to ``@schema``)."""
+        return {}
+
     def describe(self) -> dict[str, Any]:
         """What ``cromat/<robot>/<module>/@schema`` answers: every slot's JSON Schema, the @-keys' too."""
         from bbcs.wire import describe_types
@@ -598,7 +603,8 @@ class Module:
                 "slot": self.control.slot, "type": type_name(self.control.type), "routes": self.control.routes},
             "routes": self._routes,
             "keys": describe_types({keys.route_ack_key(self.robot, self.module): RouteAck,
-                                    keys.heartbeat_key(self.robot, self.module): Heartbeat}),
+                                    keys.heartbeat_key(self.robot, self.module): Heartbeat,
+                                    **self.described_keys()}),
         }
 
     # ---------------------------------------------------------------- process entry

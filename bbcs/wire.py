@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import functools
 import json
+import typing
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import msgspec
 import zenoh
 
+from bbcs import keys
 from bbcs.codec import encode, type_name
 
 MSGPACK = "application/msgpack"
@@ -37,23 +39,33 @@ def put(target: Any, value: msgspec.Struct, key: str | None = None) -> None:
         target.put(key, encode(value), encoding=encoding_for(type(value)))
 
 
-def reply(query: zenoh.Query, key: str, value: msgspec.Struct) -> None:
+def reply(query: zenoh.Query, key: Any, value: msgspec.Struct) -> None:
     """Reply to ``query`` on ``key`` (the queryable's own key) with ``value`` and its encoding."""
     query.reply(key, encode(value), encoding=encoding_for(type(value)))
 
 
-def describe_types(entries: Mapping[str, type | tuple[type, ...]]) -> dict[str, Any]:
-    """``{key: {"encoding", "type", "schema"}}`` for keys that carry one struct type (or a union of them)."""
+def describe_type(struct_type: Any) -> dict[str, Any]:
+    """``{"encoding", "type", "schema"}`` of a struct type or a (tagged) union of struct types."""
+    members = typing.get_args(struct_type) or (struct_type,)
+    name = " | ".join(type_name(t) for t in members)
+    return {"encoding": f"{MSGPACK};{name}", "type": name, "schema": msgspec.json.schema(struct_type)}
+
+
+def describe_types(entries: Mapping[str, Any]) -> dict[str, Any]:
+    """``{key: description}`` for keys that carry one type; a queryable's key maps to
+    ``{"request": type, "reply": type}`` and gets both described."""
     out: dict[str, Any] = {}
-    for key, types in entries.items():
-        union = types if isinstance(types, tuple) else (types,)
-        if len(union) == 1:
-            schema, name = msgspec.json.schema(union[0]), type_name(union[0])
+    for key, kind in entries.items():
+        if isinstance(kind, Mapping):
+            out[key] = {role: describe_type(t) for role, t in kind.items()}
         else:
-            schema = msgspec.json.schema(functools.reduce(lambda a, b: a | b, union))
-            name = " | ".join(type_name(t) for t in union)
-        out[key] = {"encoding": f"{MSGPACK};{name}", "type": name, "schema": schema}
+            out[key] = describe_type(kind)
     return out
+
+
+def declare_service_schemas(session: zenoh.Session, prefix: str, entries: Callable[[], Mapping[str, Any]]) -> Any:
+    """Answer ``<prefix>/@schema`` (e.g. ``cromat/uav1/@manager/@schema``) with the schemas of ``entries()``."""
+    return declare_schema_queryable(session, keys.schema_key_of(prefix), lambda: describe_types(entries()))
 
 
 def declare_schema_queryable(session: zenoh.Session, key: str,
