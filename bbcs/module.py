@@ -80,7 +80,7 @@ _HELD, _LIVE, _DRAINING, _CLOSED = range(4)
 class _Reader:
     """One input's subscriber and its hand-over to the loop (callbacks only enqueue)."""
 
-    __slots__ = ("spec", "key", "number", "sub", "handler", "is_control", "state", "lock", "held", "latest",
+    __slots__ = ("spec", "key", "number", "sub", "handler", "decode", "is_control", "state", "lock", "held", "latest",
                  "unsafe", "enqueued", "handled", "waiting", "room", "received")
 
     def __init__(self, spec: SlotSpec[Any], key: str, number: int, handler: Callable[[Any], Any],
@@ -90,6 +90,7 @@ class _Reader:
         self.number = number
         self.sub: Any = None
         self.handler = handler
+        self.decode = spec.codec.decode
         self.is_control = is_control
         self.state = _HELD
         self.lock = threading.Lock()
@@ -265,7 +266,7 @@ class Module:
                 next_tick = max(next_tick + (period or 0.0), now)
                 continue
             try:
-                reader, item = get(timeout=max(0.0, min(next_tick, next_beat) - now))
+                reader, item = get(True, min(next_tick, next_beat) - now)  # both deadlines are ahead
             except queue.Empty:
                 continue
             if reader is not None:
@@ -408,25 +409,26 @@ class Module:
 
         bound = reader.spec.queue
         enqueued = reader.enqueued
+        held = _HELD
 
         def in_order(sample: zenoh.Sample) -> None:
-            if reader.state == _HELD:
+            if reader.state == held:
                 with lock:
-                    if reader.state == _HELD:
+                    if reader.state == held:
                         reader.held.append(sample)
                         return
-            put((reader, sample))
             n = next(enqueued)
-            if n - reader.handled >= bound:
+            if n - reader.handled > bound:
                 self._wait_for_room(reader, n)
+            put((reader, sample))  # last: the loop wakes to a free GIL (no second wake-up)
         return in_order
 
     def _wait_for_room(self, reader: _Reader, enqueued: int) -> None:
-        """Block Zenoh's receiving thread while a safe queue is full: back-pressure to the reliable publisher.
-        (The sample is already queued: giving up on stop or on a route switch loses nothing.)"""
+        """Block Zenoh's receiving thread while a safe queue is full (``queue`` samples wait): back-pressure to
+        the reliable publisher. Stop or a route switch end the wait (the sample is then queued all the same)."""
         with reader.room:
             reader.waiting = True
-            while enqueued - reader.handled >= reader.spec.queue and not self._stopping and reader.state == _LIVE:
+            while enqueued - reader.handled > reader.spec.queue and not self._stopping and reader.state == _LIVE:
                 reader.room.wait(BACKPRESSURE_POLL_S)
             reader.waiting = False
 
@@ -456,7 +458,8 @@ class Module:
             reader.room.notify_all()
 
     def _handle_sample(self, reader: _Reader, sample: Any) -> None:
-        """One input datum from Zenoh, on the loop: newest-only or in-order bookkeeping, then decode and handle."""
+        """One input datum from Zenoh, on the loop: newest-only or in-order bookkeeping, then decode and handle.
+        (The hot path: everything it needs is on the reader, nothing is looked up per datum.)"""
         if reader.unsafe:
             with reader.lock:
                 sample, reader.latest = reader.latest, None
@@ -471,7 +474,18 @@ class Module:
             self.dropped_after_switch += 1
             return
         reader.received += 1
-        self._handle_payload(reader.spec, reader.handler, sample.payload.to_bytes(), reader.key)
+        payload = sample.payload.to_bytes()
+        try:
+            value = reader.decode(payload)
+        except msgspec.MsgspecError as exc:
+            self._reject(reader.spec.name, reader.key, exc, payload)
+            return
+        with self.lock:
+            try:
+                reader.handler(value)
+            except Exception:
+                self.log.exception("handler on_%s failed", reader.spec.name)
+                self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{reader.spec.name} raised")
 
     def _handle_payload(self, spec: SlotSpec[Any], handler: Callable[[Any], Any], payload: bytes,
                         key: str) -> None:

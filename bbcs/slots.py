@@ -2,7 +2,7 @@
 
 | slot          | publisher                                  | subscriber side                                   |
 |---------------|--------------------------------------------|---------------------------------------------------|
-| unsafe state  | best effort, congestion DROP               | newest value only (Zenoh ``RingChannel(1)``)      |
+| unsafe state  | best effort, congestion DROP               | newest value only (kept by the module's loop)     |
 | safe state    | reliable, BLOCK, last value cached for late | every value in order in a bounded FIFO; a late     |
 |               | joiners (zenoh.ext AdvancedPublisher)      | joiner first gets the cached last value            |
 | safe stream   | reliable, BLOCK                            | every value in order in a bounded FIFO            |
@@ -12,10 +12,10 @@ joiner the last value with sequence numbers, so a value is never handled twice e
 live sample race; with heartbeats it also recovers values lost while the robot router restarted. A hand-made
 queryable would need all of that written again.
 
-*The safe queue*: each safe input has a Zenoh ``FifoChannel`` of ``queue`` samples (default 1024) drained by
-the input's own thread. When it is full Zenoh stops reading that link: the reliable, BLOCK publisher is slowed
-down, nothing is dropped. The publisher reports it: a ``put`` that blocks longer than ``BACKPRESSURE_S`` is
-logged with the slot's name and counted in :attr:`OutputSlot.backpressure_events`.
+*The safe queue*: each safe input may have ``queue`` samples (default 1024) waiting for the module's loop. When
+that many wait, the input's Zenoh callback blocks and Zenoh stops reading that link: the reliable, BLOCK
+publisher is slowed down, nothing is dropped. The publisher reports it: a ``put`` that blocks longer than
+``BACKPRESSURE_S`` is logged with the slot's name and counted in :attr:`OutputSlot.backpressure_events`.
 """
 
 from __future__ import annotations

@@ -220,6 +220,50 @@ def role_main(args: argparse.Namespace) -> None:
         s.close()
 
 
+def udp_role(args: argparse.Namespace) -> None:
+    """The IPC floor: the same ping-pong over a plain UDP socket on 127.0.0.1 (no bus, no router)."""
+    import socket
+
+    body = b"x" * SIZES[args.size]
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    if args.role == "udp_echo":
+        sock.bind(("127.0.0.1", args.port))
+        print("ready", flush=True)
+        while True:
+            data, peer = sock.recvfrom(65536)
+            if data == b"stop":
+                break
+            sock.sendto(data, peer)
+    else:
+        samples: list[float] = []
+        sock.settimeout(5)
+        for seq in range(args.count):
+            sock.sendto(msgspec.msgpack.encode(BenchMsg(seq=seq, stamp_ns=time.perf_counter_ns(), body=body)),
+                        ("127.0.0.1", args.port))
+            msg = msgspec.msgpack.decode(sock.recvfrom(65536)[0], type=BenchMsg)
+            samples.append((time.perf_counter_ns() - msg.stamp_ns) / 2000.0)
+        sock.sendto(b"stop", ("127.0.0.1", args.port))
+        print(json.dumps(samples))
+    sock.close()
+
+
+def udp_latency_run(count: int) -> list[float]:
+    from bbcs.testing import free_port
+
+    procs = Processes()
+    try:
+        port = free_port()
+        echo = _child(procs, "--role", "udp_echo", "--port", str(port))
+        echo.stdout.readline()
+        ping = _child(procs, "--role", "udp_ping", "--port", str(port), "--count", str(count))
+        out, _ = ping.communicate(timeout=120)
+        echo.wait(10)
+        samples = json.loads(out.strip().splitlines()[-1])
+        return samples[len(samples) // 10:]
+    finally:
+        procs.stop_all()
+
+
 # ------------------------------------------------------------------ orchestration
 
 def _child(procs: Processes, *args: str) -> subprocess.Popen:
@@ -262,6 +306,8 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=3, help="interleaved rounds per configuration")
     p.add_argument("--pings", type=int, default=2000)
     p.add_argument("--messages", type=int, default=200_000, help="messages per throughput run (small)")
+    p.add_argument("--peers", action="store_true",
+                   help="also measure the IPC floor (UDP ping-pong on 127.0.0.1) in the same run")
     p.add_argument("--role", help=argparse.SUPPRESS)
     p.add_argument("--mode", help=argparse.SUPPRESS)
     p.add_argument("--size", default="small", help=argparse.SUPPRESS)
@@ -269,6 +315,9 @@ def main() -> None:
     p.add_argument("--count", type=int, help=argparse.SUPPRESS)
     p.add_argument("--tag", default="t", help=argparse.SUPPRESS)
     args = p.parse_args()
+    if args.role in ("udp_echo", "udp_ping"):
+        udp_role(args)
+        return
     if args.role:
         role_main(args)
         return
@@ -278,6 +327,8 @@ def main() -> None:
         lat: dict[tuple[str, str], list[float]] = {}
         thr: dict[tuple[str, str], list[float]] = {}
         for rnd in range(args.rounds):
+            if args.peers:
+                lat.setdefault(("udp", "small"), []).extend(udp_latency_run(args.pings))
             for size in SIZES:
                 for mode in ("raw", "bbcs"):
                     lat.setdefault((mode, size), []).extend(
@@ -307,6 +358,13 @@ def main() -> None:
         "scan_p50_ratio": get[("bbcs", "32k")]["p50_us"] / get[("raw", "32k")]["p50_us"],
         "scan_throughput_ratio": get[("bbcs", "32k")]["msgs_per_s"] / get[("raw", "32k")]["msgs_per_s"],
     }
+    if args.peers:
+        floor = lat[("udp", "small")]
+        summary["ipc_floor_p50_us"] = pct(floor, 50)
+        rows.append({"payload": "small", "mode": "udp", "p50_us": pct(floor, 50), "p99_us": pct(floor, 99),
+                     "samples": len(floor), "msgs_per_s": None})
+        print(f"{'small':8} {'udp':5} {pct(floor, 50):9.1f} {pct(floor, 99):9.1f}   (IPC floor)")
+        print("peers: Cyclone DDS and dora-rs are not measured by this bench yet (see docs/performance.md)")
     print("\n" + "\n".join(f"{k:22} {v:.3f}" for k, v in summary.items()))
     write_results("bus", {"summary": summary, "rows": rows, "rounds": args.rounds, "pings": args.pings,
                           "messages": args.messages, "stamp": time.time()})
