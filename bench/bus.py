@@ -425,12 +425,14 @@ def main() -> None:
                          "samples": len(dds), "msgs_per_s": rate})
             print(f"{'small':8} {'dds':5} {pct(dds, 50):9.1f} {pct(dds, 99):9.1f} {rate:11,.0f}   (Cyclone DDS)")
         else:
+            summary["peer_cyclonedds_p50_ratio"] = None
             print(f"peer cyclonedds: {dds_why}")
         print(f"peer dora-rs: {DORA_WHY}")
+        summary["peer_dora_p50_ratio"] = None  # the contract key; why it has no value is in "notes"
         summary_notes = {"peer_dora": DORA_WHY, **({"peer_cyclonedds": dds_why} if dds_why else {})}
     else:
         summary_notes = {}
-    print("\n" + "\n".join(f"{k:22} {v:.3f}" for k, v in summary.items()))
+    print("\n" + "\n".join(f"{k:22} {'n/a' if v is None else f'{v:.3f}'}" for k, v in summary.items()))
     write_results("bus", {"summary": summary, "rows": rows, "notes": summary_notes, "rounds": args.rounds,
                           "pings": args.pings,
                           "messages": args.messages, "stamp": time.time()})
