@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import functools
 import importlib
+import re
 from typing import Any, Generic, TypeVar
 
 import msgspec
+import msgspec.inspect
 
 T = TypeVar("T", bound=msgspec.Struct)
 
@@ -66,6 +68,65 @@ def field_of(error: msgspec.ValidationError) -> str:
     text = str(error)
     _, sep, path = text.rpartition(" - at `")
     return path.rstrip("`") if sep else "$"
+
+
+_CONSTRAINTS = ("ge", "gt", "le", "lt", "multiple_of", "min_length", "max_length", "pattern", "tz")
+_KINDS: dict[type, tuple[type, ...]] = {
+    msgspec.inspect.FloatType: (int, float), msgspec.inspect.IntType: (int,), msgspec.inspect.StrType: (str,),
+    msgspec.inspect.BytesType: (bytes,), msgspec.inspect.ByteArrayType: (bytes,),
+    msgspec.inspect.ListType: (list,), msgspec.inspect.SetType: (list,), msgspec.inspect.FrozenSetType: (list,),
+    msgspec.inspect.VarTupleType: (list,), msgspec.inspect.DictType: (dict,),
+}
+_PATH_PART = re.compile(r"\.([^.\[]+)|\[(\d+)\]")
+
+
+def violates_constraint(struct_type: type, path: str, payload: bytes) -> bool:
+    """True when the value at ``path`` has the type its field declares but breaks the field's declared
+    constraints (``Meta(ge=..., max_length=...)``): an out-of-range datum, not a malformed one.
+
+    The payload is decoded leniently (no schema) to get the value; the field's declaration is looked up with
+    ``msgspec.inspect``. Only runs on the error path."""
+    try:
+        value: Any = msgspec.msgpack.decode(payload)
+    except msgspec.MsgspecError:
+        return False
+    info: Any = msgspec.inspect.type_info(struct_type)
+    for name, index in _PATH_PART.findall(path if path.startswith("$") else "$"):
+        info = _unwrap(info, value)
+        if name:
+            if not isinstance(info, msgspec.inspect.StructType) or not isinstance(value, dict):
+                return False
+            found = next((f for f in info.fields if f.encode_name == name), None)
+            if found is None or name not in value:
+                return False
+            info, value = found.type, value[name]
+        else:
+            if not isinstance(value, list) or int(index) >= len(value):
+                return False
+            item = getattr(info, "item_type", None)
+            if item is None:
+                types = getattr(info, "item_types", ())
+                if int(index) >= len(types):
+                    return False
+                item = types[int(index)]
+            info, value = item, value[int(index)]
+    info = _unwrap(info, value)
+    kinds = _KINDS.get(type(info))
+    if kinds is None or isinstance(value, bool) or not isinstance(value, kinds):
+        return False
+    return any(getattr(info, c, None) is not None for c in _CONSTRAINTS)
+
+
+def _unwrap(info: Any, value: Any) -> Any:
+    """An Optional/union field: the member that fits the value's kind (None's member never carries ranges)."""
+    if isinstance(info, msgspec.inspect.UnionType):
+        for member in info.types:
+            kinds = _KINDS.get(type(member))
+            if kinds is not None and isinstance(value, kinds):
+                return member
+            if isinstance(member, msgspec.inspect.StructType) and isinstance(value, dict):
+                return member
+    return info
 
 
 def leaf_field(path: str) -> str:

@@ -166,3 +166,8 @@ def parse_alive_key(key: str) -> tuple[str, str]:
     if len(parts) != 4 or parts[0] != ROOT or parts[2] != "@alive":
         raise InvalidNameError(f"{key!r} is not a liveliness key of the form {ROOT}/<robot>/@alive/<module>")
     return validate_name(parts[1], "robot name"), validate_name(parts[3], "module name")
+
+
+def schema_key_of(prefix: str) -> str:
+    """``<prefix>/@schema``: where a service (``manager_key(robot)``, ``ral_key(robot)``) answers its schemas."""
+    return f"{prefix}/@schema"

@@ -1,27 +1,36 @@
-"""The ``Module`` base every module process stands on.
+"""The ``Module`` base every module process stands on: ``main()`` runs one event loop.
 
 A module declares its slots and a handler per input (``on_<slot>``); the base does the rest: it joins the
 robot's bus, validates every datum before a handler sees it, reports errors on the ERROR slot, routes inputs to
 the slot numbers the manager puts in CONTROL_ENTRADA, holds a liveliness token, answers a schema query, and
 stops cleanly on SIGINT/SIGTERM (undeclare everything, close the session, exit 0).
 
-Handlers run one at a time (a module lock), so module code needs no locks of its own. Each input has its own
-receiving thread, so a slow handler on one safe input never makes an unsafe input lose its newest value.
+**One loop, one thread.** Zenoh's callbacks only enqueue; the loop (the thread that called ``run()``) takes the
+typed events of :mod:`bbcs.events` in arrival order (an input datum, a tick, a route change, stop), decodes
+(= validates) and calls the module's code. The heartbeat is published by the same loop, so a stuck handler stops
+the heartbeat and the manager's watchdog sees it. Other threads of a module hand work to the loop with
+``call_soon(fn)``; ``self.lock`` is held around every handler for modules that still share state with their own
+threads.
 
-Routing switch (one clear point): on a new CONTROL_ENTRADA the new source is subscribed at once but held; the
-old subscriber is undeclared and every datum it had already received is handled; then the acknowledgement is
-published on ``@route``; only then is the new source's data handled.
+**Slot semantics in the loop.** An unsafe input keeps only its newest sample: a new one replaces a sample not yet
+handled. A safe input hands every sample over in order; when ``queue`` samples wait, Zenoh's receiving callback
+blocks, so Zenoh stops reading that link and the reliable BLOCK publisher is slowed down (reported by the
+publisher as back-pressure). A safe state input first gets the publisher's cached last value (late joiner).
+
+**Routing switch (one clear point).** On a new CONTROL_ENTRADA the new source is subscribed at once but held;
+the old subscriber is undeclared and every datum it had already received is handled; ``on_route_change`` runs;
+the acknowledgement is published on ``@route``; only then is the new source's data handled.
 """
 
 from __future__ import annotations
 
-import json
+import itertools
 import logging
 import os
+import queue
 import signal
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -30,19 +39,23 @@ import msgspec
 import zenoh
 
 from bbcs import keys
-from bbcs.codec import field_of, leaf_field, type_name
+from bbcs.codec import encode, field_of, leaf_field, type_name, violates_constraint
+from bbcs.conf import ConfError
 from bbcs.context import ModuleContext, load_context
-from bbcs.errors import BusErrorCode, RouteError, SessionError, SlotError
+from bbcs.errors import EXIT_CONFIG, BusErrorCode, RouteError, SessionError, SlotError
+from bbcs.events import Event, Input, RouteChange, Stop, Tick
 from bbcs.routing import IGNORE, RouteAck
 from bbcs.session import open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec, declare_reader
+from bbcs.wire import declare_schema_queryable
 
 HEARTBEAT_PERIOD_S = 1.0
-JOIN_TIMEOUT_S = 2.0
+BACKPRESSURE_POLL_S = 0.1
+"""How often a receiving callback blocked on a full safe queue re-checks for stop."""
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):
-    """Published from the module's main loop: proof that the loop (not only Zenoh's threads) is alive."""
+    """Published from the module's event loop: proof that the loop (not only Zenoh's threads) is alive."""
 
     module: str
     seq: int
@@ -61,18 +74,33 @@ class Control:
     slot: str = "control_entrada"
 
 
+_HELD, _LIVE, _DRAINING, _CLOSED = range(4)
+
+
 class _Reader:
-    """One input's Zenoh subscriber and the thread that drains it."""
+    """One input's subscriber and its hand-over to the loop (callbacks only enqueue)."""
 
-    __slots__ = ("spec", "key", "number", "sub", "thread", "gate", "received")
+    __slots__ = ("spec", "key", "number", "sub", "handler", "decode", "is_control", "state", "lock", "held", "latest",
+                 "unsafe", "enqueued", "handled", "waiting", "room", "received")
 
-    def __init__(self, spec: SlotSpec[Any], key: str, number: int) -> None:
+    def __init__(self, spec: SlotSpec[Any], key: str, number: int, handler: Callable[[Any], Any],
+                 is_control: bool) -> None:
         self.spec = spec
         self.key = key
         self.number = number
         self.sub: Any = None
-        self.thread: threading.Thread | None = None
-        self.gate = threading.Event()
+        self.handler = handler
+        self.decode = spec.codec.decode
+        self.is_control = is_control
+        self.state = _HELD
+        self.lock = threading.Lock()
+        self.held: list[Any] = []
+        self.latest: Any = None
+        self.unsafe = spec.safety is Safety.UNSAFE
+        self.enqueued = itertools.count(1)
+        self.handled = 0
+        self.waiting = False
+        self.room = threading.Condition(threading.Lock())
         self.received = 0
 
 
@@ -88,7 +116,7 @@ class Module:
     field_codes: ClassVar[Mapping[tuple[str, str], int]] = {}
     """Per-field codes for out-of-range data: ``(slot, field)`` → code (others get OUT_OF_RANGE)."""
     tick_period: float | None = None
-    """Call ``on_tick`` this often from the main loop (None: never)."""
+    """Call ``on_tick`` this often from the event loop (None: never)."""
 
     _inputs: ClassVar[dict[str, SlotSpec[Any]]]
     _outputs: ClassVar[dict[str, SlotSpec[Any]]]
@@ -143,19 +171,21 @@ class Module:
         self.lock = threading.RLock()
         self.session: zenoh.Session | None = None
         self._stop = threading.Event()
+        self._stopping = False
         self._closed = False
-        self._outputs_by_name: dict[str, Publisher[Any]] = {}
+        self._queue: queue.SimpleQueue[tuple[_Reader | None, Any]] = queue.SimpleQueue()
+        self._outputs_by_name: dict[str, Any] = {}
         self._readers: dict[str, _Reader] = {}
-        self._errors: deque[int] = deque()
-        self._error_lock = threading.Lock()
-        self._route_lock = threading.Lock()
         self._routes: dict[str, int] = {}
-        self._ack_pub: Publisher[RouteAck] | None = None
+        self._ack_pub: Any = None
         self._heartbeat_pub: Publisher[Heartbeat] | None = None
         self._entities: list[Any] = []
         self._running = False
+        self._loop_thread: threading.Thread | None = None
         self.error_count = 0
         self.rejected = 0
+        self.dropped_after_switch = 0
+        """Samples of an old route's subscriber that arrived after its switch point (never handled)."""
 
     @property
     def restart_count(self) -> int:
@@ -174,7 +204,7 @@ class Module:
         """Called once the bus is up, before any input is handled (open devices, publish initial state)."""
 
     def on_tick(self) -> None:
-        """Called every ``tick_period`` seconds from the main loop, under the module lock."""
+        """Called every ``tick_period`` seconds from the event loop, under the module lock."""
 
     def on_stop(self) -> None:
         """Called once when the module stops, under the module lock, before the bus is closed."""
@@ -183,25 +213,29 @@ class Module:
         """Called at the switch point of a route change (old source drained, new one not yet handled)."""
 
     def request_stop(self) -> None:
-        """Ask the main loop to stop (safe from signal handlers and other threads)."""
+        """Ask the event loop to stop (safe from signal handlers and other threads)."""
+        self._stopping = True
         self._stop.set()
+        self._queue.put((None, _STOP))
+
+    def call_soon(self, fn: Callable[[], Any]) -> None:
+        """Run ``fn()`` on the event loop, in arrival order with the inputs (for a module's own threads)."""
+        self._queue.put((None, fn))
 
     @property
     def stopping(self) -> bool:
         return self._stop.is_set()
 
     def run(self) -> None:
-        """Join the bus, serve until ``request_stop()``, then undeclare everything and close the session."""
+        """Join the bus, run the event loop until ``request_stop()``, then undeclare everything and close."""
         self.session = open_session(self.context.bus)
         try:
             self._declare()
             with self.lock:
                 self.on_start()
-            self._flush_errors()
-            with self._route_lock:
-                self._running = True
-                for reader in list(self._readers.values()):
-                    reader.gate.set()
+            self._running = True
+            for reader in list(self._readers.values()):
+                self._release(reader)
             # alive only now: everything declared, on_start done (its own subscriptions too), inputs flowing
             self._entities.append(self.session.liveliness().declare_token(keys.alive_key(self.robot, self.module)))
             self._serve()
@@ -209,22 +243,62 @@ class Module:
             self._shutdown()
 
     def _serve(self) -> None:
+        """The event loop: inputs, route changes and calls in arrival order; heartbeat and tick between them."""
+        self._loop_thread = threading.current_thread()
         period = self.tick_period
-        next_tick = time.monotonic() + period if period else float("inf")
-        next_beat = time.monotonic()
+        monotonic = time.monotonic
+        next_tick = monotonic() + period if period else float("inf")
+        next_beat = monotonic()
         seq = 0
-        while not self._stop.is_set():
-            now = time.monotonic()
-            if now >= next_beat and self._heartbeat_pub is not None:
+        get = self._queue.get
+        handle = self._handle_sample
+        while not self._stopping:
+            now = monotonic()
+            if now >= next_beat:
                 seq += 1
-                self._heartbeat_pub.publish(Heartbeat(module=self.module, seq=seq, pid=os.getpid(),
-                                                      restart_count=self.restart_count, errors=self.error_count))
+                if self._heartbeat_pub is not None:
+                    self._heartbeat_pub.publish(Heartbeat(module=self.module, seq=seq, pid=os.getpid(),
+                                                          restart_count=self.restart_count,
+                                                          errors=self.error_count))
                 next_beat = now + HEARTBEAT_PERIOD_S
             if now >= next_tick:
-                with self.lock:
-                    self._call_safely("tick", self.on_tick)
-                next_tick = max(next_tick + (period or 0), now)
-            self._stop.wait(max(0.0, min(next_tick, next_beat) - time.monotonic()))
+                self.handle_event(_TICK)
+                next_tick = max(next_tick + (period or 0.0), now)
+                continue
+            try:
+                reader, item = get(True, min(next_tick, next_beat) - now)  # both deadlines are ahead
+            except queue.Empty:
+                continue
+            if reader is not None:
+                handle(reader, item)
+            else:
+                self._handle_local(item)
+
+    def _handle_local(self, item: Any) -> None:
+        if item is _STOP or isinstance(item, _Marker):
+            return
+        if isinstance(item, (Input, Tick, RouteChange, Stop)):
+            self.handle_event(item)
+        else:
+            with self.lock:
+                self._call_safely("call_soon", item)
+
+    def handle_event(self, event: Event) -> None:
+        """Handle one typed event now, on the calling thread (the loop; ``bbcs.testing`` in unit tests)."""
+        if isinstance(event, Input):
+            spec = self._inputs.get(event.slot)
+            if spec is None:
+                raise SlotError(f"{self.module}: no input slot {event.slot!r}")
+            value = event.value
+            payload = value if isinstance(value, (bytes, bytearray, memoryview)) else encode(value)
+            self._handle_payload(spec, self._handler_for(spec), bytes(payload), self._key_of(spec))
+        elif isinstance(event, Tick):
+            with self.lock:
+                self._call_safely("tick", self.on_tick)
+        elif isinstance(event, RouteChange):
+            self._apply_routes(dict(event.routes), request=dict(event.routes), publish_ack=True)
+        elif isinstance(event, Stop):
+            self.request_stop()
 
     def _declare(self) -> None:
         assert self.session is not None
@@ -235,7 +309,12 @@ class Module:
                                   SlotSpec("route", RouteAck, Direction.OUT, Kind.STATE, Safety.SAFE))
         self._heartbeat_pub = Publisher(s, keys.heartbeat_key(self.robot, self.module),
                                         SlotSpec("heartbeat", Heartbeat, Direction.OUT, Kind.STATE, Safety.UNSAFE))
-        self._entities.append(s.declare_queryable(keys.schema_key(self.robot, self.module), self._answer_schema))
+        self._entities.append(declare_schema_queryable(s, keys.schema_key(self.robot, self.module),
+                                                       self.describe))
+        self._declare_inputs()
+
+    def _declare_inputs(self) -> None:
+        """Subscribe the fixed inputs (held until running) and apply the initial routes."""
         for name, spec in self._inputs.items():
             if name not in self._routed:
                 self._readers[name] = self._make_reader(spec, spec.key(self.robot, self.module), IGNORE)
@@ -246,13 +325,14 @@ class Module:
         if self._closed:
             return
         self._closed = True
+        self._stopping = True
         self._stop.set()
         try:
             with self.lock:
                 self._call_safely("stop", self.on_stop)
         finally:
             for reader in list(self._readers.values()):
-                self._close_reader(reader, drain=False)
+                self._close_reader(reader)
             self._readers.clear()
             for pub in [*self._outputs_by_name.values(), self._ack_pub, self._heartbeat_pub]:
                 if pub is not None:
@@ -276,94 +356,158 @@ class Module:
         self.output(name).publish(value)
 
     def report_error(self, code: int, detail: str) -> None:
-        """Log ``detail`` and queue ``code`` for the ERROR slot; every queued code is sent, in order."""
+        """Log ``detail`` and publish ``code`` on the ERROR slot (every code is sent, in order)."""
         self.error_count += 1
         self.log.warning("error %d: %s", code, detail)
-        if self.error_slot is None:
-            return
-        with self._error_lock:
-            self._errors.append(int(code))
-        self._flush_errors()
-
-    def _flush_errors(self) -> None:
         pub = self._outputs_by_name.get(self.error_slot or "")
-        if pub is None or self._error_field is None:
-            return
-        with self._error_lock:
-            while self._errors:
-                code = self._errors.popleft()
-                pub.publish(pub.spec.type(**{self._error_field: code}))
+        if pub is not None and self._error_field is not None:
+            pub.publish(pub.spec.type(**{self._error_field: int(code)}))
 
-    def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError) -> int:
+    def error_code_for(self, slot: str, field: str, error: msgspec.MsgspecError, payload: bytes = b"") -> int:
         """The code reported when a datum on ``slot`` fails at ``field`` (``$.a.b[2].c``): the ``field_codes``
-        entry for an out-of-range field, else OUT_OF_RANGE; MALFORMED for anything that does not decode."""
-        if isinstance(error, msgspec.ValidationError) and _is_range_error(str(error)):
+        entry when the value there has the declared type but breaks the field's declared constraints (its
+        ``Meta``), else OUT_OF_RANGE; MALFORMED for anything that does not decode as the slot's struct."""
+        if isinstance(error, msgspec.ValidationError) and violates_constraint(self._inputs[slot].type, field,
+                                                                              payload):
             return self.field_codes.get((slot, leaf_field(field)), BusErrorCode.OUT_OF_RANGE)
         return BusErrorCode.MALFORMED
 
     # ---------------------------------------------------------------- inputs
 
+    def _handler_for(self, spec: SlotSpec[Any]) -> Callable[[Any], Any]:
+        if self.control is not None and spec.name == self.control.slot:
+            return self._on_control
+        return getattr(self, f"on_{spec.name}")
+
+    def _key_of(self, spec: SlotSpec[Any]) -> str:
+        reader = self._readers.get(spec.name)
+        return reader.key if reader is not None else spec.key(self.robot, self.module)
+
     def _make_reader(self, spec: SlotSpec[Any], key: str, number: int) -> _Reader:
-        """Subscribe and start the input's thread; it handles nothing until its gate opens."""
-        assert self.session is not None
-        reader = _Reader(spec, key, number)
-        reader.sub = declare_reader(self.session, key, spec)
+        """Subscribe; the reader holds what it receives until ``_release`` (running, or past a switch point)."""
         is_control = self.control is not None and spec.name == self.control.slot
-        handler = self._on_control if is_control else getattr(self, f"on_{spec.name}")
-        reader.thread = threading.Thread(target=self._drain, args=(reader, handler, not is_control),
-                                         name=f"{self.module}.{spec.name}", daemon=True)
-        reader.thread.start()
+        reader = _Reader(spec, key, number, self._handler_for(spec), is_control)
+        if self.session is not None:
+            reader.sub = declare_reader(self.session, key, spec, self._enqueuer(reader))
         return reader
 
-    def _close_reader(self, reader: _Reader, *, drain: bool) -> None:
-        """Undeclare; with ``drain`` the reader's thread first handles everything already received."""
-        if not drain:
-            reader.gate.set()
+    def _enqueuer(self, reader: _Reader) -> Callable[[zenoh.Sample], None]:
+        """The Zenoh callback of one input: it only hands the sample to the loop (never decodes or handles)."""
+        put = self._queue.put
+        lock = reader.lock
+        item = (reader, None)
+        if reader.unsafe:
+            def newest(sample: zenoh.Sample) -> None:
+                with lock:
+                    fresh = reader.latest is None
+                    reader.latest = sample
+                    if reader.state == _HELD:
+                        return
+                if fresh:
+                    put(item)
+            return newest
+
+        bound = reader.spec.queue
+        enqueued = reader.enqueued
+        held = _HELD
+
+        def in_order(sample: zenoh.Sample) -> None:
+            if reader.state == held:
+                with lock:
+                    if reader.state == held:
+                        reader.held.append(sample)
+                        return
+            n = next(enqueued)
+            if n - reader.handled > bound:
+                self._wait_for_room(reader, n)
+            put((reader, sample))  # last: the loop wakes to a free GIL (no second wake-up)
+        return in_order
+
+    def _wait_for_room(self, reader: _Reader, enqueued: int) -> None:
+        """Block Zenoh's receiving thread while a safe queue is full (``queue`` samples wait): back-pressure to
+        the reliable publisher. Stop or a route switch end the wait (the sample is then queued all the same)."""
+        with reader.room:
+            reader.waiting = True
+            while enqueued - reader.handled > reader.spec.queue and not self._stopping and reader.state == _LIVE:
+                reader.room.wait(BACKPRESSURE_POLL_S)
+            reader.waiting = False
+
+    def _release(self, reader: _Reader) -> None:
+        """Let the loop see what the reader holds, in order, then everything it receives."""
+        with reader.lock:
+            if reader.state != _HELD:
+                return
+            if reader.unsafe:
+                if reader.latest is not None:
+                    self._queue.put((reader, None))
+            else:
+                for sample in reader.held:
+                    self._queue.put((reader, sample))
+                    next(reader.enqueued)
+                reader.held.clear()
+            reader.state = _LIVE
+
+    def _close_reader(self, reader: _Reader) -> None:
         try:
-            reader.sub.undeclare()
+            if reader.sub is not None:
+                reader.sub.undeclare()
         except Exception as exc:  # an undeclare racing session close must not stop the shutdown
             self.log.debug("undeclare %s: %s", reader.key, exc)
-        if reader.thread is not None and reader.thread is not threading.current_thread():
-            reader.thread.join(JOIN_TIMEOUT_S)
+        reader.state = _CLOSED
+        with reader.room:
+            reader.room.notify_all()
 
-    def _drain(self, reader: _Reader, handler: Callable[[Any], Any], locked: bool) -> None:
-        """Receive, decode (= validate) and hand each datum to ``handler``, under the module lock if ``locked``.
-
-        CONTROL_ENTRADA is handled without the lock: a route switch waits for other inputs' threads to drain.
-        """
-        spec = reader.spec
-        decode = spec.codec.decode
-        lock: Any = self.lock if locked else _NoLock()
-        gate = reader.gate
-        stop = self._stop
+    def _handle_sample(self, reader: _Reader, sample: Any) -> None:
+        """One input datum from Zenoh, on the loop: newest-only or in-order bookkeeping, then decode and handle.
+        (The hot path: everything it needs is on the reader, nothing is looked up per datum.)"""
+        if reader.unsafe:
+            with reader.lock:
+                sample, reader.latest = reader.latest, None
+            if sample is None:
+                return
+        else:
+            reader.handled += 1
+            if reader.waiting:
+                with reader.room:
+                    reader.room.notify_all()
+        if reader.state == _CLOSED:
+            self.dropped_after_switch += 1
+            return
+        reader.received += 1
+        payload = sample.payload.to_bytes()
         try:
-            for sample in reader.sub:
-                if not gate.is_set():
-                    gate.wait()
-                if stop.is_set():
-                    continue
-                reader.received += 1
-                try:
-                    value = decode(sample.payload.to_bytes())
-                except msgspec.MsgspecError as exc:
-                    self._reject(spec.name, reader.key, exc)
-                    continue
-                with lock:
-                    try:
-                        handler(value)
-                    except Exception:
-                        self.log.exception("handler on_%s failed", spec.name)
-                        self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{spec.name} raised")
-        except zenoh.ZError:
-            pass  # the channel closed: the subscriber was undeclared
+            value = reader.decode(payload)
+        except msgspec.MsgspecError as exc:
+            self._reject(reader.spec.name, reader.key, exc, payload)
+            return
+        with self.lock:
+            try:
+                reader.handler(value)
+            except Exception:
+                self.log.exception("handler on_%s failed", reader.spec.name)
+                self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{reader.spec.name} raised")
 
-    def _reject(self, slot: str, key: str, exc: msgspec.MsgspecError) -> None:
+    def _handle_payload(self, spec: SlotSpec[Any], handler: Callable[[Any], Any], payload: bytes,
+                        key: str) -> None:
+        try:
+            value = spec.codec.decode(payload)
+        except msgspec.MsgspecError as exc:
+            self._reject(spec.name, key, exc, payload)
+            return
+        with self.lock:
+            try:
+                handler(value)
+            except Exception:
+                self.log.exception("handler on_%s failed", spec.name)
+                self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{spec.name} raised")
+
+    def _reject(self, slot: str, key: str, exc: msgspec.MsgspecError, payload: bytes) -> None:
         field = field_of(exc) if isinstance(exc, msgspec.ValidationError) else "$"
-        code = self.error_code_for(slot, field, exc)
+        code = self.error_code_for(slot, field, exc, payload)
         self.rejected += 1
         self.report_error(code, f"slot {slot} ({key}) field {field}: {exc}; datum dropped")
 
-    def _call_safely(self, what: str, fn: Callable[[], None]) -> None:
+    def _call_safely(self, what: str, fn: Callable[[], Any]) -> None:
         try:
             fn()
         except Exception:
@@ -380,34 +524,66 @@ class Module:
 
     def _apply_routes(self, wanted: dict[str, int], *, request: dict[str, int], publish_ack: bool) -> None:
         """Validate every route first and apply all or none; acknowledge once the old sources are drained."""
-        with self._route_lock:
-            try:
-                resolved = {slot: self._resolve(slot, number) for slot, number in wanted.items()}
-            except RouteError as exc:
-                self.report_error(exc.code, f"CONTROL_ENTRADA refused, previous routes kept: {exc}")
-                if publish_ack:
-                    self._publish_ack(False, request, str(exc))
-                return
-            changed = [slot for slot, number in wanted.items()
-                       if slot not in self._routes or self._routes[slot] != number]
-            fresh = {slot: self._make_reader(self._inputs[slot], key, wanted[slot])
-                     for slot in changed if (key := resolved[slot]) is not None}
-            for slot in changed:
-                old = self._readers.pop(slot, None)
-                if old is not None:
-                    self._close_reader(old, drain=True)
-                self._routes[slot] = wanted[slot]
-                if slot in fresh:
-                    self._readers[slot] = fresh[slot]
-            if changed and self._running:
-                routes = dict(self._routes)
-                with self.lock:
-                    self._call_safely("route_change", lambda: self.on_route_change(routes))
+        try:
+            unknown = sorted(set(wanted) - self._routed)
+            if unknown:
+                raise RouteError(f"input(s) {unknown} cannot be routed", BusErrorCode.ROUTE_UNKNOWN_SLOT)
+            resolved = {slot: self._resolve(slot, number) for slot, number in wanted.items()}
+        except RouteError as exc:
+            self.report_error(exc.code, f"CONTROL_ENTRADA refused, previous routes kept: {exc}")
             if publish_ack:
-                self._publish_ack(True, request, "")
-            if self._running:
-                for reader in fresh.values():
-                    reader.gate.set()
+                self._publish_ack(False, request, str(exc))
+            return
+        changed = [slot for slot, number in wanted.items()
+                   if slot not in self._routes or self._routes[slot] != number]
+        fresh = {slot: self._make_reader(self._inputs[slot], key, wanted[slot])
+                 for slot in changed if (key := resolved[slot]) is not None}
+        old = [r for slot in changed if (r := self._readers.pop(slot, None)) is not None]
+        for reader in old:
+            reader.state = _DRAINING
+            with reader.room:
+                reader.room.notify_all()
+            if reader.sub is not None:
+                reader.sub.undeclare()
+                reader.sub = None
+        deferred = self._drain_until_switch() if old and self._running else []
+        for reader in old:
+            self._close_reader(reader)
+        for slot in changed:
+            self._routes[slot] = wanted[slot]
+            if slot in fresh:
+                self._readers[slot] = fresh[slot]
+        if changed and self._running:
+            routes = dict(self._routes)
+            with self.lock:
+                self._call_safely("route_change", lambda: self.on_route_change(routes))
+        if publish_ack:
+            self._publish_ack(True, request, "")
+        if self._running:
+            for reader in fresh.values():
+                self._release(reader)
+        for reader, item in deferred:
+            self._queue.put((reader, item))
+
+    def _drain_until_switch(self) -> list[tuple[Any, Any]]:
+        """Handle everything already queued (old sources included) up to the switch point; a CONTROL_ENTRADA met
+        on the way is kept for after this switch, and re-queued behind whatever arrived meanwhile."""
+        marker = _Marker()
+        self._queue.put((None, marker))
+        deferred: list[tuple[Any, Any]] = []
+        while True:
+            reader, item = self._queue.get()
+            if item is marker:
+                return deferred
+            if reader is None:
+                if item is _STOP or isinstance(item, RouteChange):
+                    deferred.append((reader, item))
+                else:
+                    self._handle_local(item)
+            elif reader.is_control:
+                deferred.append((reader, item))
+            else:
+                self._handle_sample(reader, item)
 
     def _resolve(self, slot: str, number: int) -> str | None:
         if number == IGNORE:
@@ -425,46 +601,62 @@ class Module:
 
     # ---------------------------------------------------------------- schema query
 
-    def _answer_schema(self, query: zenoh.Query) -> None:
-        doc = {
+    def described_keys(self) -> Mapping[str, Any]:
+        """Keys this module publishes or answers besides its slots: key → struct type, or for a queryable
+        ``{"request": type, "reply": type}`` (override to add them to ``@schema``)."""
+        return {}
+
+    def describe(self) -> dict[str, Any]:
+        """What ``cromat/<robot>/<module>/@schema`` answers: every slot's JSON Schema, the @-keys' too."""
+        from bbcs.wire import describe_types
+
+        return {
             "module": self.module, "robot": self.robot, "class": type_name(type(self)),
             "slots": {name: spec.describe() for name, spec in {**self._inputs, **self._outputs}.items()},
             "control": None if self.control is None else {
                 "slot": self.control.slot, "type": type_name(self.control.type), "routes": self.control.routes},
             "routes": self._routes,
+            "keys": describe_types({keys.route_ack_key(self.robot, self.module): RouteAck,
+                                    keys.heartbeat_key(self.robot, self.module): Heartbeat,
+                                    **self.described_keys()}),
         }
-        query.reply(query.key_expr, json.dumps(doc))
 
     # ---------------------------------------------------------------- process entry
 
     @classmethod
     def main(cls, argv: list[str] | None = None) -> int:
-        """Entry point of ``python -m modules.<name>``: returns the process exit code."""
+        """Entry point of ``python -m modules.<name>``: returns the process exit code (EXIT_CONFIG = 78 when
+        construction or ``on_start`` raises a ConfError: the manager does not retry that)."""
         logging.basicConfig(level=os.environ.get("CROMAT_LOG", "INFO"),
                             format="%(asctime)s %(name)s %(levelname)s %(message)s")
         context = load_context(argv, f"python -m {cls.__module__}", cls.name)
+        log = logging.getLogger(f"cromat.{context.module}")
         try:
             module = cls(context)
+        except ConfError as exc:
+            log.error("configuration error: %s", exc)
+            return EXIT_CONFIG
         except Exception as exc:
-            logging.getLogger(f"cromat.{context.module}").error("cannot start: %s", exc)
+            log.error("cannot start: %s", exc)
             return 2
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: module.request_stop())
         try:
             module.run()
+        except ConfError as exc:
+            module.log.error("configuration error: %s", exc)
+            return EXIT_CONFIG
         except SessionError as exc:
             module.log.error("%s", exc)
             return 2
         return 0
 
 
-class _NoLock:
-    def __enter__(self) -> None:
-        return None
+class _Marker:
+    """The switch point of a route change in the loop's queue."""
 
-    def __exit__(self, *_: object) -> None:
-        return None
+    __slots__ = ()
 
 
-def _is_range_error(message: str) -> bool:
-    return any(op in message for op in (">=", "<=", "` >", "` <", "length"))
+_STOP = Stop()
+_TICK = Tick()

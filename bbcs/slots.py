@@ -2,7 +2,7 @@
 
 | slot          | publisher                                  | subscriber side                                   |
 |---------------|--------------------------------------------|---------------------------------------------------|
-| unsafe state  | best effort, congestion DROP               | newest value only (Zenoh ``RingChannel(1)``)      |
+| unsafe state  | best effort, congestion DROP               | newest value only (kept by the module's loop)     |
 | safe state    | reliable, BLOCK, last value cached for late | every value in order in a bounded FIFO; a late     |
 |               | joiners (zenoh.ext AdvancedPublisher)      | joiner first gets the cached last value            |
 | safe stream   | reliable, BLOCK                            | every value in order in a bounded FIFO            |
@@ -12,10 +12,10 @@ joiner the last value with sequence numbers, so a value is never handled twice e
 live sample race; with heartbeats it also recovers values lost while the robot router restarted. A hand-made
 queryable would need all of that written again.
 
-*The safe queue*: each safe input has a Zenoh ``FifoChannel`` of ``queue`` samples (default 1024) drained by
-the input's own thread. When it is full Zenoh stops reading that link: the reliable, BLOCK publisher is slowed
-down, nothing is dropped. The publisher reports it: a ``put`` that blocks longer than ``BACKPRESSURE_S`` is
-logged with the slot's name and counted in :attr:`OutputSlot.backpressure_events`.
+*The safe queue*: each safe input may have ``queue`` samples (default 1024) waiting for the module's loop. When
+that many wait, the input's Zenoh callback blocks and Zenoh stops reading that link: the reliable, BLOCK
+publisher is slowed down, nothing is dropped. The publisher reports it: a ``put`` that blocks longer than
+``BACKPRESSURE_S`` is logged with the slot's name and counted in :attr:`OutputSlot.backpressure_events`.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from __future__ import annotations
 import enum
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -33,6 +34,7 @@ import zenoh.ext
 from bbcs import keys
 from bbcs.codec import Codec, codec_for, encode
 from bbcs.errors import SlotError
+from bbcs.wire import encoding_for
 
 log = logging.getLogger("bbcs.slots")
 
@@ -131,12 +133,14 @@ class Publisher(Generic[T]):
         self.published = 0
         self.backpressure_events = 0
         self._closed = False
+        encoding = encoding_for(spec.type)
         if spec.safety is Safety.UNSAFE:
             self._pub: Any = session.declare_publisher(
-                key, reliability=zenoh.Reliability.BEST_EFFORT, congestion_control=zenoh.CongestionControl.DROP)
+                key, encoding=encoding, reliability=zenoh.Reliability.BEST_EFFORT,
+                congestion_control=zenoh.CongestionControl.DROP)
         elif spec.kind is Kind.STATE:
             self._pub = zenoh.ext.declare_advanced_publisher(
-                session, key, reliability=zenoh.Reliability.RELIABLE,
+                session, key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE,
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 cache=zenoh.ext.CacheConfig(1),
                 sample_miss_detection=zenoh.ext.MissDetectionConfig(
@@ -144,7 +148,8 @@ class Publisher(Generic[T]):
                 publisher_detection=True)
         else:
             self._pub = session.declare_publisher(
-                key, reliability=zenoh.Reliability.RELIABLE, congestion_control=zenoh.CongestionControl.BLOCK)
+                key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE,
+                congestion_control=zenoh.CongestionControl.BLOCK)
         self._safe = spec.safety is Safety.SAFE
 
     def publish(self, value: T) -> None:
@@ -176,18 +181,17 @@ class Publisher(Generic[T]):
             self._pub.undeclare()
 
 
-def declare_reader(session: zenoh.Session, key: str, spec: SlotSpec[Any]) -> Any:
-    """Declare the Zenoh subscriber behind an input slot; the returned object iterates samples until undeclared.
+def declare_reader(session: zenoh.Session, key: str, spec: SlotSpec[Any],
+                   callback: Callable[[zenoh.Sample], None]) -> Any:
+    """Declare the Zenoh subscriber behind an input slot, calling ``callback`` (which only enqueues) per sample.
 
-    unsafe → RingChannel(1) (newest only); safe stream → FifoChannel(queue);
-    safe state → AdvancedSubscriber with history of the last value, FifoChannel(queue).
+    Newest-only (unsafe) and the bounded in-order queue (safe) are kept by the module's loop (bbcs.module);
+    safe state → AdvancedSubscriber with history of the last value (late joiners) and recovery.
     """
-    if spec.safety is Safety.UNSAFE:
-        return session.declare_subscriber(key, zenoh.handlers.RingChannel(1))
-    if spec.kind is Kind.STREAM:
-        return session.declare_subscriber(key, zenoh.handlers.FifoChannel(spec.queue))
+    if spec.safety is Safety.UNSAFE or spec.kind is Kind.STREAM:
+        return session.declare_subscriber(key, callback)
     return zenoh.ext.declare_advanced_subscriber(
-        session, key, zenoh.handlers.FifoChannel(spec.queue),
+        session, key, callback,
         history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
         recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
         subscriber_detection=True)

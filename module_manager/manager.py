@@ -25,7 +25,7 @@ from typing import Any
 import msgspec
 import zenoh
 
-from bbcs import keys
+from bbcs import keys, wire
 from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
 from bbcs.contracts import mri
 from bbcs.contracts.errors import ErrorReport
@@ -250,6 +250,9 @@ class Manager:
         self._publishers.append(self._state_pub)
         queryable = s.declare_queryable(keys.manager_key(robot) + "/*")
         self._entities.append(queryable)
+        self._entities.append(wire.declare_service_schemas(s, keys.manager_key(robot), lambda: {
+            mri.mri_key(robot, mri.STATE): mri.RobotState,
+            **{mri.mri_key(robot, v): {"request": mri.MriRequest, "reply": mri.MriReply} for v in mri.VERBS}}))
         self._mri_thread = threading.Thread(target=self._serve_mri, args=(queryable,), name="mri", daemon=True)
         self._mri_thread.start()
 
@@ -636,7 +639,7 @@ class Manager:
                 except Exception as exc:  # a bug must still produce an answer, not a silent timeout
                     reply = mri.MriReply(ok=False, reason=f"internal error: {type(exc).__name__}: {exc}")
                 try:
-                    query.reply(query.key_expr, mri.encode(reply))
+                    wire.reply(query, query.key_expr, reply)
                 except Exception:  # the querier gave up or the session is closing
                     pass
                 finally:

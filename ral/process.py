@@ -27,7 +27,7 @@ import msgspec
 import zenoh
 import zenoh.ext
 
-from bbcs import keys
+from bbcs import keys, wire
 from bbcs.context import ModuleContext
 from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
@@ -189,6 +189,9 @@ class Ral(Module):
             s.liveliness().declare_subscriber(gri.gcs_alive_key("*"), self._on_gcs_token, history=True),
             s.declare_subscriber(gri.gcs_heartbeat_key("*"), self._on_gcs_heartbeat),
             s.declare_queryable(gri.task_key(self.robot), self._jobs.put),
+            wire.declare_service_schemas(s, keys.ral_key(self.robot), lambda: {
+                gri.state_key(self.robot): gri.GriState, gri.events_key(self.robot): gri.GriEvent,
+                gri.task_key(self.robot): {"request": gri.TaskRequest, "reply": gri.TaskReply}}),
         ]
         self._worker = threading.Thread(target=self._work, name="ral.tasks", daemon=True)
         self._worker.start()
@@ -432,7 +435,7 @@ class Ral(Module):
                 self.emit("task_rejected", detail=reply.reason)
             else:
                 reply = self.handle(request)
-            query.reply(query.key_expr, gri.encode(reply))
+            wire.reply(query, gri.task_key(self.robot), reply)
         finally:
             query.drop()
 
