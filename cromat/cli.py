@@ -13,6 +13,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dsp-sim": ("modules.dsp.sim.cli", "run the DSP simulator on a pty or a TCP port"),
     "lidar": ("modules.lidar_logger.cli", "run the lidar logger, read and georeference its logs"),
     "demo": ("examples.bus_demo", "a two-module bus demo on a private router"),
+    "bus": ("cromat.tools.bus_cli", "introspect a bus: list, echo, hz, schema, pub, graph (like ros2 topic)"),
+    "record": ("cromat.tools.record", "record a robot's bus to MCAP (opens in Foxglove and the mcap CLI)"),
+    "replay": ("cromat.tools.replay", "republish an MCAP recording onto a router (1x, Nx, as fast as possible)"),
+    "foxglove": ("cromat.tools.foxglove_bridge", "bridge a robot's bus to a Foxglove WebSocket server"),
 }
 
 
