@@ -181,6 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1", help="address the WebSocket server listens on")
     p.add_argument("--port", type=int, default=8765, help="WebSocket port (0: any free port)")
     p.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (0: until Ctrl-C)")
+    p.add_argument("--mcap", metavar="FILE", help="also write every bridged channel, the derived ones included, "
+                   "to this MCAP file (e.g. while `cromat replay` plays a recording)")
     return p
 
 
@@ -193,6 +195,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     ctx = foxglove.Context()
     server = None
     bridge = None
+    writer = None
     try:
         catalog = discover(session, args.robot, args.timeout)
         try:
@@ -200,6 +203,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                                            context=ctx)
         except Exception as exc:
             raise ToolError(f"cannot start the Foxglove WebSocket server on {args.host}:{args.port}: {exc}") from None
+        if args.mcap:
+            writer = foxglove.open_mcap(args.mcap, allow_overwrite=True, context=ctx)
         bridge = Bridge(session, catalog, selections, ctx)
         print(f"foxglove bridge: ws://{args.host}:{server.port} ({', '.join(selections)}); in Foxglove: "
               "Open connection > Foxglove WebSocket", file=out, flush=True)
@@ -215,6 +220,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             bridge.close()
         if server is not None:
             server.stop()
+        if writer is not None:
+            writer.close()
         session.close()
     print(f"bridged {bridge.bridged if bridge else 0} messages", file=out)
     return 0

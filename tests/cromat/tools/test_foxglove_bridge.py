@@ -75,7 +75,8 @@ def test_foxglove_client_receives_decoded_validating_messages(uav):
         line = bridge.stdout.readline()
         assert line.startswith("foxglove bridge: ws://127.0.0.1:"), line + bridge.stderr.read()
         url = line.split()[2]
-        with ws_connect(url, subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"], open_timeout=10, max_size=None) as ws:
+        protocols = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+        with ws_connect(url, subprotocols=protocols, open_timeout=10, max_size=None) as ws:
             channels: dict[str, dict] = {}
             subscribed: dict[int, dict] = {}
             received: dict[str, list[bytes]] = {}
