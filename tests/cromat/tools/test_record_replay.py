@@ -93,8 +93,9 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
             assert tel == data["cromat/uav1/dsp/telemetry"]
             wout, werr = watch.communicate(timeout=20)
             assert watch.returncode == 0, werr
-            states = [line for line in wout.splitlines() if line.startswith("uav9 [uav] pos 37.41")]
-            assert len(states) == 3, wout
+            heads = [line for line in wout.splitlines() if line.startswith("uav9 [uav] ")]
+            where = [line for line in wout.splitlines() if line.startswith("  pos 37.41")]
+            assert len(heads) == 3 and len(where) == 3, wout
         finally:
             if watch.poll() is None:
                 watch.kill()
