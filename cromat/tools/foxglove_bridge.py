@@ -131,20 +131,22 @@ class Bridge:
             self._errors(robot, value, stamp_ns)
             if robot.has_telemetry:
                 return
+            value = value.get("telemetry") or value  # a GRI state carrying its telemetry nested
         self._pose(robot, value, stamp_ns)
 
     def _errors(self, robot: _Robot, state: dict[str, Any], stamp_ns: int) -> None:
         for err in state.get("errors") or []:
-            ident = (err["source"], err["code"], err["stamp"])
+            source = err.get("module") or err.get("source") or "?"  # both GRI shapes
+            ident = (source, err["code"], err["stamp"])
             if ident in robot.errors_seen:
                 continue
             robot.errors_seen.add(ident)
-            name = error_name(err["source"], err["code"])
-            text = f"{err['source']} error {err['code']}" + (f" {name}" if name else "")
+            name = err.get("name") or error_name(source, err["code"])
+            text = f"{source} error {err['code']}" + (f" {name}" if name else "")
             if err.get("detail"):
                 text += f": {err['detail']}"
             robot.log.log(Log(timestamp=_stamp(int(err["stamp"] * 1e9)), level=LogLevel.Error,
-                              name=f"{robot.name}/{err['source']}", message=text), log_time=stamp_ns)
+                              name=f"{robot.name}/{source}", message=text), log_time=stamp_ns)
 
     def _pose(self, robot: _Robot, state: dict[str, Any], stamp_ns: int) -> None:
         pos, att = state.get("position"), state.get("attitude")
