@@ -99,13 +99,19 @@ def recorder(port: int, seconds: float, out: Path) -> dict[str, float]:
     pub = run_publisher(port, seconds)
     t0 = time.monotonic()
     published = int(pub.communicate()[0].strip() or 0)
+    last, still = -1, time.monotonic()
+    while rec.received < published and time.monotonic() - still < 2.0:  # what is still in flight
+        if rec.received != last:
+            last, still = rec.received, time.monotonic()
+        time.sleep(0.05)
     summary = rec.stop()
     wall = time.monotonic() - t0 - 0.5
     cpu = time.process_time() - cpu0
     session.close()
-    return {"published": published, "recorded": summary.messages, "dropped": summary.dropped_queue,
+    return {"published": published, "recorded": summary.messages, "missed": summary.missed,
             "msgs_per_s": summary.messages / wall, "mb_per_s": summary.bytes / wall / 1e6,
-            "file_mb": out.stat().st_size / 1e6, "cpu_share": cpu / wall}
+            "file_mb": out.stat().st_size / 1e6, "cpu_share": cpu / wall, "cpu_s": cpu,
+            "msgs_per_cpu_s": summary.messages / max(cpu, 1e-9)}
 
 
 def record_child(endpoint: str, seconds: float, args: list[str], out: Path) -> dict[str, float]:
@@ -166,7 +172,8 @@ def main() -> int:
         ("bus alone: counting subscriber", f"{base['msgs_per_s']:,.0f} msg/s", f"{base['mb_per_s']:.2f} MB/s",
          f"{base['received']}/{base['published']} received"),
         ("recorder (MCAP, zstd)", f"{rec['msgs_per_s']:,.0f} msg/s", f"{rec['mb_per_s']:.2f} MB/s",
-         f"{rec['recorded']}/{rec['published']} recorded, {rec['dropped']} dropped, CPU {rec['cpu_share']:.0%}"),
+         f"{rec['recorded']}/{rec['published']} recorded, {rec['missed']} missed, "
+         f"{rec['msgs_per_cpu_s']:,.0f} msg per CPU-s"),
         ("UAV sim, record idle (start-up)", f"{idle['messages']} msgs", f"CPU {idle['cpu_s']:.2f} s",
          f"{idle['cpu_share']:.1%} of a core over {idle['wall_s']:.1f} s"),
         ("UAV sim, record everything", f"{full['messages']} msgs", f"CPU {full['cpu_s']:.2f} s",
@@ -176,6 +183,7 @@ def main() -> int:
         print(f"{row[0]:<34} {row[1]:>16} {row[2]:>14}  {row[3]}")
     write_results("record", {
         "summary": {"record_msgs_per_s": round(rec["msgs_per_s"]), "record_mb_per_s": round(rec["mb_per_s"], 3),
+                    "record_msgs_per_cpu_s": round(rec["msgs_per_cpu_s"]),
                     "bus_msgs_per_s": round(base["msgs_per_s"]), "record_vs_bus": round(
                         rec["msgs_per_s"] / base["msgs_per_s"], 3),
                     "record_cpu_share_uav": round(full["cpu_share"], 4),

@@ -1,17 +1,16 @@
 """``cromat record``: write what a robot's bus carries to MCAP files (Foxglove, the ``mcap`` CLI).
 
 Every key selected gets a channel with its struct's JSON Schema; each sample is written with the router's
-timestamp, as JSON converted from the msgpack on the bus (see :mod:`cromat.tools.mcapfmt`). Samples are taken
-by a Zenoh callback that only enqueues; one writer thread decodes and writes, so a slow disk never stalls the
-session. Files split by size or duration (``NAME_000.mcap``, ``NAME_001.mcap``...). At the end a summary:
-messages and bytes per channel, and what was dropped (queue overflow, not msgpack).
+timestamp, as JSON converted from the msgpack on the bus (see :mod:`cromat.tools.mcapfmt`). Samples wait in a
+Zenoh FIFO per subscription (no Python callback per sample) and are written by its thread. Files split by size
+or duration (``NAME_000.mcap``, ``NAME_001.mcap``...). At the end a summary: messages and bytes per channel,
+and what was dropped (samples of safe state slots missed on the bus, data that were not msgpack).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import queue
 import signal
 import sys
 import threading
@@ -31,8 +30,9 @@ from cromat.tools.catalog import Catalog, discover, struct_type, type_from_encod
 from cromat.tools.connection import ToolError, add_connection_options, connect
 from cromat.tools.progress import StatusLine
 
-QUEUE_LIMIT = 200_000
-"""Samples waiting for the writer thread beyond this are dropped (and counted): memory stays bounded."""
+FIFO_SAMPLES = 100_000
+"""Samples a subscription buffers for its writer thread; when full, Zenoh back-pressures reliable publishers
+(and best-effort ones drop), as for any slow subscriber: memory stays bounded."""
 
 
 @dataclass
@@ -48,7 +48,8 @@ class ChannelStats:
 class Summary:
     files: list[str] = field(default_factory=list)
     channels: dict[str, ChannelStats] = field(default_factory=dict)
-    dropped_queue: int = 0
+    missed: int = 0
+    """Samples that safe state publishers sent and this recording never got (Zenoh's sample-miss detection)."""
     dropped_undecodable: int = 0
     started: float = 0.0
     ended: float = 0.0
@@ -65,7 +66,7 @@ class Summary:
         span = max(self.ended - self.started, 1e-9)
         out = [f"recorded {self.messages} messages, {self.bytes} bytes from the bus in {span:.1f} s "
                f"into {len(self.files)} file(s): {', '.join(self.files)}",
-               f"dropped: {self.dropped_queue} (writer queue full), {self.dropped_undecodable} (not msgpack)",
+               f"dropped: {self.missed} (missed on the bus), {self.dropped_undecodable} (not msgpack)",
                f"{'channel':<42} {'messages':>9} {'bytes':>11} {'invalid':>8}"]
         for key, c in sorted(self.channels.items()):
             out.append(f"{key:<42} {c.messages:>9} {c.bytes:>11} {c.invalid:>8}")
@@ -73,7 +74,7 @@ class Summary:
 
     def as_dict(self) -> dict[str, Any]:
         return {"files": self.files, "messages": self.messages, "bytes": self.bytes,
-                "dropped_queue": self.dropped_queue, "dropped_undecodable": self.dropped_undecodable,
+                "missed": self.missed, "dropped_undecodable": self.dropped_undecodable,
                 "channels": {k: msgspec.structs.asdict(c) if isinstance(c, msgspec.Struct) else vars(c)
                              for k, c in self.channels.items()}}
 
@@ -178,56 +179,63 @@ class McapSink:
 
 
 class Recorder:
-    """Subscribes to ``selections``; a writer thread puts every sample into a :class:`McapSink`."""
+    """Subscribes to ``selections``; each subscription's samples wait in a Zenoh FIFO (handed over without the
+    GIL, no Python callback per sample) drained by its own thread into one :class:`McapSink`."""
 
     def __init__(self, session: zenoh.Session, sink: McapSink, selections: list[str], *,
-                 split_bytes: int = 0, split_s: float = 0.0) -> None:
+                 split_bytes: int = 0, split_s: float = 0.0, fifo: int = FIFO_SAMPLES) -> None:
         self.sink = sink
         self.split_bytes = split_bytes
         self.split_s = split_s
-        self._queue: queue.SimpleQueue[tuple[str, bytes, int, str] | None] = queue.SimpleQueue()
-        self._pending = 0
         self.received = 0
+        self._lock = threading.Lock()
         self.sink.summary.started = time.time()
-        self._thread = threading.Thread(target=self._write_loop, name="record.writer", daemon=True)
-        self._thread.start()
         # advanced subscribers: the last value of every safe state slot (cached by its publisher) is recorded too
         self._subs = [zenoh.ext.declare_advanced_subscriber(
-            session, sel, self._on_sample, history=zenoh.ext.HistoryConfig(detect_late_publishers=True))
-            for sel in selections]
+            session, sel, zenoh.handlers.FifoChannel(fifo),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True)) for sel in selections]
+        self._listeners = [sub.sample_miss_listener(self._on_miss) for sub in self._subs]
+        self._threads = [threading.Thread(target=self._drain, args=(sub,), name=f"record.{i}", daemon=True)
+                         for i, sub in enumerate(self._subs)]
+        for t in self._threads:
+            t.start()
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        if sample.kind != zenoh.SampleKind.PUT:
-            return
-        if self._pending >= QUEUE_LIMIT:
-            self.sink.summary.dropped_queue += 1
-            return
-        ts = sample.timestamp
-        stamp = int(ts.get_time_as_ntp64().as_nanos()) if ts is not None else time.time_ns()
-        self._pending += 1
-        self.received += 1
-        self._queue.put((str(sample.key_expr), sample.payload.to_bytes(), stamp, str(sample.encoding)))
+    def _on_miss(self, miss: Any) -> None:
+        self.sink.summary.missed += int(miss.nb)
 
-    def _write_loop(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is None:
-                return
-            self._pending -= 1
-            key, payload, stamp, encoding = item
-            self.sink.write(key, payload, stamp, encoding)
-            if (self.split_bytes and self.sink.file_bytes >= self.split_bytes) or (
-                    self.split_s and time.monotonic() - self.sink.file_started >= self.split_s):
-                self.sink.rotate()
+    def _drain(self, sub: Any) -> None:
+        sink = self.sink
+        try:
+            for sample in sub:
+                if sample.kind != zenoh.SampleKind.PUT:
+                    continue
+                ts = sample.timestamp
+                stamp = int(ts.get_time_as_ntp64().as_nanos()) if ts is not None else time.time_ns()
+                key, payload = str(sample.key_expr), sample.payload.to_bytes()
+                with self._lock:
+                    self.received += 1
+                    sink.write(key, payload, stamp, str(sample.encoding))
+                    if (self.split_bytes and sink.file_bytes >= self.split_bytes) or (
+                            self.split_s and time.monotonic() - sink.file_started >= self.split_s):
+                        sink.rotate()
+        except zenoh.ZError:
+            return  # the channel closed: the subscriber was undeclared
 
     def stop(self) -> Summary:
         """Undeclare, write what is queued, finish the file(s); the summary of the whole recording."""
+        for listener in self._listeners:
+            listener.undeclare()
+        self._listeners = []
         for sub in self._subs:
-            sub.undeclare()
+            try:
+                sub.undeclare()
+            except Exception:  # noqa: BLE001 (an undeclare racing the drain thread; the session close ends it)
+                pass
         self._subs = []
-        self._queue.put(None)
-        self._thread.join()
-        self.sink.close()
+        for t in self._threads:
+            t.join(10)
+        with self._lock:
+            self.sink.close()
         self.sink.summary.ended = time.time()
         return self.sink.summary
 
@@ -277,7 +285,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                 break
             s = sink.summary
             status.show(f"recording {elapsed:7.1f} s  {rec.received} msgs  {s.bytes / 1e6:.2f} MB  "
-                        f"{len(s.channels)} channels  dropped {s.dropped_queue + s.dropped_undecodable}  "
+                        f"{len(s.channels)} channels  dropped {s.missed + s.dropped_undecodable}  "
                         f"file {sink.file_index}")
             stop.wait(0.1)
         status.done()
