@@ -67,6 +67,15 @@ def run_publisher(port: int, seconds: float) -> subprocess.Popen[str]:
                             text=True)
 
 
+def drain(received, published: int, quiet_s: float = 2.0) -> None:
+    """Wait for what is still in flight: until all arrived, or nothing more arrived for ``quiet_s``."""
+    last, still = -1, time.monotonic()
+    while received() < published and time.monotonic() - still < quiet_s:
+        if received() != last:
+            last, still = received(), time.monotonic()
+        time.sleep(0.05)
+
+
 def baseline(port: int, seconds: float) -> dict[str, float]:
     session = open_session(local_client(port))
     count = [0, 0]
@@ -81,6 +90,7 @@ def baseline(port: int, seconds: float) -> dict[str, float]:
     pub = run_publisher(port, seconds)
     t0 = time.monotonic()
     published = int(pub.communicate()[0].strip() or 0)
+    drain(lambda: count[0], published)
     wall = time.monotonic() - t0 - 0.5
     sub.undeclare()
     session.close()
@@ -99,11 +109,7 @@ def recorder(port: int, seconds: float, out: Path) -> dict[str, float]:
     pub = run_publisher(port, seconds)
     t0 = time.monotonic()
     published = int(pub.communicate()[0].strip() or 0)
-    last, still = -1, time.monotonic()
-    while rec.received < published and time.monotonic() - still < 2.0:  # what is still in flight
-        if rec.received != last:
-            last, still = rec.received, time.monotonic()
-        time.sleep(0.05)
+    drain(lambda: rec.received, published)
     summary = rec.stop()
     wall = time.monotonic() - t0 - 0.5
     cpu = time.process_time() - cpu0
@@ -152,8 +158,8 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--role", default="bench")
     p.add_argument("--port", type=int, default=0)
-    p.add_argument("--seconds", type=float, default=5.0, help="throughput phase length")
-    p.add_argument("--uav-seconds", type=float, default=20.0, help="UAV recording length")
+    p.add_argument("--seconds", type=float, default=3.0, help="throughput phase length")
+    p.add_argument("--uav-seconds", type=float, default=15.0, help="UAV recording length")
     p.add_argument("--out", help="results file (default bench/results/record.json)")
     args = p.parse_args()
     if args.role == "publisher":
