@@ -25,12 +25,25 @@ import threading
 import time
 from typing import Any, TextIO
 
-import foxglove
 import msgspec
 import zenoh
 import zenoh.ext
-from foxglove.channels import FrameTransformChannel, LocationFixChannel, LogChannel
-from foxglove.messages import FrameTransform, LocationFix, Log, LogLevel, Quaternion, Timestamp, Vector3
+
+from cromat.tools.extras import require
+
+if (_missing := require("foxglove")) is not None:
+    raise SystemExit(_missing)
+import foxglove  # noqa: E402
+from foxglove.channels import FrameTransformChannel, LocationFixChannel, LogChannel  # noqa: E402
+from foxglove.messages import (  # noqa: E402
+    FrameTransform,
+    LocationFix,
+    Log,
+    LogLevel,
+    Quaternion,
+    Timestamp,
+    Vector3,
+)
 
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, Decoder, discover, type_from_encoding

@@ -23,11 +23,11 @@ from typing import Any, TextIO
 import msgspec
 import zenoh
 import zenoh.ext
-from mcap.writer import CompressionType, Writer
 
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, discover, struct_type, type_from_encoding
 from cromat.tools.connection import ToolError, add_connection_options, connect
+from cromat.tools.extras import require
 from cromat.tools.progress import StatusLine
 
 FIFO_SAMPLES = 100_000
@@ -96,13 +96,12 @@ class McapSink:
         self.base = base
         self.catalog = catalog
         self.split = split
-        self.compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                            "none": CompressionType.NONE}[compression]
+        self.compression = compression
         self.meta = meta or {}
         self.summary = Summary()
         self.file_index = 0
         self._stream: Any = None
-        self._writer: Writer | None = None
+        self._writer: Any = None
         self._channels: dict[str, _Channel] = {}
         self.file_bytes = 0
         self.file_started = 0.0
@@ -117,7 +116,10 @@ class McapSink:
         path = self._path()
         path.parent.mkdir(parents=True, exist_ok=True)
         self._stream = open(path, "wb")  # noqa: SIM115 (closed in _close)
-        self._writer = Writer(self._stream, compression=self.compression)
+        from mcap.writer import CompressionType, Writer  # the tools extra (main() checks it is installed)
+
+        kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+        self._writer = Writer(self._stream, compression=kind[self.compression])
         self._writer.start(profile=mcapfmt.PROFILE, library="cromat record")
         self._writer.add_metadata("cromat.recording", {**self.meta, "file_index": str(self.file_index)})
         self._channels = {}
@@ -300,6 +302,9 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if (missing := require("record")) is not None:
+        print(missing, file=sys.stderr)
+        return 2
     try:
         return run(args, sys.stdout)
     except ToolError as exc:

@@ -21,12 +21,12 @@ from typing import Any, TextIO
 
 import msgspec
 import zenoh
-from mcap.reader import make_reader
 
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import bookkeeping_type, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
+from cromat.tools.extras import require
 from cromat.tools.progress import StatusLine, bar
 
 
@@ -51,11 +51,17 @@ class Encoder:
         return msgspec.msgpack.encode(value)
 
 
+def _reader(stream: Any) -> Any:
+    from mcap.reader import make_reader  # the tools extra (main() checks it is installed)
+
+    return make_reader(stream)
+
+
 def messages(files: list[Path]) -> Iterator[tuple[Any, Any]]:
     """``(channel, message)`` of every file, in the order they were written."""
     for path in files:
         with open(path, "rb") as f:
-            for _schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            for _schema, channel, message in _reader(f).iter_messages(log_time_order=False):
                 yield channel, message
 
 
@@ -64,7 +70,7 @@ def time_range(files: list[Path]) -> tuple[int, int, int]:
     start, end, count = None, None, 0
     for path in files:
         with open(path, "rb") as f:
-            summary = make_reader(f).get_summary()
+            summary = _reader(f).get_summary()
         st = summary.statistics if summary is not None else None
         if st is None or not st.message_count:
             continue
@@ -157,7 +163,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         # declare every publisher first, then give subscribers a moment to match them
         for path in files:
             with open(path, "rb") as f:
-                summary = make_reader(f).get_summary()
+                summary = _reader(f).get_summary()
             for ch in (summary.channels.values() if summary else []):
                 key = (ch.metadata or {}).get(mcapfmt.META_KEY, ch.topic)
                 if not selections or any(keyexpr.intersects(s, key) for s in selections):
@@ -193,6 +199,9 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if (missing := require("replay")) is not None:
+        print(missing, file=sys.stderr)
+        return 2
     try:
         return run(args, sys.stdout)
     except ToolError as exc:
