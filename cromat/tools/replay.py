@@ -3,8 +3,9 @@
 At 1x (default), N x (``--speed N``) or as fast as possible (``--fast``); ``--robot-map OLD=NEW`` moves
 ``cromat/OLD/...`` to ``cromat/NEW/...`` and renames the robot inside data that carry a ``robot`` field (GRI
 state and events), so a ground station watching NEW sees the flight. Each JSON message is turned back into the
-msgpack bytes that were on the bus through the struct named in its channel; each key is published with the
-delivery its slot had (safe state keys keep their last value for late joiners).
+msgpack bytes that were on the bus through the struct named in its channel. Every key is published reliably
+(an unsafe slot's best-effort delivery would drop messages of a fast replay); state keys keep their last value
+for late joiners.
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ class Replayer:
         typ = struct_type(tname) if tname else bookkeeping_type(key)
         out_key = keyexpr.remap_robot(key, *self.remap) if self.remap else key
         kind = Kind(meta.get(mcapfmt.META_KIND) or "state")
-        safety = Safety(meta.get(mcapfmt.META_SAFETY) or "safe") if kind is Kind.STATE else Safety.SAFE
+        safety = Safety.SAFE  # every recorded message is delivered: unsafe slots are replayed reliably too
         name = out_key.rsplit("/", 1)[-1].lstrip("@") or "slot"
         spec = SlotSpec(name, typ or _Any, Direction.OUT, kind, safety)
         pair = (Publisher(self.session, out_key, spec), Encoder(out_key, typ, self.remap))

@@ -133,6 +133,8 @@ def _watch(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
     def show(state: gri.GriState) -> None:
         nonlocal count
         with lock:
+            if done.is_set():
+                return  # --count reached: states arriving while the watch closes are not printed
             count += 1
             screen.state(state)
             text = "\n".join(screen.lines() if tty else screen.robot(state.robot))
