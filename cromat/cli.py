@@ -13,6 +13,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "certs": ("ral.certs", "create a CA and certificates for a robot router, a GCS and modules"),
     "dsp-sim": ("modules.dsp.sim.cli", "run the DSP simulator on a pty or a TCP port"),
     "lidar": ("modules.lidar_logger.cli", "run the lidar logger, read and georeference its logs"),
+    "bus": ("cromat.tools.bus_cli", "introspect a bus: list, echo, hz, schema, pub, graph (like ros2 topic)"),
+    "record": ("cromat.tools.record", "record a robot's bus to MCAP (opens in Foxglove and the mcap CLI)"),
+    "replay": ("cromat.tools.replay", "republish an MCAP recording onto a router (1x, Nx, as fast as possible)"),
+    "foxglove": ("cromat.tools.foxglove_bridge", "bridge a robot's bus to a Foxglove WebSocket server"),
 }
 
 

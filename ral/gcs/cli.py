@@ -18,7 +18,11 @@ import threading
 import time
 from typing import TextIO
 
+import msgspec
+
 from bbcs.contracts import gri
+from cromat.tools.error_names import error_name
+from ral.gcs import watch_view
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
 from ral.gcs.waypoints import WaypointFileError, load_waypoints
 
@@ -48,9 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("robots", help="list live robots")
     w = sub.add_parser("watch", help="live robot state, refreshed in place; holds a GCS link")
-    w.add_argument("robot")
+    w.add_argument("robot", help="robot name, or '*' for every robot behind the router")
     w.add_argument("--count", type=int, default=0, help="stop after this many states (0: until Ctrl-C)")
-    w.add_argument("--events", action="store_true", help="also print events as they happen")
+    w.add_argument("--events", action="store_true", help="piped: also print events (a terminal shows the last ones)")
     t = sub.add_parser("task", help="submit a task")
     t.add_argument("robot")
     kinds = t.add_subparsers(dest="kind", required=True)
@@ -197,23 +201,30 @@ def _watch(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
     lock = threading.Lock()
     tty = out.isatty()
 
+    screen = watch_view.WatchScreen(error_name=error_name)
+
     def show(state: gri.GriState) -> None:
         nonlocal count
         with lock:
+            if done.is_set():
+                return  # --count reached: states arriving while the watch closes are not printed
             count += 1
-            text = format_state(state)
-            if tty:
-                out.write("\x1b[H\x1b[J" + text + "\n")
-            else:
-                out.write(text + "\n")
+            screen.state(state)
+            text = "\n".join(screen.lines() if tty else screen.robot(state.robot))
+            out.write(("\x1b[H\x1b[J" if tty else "") + text + "\n")
             out.flush()
             if args.count and count >= args.count:
                 done.set()
 
     def event(ev: gri.GriEvent) -> None:
         with lock:
-            out.write(f"event {ev.kind} {ev.task_type} #{ev.task_id} {ev.detail}\n")
-            out.flush()
+            screen.event(ev)
+            if tty or args.events:
+                out.write(("\x1b[H\x1b[J" + "\n".join(screen.lines()) if tty else watch_view.event_line(ev)) + "\n")
+                out.flush()
+
+    gcs.session.declare_subscriber(watch_view.vision_key(args.robot), lambda smp: screen.vision_status(
+        str(smp.key_expr).split("/")[1], msgspec.msgpack.decode(smp.payload.to_bytes())))
 
     try:  # a robot that does not answer is not linked: its failsafe (or another robot's) never counts this station
         gcs.state(args.robot, args.timeout)
@@ -222,8 +233,7 @@ def _watch(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
         raise NoReply(f"no robot {args.robot!r} answered within {args.timeout:g} s (robots seen: {known})") from None
     gcs.hold_link(args.robot)
     gcs.watch(args.robot, show)
-    if args.events:
-        gcs.events(args.robot, event)
+    gcs.events(args.robot, event)  # the last ones stay on screen
     try:
         while not done.wait(0.2):
             pass

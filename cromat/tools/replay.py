@@ -1,0 +1,214 @@
+"""``cromat replay FILE...``: republish a recording onto a router, in recorded order.
+
+At 1x (default), N x (``--speed N``) or as fast as possible (``--fast``); ``--robot-map OLD=NEW`` moves
+``cromat/OLD/...`` to ``cromat/NEW/...`` and renames the robot inside data that carry a ``robot`` field (GRI
+state and events), so a ground station watching NEW sees the flight. Each JSON message is turned back into the
+msgpack bytes that were on the bus through the struct named in its channel. Every key is published reliably
+(an unsafe slot's best-effort delivery would drop messages of a fast replay); state keys keep their last value
+for late joiners.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+import msgspec
+import zenoh
+
+from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
+from cromat.tools import keyexpr, mcapfmt
+from cromat.tools.catalog import bookkeeping_type, struct_type
+from cromat.tools.connection import ToolError, add_connection_options, connect
+from cromat.tools.extras import require
+from cromat.tools.progress import StatusLine, bar
+
+
+class _Any(msgspec.Struct):
+    """Slot type of a channel whose struct is not installed here (published as decoded from JSON)."""
+
+
+@dataclass
+class Encoder:
+    """JSON message → bus bytes for one channel."""
+
+    key: str
+    type: type[msgspec.Struct] | None
+    remap: tuple[str, str] | None
+
+    def __call__(self, data: bytes) -> bytes:
+        if self.type is None:
+            return msgspec.msgpack.encode(msgspec.json.decode(data))
+        value = msgspec.json.decode(data, type=self.type)
+        if self.remap and getattr(value, "robot", None) == self.remap[0]:
+            value = msgspec.structs.replace(value, robot=self.remap[1])
+        return msgspec.msgpack.encode(value)
+
+
+def _reader(stream: Any) -> Any:
+    from mcap.reader import make_reader  # the tools extra (main() checks it is installed)
+
+    return make_reader(stream)
+
+
+def messages(files: list[Path]) -> Iterator[tuple[Any, Any]]:
+    """``(channel, message)`` of every file, in the order they were written."""
+    for path in files:
+        with open(path, "rb") as f:
+            for _schema, channel, message in _reader(f).iter_messages(log_time_order=False):
+                yield channel, message
+
+
+def time_range(files: list[Path]) -> tuple[int, int, int]:
+    """First and last log time (ns) and message count, from the files' statistics."""
+    start, end, count = None, None, 0
+    for path in files:
+        with open(path, "rb") as f:
+            summary = _reader(f).get_summary()
+        st = summary.statistics if summary is not None else None
+        if st is None or not st.message_count:
+            continue
+        start = st.message_start_time if start is None else min(start, st.message_start_time)
+        end = st.message_end_time if end is None else max(end, st.message_end_time)
+        count += st.message_count
+    return start or 0, end or 0, count
+
+
+class Replayer:
+    def __init__(self, session: zenoh.Session, remap: tuple[str, str] | None = None) -> None:
+        self.session = session
+        self.remap = remap
+        self._pubs: dict[str, tuple[Publisher[Any], Encoder]] = {}
+        """recorded key → its publisher (channel ids differ between the files of a split recording)"""
+        self.published: dict[str, int] = {}
+        self.failed = 0
+
+    def declare(self, channel: Any) -> tuple[Publisher[Any], Encoder]:
+        meta = channel.metadata or {}
+        key = meta.get(mcapfmt.META_KEY, channel.topic)
+        if key in self._pubs:
+            return self._pubs[key]
+        tname = meta.get(mcapfmt.META_TYPE, "")
+        typ = struct_type(tname) if tname else bookkeeping_type(key)
+        out_key = keyexpr.remap_robot(key, *self.remap) if self.remap else key
+        kind = Kind(meta.get(mcapfmt.META_KIND) or "state")
+        safety = Safety.SAFE  # every recorded message is delivered: unsafe slots are replayed reliably too
+        name = out_key.rsplit("/", 1)[-1].lstrip("@") or "slot"
+        spec = SlotSpec(name, typ or _Any, Direction.OUT, kind, safety)
+        pair = (Publisher(self.session, out_key, spec), Encoder(out_key, typ, self.remap))
+        self._pubs[key] = pair
+        return pair
+
+    def publish(self, key: str, channel: Any, data: bytes) -> None:
+        pub, enc = self._pubs.get(key) or self.declare(channel)
+        try:
+            payload = enc(data)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            self.failed += 1
+            return
+        pub.publish_raw(payload)
+        self.published[pub.key] = self.published.get(pub.key, 0) + 1
+
+    def close(self) -> None:
+        for pub, _ in self._pubs.values():
+            pub.close()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cromat replay", description="Republish an MCAP recording onto a router.")
+    add_connection_options(p)
+    p.add_argument("files", nargs="+", help="MCAP file(s) from cromat record, in order (split recordings)")
+    speed = p.add_mutually_exclusive_group()
+    speed.add_argument("--speed", type=float, default=1.0, help="playback speed factor (default 1x)")
+    speed.add_argument("--fast", action="store_true", help="as fast as possible")
+    p.add_argument("--robot-map", metavar="OLD=NEW", help="publish robot OLD's data as robot NEW")
+    p.add_argument("--select", action="append", metavar="KEYEXPR", help="only keys matching (repeatable)")
+    p.add_argument("--settle", type=float, default=1.0,
+                   help="seconds to wait after declaring publishers before the first message (subscribers match)")
+    return p
+
+
+def run(args: argparse.Namespace, out: TextIO) -> int:
+    files = [Path(f) for f in args.files]
+    for f in files:
+        if not f.is_file():
+            raise ToolError(f"{f}: no such file")
+    remap = None
+    if args.robot_map:
+        old, sep, new = args.robot_map.partition("=")
+        if not sep or not old or not new:
+            raise ToolError("--robot-map takes OLD=NEW")
+        remap = (old, new)
+    if args.speed <= 0:
+        raise ToolError("--speed must be > 0 (use --fast for as fast as possible)")
+    selections = [keyexpr.expand(s) for s in args.select or []]
+    try:
+        first, last, total = time_range(files)
+    except Exception as exc:
+        raise ToolError(f"not a readable MCAP recording: {exc}") from None
+    session = connect(args)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    rep = Replayer(session, remap)
+    status = StatusLine()
+    n = 0
+    try:
+        # declare every publisher first, then give subscribers a moment to match them
+        for path in files:
+            with open(path, "rb") as f:
+                summary = _reader(f).get_summary()
+            for ch in (summary.channels.values() if summary else []):
+                key = (ch.metadata or {}).get(mcapfmt.META_KEY, ch.topic)
+                if not selections or any(keyexpr.intersects(s, key) for s in selections):
+                    rep.declare(ch)
+        stop.wait(args.settle)
+        wall0 = time.monotonic()
+        for channel, message in messages(files):
+            if stop.is_set():
+                break
+            key = (channel.metadata or {}).get(mcapfmt.META_KEY, channel.topic)
+            if selections and not any(keyexpr.intersects(s, key) for s in selections):
+                continue
+            if not args.fast:
+                due = wall0 + (message.log_time - first) / 1e9 / args.speed
+                delay = due - time.monotonic()
+                if delay > 0 and stop.wait(delay):
+                    break
+            rep.publish(key, channel, message.data)
+            n += 1
+            if last > first:
+                frac = (message.log_time - first) / (last - first)
+                status.show(f"replay {bar(frac)} {frac * 100:5.1f}%  {n}/{total} msgs  "
+                            f"t={(message.log_time - first) / 1e9:7.1f} s")
+        status.done()
+    finally:
+        rep.close()
+        session.close()
+    print(f"replayed {sum(rep.published.values())} of {total} messages on {len(rep.published)} keys"
+          + (f" ({rep.failed} could not be re-encoded)" if rep.failed else "")
+          + (" (interrupted)" if stop.is_set() else ""), file=out)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if (missing := require("replay")) is not None:
+        print(missing, file=sys.stderr)
+        return 2
+    try:
+        return run(args, sys.stdout)
+    except ToolError as exc:
+        print(f"cromat replay: {exc}", file=sys.stderr)
+        return exc.code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,121 @@
+"""``cromat bus`` against a launched simulated UAV: what each command prints is checked against the bus."""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+from pathlib import Path
+
+import jsonschema
+import msgspec
+import pytest
+from bbcs.robot import RobotTelemetry
+from modules.pan_tilt.structs import DatosPT
+
+from bbcs.session import local_client, open_session
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from uav_sim import cromat, start_uav  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def uav(tmp_path_factory):
+    la = start_uav(tmp_path_factory.mktemp("uav"))
+    try:
+        yield f"tcp/127.0.0.1:{la.port}"
+    finally:
+        la.stop()
+        la.cleanup()
+
+
+def test_list_names_every_slot_with_type_writer_readers_and_rate(uav):
+    r = cromat("bus", "--connect", uav, "list", "--robot", "uav1", "--window", "2", "--json")
+    assert r.returncode == 0, r.stderr
+    rows = {row["key"]: row for row in map(json.loads, r.stdout.splitlines())}
+    tel = rows["cromat/uav1/dsp/telemetry"]
+    assert tel["type"] == "modules.dsp.protocol:Telemetry" and tel["writers"] == ["dsp"]
+    assert tel["number"] == 2 and "telemetry.dsp_telemetry" in tel["readers"]
+    assert 10 <= tel["hz"] <= 30, tel  # the DSP simulator's 20 Hz telemetry
+    mode = rows["cromat/uav1/manager/pan_tilt_mode"]
+    assert mode["type"] == "modules.pan_tilt.structs:ModoFuncionamientoPT"
+    assert mode["writers"] == ["(manager)"] and mode["readers"] == ["pan_tilt.control_modo#5"]
+    assert rows["cromat/uav1/@ral/state"]["type"] == "ral.gri:GriState"
+    assert rows["cromat/uav1/@ral/state"]["messages"] > 0
+    text = cromat("bus", "--connect", uav, "list", "--robot", "uav1", "--window", "0")
+    assert "robot uav1: 6 modules alive: dsp, pan_tilt, path_follower, ral, telemetry, vision" in text.stdout
+
+
+def test_graph_shows_routes_by_name_as_text_and_dot(uav):
+    text = cromat("bus", "--connect", uav, "graph", "--robot", "uav1")
+    assert text.returncode == 0, text.stderr
+    assert "ral            --> [10] uav1/ral/pt_datos (DatosPT) --> pan_tilt.datos#10" in text.stdout
+    assert "heading=ignored" in text.stdout
+    dot = cromat("bus", "--connect", uav, "graph", "--robot", "uav1", "--dot")
+    assert dot.stdout.startswith("digraph cromat {")
+    assert '"cromat/uav1/ral/pt_datos" -> "uav1/pan_tilt" [label="datos#10"];' in dot.stdout
+    assert '"uav1/dsp" -> "cromat/uav1/dsp/telemetry";' in dot.stdout
+
+
+def test_echo_json_validates_against_the_served_schema(uav):
+    schema = cromat("bus", "--connect", uav, "schema", "uav1/telemetry/telemetry")
+    assert schema.returncode == 0, schema.stderr
+    doc = json.loads(schema.stdout)
+    assert doc["type"] == "bbcs.robot:RobotTelemetry"
+    r = cromat("bus", "--connect", uav, "echo", "uav1/telemetry/telemetry", "--json", "--count", "3")
+    assert r.returncode == 0, r.stderr
+    lines = [json.loads(line) for line in r.stdout.splitlines()]
+    assert len(lines) == 3
+    stamps = [line["stamp"] for line in lines]
+    assert stamps == sorted(stamps) and len(set(stamps)) == 3
+    for line in lines:
+        jsonschema.validate(line["data"], {k: v for k, v in doc.items() if k not in ("key", "type")})
+        tel = msgspec.convert(line["data"], RobotTelemetry)
+        assert tel.position is not None and abs(tel.position.lat - 37.4117) < 0.01  # the simulator's home
+    human = cromat("bus", "--connect", uav, "echo", "uav1/vision/status", "--count", "1")
+    assert "(modules.vision.process:VisionStatus)" in human.stdout and "  state: " in human.stdout
+
+
+def test_schema_of_a_struct_and_of_nothing(uav):
+    r = cromat("bus", "schema", "modules.pan_tilt.structs:DatosPT")
+    props = json.loads(r.stdout)["$defs"]["DatosPT"]["properties"]
+    assert props["ref_pan"]["maximum"] == 180.0
+    missing = cromat("bus", "--connect", uav, "schema", "uav1/nobody/here")
+    assert missing.returncode == 1 and "no module on the bus describes cromat/uav1/nobody/here" in missing.stderr
+
+
+def test_hz_measures_the_telemetry_rate(uav):
+    r = cromat("bus", "--connect", uav, "hz", "uav1/dsp/telemetry", "--duration", "3.2", "--period", "1")
+    assert r.returncode == 0, r.stderr
+    last = [line for line in r.stdout.splitlines() if line.startswith("cromat/uav1/dsp/telemetry")][-1]
+    hz = float(last.split()[1].removesuffix("Hz"))
+    jitter_ms = float(last.split()[2].removesuffix("ms"))
+    bytes_per_s = float(last.split()[5])
+    assert 15 <= hz <= 25 and jitter_ms < 50 and bytes_per_s > 0, last
+
+
+def test_pub_validates_before_sending(uav):
+    host, port = uav.removeprefix("tcp/").split(":")
+    session = open_session(local_client(int(port), host))
+    got: list[DatosPT] = []
+    arrived = threading.Event()
+    decode = msgspec.msgpack.Decoder(DatosPT).decode
+
+    def keep(sample) -> None:
+        got.append(decode(sample.payload.to_bytes()))
+        arrived.set()
+
+    sub = session.declare_subscriber("cromat/uav1/ral/pt_datos", keep)
+    try:
+        bad = cromat("bus", "--connect", uav, "pub", "uav1/ral/pt_datos", '{"ref_pan": 200.0}')
+        assert bad.returncode == 1
+        assert "refused, nothing sent: field $.ref_pan: Expected `float` <= 180.0" in bad.stderr
+        typo = cromat("bus", "--connect", uav, "pub", "uav1/ral/pt_datos", '{"ref_pam": 20.0}')
+        assert typo.returncode == 1 and "field $.ref_pam: DatosPT has no such field" in typo.stderr
+        good = cromat("bus", "--connect", uav, "pub", "uav1/ral/pt_datos", '{"ref_pan": 20.5, "ref_tilt": -10}')
+        assert good.returncode == 0, good.stderr
+        assert arrived.wait(10), "the published datum reached a subscriber"
+        assert got == [DatosPT(ref_pan=20.5, ref_tilt=-10.0)]  # the refused ones never did
+    finally:
+        sub.undeclare()
+        session.close()

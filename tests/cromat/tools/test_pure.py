@@ -1,0 +1,67 @@
+"""The tools' pure parts: rates, validation of a datum to publish, rendering, key expressions, schemas."""
+
+from __future__ import annotations
+
+import msgspec
+from modules.pan_tilt.structs import DatosPT
+
+from cromat.tools import keyexpr
+from cromat.tools.bus_cli import validate_datum
+from cromat.tools.catalog import Decoder, bookkeeping_type, type_from_encoding
+from cromat.tools.mcapfmt import inline_refs
+from cromat.tools.render import yamlish
+from cromat.tools.stats import RateMeter
+from ral import gri
+
+
+def test_rate_meter_rate_jitter_bytes_and_window():
+    m = RateMeter(window_s=10.0)
+    for i, t in enumerate([0.0, 0.1, 0.2, 0.35, 0.4]):
+        m.add(t, 100 + i)
+    r = m.rate(0.4)
+    assert r.count == 5 and abs(r.hz - 10.0) < 1e-9
+    assert abs(r.mean_interval_s - 0.1) < 1e-9 and abs(r.min_interval_s - 0.05) < 1e-9
+    assert abs(r.max_interval_s - 0.15) < 1e-9 and abs(r.jitter_s - 0.0353553) < 1e-6
+    assert abs(r.bytes_per_s - 510 / 0.4) < 1e-6
+    assert m.rate(20.0).count == 0 and m.total == 5 and m.total_bytes == 510
+
+
+def test_validate_datum_by_struct_and_by_schema_alone():
+    value, reason = validate_datum('{"ref_pan": 10, "ref_tilt": -5}', DatosPT, {})
+    assert value == DatosPT(ref_pan=10.0, ref_tilt=-5.0) and reason == ""
+    assert validate_datum('{"ref_tilt": -95}', DatosPT, {})[1] == "field $.ref_tilt: Expected `float` >= -90.0"
+    assert validate_datum("[1]", DatosPT, {})[1] == "the datum must be a JSON object of the slot's fields"
+    assert validate_datum("{nope", DatosPT, {})[1].startswith("not JSON")
+    schema = inline_refs(msgspec.json.schema(DatosPT))
+    assert "$ref" not in str(schema) and schema["properties"]["ref_pan"]["maximum"] == 180.0
+    assert validate_datum('{"ref_pan": 12.5}', None, schema) == ({"ref_pan": 12.5}, "")
+    refused = validate_datum('{"ref_pan": 181}', None, schema)[1]
+    assert refused == "field $.ref_pan: 181 is greater than the maximum of 180.0"
+
+
+def test_decoder_types_and_falls_back_to_plain_msgpack():
+    dec = Decoder("modules.pan_tilt.structs:DatosPT")
+    assert dec.decode(msgspec.msgpack.encode(DatosPT(ref_pan=3.0)))[0]["ref_pan"] == 3.0
+    value, problem = dec.decode(msgspec.msgpack.encode({"ref_pan": 500.0}))
+    assert value == {"ref_pan": 500.0} and problem.startswith("does not validate: Expected `float` <= 180.0")
+    assert Decoder("no.such:Type").decode(msgspec.msgpack.encode([1, 2])) == ([1, 2], "")
+    assert type_from_encoding("application/msgpack;ral.gri:GriState") == "ral.gri:GriState"
+    assert type_from_encoding("zenoh/bytes") == ""
+    assert bookkeeping_type("cromat/uav1/@ral/state") is gri.GriState
+    assert bookkeeping_type("cromat/uav1/@ral/events") is gri.GriEvent
+    assert bookkeeping_type("cromat/uav1/dsp/telemetry") is None
+
+
+def test_keyexpr_helpers():
+    assert keyexpr.expand("uav1/dsp/telemetry") == "cromat/uav1/dsp/telemetry"
+    assert keyexpr.expand("cromat/uav1/**") == "cromat/uav1/**"
+    assert keyexpr.remap_robot("cromat/uav1/@ral/state", "uav1", "uav9") == "cromat/uav9/@ral/state"
+    assert keyexpr.remap_robot("cromat/uav2/x/y", "uav1", "uav9") == "cromat/uav2/x/y"
+    assert keyexpr.intersects("cromat/uav1/*/*", "cromat/uav1/dsp/telemetry")
+    assert not keyexpr.intersects("cromat/uav1/*/*", "cromat/uav1/@ral/state")
+    assert "cromat/uav1/@ral/*" in keyexpr.everything("uav1")
+
+
+def test_yamlish_shows_nesting_and_lists():
+    lines = yamlish({"a": 1.5, "b": {"c": None, "d": "x y"}, "e": [{"f": True}, {"f": False}], "g": []})
+    assert lines == ["a: 1.5", "b:", "  c: null", "  d: x y", "e:", "  - f: true", "  - f: false", "g: []"]

@@ -1,0 +1,143 @@
+"""``cromat record`` and ``cromat replay`` with a launched simulated UAV taking off: the MCAP file holds the
+expected channels and counts (read with the ``mcap`` library), and a replay onto another router under another
+robot name gives the same decoded data and drives ``cromat gcs watch``."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import jsonschema
+import msgspec
+from mcap.reader import make_reader
+
+from bbcs.session import local_client, open_session
+from bbcs.testing import Processes, start_router, wait_until
+from ral import gri
+from ral.gcs.api import Gcs, session_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from uav_sim import cromat, spawn, start_uav  # noqa: E402
+
+SECONDS = 6
+
+
+def read_mcap(path: Path) -> tuple[dict[str, dict], dict[str, list[dict]], dict[str, int]]:
+    """channel key → {schema, metadata}, decoded messages per key in file order, statistics per key."""
+    channels: dict[str, dict] = {}
+    data: dict[str, list[dict]] = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
+            channels[channel.topic] = {"schema": json.loads(schema.data), "meta": channel.metadata}
+            data.setdefault(channel.topic, []).append(json.loads(message.data))
+    counts = {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}
+    return channels, data, counts
+
+
+def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
+    la = start_uav(tmp_path / "uav")
+    procs = Processes()
+    try:
+        endpoint = f"tcp/127.0.0.1:{la.port}"
+        out = tmp_path / "flight.mcap"
+        rec = spawn("record", "--connect", endpoint, "--robot", "uav1", "-o", str(out),
+                    "--duration", str(SECONDS), "--summary-json", str(tmp_path / "summary.json"))
+        assert rec.stderr.readline().startswith("recording "), "the recorder subscribed"
+        with Gcs(session_config([endpoint])) as gcs:
+            assert gcs.send("uav1", gri.TakeOff(height=10.0)).accepted
+        stdout, stderr = rec.communicate(timeout=60)
+        assert rec.returncode == 0, stderr
+        assert "dropped: 0 (missed on the bus), 0 (not msgpack)" in stdout
+
+        channels, data, counts = read_mcap(out)
+        summary = json.loads((tmp_path / "summary.json").read_text())
+        assert {k: c["messages"] for k, c in summary["channels"].items()} == counts
+        for key in ("cromat/uav1/dsp/telemetry", "cromat/uav1/telemetry/telemetry", "cromat/uav1/@ral/state",
+                    "cromat/uav1/@manager/state", "cromat/uav1/vision/status", "cromat/uav1/dsp/@heartbeat",
+                    "cromat/uav1/manager/path_follower_mode"):
+            assert key in counts, f"{key} recorded"
+        assert 12 * (SECONDS - 1) <= counts["cromat/uav1/dsp/telemetry"] <= 25 * (SECONDS + 1)
+        assert channels["cromat/uav1/dsp/telemetry"]["meta"]["cromat.type"] == "modules.dsp.protocol:Telemetry"
+        for key, msgs in data.items():
+            for m in msgs[:3]:
+                jsonschema.validate(m, channels[key]["schema"])
+        alts = [s["position"]["alt"] for s in data["cromat/uav1/@ral/state"] if s["position"]]
+        assert max(alts) > alts[0] + 1.0, "the recording holds the climb"
+        assert any(m["modo_de_funcionamiento"] == 4 for m in data["cromat/uav1/manager/path_follower_mode"])
+
+        # replay onto another router as robot uav9; a subscriber and a ground station watch it there
+        port = start_router(procs)
+        session = open_session(local_client(port))
+        replayed: list[dict] = []
+        decode = msgspec.msgpack.Decoder(gri.GriState).decode
+        sub = session.declare_subscriber(
+            "cromat/uav9/@ral/state", lambda s: replayed.append(msgspec.to_builtins(decode(s.payload.to_bytes()))))
+        tel: list[dict] = []
+        sub2 = session.declare_subscriber(
+            "cromat/uav9/dsp/telemetry", lambda s: tel.append(msgspec.msgpack.decode(s.payload.to_bytes())))
+        watch = spawn("gcs", "--connect", f"tcp/127.0.0.1:{port}", "watch", "uav9", "--count", "3")
+        try:
+            wait_until(lambda: _gcs_alive(session), 20, "cromat gcs watch connected")
+            r = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", str(out), "--robot-map", "uav1=uav9",
+                       "--speed", "2")
+            assert r.returncode == 0, r.stderr
+            assert f"replayed {sum(counts.values())} of {sum(counts.values())} messages" in r.stdout
+            expected = [dict(s, robot="uav9") for s in data["cromat/uav1/@ral/state"]]
+            wait_until(lambda: len(replayed) >= len(expected), 10, "every replayed GRI state")
+            wait_until(lambda: len(tel) >= len(data["cromat/uav1/dsp/telemetry"]), 10, "replayed telemetry")
+            assert replayed == expected
+            assert tel == data["cromat/uav1/dsp/telemetry"]
+            wout, werr = watch.communicate(timeout=20)
+            assert watch.returncode == 0, werr
+            heads = [line for line in wout.splitlines() if line.startswith("uav9 [uav] ")]
+            where = [line for line in wout.splitlines() if line.startswith("  pos 37.41")]
+            assert len(heads) == 3 and len(where) == 3, wout
+        finally:
+            if watch.poll() is None:
+                watch.kill()
+                watch.communicate()
+            sub.undeclare()
+            sub2.undeclare()
+            session.close()
+    finally:
+        procs.stop_all()
+        la.stop()
+        la.cleanup()
+
+
+def _gcs_alive(session) -> bool:
+    return any(r.ok is not None for r in session.liveliness().get("cromat/@gcs/*", timeout=1))
+
+
+def test_split_by_duration_and_replay_of_the_parts(tmp_path):
+    la = start_uav(tmp_path / "uav")
+    try:
+        endpoint = f"tcp/127.0.0.1:{la.port}"
+        out = tmp_path / "part.mcap"
+        r = cromat("record", "--connect", endpoint, "--robot", "uav1", "--select", "uav1/dsp/telemetry",
+                   "-o", str(out), "--duration", "3.5", "--split-duration", "1")
+        assert r.returncode == 0, r.stderr
+        parts = sorted(tmp_path.glob("part_*.mcap"))
+        assert len(parts) >= 3, r.stdout
+        total = 0
+        for part in parts:
+            channels, _, counts = read_mcap(part)
+            assert set(counts) <= {"cromat/uav1/dsp/telemetry"}
+            total += sum(counts.values())
+        assert f"recorded {total} messages" in r.stdout
+        port_proc = Processes()
+        try:
+            port = start_router(port_proc)
+            rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", *map(str, parts), "--fast")
+            assert rep.returncode == 0 and f"replayed {total} of {total} messages on 1 keys" in rep.stdout
+        finally:
+            port_proc.stop_all()
+    finally:
+        la.stop()
+        la.cleanup()
+
+
