@@ -19,10 +19,9 @@ import zenoh
 
 from bbcs import keys
 from bbcs.codec import json_schema, resolve_type, type_name
+from bbcs.contracts import gri, mri
 from bbcs.module import Heartbeat
 from bbcs.routing import RouteAck
-from module_manager import mri
-from ral import gri
 
 ENCODING_PREFIX = "application/msgpack"
 

@@ -53,8 +53,8 @@ from cromat.tools.foxglove_convert import KINEMATICS_SCHEMA, enu_quaternion, kin
 from cromat.tools.progress import StatusLine
 
 TELEMETRY_TYPE = "bbcs.robot:RobotTelemetry"
-GRI_STATE_TYPE = "ral.gri:GriState"
-GRI_EVENT_TYPE = "ral.gri:GriEvent"
+GRI_STATE_TYPE = "bbcs.contracts.gri:GriState"
+GRI_EVENT_TYPE = "bbcs.contracts.gri:GriEvent"
 
 
 def _stamp(ns: int) -> Timestamp:

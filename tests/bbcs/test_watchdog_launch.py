@@ -13,8 +13,8 @@ sys.path.insert(0, str(HERE.parent / "module_manager"))
 
 from launch_support import Launch, write_manifest  # noqa: E402
 
+from bbcs.contracts import mri  # noqa: E402
 from bbcs.testing import wait_until  # noqa: E402
-from module_manager import mri  # noqa: E402
 
 
 def add_stuck(text: str) -> str:
@@ -62,10 +62,10 @@ def test_a_launched_robot_describes_itself_on_the_wire(tmp_path, clients) -> Non
         manager = [r.ok for r in s.get("cromat/r1/@manager/@schema", timeout=20) if r.ok is not None]
         assert len(manager) == 1
         doc = json.loads(manager[0].payload.to_string())
-        assert doc["cromat/r1/@manager/state"]["type"] == "module_manager.mri:RobotState"
-        assert "module_manager.mri:SwapRoute" in doc["cromat/r1/@manager/route"]["request"]["type"]
+        assert doc["cromat/r1/@manager/state"]["type"] == "bbcs.contracts.mri:RobotState"
+        assert "bbcs.contracts.mri:SwapRoute" in doc["cromat/r1/@manager/route"]["request"]["type"]
         reply = next(r.ok for r in s.get("cromat/r1/@manager/modules", payload=mri.encode(mri.ListModules()),
                                           timeout=20) if r.ok is not None)
-        assert str(reply.encoding) == "application/msgpack;module_manager.mri:MriReply"
+        assert str(reply.encoding) == "application/msgpack;bbcs.contracts.mri:MriReply"
     finally:
         la.cleanup()

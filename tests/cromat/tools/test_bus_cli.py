@@ -40,7 +40,7 @@ def test_list_names_every_slot_with_type_writer_readers_and_rate(uav):
     mode = rows["cromat/uav1/manager/pan_tilt_mode"]
     assert mode["type"] == "modules.pan_tilt.structs:ModoFuncionamientoPT"
     assert mode["writers"] == ["(manager)"] and mode["readers"] == ["pan_tilt.control_modo#5"]
-    assert rows["cromat/uav1/@ral/state"]["type"] == "ral.gri:GriState"
+    assert rows["cromat/uav1/@ral/state"]["type"] == "bbcs.contracts.gri:GriState"
     assert rows["cromat/uav1/@ral/state"]["messages"] > 0
     text = cromat("bus", "--connect", uav, "list", "--robot", "uav1", "--window", "0")
     assert "robot uav1: 6 modules alive: dsp, pan_tilt, path_follower, ral, telemetry, vision" in text.stdout

@@ -5,13 +5,13 @@ from __future__ import annotations
 import msgspec
 from modules.pan_tilt.structs import DatosPT
 
+from bbcs.contracts import gri
 from cromat.tools import keyexpr
 from cromat.tools.bus_cli import validate_datum
 from cromat.tools.catalog import Decoder, bookkeeping_type, type_from_encoding
 from cromat.tools.mcapfmt import inline_refs
 from cromat.tools.render import yamlish
 from cromat.tools.stats import RateMeter
-from ral import gri
 
 
 def test_rate_meter_rate_jitter_bytes_and_window():
@@ -45,7 +45,7 @@ def test_decoder_types_and_falls_back_to_plain_msgpack():
     value, problem = dec.decode(msgspec.msgpack.encode({"ref_pan": 500.0}))
     assert value == {"ref_pan": 500.0} and problem.startswith("does not validate: Expected `float` <= 180.0")
     assert Decoder("no.such:Type").decode(msgspec.msgpack.encode([1, 2])) == ([1, 2], "")
-    assert type_from_encoding("application/msgpack;ral.gri:GriState") == "ral.gri:GriState"
+    assert type_from_encoding("application/msgpack;bbcs.contracts.gri:GriState") == "bbcs.contracts.gri:GriState"
     assert type_from_encoding("zenoh/bytes") == ""
     assert bookkeeping_type("cromat/uav1/@ral/state") is gri.GriState
     assert bookkeeping_type("cromat/uav1/@ral/events") is gri.GriEvent

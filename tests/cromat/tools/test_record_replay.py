@@ -12,9 +12,9 @@ import jsonschema
 import msgspec
 from mcap.reader import make_reader
 
+from bbcs.contracts import gri
 from bbcs.session import local_client, open_session
 from bbcs.testing import Processes, start_router, wait_until
-from ral import gri
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

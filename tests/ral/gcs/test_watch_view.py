@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from bbcs.robot import Attitude, GeoPoint, VelocityNED
 
+from bbcs.contracts import gri
 from cromat.tools.error_names import error_name
-from ral import gri
 from ral.gcs.watch_view import WatchScreen, render
 
 NOW = 1_800_000_000.0
