@@ -171,9 +171,9 @@ class Module:
         self.lock = threading.RLock()
         self.session: zenoh.Session | None = None
         self._stop = threading.Event()
-        self._stopping = False
+        self._bbcs_stopping = False
         self._closed = False
-        self._queue: queue.SimpleQueue[tuple[_Reader | None, Any]] = queue.SimpleQueue()
+        self._bbcs_queue: queue.SimpleQueue[tuple[_Reader | None, Any]] = queue.SimpleQueue()
         self._outputs_by_name: dict[str, Any] = {}
         self._readers: dict[str, _Reader] = {}
         self._routes: dict[str, int] = {}
@@ -214,13 +214,13 @@ class Module:
 
     def request_stop(self) -> None:
         """Ask the event loop to stop (safe from signal handlers and other threads)."""
-        self._stopping = True
+        self._bbcs_stopping = True
         self._stop.set()
-        self._queue.put((None, _STOP))
+        self._bbcs_queue.put((None, _STOP))
 
     def call_soon(self, fn: Callable[[], Any]) -> None:
         """Run ``fn()`` on the event loop, in arrival order with the inputs (for a module's own threads)."""
-        self._queue.put((None, fn))
+        self._bbcs_queue.put((None, fn))
 
     @property
     def stopping(self) -> bool:
@@ -250,9 +250,9 @@ class Module:
         next_tick = monotonic() + period if period else float("inf")
         next_beat = monotonic()
         seq = 0
-        get = self._queue.get
+        get = self._bbcs_queue.get
         handle = self._handle_sample
-        while not self._stopping:
+        while not self._bbcs_stopping:
             now = monotonic()
             if now >= next_beat:
                 seq += 1
@@ -325,7 +325,7 @@ class Module:
         if self._closed:
             return
         self._closed = True
-        self._stopping = True
+        self._bbcs_stopping = True
         self._stop.set()
         try:
             with self.lock:
@@ -393,7 +393,7 @@ class Module:
 
     def _enqueuer(self, reader: _Reader) -> Callable[[zenoh.Sample], None]:
         """The Zenoh callback of one input: it only hands the sample to the loop (never decodes or handles)."""
-        put = self._queue.put
+        put = self._bbcs_queue.put
         lock = reader.lock
         item = (reader, None)
         if reader.unsafe:
@@ -428,7 +428,8 @@ class Module:
         the reliable publisher. Stop or a route switch end the wait (the sample is then queued all the same)."""
         with reader.room:
             reader.waiting = True
-            while enqueued - reader.handled > reader.spec.queue and not self._stopping and reader.state == _LIVE:
+            while (enqueued - reader.handled > reader.spec.queue and not self._bbcs_stopping
+                   and reader.state == _LIVE):
                 reader.room.wait(BACKPRESSURE_POLL_S)
             reader.waiting = False
 
@@ -439,10 +440,10 @@ class Module:
                 return
             if reader.unsafe:
                 if reader.latest is not None:
-                    self._queue.put((reader, None))
+                    self._bbcs_queue.put((reader, None))
             else:
                 for sample in reader.held:
-                    self._queue.put((reader, sample))
+                    self._bbcs_queue.put((reader, sample))
                     next(reader.enqueued)
                 reader.held.clear()
             reader.state = _LIVE
@@ -563,16 +564,16 @@ class Module:
             for reader in fresh.values():
                 self._release(reader)
         for reader, item in deferred:
-            self._queue.put((reader, item))
+            self._bbcs_queue.put((reader, item))
 
     def _drain_until_switch(self) -> list[tuple[Any, Any]]:
         """Handle everything already queued (old sources included) up to the switch point; a CONTROL_ENTRADA met
         on the way is kept for after this switch, and re-queued behind whatever arrived meanwhile."""
         marker = _Marker()
-        self._queue.put((None, marker))
+        self._bbcs_queue.put((None, marker))
         deferred: list[tuple[Any, Any]] = []
         while True:
-            reader, item = self._queue.get()
+            reader, item = self._bbcs_queue.get()
             if item is marker:
                 return deferred
             if reader is None:

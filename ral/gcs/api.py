@@ -19,7 +19,7 @@ import msgspec
 import zenoh
 import zenoh.ext
 
-from bbcs import keys
+from bbcs import keys, wire
 from bbcs.contracts import gri, mri
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
@@ -120,7 +120,8 @@ class Gcs:
         self.linked.append(keys.validate_name(robot, "robot name"))
         if self._token is None:
             self._token = self.session.liveliness().declare_token(gri.gcs_alive_key(self.name))
-            self._hb_pub = self.session.declare_publisher(gri.gcs_heartbeat_key(self.name))
+            self._hb_pub = self.session.declare_publisher(gri.gcs_heartbeat_key(self.name),
+                                                          encoding=wire.encoding_for(gri.GcsHeartbeat))
             self._beat = threading.Thread(target=self._heartbeat, name="gcs.heartbeat", daemon=True)
             self._beat.start()
 
