@@ -22,13 +22,14 @@ from bbcs.testing import wait_until
 from ral.gcs import cli
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402
+from test_gcs_mission import MANIFEST, ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402
 
 M_PER_DEG = 111_320.0
 HOME_ALT = 12.0
 """The DSP simulator's ground level (m above sea level)."""
 
 Factory = Callable[..., SimRobot]
+MANIFEST_DIR = MANIFEST.parent
 
 
 @pytest.fixture
@@ -290,13 +291,22 @@ def test_case8_watching_a_robot_that_does_not_exist_exits_3_and_is_no_link_for_u
 # ------------------------------------------------------------------ case 9: replies tell the truth
 
 
-def test_case9_a_mode_the_module_refuses_is_not_ok(make_robot: Factory) -> None:
-    robot = make_robot()
+def test_case9_a_mode_the_module_refuses_is_not_ok(make_robot: Factory, tmp_path: Path) -> None:
+    # The path follower refuses mode 1 (heading from the HEADING slot) while no DSP telemetry has given it the
+    # current heading (FollowerError.HEADING_UNKNOWN = 116): a robot whose .conf asks the DSP for neither HEADING
+    # nor ATTITUDE (whose yaw would give it).
+    conf = MANIFEST_DIR / "uav1.conf"
+    blind = tmp_path / "uav1_no_heading.conf"
+    text = conf.read_text()
+    listed = "TELEMETRY: [POSITION, ATTITUDE, VELOCITY, ANGULAR_RATE, HEADING, STATUS,"
+    assert listed in text, "uav1.conf's TELEMETRY list changed"
+    blind.write_text(text.replace(listed, "TELEMETRY: [POSITION, VELOCITY, ANGULAR_RATE, STATUS,"))
+    robot = make_robot(edit=lambda m: m.replace(f'conf = "{conf}"', f'conf = "{blind}"'))
     session = robot.gcs.session
     mark = len(robot.commands())
     reply = mri.call(session, ROBOT, "mode", mri.SetModuleMode(
-        module="path_follower", mode={"modo_o_comando": 0, "modo_de_funcionamiento": 3}))
-    assert not reply.ok and reply.code == 117 and "mode 3" in reply.reason, reply
+        module="path_follower", mode={"modo_o_comando": 0, "modo_de_funcionamiento": 1}))
+    assert not reply.ok and reply.code == 116 and "heading" in reply.reason, reply
     assert "SET_MODE" not in names(barrier(robot, mark))
     fine = mri.call(session, ROBOT, "mode", mri.SetModuleMode(
         module="path_follower", mode={"modo_o_comando": 0, "modo_de_funcionamiento": 2}))
