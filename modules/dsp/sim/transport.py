@@ -111,10 +111,20 @@ class TcpEndpoint:
         self.description = f"tcp {self.host}:{self.port}"
 
     def fileno_list(self) -> list[int]:
-        fds = [self._listener.fileno()]
-        if self._client is not None:
-            fds.append(self._client.fileno())
+        # the client first: a PC that hung up and reconnects at once is seen gone before its new connection
+        fds = [self._client.fileno()] if self._client is not None else []
+        fds.append(self._listener.fileno())
         return fds
+
+    def _client_gone(self) -> bool:
+        """Whether the PC on the line has hung up (its end closed or reset) without our having read it yet."""
+        assert self._client is not None
+        try:
+            return self._client.recv(1, socket.MSG_PEEK) == b""
+        except (BlockingIOError, InterruptedError):
+            return False
+        except OSError:
+            return True
 
     def on_readable(self, fd: int) -> bytes:
         if fd == self._listener.fileno():
@@ -122,6 +132,9 @@ class TcpEndpoint:
                 conn, _ = self._listener.accept()
             except (BlockingIOError, InterruptedError):
                 return b""
+            if self._client is not None and self._client_gone():  # a restarted PC: the old one hung up
+                self._client.close()
+                self._client = None
             if self._client is not None:  # the line is taken: refuse, keep the PC that has it
                 conn.close()
                 self.refused += 1

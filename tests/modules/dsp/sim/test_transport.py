@@ -53,7 +53,7 @@ def test_tcp_one_client_at_a_time() -> None:
         read_some(ep, listener)
         assert len(ep.fileno_list()) == 2
         first.sendall(b"hello")
-        assert read_some(ep, ep.fileno_list()[1]) == b"hello"
+        assert read_some(ep, client_fd(ep, listener)) == b"hello"
         second = socket.create_connection(("127.0.0.1", ep.port))
         read_some(ep, listener)  # a second PC is refused (issue 12): the first keeps the line
         assert second.recv(10) == b"" and ep.refused == 1
@@ -61,7 +61,30 @@ def test_tcp_one_client_at_a_time() -> None:
         assert first.recv(20) == b"to-first"
         second.close()
         first.close()
-        assert read_some(ep, ep.fileno_list()[1]) == b""
+        assert read_some(ep, client_fd(ep, listener)) == b""
         assert len(ep.fileno_list()) == 1
+    finally:
+        ep.close()
+
+
+def client_fd(ep: TcpEndpoint, listener: int) -> int:
+    return next(fd for fd in ep.fileno_list() if fd != listener)
+
+
+def test_tcp_a_pc_that_hung_up_and_reconnects_gets_the_line() -> None:
+    """A restarted DSP process: its old connection closed, its new one arrives before the old EOF was read."""
+    ep = TcpEndpoint("127.0.0.1", 0)
+    try:
+        listener = ep.fileno_list()[0]
+        old = socket.create_connection(("127.0.0.1", ep.port))
+        read_some(ep, listener)
+        old.close()
+        new = socket.create_connection(("127.0.0.1", ep.port))
+        read_some(ep, listener)  # the listener is read before the old client's EOF
+        assert ep.refused == 0
+        new.sendall(b"again")
+        assert read_some(ep, client_fd(ep, listener)) == b"again"
+        assert ep.write(b"ok") == 2 and new.recv(10) == b"ok"
+        new.close()
     finally:
         ep.close()
