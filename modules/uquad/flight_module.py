@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bbcs.conf import ConfError
+from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.path_follower import DatosSegCam  # the RAL's path slot type
 from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
 from bbcs.module import Control, Module
@@ -41,7 +42,7 @@ from modules.uquad.gps import FakeGps, LocalGps, NmeaReader
 from modules.uquad.imu_protocol import ImuParser
 from modules.uquad.motor_client import MotorClient
 from modules.uquad.planner import Mode, heading_deg
-from modules.uquad.structs import ControlEntradaUquad, ImuRaw, MotorCommandLog, UquadError, UquadMode, UquadState
+from modules.uquad.structs import ControlEntradaUquad, ImuRaw, MotorCommandLog, UquadMode, UquadState
 from modules.uquad.transport import Stream
 
 TELEMETRY_PERIOD_S = 0.1
@@ -71,7 +72,7 @@ class UquadModule(Module):
         OutputSlot("imu_raw", ImuRaw, kind=Kind.STREAM),
         OutputSlot("state", UquadState, safety=Safety.UNSAFE),
         OutputSlot("control", MotorCommandLog, kind=Kind.STREAM),
-        OutputSlot("error", UquadError),
+        OutputSlot("error", ErrorReport),
     )
     control = Control(ControlEntradaUquad, {"slot_entrada_modo": "modo", "slot_entrada_path": "path"})
     error_slot = "error"

@@ -58,6 +58,3 @@ class MotorCommandLog(msgspec.Struct, frozen=True, kw_only=True):
     ts: float
     latency_s: float
 
-
-class UquadError(msgspec.Struct, frozen=True, kw_only=True):
-    error_uquad: int
