@@ -17,15 +17,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("bbcs", "modules", "ral", "module_manager")
 
-KNOWN: dict[tuple[str, str], str] = {
-    # The DSP command contract (DspCommand, DspErrorReport, protocol messages) still lives in modules/dsp; the
-    # security/cmdpath engineers own it and move it to bbcs/contracts.
-    ("modules/telemetry", "modules.dsp"): "DSP telemetry contract in modules/dsp",
-    ("modules/pan_tilt", "modules.dsp"): "DSP command contract in modules/dsp",
-    ("modules/path_follower", "modules.dsp"): "DSP command contract in modules/dsp",
-    # `cromat certs --manifest` reads a manifest to list its identities (an operator tool, not the RAL process).
-    ("ral", "module_manager"): "ral/certs.py reads manifests",
-}
+KNOWN: dict[tuple[str, str], str] = {}
 
 
 def owner(path: Path) -> str:
