@@ -93,3 +93,29 @@ def test_the_checker_sees_a_forbidden_import(tmp_path):
     assert not allowed("ral", "module_manager")
     assert not allowed("module_manager", "ral")
     assert allowed("modules/vision", "bbcs")
+
+
+def hand_built_keys(path: Path) -> list[int]:
+    """Lines of ``path`` whose string (plain or f-string) starts a key expression with ``cromat/``."""
+    lines: set[int] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        first = node.values[0] if isinstance(node, ast.JoinedStr) and node.values else node
+        if isinstance(first, ast.Constant) and isinstance(first.value, str) and first.value.startswith("cromat/"):
+            lines.add(node.lineno)
+    return sorted(lines)
+
+
+def test_keys_are_built_only_by_bbcs_keys():
+    """The key scheme lives in ``bbcs/keys.py``; the access policy and every process build keys with it."""
+    found = {}
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            if path != ROOT / "bbcs" / "keys.py" and (lines := hand_built_keys(path)):
+                found[str(path.relative_to(ROOT))] = lines
+    assert not found, f"keys built by hand (use bbcs.keys): {found}"
+
+
+def test_the_key_checker_sees_a_hand_built_key(tmp_path):
+    src = tmp_path / "k.py"
+    src.write_text('r = "uav1"\na = f"cromat/{r}/*/*"\nb = "cromat/@gcs/**"\nc = "not a key"\n')
+    assert hand_built_keys(src) == [2, 3]
