@@ -29,6 +29,7 @@ from typing import Any
 
 from bbcs import keys
 from bbcs.contracts.dsp import COMMAND_RIGHTS, commands_slot
+from bbcs.contracts.dsp import MODULE as DSP_MODULE
 
 ALL_MESSAGES = [
     "put",
@@ -52,34 +53,35 @@ OBSERVE = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_qu
 
 def _adv(keys_: list[str]) -> list[str]:
     """The advanced pub/sub keys of ``keys_``: ``**`` never matches the verbatim ``@adv`` chunk."""
-    return [f"{k}/@adv/**" for k in keys_]
+    return [keys.adv_pattern(k) for k in keys_]
 
 
 def _read_keys(r: str = "*") -> list[str]:
     """Keys anyone authenticated may observe, for every robot (a GCS lists robots with ``cromat/*/...``)."""
     return [
-        f"cromat/{r}/*/*",
-        f"cromat/{r}/*/@schema",
-        f"cromat/{r}/*/@route",
-        f"cromat/{r}/*/@heartbeat",
-        f"cromat/{r}/@alive/*",
-        f"cromat/{r}/@manager/**",
-        f"cromat/{r}/@ral/**",
-        "cromat/@gcs/**",
+        keys.slot_pattern(r),
+        keys.schema_pattern(r),
+        keys.route_ack_pattern(r),
+        keys.heartbeat_pattern(r),
+        keys.alive_pattern(r),
+        keys.manager_pattern(r),
+        keys.ral_pattern(r),
+        keys.gcs_pattern(),
     ]
 
 
 def _adv_keys(r: str = "*") -> list[str]:
-    return _adv([f"cromat/{r}/*/*", f"cromat/{r}/*/@route", f"cromat/{r}/*/@heartbeat", f"cromat/{r}/@manager/*",
-                 f"cromat/{r}/@ral/*"])
+    return _adv([keys.slot_pattern(r), keys.route_ack_pattern(r), keys.heartbeat_pattern(r),
+                 keys.manager_child_pattern(r), keys.ral_child_pattern(r)])
 
 
-READ_QUERIES = ["*/@schema", "@manager/modules", "@manager/routes", "@manager/tasks"]
+READ_QUERIES = [keys.schema_pattern("*"), *(keys.manager_key("*", q) for q in ("modules", "routes", "tasks"))]
+"""Read-only queries every identity may make, on every robot: schemas and the MRI's lists."""
 
 
 def _own(robot: str, name: str) -> list[str]:
-    own = [f"cromat/{robot}/{name}/*", f"cromat/{robot}/{name}/@route", f"cromat/{robot}/{name}/@heartbeat"]
-    return [*own, *_adv(own), f"cromat/{robot}/{name}/@schema"]
+    own = [keys.slot_pattern(robot, name), keys.route_ack_pattern(robot, name), keys.heartbeat_pattern(robot, name)]
+    return [*own, *_adv(own), keys.schema_pattern(robot, name)]
 
 
 def _rule(rid: str, messages: list[str], key_exprs: list[str], permission: str = "allow",
@@ -120,21 +122,21 @@ def router_config(
     control = {m: (controls or {}).get(m, "control_entrada") for m in modules}
     senders = [m for m in modules if m in COMMAND_RIGHTS] if dsp_senders is None else list(dsp_senders)
     r = robot
-    control_keys = [f"cromat/{r}/{m}/{slot}" for m, slot in control.items()]
+    control_keys = [keys.slot_pattern(r, m, slot) for m, slot in control.items()]
     rules: list[dict[str, Any]] = [
         _rule("observe", OBSERVE[:3], _read_keys() + _adv_keys()),
         _rule("history", ["query", "liveliness_token"], _adv_keys()),  # ask history; an advanced subscriber's token
-        _rule("read-queries", ["query"], [f"cromat/*/{q}" for q in READ_QUERIES]),
+        _rule("read-queries", ["query"], READ_QUERIES),
         _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
-        _rule("gcs-command", ["query"], [f"cromat/{r}/@ral/task", f"cromat/{r}/@manager/route"]),
-        _rule("gcs-link", ["put", "delete", "liveliness_token"], ["cromat/@gcs/**"]),
-        _rule("ral-write", WRITE + SERVE, [*_own(r, ral), f"cromat/{r}/@ral/**", *_adv([f"cromat/{r}/@ral/*"])]),
-        _rule("ral-token", ["liveliness_token"], [f"cromat/{r}/@alive/{ral}"]),
-        _rule("ral-mri", ["query"], [f"cromat/{r}/@manager/**"]),
+        _rule("gcs-command", ["query"], [keys.ral_key(r, "task"), keys.manager_key(r, "route")]),
+        _rule("gcs-link", ["put", "delete", "liveliness_token"], [keys.gcs_pattern()]),
+        _rule("ral-write", WRITE + SERVE, [*_own(r, ral), keys.ral_pattern(r), *_adv([keys.ral_child_pattern(r)])]),
+        _rule("ral-token", ["liveliness_token"], [keys.alive_pattern(r, ral)]),
+        _rule("ral-mri", ["query"], [keys.manager_pattern(r)]),
         _rule("manager-write", WRITE + SERVE, [
-            *_own(r, manager), *control_keys, *_adv(control_keys), f"cromat/{r}/@manager/**",
-            *_adv([f"cromat/{r}/@manager/*"])]),
-        _rule("manager-token", ["liveliness_token"], [f"cromat/{r}/@alive/*"]),
+            *_own(r, manager), *control_keys, *_adv(control_keys), keys.manager_pattern(r),
+            *_adv([keys.manager_child_pattern(r)])]),
+        _rule("manager-token", ["liveliness_token"], [keys.alive_pattern(r)]),
     ]
     subjects: list[dict[str, Any]] = [
         {"id": "gcs", "cert_common_names": list(gcs)},
@@ -149,12 +151,12 @@ def router_config(
     for name in modules:
         own = _own(r, name)
         if name in senders:
-            dsp_key = f"cromat/{r}/dsp/{commands_slot(name)}"
+            dsp_key = keys.slot_pattern(r, DSP_MODULE, commands_slot(name))
             own += [dsp_key, *_adv([dsp_key])]
-        ctl = f"cromat/{r}/{name}/{control[name]}"
+        ctl = keys.slot_pattern(r, name, control[name])
         rules += [
             _rule(f"m-{name}-write", WRITE + SERVE, own),
-            _rule(f"m-{name}-token", ["liveliness_token"], [f"cromat/{r}/@alive/{name}"]),
+            _rule(f"m-{name}-token", ["liveliness_token"], [keys.alive_pattern(r, name)]),
             # its own CONTROL_ENTRADA is the manager's to write: a deny wins over the allow on cromat/r/name/*
             _rule(f"m-{name}-no-control", WRITE + SERVE, [ctl, *_adv([ctl])], permission="deny"),
         ]

@@ -128,6 +128,16 @@ def ral_pattern(robot: str = "*") -> str:
     return f"{ral_key(robot)}/**"
 
 
+def manager_child_pattern(robot: str = "*") -> str:
+    """The Module Manager's keys one level down: ``cromat/<robot>/@manager/*`` (its publications)."""
+    return f"{manager_key(robot)}/*"
+
+
+def ral_child_pattern(robot: str = "*") -> str:
+    """The RAL's keys one level down: ``cromat/<robot>/@ral/*`` (its publications)."""
+    return f"{ral_key(robot)}/*"
+
+
 def gcs_key(name: str) -> str:
     """``cromat/@gcs/<name>``: a ground station's link token (``*``: every ground station)."""
     return f"{ROOT}/@gcs/{_chunk_or_wildcard(name, 'GCS name')}"

@@ -22,9 +22,11 @@ import threading
 import time
 from pathlib import Path
 
-from bbcs.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
 from benchlib import ROOT, write_results
 
+from bbcs import keys
+from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.session import local_client, open_session
 from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import Processes, child_env, start_router
@@ -44,7 +46,7 @@ def sample(i: int) -> RobotTelemetry:
 def publisher(port: int, seconds: float) -> int:
     """Child role: publish as fast as possible for ``seconds``; prints the count."""
     session = open_session(local_client(port))
-    pubs = [Publisher(session, f"cromat/{ROBOT}/m{k}/telemetry",
+    pubs = [Publisher(session, keys.slot_key(ROBOT, f"m{k}", "telemetry"),
                       OutputSlot("telemetry", RobotTelemetry, kind=Kind.STREAM)) for k in range(KEYS)]
     payloads = [sample(i) for i in range(64)]
     time.sleep(0.5)  # let the subscriber's declaration reach this session (a fixed lead-in, not a measurement)
@@ -86,7 +88,7 @@ def baseline(port: int, seconds: float) -> dict[str, float]:
             count[0] += 1
             count[1] += len(s.payload)
 
-    sub = session.declare_subscriber(f"cromat/{ROBOT}/*/*", on_sample)
+    sub = session.declare_subscriber(keys.slot_pattern(ROBOT), on_sample)
     pub = run_publisher(port, seconds)
     t0 = time.monotonic()
     published = int(pub.communicate()[0].strip() or 0)
@@ -105,7 +107,7 @@ def recorder(port: int, seconds: float, out: Path) -> dict[str, float]:
     session = open_session(local_client(port))
     sink = McapSink(out, Catalog(), split=False)
     cpu0 = time.process_time()
-    rec = Recorder(session, sink, [f"cromat/{ROBOT}/*/*"])
+    rec = Recorder(session, sink, [keys.slot_pattern(ROBOT)])
     pub = run_publisher(port, seconds)
     t0 = time.monotonic()
     published = int(pub.communicate()[0].strip() or 0)

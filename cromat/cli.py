@@ -10,7 +10,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "router": ("bbcs.router", "run a robot's Zenoh router"),
     "conf": ("cromat.conf", "check a robot .conf: every error with file:line (conf check FILE)"),
     "gcs": ("ral.gcs.cli", "ground control station: robots, watch, task, abort, modules, route, errors"),
-    "certs": ("ral.certs", "create a CA and certificates for a robot router, a GCS and modules"),
+    "certs": ("cromat.certs", "create a CA and certificates for a robot router, a GCS and modules"),
     "dsp-sim": ("modules.dsp.sim.cli", "run the DSP simulator on a pty or a TCP port"),
     "lidar": ("modules.lidar_logger.cli", "run the lidar logger, read and georeference its logs"),
     "bus": ("cromat.tools.bus_cli", "introspect a bus: list, echo, hz, schema, pub, graph (like ros2 topic)"),

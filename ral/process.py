@@ -16,7 +16,6 @@ error affects, advances the link-loss failsafe and publishes the GRI state.
 
 from __future__ import annotations
 
-import enum
 import queue
 import threading
 import time
@@ -31,14 +30,14 @@ from bbcs import keys, wire
 from bbcs.context import ModuleContext
 from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
+from bbcs.contracts.dsp import FORWARDED_DSP_ERROR_BASE, MAX_SPEED_LIMIT, LinkErrorCode
+from bbcs.contracts.error_codes import RalErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam, HeadingSegCam, RefsSegCam, SpeedSegCam
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.module import Module
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
-from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE
-from modules.dsp.errors import LinkErrorCode
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.tasks import JudgeConfig, Limits, Plan, Progress, Rejected, admit, available_kinds, judge, load_limits
 
@@ -47,15 +46,6 @@ HARMLESS_CODES = frozenset({FORWARDED_DSP_ERROR_BASE + LinkErrorCode.FLUSHED})
 """Module errors that do not affect a running task (unsent commands dropped because an abort overtook them)."""
 MANAGER_STALE_S = 3.0
 TASKS_REFRESH_S = 1.0
-
-
-class RalErrorCode(enum.IntEnum):
-    MRI_NO_REPLY = 601
-    """The Module Manager did not answer an MRI request."""
-    MRI_REFUSED = 602
-    """The Module Manager refused a request the RAL had admitted."""
-    TASK_FAILED = 603
-    """A running task's effect was lost (module restart or error, no progress, manager restart)."""
 
 
 class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
@@ -573,8 +563,6 @@ END_EVENTS = {
 
 def p_max_speed() -> float:
     """Without a robot .conf, the protocol's ceiling is the only speed limit known."""
-    from modules.dsp.protocol import MAX_SPEED_LIMIT
-
     return MAX_SPEED_LIMIT
 
 

@@ -17,15 +17,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("bbcs", "modules", "ral", "module_manager")
 
-KNOWN: dict[tuple[str, str], str] = {
-    # The DSP command contract (DspCommand, DspErrorReport, protocol messages) still lives in modules/dsp; the
-    # security/cmdpath engineers own it and move it to bbcs/contracts.
-    ("modules/telemetry", "modules.dsp"): "DSP telemetry contract in modules/dsp",
-    ("modules/pan_tilt", "modules.dsp"): "DSP command contract in modules/dsp",
-    ("modules/path_follower", "modules.dsp"): "DSP command contract in modules/dsp",
-    # `cromat certs --manifest` reads a manifest to list its identities (an operator tool, not the RAL process).
-    ("ral", "module_manager"): "ral/certs.py reads manifests",
-}
+KNOWN: dict[tuple[str, str], str] = {}
 
 
 def owner(path: Path) -> str:
@@ -101,3 +93,29 @@ def test_the_checker_sees_a_forbidden_import(tmp_path):
     assert not allowed("ral", "module_manager")
     assert not allowed("module_manager", "ral")
     assert allowed("modules/vision", "bbcs")
+
+
+def hand_built_keys(path: Path) -> list[int]:
+    """Lines of ``path`` whose string (plain or f-string) starts a key expression with ``cromat/``."""
+    lines: set[int] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        first = node.values[0] if isinstance(node, ast.JoinedStr) and node.values else node
+        if isinstance(first, ast.Constant) and isinstance(first.value, str) and first.value.startswith("cromat/"):
+            lines.add(node.lineno)
+    return sorted(lines)
+
+
+def test_keys_are_built_only_by_bbcs_keys():
+    """The key scheme lives in ``bbcs/keys.py``; the access policy and every process build keys with it."""
+    found = {}
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            if path != ROOT / "bbcs" / "keys.py" and (lines := hand_built_keys(path)):
+                found[str(path.relative_to(ROOT))] = lines
+    assert not found, f"keys built by hand (use bbcs.keys): {found}"
+
+
+def test_the_key_checker_sees_a_hand_built_key(tmp_path):
+    src = tmp_path / "k.py"
+    src.write_text('r = "uav1"\na = f"cromat/{r}/*/*"\nb = "cromat/@gcs/**"\nc = "not a key"\n')
+    assert hand_built_keys(src) == [2, 3]

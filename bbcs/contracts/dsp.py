@@ -574,3 +574,106 @@ def refused_classes(sender: str, class_names: list[str]) -> list[str]:
     """The command classes in a batch from ``sender`` that it does not own (empty: the batch may be sent)."""
     owned = COMMAND_RIGHTS.get(sender, frozenset())
     return [name for name in dict.fromkeys(class_names) if name not in owned]
+
+
+# --- the DSP process's slots on the bus (docs/dsp_protocol.md, "The DSP process on the bus") ---------------
+#
+# | slot (``cromat/<robot>/dsp/<slot>``) | dir | kind / safety | struct |
+# | --- | --- | --- | --- |
+# | ``commands_<sender>`` | in | stream, safe | :class:`DspCommands`, written by pan_tilt, path_follower |
+# | ``telemetry`` | out | state, unsafe | :class:`Telemetry` (the fields the mask selects) |
+# | ``errors``    | out | stream, safe  | :class:`DspErrorReport`: DSP faults, refused/unacknowledged commands |
+# | ``link``      | out | state, unsafe | :class:`LinkStats` |
+# | ``error``     | out | state, safe   | :class:`bbcs.contracts.errors.ErrorReport`: the DSP process's own codes |
+#
+# A batch is sent in order, each command acknowledged before the next; if one fails the rest of that batch is not
+# sent and the failure is reported on ``errors`` with the sender's name, so the sender can forward it. Start-up
+# commands (telemetry mask, helicopter type, PID groups) come only from the robot .conf.
+
+MODULE = "dsp"
+"""The DSP process's module name (the ``<module>`` chunk of its keys)."""
+COMMANDS_SLOT = "commands"
+TELEMETRY_SLOT = "telemetry"
+ERRORS_SLOT = "errors"
+LINK_SLOT = "link"
+
+DspCommand = (
+    SetSpeed | SetStateTransmission | ClearError | SetTracking | InvalidatePath | SetMode | SetHeading
+    | AddWaypoint | SetRefs | SetPanTiltMode | SetPanTiltAngles | SetPanTiltTarget | Abort | Ping
+)
+"""Every command another module may ask the DSP process to send (start-up-only ones excluded)."""
+
+STARTUP_ONLY: tuple[type[Command], ...] = (SetTelemetryMask, SetHelicopterType, SetPid)
+
+FORWARDED_DSP_ERROR_BASE = 1000
+"""A DSP error about one of a module's own batches is forwarded on that module's ERROR as 1000 + the code."""
+
+
+def representable(x: float) -> bool:
+    """Finite and within binary32: what the DSP (no doubles) can be sent."""
+    return math.isfinite(x) and abs(x) <= F32_MAX
+
+
+class DspCommands(msgspec.Struct, frozen=True, kw_only=True):
+    """A batch of DSP commands from one module, sent in order."""
+
+    sender: str
+    """Module instance name of the writer (errors about this batch name it)."""
+    commands: Annotated[list[DspCommand], msgspec.Meta(min_length=1, max_length=100_000)]
+    batch_id: int = 0
+    """Chosen by the sender, echoed in error reports about this batch."""
+
+
+class LinkErrorCode(IntEnum):
+    """Codes the DSP process reports on its ``errors`` slot for failures on the PC side of the line.
+
+    DSP error codes (0-99, docs/dsp_protocol.md §7) come from the DSP itself; these start at 100.
+    """
+
+    NO_ACK = 100  # a command was not acknowledged after its retries
+    LINK_DOWN = 101  # the port is missing, busy or failed
+    OVER_MAX_SPEED = 102  # SET_SPEED above the .conf MAX_SPEED: the batch was not sent
+    FLUSHED = 103  # commands of a batch were dropped, unsent, by an ABORT
+    NOT_OWNER = 104  # a sender's batch holds a command class it does not own (COMMAND_RIGHTS): not sent
+
+
+class DspErrorReport(msgspec.Struct, frozen=True, kw_only=True):
+    """A DSP fault, or a command the DSP refused or never acknowledged."""
+
+    code: int
+    """An :class:`ErrorCode` value (DSP-side), or a :class:`LinkErrorCode` (PC side of the line)."""
+    name: str
+    detail: str
+    sender: str = ""
+    """Module whose batch failed; empty for faults the DSP reported on its own."""
+    batch_id: int = 0
+    command: str = ""
+
+
+class LinkStats(msgspec.Struct, frozen=True, kw_only=True):
+    """Counters of one serial link since it was opened (published on the ``link`` slot)."""
+
+    frames_ok: int = 0
+    bytes_rx: int = 0
+    bytes_tx: int = 0
+    bytes_discarded: int = 0
+    bad_crc: int = 0
+    unknown_id: int = 0
+    bad_length: int = 0
+    oversize: int = 0
+    truncated: int = 0
+    decode_errors: int = 0
+    commands_acked: int = 0
+    frames_sent: int = 0
+    retries: int = 0
+    timeouts: int = 0
+    nacks: int = 0
+    stray_acks: int = 0
+    telemetry_frames: int = 0
+    dsp_errors: int = 0
+    dsp_frames_lost: int = 0  # gaps in the DSP's frame counter
+    callback_errors: int = 0
+
+    @property
+    def frames_dropped(self) -> int:
+        return self.bad_crc + self.unknown_id + self.bad_length + self.oversize + self.truncated

@@ -207,7 +207,7 @@ def task_key(robot: str) -> str:
 
 
 def gcs_alive_key(name: str = "*") -> str:
-    return f"{keys.ROOT}/@gcs/{name if name == '*' else keys.validate_name(name, 'GCS name')}"
+    return keys.gcs_key(name)
 
 
 def gcs_heartbeat_key(name: str = "*") -> str:

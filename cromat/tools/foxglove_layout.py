@@ -11,10 +11,12 @@ import sys
 
 import foxglove.layouts as fl
 
+from bbcs import keys
+
 
 def layout(robot: str = "uav1") -> fl.Layout:
     loc, tf, kin, log = (f"/{robot}/{t}" for t in ("location", "tf", "kinematics", "log"))
-    state = f'"cromat/{robot}/@ral/state"'  # a topic with '@' is quoted in a Foxglove message path
+    state = f'"{keys.ral_key(robot, "state")}"'  # a topic with '@' is quoted in a Foxglove message path
     left = fl.SplitContainer(direction="column", items=[
         fl.SplitItem(proportion=1, content=fl.MapPanel(title="map", config=fl.MapConfig(
             follow_topic=loc, topic_colors={loc: "#ff5500"}, zoom_level=17))),

@@ -15,14 +15,14 @@ def robot_pattern(robot: str) -> str:
 
 def slot_pattern(robot: str = "*") -> str:
     """Every module slot of ``robot``: ``cromat/<robot>/*/*``."""
-    return f"{keys.ROOT}/{robot_pattern(robot)}/*/*"
+    return keys.slot_pattern(robot_pattern(robot))
 
 
 def everything(robot: str = "*") -> list[str]:
     """Slots plus the bookkeeping a recording needs to replay a flight into a ground station."""
     r = robot_pattern(robot)
-    return [slot_pattern(robot), f"{keys.ROOT}/{r}/@ral/*", f"{keys.ROOT}/{r}/@manager/state",
-            f"{keys.ROOT}/{r}/*/@route", f"{keys.ROOT}/{r}/*/@heartbeat"]
+    return [slot_pattern(robot), keys.ral_child_pattern(r), keys.manager_key(r, "state"), keys.route_ack_pattern(r),
+            keys.heartbeat_pattern(r)]
 
 
 def expand(selection: str) -> str:

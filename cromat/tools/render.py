@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from bbcs import keys
 from cromat.tools.catalog import Catalog
 
 
@@ -45,7 +46,7 @@ def scalar(v: Any) -> str:
 
 
 def _short(key: str) -> str:
-    return key.split("/", 1)[1] if key.startswith("cromat/") else key
+    return key.split("/", 1)[1] if key.startswith(keys.ROOT + "/") else key
 
 
 def graph_text(cat: Catalog) -> list[str]:
@@ -58,7 +59,7 @@ def graph_text(cat: Catalog) -> list[str]:
             routes = " ".join(f"{k}=" + (f"#{v}" if v >= 0 else "ignored") for k, v in sorted(m.routes.items())) or "-"
             lines.append(f"  {m.name:<14} {m.cls or '(no @schema answer)'}  routes {routes}")
         lines.append("  slots (writer --> [number] slot (type) --> reader.input#route):")
-        prefix = f"cromat/{robot}/"
+        prefix = f"{keys.ROOT}/{robot}/"  # a prefix to match keys the catalog saw, not a key to publish on
         for key, s in sorted(cat.slots.items()):
             if not key.startswith(prefix) or "@" in key or not (s.writers or s.readers):
                 continue

@@ -2,22 +2,7 @@
 
 from __future__ import annotations
 
-from enum import IntEnum
-
 from modules.dsp.protocol import error_name
-
-
-class LinkErrorCode(IntEnum):
-    """Codes the DSP process reports on its ``errors`` slot for failures on the PC side of the line.
-
-    DSP error codes (0-99, docs/dsp_protocol.md §7) come from the DSP itself; these start at 100.
-    """
-
-    NO_ACK = 100  # a command was not acknowledged after its retries
-    LINK_DOWN = 101  # the port is missing, busy or failed
-    OVER_MAX_SPEED = 102  # SET_SPEED above the .conf MAX_SPEED: the batch was not sent
-    FLUSHED = 103  # commands of a batch were dropped, unsent, by an ABORT
-    NOT_OWNER = 104  # a sender's batch holds a command class it does not own (bbcs.contracts.dsp): not sent
 
 
 class DspLinkError(RuntimeError):

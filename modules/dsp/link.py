@@ -16,9 +16,9 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING
 
-import msgspec
 import serial
 
+from bbcs.contracts.dsp import LinkStats
 from modules.dsp import protocol as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS, DspDecodeError, decode, encode_payload
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
@@ -28,35 +28,6 @@ if TYPE_CHECKING:
     from modules.dsp.config import DspConfig
 
 log = logging.getLogger(__name__)
-
-
-class LinkStats(msgspec.Struct, frozen=True, kw_only=True):
-    """Counters of one link since it was opened (published on the link-statistics slot)."""
-
-    frames_ok: int = 0
-    bytes_rx: int = 0
-    bytes_tx: int = 0
-    bytes_discarded: int = 0
-    bad_crc: int = 0
-    unknown_id: int = 0
-    bad_length: int = 0
-    oversize: int = 0
-    truncated: int = 0
-    decode_errors: int = 0
-    commands_acked: int = 0
-    frames_sent: int = 0
-    retries: int = 0
-    timeouts: int = 0
-    nacks: int = 0
-    stray_acks: int = 0
-    telemetry_frames: int = 0
-    dsp_errors: int = 0
-    dsp_frames_lost: int = 0  # gaps in the DSP's frame counter
-    callback_errors: int = 0
-
-    @property
-    def frames_dropped(self) -> int:
-        return self.bad_crc + self.unknown_id + self.bad_length + self.oversize + self.truncated
 
 
 _COUNTERS = tuple(f for f in LinkStats.__struct_fields__ if f not in (
@@ -356,5 +327,5 @@ def open_link(conf: DspConfig, **kwargs: object) -> DspLink:
                    **kwargs)  # type: ignore[arg-type]
 
 
-__all__ = ["DspLink", "DspLinkError", "DspRejected", "DspTimeout", "LinkStats", "open_link", "open_port",
+__all__ = ["DspLink", "DspLinkError", "DspRejected", "DspTimeout", "open_link", "open_port",
            "startup", "startup_commands"]

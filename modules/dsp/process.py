@@ -1,4 +1,4 @@
-"""The DSP process: the only owner of the serial port, between the bus and the DSP (modules/dsp/bus.py).
+"""The DSP process: the only owner of the serial port, between the bus and the DSP (its slots: bbcs/contracts/dsp.py).
 
 Start-up (``on_start``, before any input is handled): read the robot .conf, open the port, run SPEC §3's
 start-up sequence. Any failure there ends the process with a clear message and exit code 3, so the Module
@@ -24,16 +24,16 @@ from collections import deque
 from typing import ClassVar, NoReturn
 
 from bbcs.conf import ConfError
-from bbcs.contracts.dsp import COMMAND_RIGHTS, commands_slot, refused_classes
+from bbcs.contracts import dsp as contract
+from bbcs.contracts.dsp import COMMAND_RIGHTS, LinkErrorCode, LinkStats, commands_slot, refused_classes
 from bbcs.contracts.errors import ErrorReport
 from bbcs.errors import EXIT_CONFIG, BusErrorCode
 from bbcs.module import Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
-from modules.dsp import bus
 from modules.dsp import protocol as p
 from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
-from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout, LinkErrorCode
-from modules.dsp.link import DspLink, LinkStats, open_link, startup
+from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
+from modules.dsp.link import DspLink, open_link, startup
 
 EXIT_LINK_FAILED = 3
 
@@ -47,13 +47,13 @@ class DspConfigError(DspStartupError):
 
 
 class DspModule(Module):
-    name: ClassVar[str] = bus.MODULE
+    name: ClassVar[str] = contract.MODULE
     slots = (
-        InputSlot(bus.COMMANDS_SLOT, bus.DspCommands, kind=Kind.STREAM),
-        *(InputSlot(commands_slot(sender), bus.DspCommands, kind=Kind.STREAM) for sender in COMMAND_RIGHTS),
-        OutputSlot(bus.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
-        OutputSlot(bus.ERRORS_SLOT, bus.DspErrorReport, kind=Kind.STREAM),
-        OutputSlot(bus.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
+        InputSlot(contract.COMMANDS_SLOT, contract.DspCommands, kind=Kind.STREAM),
+        *(InputSlot(commands_slot(sender), contract.DspCommands, kind=Kind.STREAM) for sender in COMMAND_RIGHTS),
+        OutputSlot(contract.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
+        OutputSlot(contract.ERRORS_SLOT, contract.DspErrorReport, kind=Kind.STREAM),
+        OutputSlot(contract.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
         OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
@@ -66,7 +66,7 @@ class DspModule(Module):
 
     def on_start(self) -> None:
         self.conf = self._load_conf()
-        self._batches: deque[bus.DspCommands] = deque()
+        self._batches: deque[contract.DspCommands] = deque()
         self._cond = threading.Condition()
         self._abort_generation = 0
         self._sender_stop = False
@@ -82,7 +82,7 @@ class DspModule(Module):
             self._fatal(LinkErrorCode.NO_ACK if isinstance(exc, DspTimeout) else LinkErrorCode.LINK_DOWN,
                         f"DSP start-up sequence failed: {exc}")
         self.log.info("DSP on %s: start-up sequence acknowledged (%d commands)", self.conf.port, len(acks))
-        self.publish(bus.LINK_SLOT, self.link.stats())
+        self.publish(contract.LINK_SLOT, self.link.stats())
         self._sender = threading.Thread(target=self._send_loop, name="dsp-sender", daemon=True)
         self._sender.start()
 
@@ -100,7 +100,7 @@ class DspModule(Module):
             sender.join(timeout=2.0)
 
     def on_tick(self) -> None:
-        self.publish(bus.LINK_SLOT, self.link.stats())
+        self.publish(contract.LINK_SLOT, self.link.stats())
         failure = self.link.failure
         if failure is not None and not self.stopping:
             self.report_error(LinkErrorCode.LINK_DOWN, str(failure))
@@ -138,16 +138,16 @@ class DspModule(Module):
     # --- commands ----------------------------------------------------------------------------------------
 
     # one input per sending module (bbcs.contracts.dsp): the key names the sender, the router checked who wrote it
-    def on_commands_pan_tilt(self, batch: bus.DspCommands) -> None:
+    def on_commands_pan_tilt(self, batch: contract.DspCommands) -> None:
         self._on_owned_batch("pan_tilt", batch)
 
-    def on_commands_path_follower(self, batch: bus.DspCommands) -> None:
+    def on_commands_path_follower(self, batch: contract.DspCommands) -> None:
         self._on_owned_batch("path_follower", batch)
 
-    def _on_owned_batch(self, sender: str, batch: bus.DspCommands) -> None:
+    def _on_owned_batch(self, sender: str, batch: contract.DspCommands) -> None:
         """Send ``sender``'s batch only if it owns every command class in it; the batch's own ``sender``
         field is replaced by the key's, so reports name who really wrote it."""
-        batch = bus.DspCommands(sender=sender, commands=batch.commands, batch_id=batch.batch_id)
+        batch = contract.DspCommands(sender=sender, commands=batch.commands, batch_id=batch.batch_id)
         refused = refused_classes(sender, [type(cmd).__name__ for cmd in batch.commands])
         if refused:
             detail = f"{sender} does not own {', '.join(refused)}: batch {batch.batch_id} not sent"
@@ -156,7 +156,7 @@ class DspModule(Module):
             return
         self.on_commands(batch)
 
-    def on_commands(self, batch: bus.DspCommands) -> None:
+    def on_commands(self, batch: contract.DspCommands) -> None:
         """Check run-time limits, then queue the batch; an ABORT flushes what is queued and goes first."""
         for cmd in batch.commands:
             if isinstance(cmd, p.SetSpeed) and cmd.speed > self.conf.max_speed:
@@ -188,7 +188,7 @@ class DspModule(Module):
                 generation = self._abort_generation
             self._send_batch(batch, generation)
 
-    def _send_batch(self, batch: bus.DspCommands, generation: int) -> None:
+    def _send_batch(self, batch: contract.DspCommands, generation: int) -> None:
         for i, cmd in enumerate(batch.commands):
             if self._abort_generation != generation and not isinstance(cmd, p.Abort):
                 self._publish_report(LinkErrorCode.FLUSHED, f"{len(batch.commands) - i} commands not sent: "
@@ -219,16 +219,16 @@ class DspModule(Module):
             self.report_error(BusErrorCode.OUT_OF_RANGE, detail)
             self._publish_report(exc.code, detail)
             return
-        self.publish(bus.TELEMETRY_SLOT, telemetry)
+        self.publish(contract.TELEMETRY_SLOT, telemetry)
 
     def _on_dsp_error(self, error: p.DspError) -> None:
         self._publish_report(error.code, f"the DSP reported {p.error_name(error.code)} at {error.time_ms} ms")
 
-    def _publish_report(self, code: int, detail: str, batch: bus.DspCommands | None = None,
+    def _publish_report(self, code: int, detail: str, batch: contract.DspCommands | None = None,
                         command: str = "") -> None:
         name = LinkErrorCode(code).name if code in LinkErrorCode._value2member_map_ else p.error_name(code)
         if batch is not None:
             self.log.warning("batch %d of %s: %s", batch.batch_id, batch.sender, detail)
-        self.publish(bus.ERRORS_SLOT, bus.DspErrorReport(
+        self.publish(contract.ERRORS_SLOT, contract.DspErrorReport(
             code=int(code), name=name, detail=detail, sender="" if batch is None else batch.sender,
             batch_id=0 if batch is None else batch.batch_id, command=command))

@@ -9,32 +9,12 @@ datum with any error produces no command at all (the seed's rule).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from enum import IntEnum
 
 from bbcs.codec import leaf_field
 from bbcs.contracts import dsp as p
+from bbcs.contracts.dsp import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
+from bbcs.contracts.error_codes import PanTiltError
 from bbcs.contracts.pan_tilt import DatosPT, ModoFuncionamientoPT
-from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
-
-
-class PanTiltError(IntEnum):
-    """Codes on ERROR_PT (docs/error_codes.md). 1-99 are the bus's own (bbcs.errors.BusErrorCode)."""
-
-    CONTROL_ENTRADA_OUT_OF_RANGE = 100
-    """A CONTROL_ENTRADA_PT slot number below -1; the previous routes stay in force."""
-    MODE_OUT_OF_RANGE = 101
-    """modo_de_funcionamiento outside 0..2."""
-    REF_PAN_OUT_OF_RANGE = 102
-    """ref_pan outside [-180, 180] degrees."""
-    REF_TILT_OUT_OF_RANGE = 103
-    """ref_tilt outside [-90, 90] degrees."""
-    LATITUD_OUT_OF_RANGE = 104
-    """latitud outside [-90, 90] degrees."""
-    LONGITUD_OUT_OF_RANGE = 105
-    """longitud outside [-180, 180] degrees."""
-    ALTURA_NOT_REPRESENTABLE = 106
-    """altura is NaN, infinite or beyond binary32 (the DSP has no doubles)."""
-
 
 FIELD_CODES: dict[tuple[str, str], PanTiltError] = {
     ("control_entrada", "slot_entrada_control_modos"): PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE,

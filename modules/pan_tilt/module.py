@@ -13,13 +13,13 @@ from typing import ClassVar
 
 import msgspec
 
+from bbcs import dsp_client
 from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, OutputSlot, Safety
-from modules.dsp import bus as dsp_bus
 from modules.pan_tilt import logic
 
 
@@ -29,9 +29,9 @@ class PanTiltModule(Module):
         InputSlot("control_modo", ModoFuncionamientoPT),
         InputSlot("datos", DatosPT, safety=Safety.UNSAFE),
         OutputSlot("error", ErrorReport),
-        dsp_bus.telemetry_input(),
-        dsp_bus.errors_input(),
-        dsp_bus.commands_output("pan_tilt"),
+        dsp_client.telemetry_input(),
+        dsp_client.errors_input(),
+        dsp_client.commands_output("pan_tilt"),
         OutputSlot(MODE_ACK_SLOT, ModeAck),
     )
     control = Control(
@@ -43,7 +43,7 @@ class PanTiltModule(Module):
     def on_start(self) -> None:
         assert self.session is not None
         self.state = logic.PanTiltState()
-        self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
+        self.dsp = dsp_client.DspCommander(self.output("dsp_commands"), self.module)
 
     def _ack_mode(self, msg: msgspec.Struct, decision: logic.Decision) -> None:
         """Answer the mode on MODE_ACK (after applying it): the manager's barrier before data for the new mode."""
@@ -70,5 +70,5 @@ class PanTiltModule(Module):
     def on_dsp_telemetry(self, t: p.Telemetry) -> None:
         self.state = logic.on_telemetry(self.state, t)
 
-    def on_dsp_errors(self, report: dsp_bus.DspErrorReport) -> None:
+    def on_dsp_errors(self, report: p.DspErrorReport) -> None:
         self._apply(logic.on_dsp_error(self.state, report, self.module))

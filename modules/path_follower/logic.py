@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from enum import IntEnum
 
 from bbcs.codec import leaf_field
 from bbcs.contracts import dsp as p
+from bbcs.contracts.dsp import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
+from bbcs.contracts.error_codes import FollowerError
 from bbcs.contracts.path_follower import (
     ControlModoSegCam,
     DatoPuntoSegCam,
@@ -26,7 +27,6 @@ from bbcs.contracts.path_follower import (
     RefsSegCam,
     SpeedSegCam,
 )
-from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE, DspCommand, DspErrorReport, representable
 
 MODE_CHANGE = 0
 COMMAND = 1
@@ -36,47 +36,6 @@ FORWARDED_FAULTS = frozenset(
     {p.ErrorCode.GPS_LOST, p.ErrorCode.LOW_BATTERY, p.ErrorCode.ROTOR_RPM, p.ErrorCode.SENSOR_FAULT}
 )
 """DSP faults (not answers to a command) that directly affect the tasks ordered from above: forwarded."""
-
-
-class FollowerError(IntEnum):
-    """Codes on ERROR_SEG_CAM (docs/error_codes.md). 1-99 are the bus's own (bbcs.errors.BusErrorCode);
-    1000 + n is DSP error n forwarded."""
-
-    CONTROL_ENTRADA_OUT_OF_RANGE = 100
-    """A CONTROL_ENTRADA_SEG_CAM slot number below -1; the previous routes stay in force."""
-    MODO_O_COMANDO_OUT_OF_RANGE = 101
-    """modo_o_comando not 0 (mode change) or 1 (command)."""
-    MODE_OUT_OF_RANGE = 102
-    """modo_de_funcionamiento outside 0..6."""
-    COMMAND_OUT_OF_RANGE = 103
-    """numero_de_comando is not a known command (only 0, abort, exists)."""
-    HEADING_OUT_OF_RANGE = 104
-    """HEADING outside [-π, π) radians."""
-    SPEED_OUT_OF_RANGE = 105
-    """VELOCIDAD negative (or NaN)."""
-    SPEED_ABOVE_MAX = 106
-    """VELOCIDAD above MAX_SPEED of the robot .conf (or infinite)."""
-    N_POINTS_OUT_OF_RANGE = 107
-    """DATOS n_points outside [1, 2³²-1]."""
-    N_POINTS_MISMATCH = 108
-    """DATOS n_points differs from the number of points in the message."""
-    LATITUD_OUT_OF_RANGE = 109
-    """A DATOS point's latitud outside [-90, 90]."""
-    LONGITUD_OUT_OF_RANGE = 110
-    """A DATOS point's longitud outside [-180, 180]."""
-    ALTURA_NOT_REPRESENTABLE = 111
-    """A DATOS point's altura is NaN, infinite or beyond binary32 (the DSP has no doubles)."""
-    REF_HEADING_OUT_OF_RANGE = 112
-    """REFS ref_heading outside [-π, π)."""
-    REF_RPM_OUT_OF_RANGE = 113
-    """REFS ref_rpm_motor outside [0, 1800]."""
-    REF_NOT_REPRESENTABLE = 114
-    """REFS ref_altura, error_longitudinal or error_lateral NaN, infinite or beyond binary32."""
-    PATH_TOO_LONG = 115
-    """DATOS has more points than the DSP's waypoint queue holds (512)."""
-    HEADING_UNKNOWN = 116
-    """Mode 1 asked before any DSP telemetry gave the current heading."""
-    # 117 retired (mode 3 was not built); 118 and 119 are mode 3's own: modules/path_follower/onboard.py
 
 
 FIELD_CODES: dict[tuple[str, str], FollowerError] = {

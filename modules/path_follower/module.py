@@ -15,6 +15,7 @@ from typing import ClassVar
 
 import msgspec
 
+from bbcs import dsp_client
 from bbcs.conf import ConfError, load_conf
 from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
@@ -29,7 +30,6 @@ from bbcs.contracts.path_follower import (
 )
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
-from modules.dsp import bus as dsp_bus
 from modules.path_follower import logic, onboard
 
 MODE_BATCH_MEMORY = 256
@@ -65,9 +65,9 @@ class PathFollowerModule(Module):
         InputSlot("velocidad", SpeedSegCam, safety=Safety.UNSAFE),
         InputSlot("datos", DatosSegCam, kind=Kind.STREAM),
         InputSlot("refs", RefsSegCam, safety=Safety.UNSAFE),
-        dsp_bus.telemetry_input(),
-        dsp_bus.errors_input(),
-        dsp_bus.commands_output("path_follower"),
+        dsp_client.telemetry_input(),
+        dsp_client.errors_input(),
+        dsp_client.commands_output("path_follower"),
         OutputSlot(MODE_ACK_SLOT, ModeAck),
         OutputSlot("error", ErrorReport),
     )
@@ -91,7 +91,7 @@ class PathFollowerModule(Module):
         assert self.session is not None
         self.state = logic.FollowerState()
         self._mode_batches: dict[int, int | None] = {}
-        self.dsp = dsp_bus.DspCommander(self.output("dsp_commands"), self.module)
+        self.dsp = dsp_client.DspCommander(self.output("dsp_commands"), self.module)
         self.onboard = onboard.OnboardFollower(onboard.OnboardParams(max_speed=self.max_speed))  # mode 3
 
     def _ack_mode(self, msg: msgspec.Struct, decision: logic.Decision) -> None:
@@ -138,7 +138,7 @@ class PathFollowerModule(Module):
         self.state = logic.on_telemetry(self.state, t)
         self._apply(onboard.decide(self.onboard, self.state, t))
 
-    def on_dsp_errors(self, report: dsp_bus.DspErrorReport) -> None:
+    def on_dsp_errors(self, report: p.DspErrorReport) -> None:
         own_mode_batch = report.sender == self.module and report.batch_id in self._mode_batches
         before = self._mode_batches.pop(report.batch_id, None) if own_mode_batch else None
         self._apply(

@@ -16,31 +16,21 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from enum import IntEnum
 
 import numpy as np
 
+from bbcs.contracts import dsp as p
+from bbcs.contracts.error_codes import FollowerError
 from control.heli import GuidedParams, guided_model, guided_params
 from control.laws import AntiWindup, integral_action, integrate_scalar, total_action
 from control.linearize import discretize, linearize_along
 from control.lqr import dlqr
-from modules.dsp import protocol as p
 from modules.path_follower.logic import Decision, FollowerState
 
 METRES_PER_DEG = 6378137.0 * math.pi / 180.0
 BRIDGE_GAIN = 0.8  # 1/s: the DSP's bridge law, speed = min(v_max, √(2·a·d), k·d) toward the REFS target
 BRIDGE_BRAKE = 1.5  # m/s²
 NOMINAL_RPM = 1500.0
-
-
-class OnboardError(IntEnum):
-    """Mode 3's own codes on ERROR_SEG_CAM (docs/error_codes.md)."""
-
-    NO_NAVIGATION = 118
-    """Mode 3 has a trajectory but the DSP telemetry lacks position, velocity or heading: nothing is sent."""
-    OFF_PATH = 119
-    """The aircraft is farther from the trajectory than ``max_deviation_m``: the trajectory is dropped and the
-    DSP told to hold (ABORT)."""
 
 
 @dataclass(frozen=True)
@@ -198,7 +188,7 @@ class OnboardFollower:
             if self._nav_reported:
                 return StepResult()
             self._nav_reported = True
-            return StepResult(errors=(int(OnboardError.NO_NAVIGATION),),
+            return StepResult(errors=(int(FollowerError.NO_NAVIGATION),),
                               detail="mode 3 needs position, velocity and heading in the DSP telemetry")
         if self.origin is None:
             self.origin = (pos_msg.lat, pos_msg.lon, pos_msg.alt)
@@ -223,7 +213,7 @@ class OnboardFollower:
         z = np.array([dev @ seg.normal, dev @ seg.binormal, vel @ seg.normal, vel @ seg.binormal])
         if math.hypot(z[0], z[1]) > par.max_deviation_m:
             self.reset()
-            return StepResult((p.Abort(),), (int(OnboardError.OFF_PATH),),
+            return StepResult((p.Abort(),), (int(FollowerError.OFF_PATH),),
                               f"{math.hypot(z[0], z[1]):.1f} m off the trajectory (limit "
                               f"{par.max_deviation_m} m): trajectory dropped, DSP holding",
                               time.perf_counter() - t0, time.thread_time() - c0)
@@ -279,5 +269,5 @@ def decide(follower: OnboardFollower, state: FollowerState, telemetry: p.Telemet
         return Decision(state)
     follower.set_points([(pt.latitud, pt.longitud, pt.altura) for pt in state.path])
     result = follower.step(telemetry.time_ms / 1000.0, telemetry)
-    new = replace(state, path=()) if OnboardError.OFF_PATH in result.errors else state
+    new = replace(state, path=()) if FollowerError.OFF_PATH in result.errors else state
     return Decision(new, result.commands, result.errors, result.detail)

@@ -9,17 +9,17 @@ from __future__ import annotations
 import time
 from typing import ClassVar
 
+from bbcs import dsp_client
 from bbcs.contracts import dsp as p
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.module import Module
 from bbcs.slots import OutputSlot, Safety
-from modules.dsp import bus as dsp_bus
 from modules.telemetry.convert import to_robot_telemetry
 
 
 class TelemetryModule(Module):
     name: ClassVar[str] = "telemetry"
-    slots = (OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE), dsp_bus.telemetry_input())
+    slots = (OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE), dsp_client.telemetry_input())
 
     def on_start(self) -> None:
         assert self.session is not None

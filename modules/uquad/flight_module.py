@@ -17,7 +17,6 @@ fake mode).
 
 from __future__ import annotations
 
-import enum
 import os
 import queue
 import select
@@ -28,6 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from bbcs.conf import ConfError
+from bbcs.contracts.error_codes import UquadErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.path_follower import DatosSegCam  # the RAL's path slot type
 from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
@@ -50,17 +50,6 @@ STATE_EVERY = 2  # state published every this many IMU frames (50 Hz)
 OUTBOX_SIZE = 2000
 """Data waiting for the bus writer thread; when full (a logger or the bus is slower than the IMU), the newest
 datum is dropped and counted: the control loop never waits for the bus (seed 002 §1.2.1)."""
-
-
-class UquadErrorCode(enum.IntEnum):
-    DRIVER_ERROR = 701
-    """The motor driver refused a command, lost the ESCs, or did not ack in time: MOTOR_ERROR_ACTION follows."""
-    CALIBRATION_REFUSED = 702
-    """The quadrotor moved during the start calibration; it starts over."""
-    IMU_LOST = 703
-    """The IMU link closed."""
-    BAD_PATH = 704
-    """A path whose count does not match its points was refused."""
 
 
 class UquadModule(Module):

@@ -21,10 +21,10 @@ simulated scene: ``target_east``, ``target_north`` (m from the first telemetry p
 from __future__ import annotations
 
 import time
-from enum import IntEnum
 
 import msgspec
 
+from bbcs.contracts.error_codes import VisionErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
@@ -38,15 +38,6 @@ from modules.vision.pose import AircraftPose, Gimbal
 from modules.vision.scene import LinearTarget
 from modules.vision.sim_camera import SimulatedCamera
 from modules.vision.source import CameraSource
-
-
-class VisionErrorCode(IntEnum):
-    """Codes on the vision ERROR slot (docs/error_codes.md)."""
-
-    CAMERA_FAILED = 300
-    """The camera source raised or ended; no frame is processed until it delivers again."""
-    BAD_TELEMETRY = 301
-    """Telemetry gave a pose or gimbal angles the geometry refuses (e.g. non-finite); the frame is skipped."""
 
 
 class VisionStatus(msgspec.Struct, frozen=True, kw_only=True):

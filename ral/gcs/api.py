@@ -159,7 +159,7 @@ class Gcs:
         """Robots whose RAL holds a liveliness token now."""
         found = set()
         for reply in self.session.liveliness().get(
-            f"{keys.ROOT}/*/@alive/ral", timeout=timeout_s or self.timeout_s
+            keys.alive_pattern("*", "ral"), timeout=timeout_s or self.timeout_s
         ):
             if reply.ok is not None:
                 found.add(keys.parse_alive_key(str(reply.ok.key_expr))[0])

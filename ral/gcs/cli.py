@@ -21,7 +21,7 @@ from typing import TextIO
 import msgspec
 
 from bbcs.contracts import gri
-from cromat.tools.error_names import error_name
+from bbcs.contracts.error_codes import error_name
 from ral.gcs import watch_view
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
 from ral.gcs.waypoints import WaypointFileError, load_waypoints
@@ -162,28 +162,8 @@ def format_state(s: gri.GriState) -> str:
 def format_error(err: gri.ErrorRecord) -> str:
     """One error: when, which module, its code and name, and what happened."""
     stamp = time.strftime("%H:%M:%S", time.localtime(err.stamp))
-    name = err.name or code_name(err.module, err.code)
+    name = err.name or error_name(err.module, err.code)
     return f"{stamp} {err.module:<14} {err.code:>5} {name or '-':<28} {err.detail}".rstrip()
-
-
-def code_name(module: str, code: int) -> str:
-    """The documented name of a module's error code (docs/error_codes.md), when this station knows it."""
-    from bbcs.errors import BusErrorCode
-    from modules.dsp.protocol import ErrorCode
-    from modules.pan_tilt.logic import PanTiltError
-    from modules.path_follower.logic import FollowerError
-
-    tables: dict[str, type] = {"path_follower": FollowerError, "pan_tilt": PanTiltError}
-    try:
-        if code < 100:
-            return BusErrorCode(code).name
-        if code >= 1000:
-            return "DSP_" + ErrorCode(code - 1000).name
-        if module in tables:
-            return tables[module](code).name
-    except ValueError:
-        return ""
-    return ""
 
 
 def _print_reply(reply: gri.TaskReply, out: TextIO) -> int:

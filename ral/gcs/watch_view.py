@@ -152,4 +152,4 @@ def vision_key(robot: str) -> str:
     """Where a robot's vision module publishes its status (``*``: every robot)."""
     from bbcs import keys
 
-    return f"{keys.ROOT}/*/vision/status" if robot == "*" else keys.slot_key(robot, "vision", "status")
+    return keys.slot_pattern(robot, "vision", "status")

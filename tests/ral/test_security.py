@@ -19,7 +19,7 @@ from bbcs.context import ModuleContext
 from bbcs.contracts import gri, mri
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
-from ral import certs
+from cromat import certs
 from ral.gcs.api import Gcs, NoReply, Unreachable
 from ral.process import Ral
 

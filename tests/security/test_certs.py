@@ -5,7 +5,7 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
-from ral import certs
+from cromat import certs
 
 
 def _verify(ca: Path, pem: Path) -> bool:

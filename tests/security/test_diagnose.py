@@ -11,7 +11,7 @@ import pytest
 
 from bbcs.session import SessionConfig, TlsConfig
 from bbcs.testing import Processes, free_port, wait_port
-from ral import certs
+from cromat import certs
 from ral.gcs.api import Gcs, Unreachable
 from ral.gcs.diagnose import explain_no_reply
 

@@ -26,7 +26,7 @@ import zenoh.ext
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
-from ral import certs
+from cromat import certs
 
 ROBOT = "uav1"
 MODULES = ["dsp", "pan_tilt", "path_follower", "vision"]
@@ -286,7 +286,7 @@ def test_everyone_reads(who: Sessions) -> None:
 # --- the DSP: only the module that owns a command class gets it to the aircraft (the simulator's record) ---
 
 def _batch(sender: str, *commands: object) -> bytes:
-    from modules.dsp import bus
+    from bbcs.contracts import dsp as bus
 
     return msgspec.msgpack.encode(bus.DspCommands(sender=sender, commands=list(commands), batch_id=7))
 

@@ -10,7 +10,7 @@ from bbcs.errors import SessionError
 from bbcs.router_audit import Refusal, RefusalLog, parse
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_until
-from ral import certs
+from cromat import certs
 
 DENIED = ("\x1b[2m2026-11-23T17:12:15.694775Z\x1b[0m TRACE  rx-1 ThreadId(10) zenoh::net::routing::interceptor::"
           "access_control: 7444 on Interface(lo)+CertCommonName(vision)+Transport(Tls)+7444 is unauthorized to Put "

@@ -13,10 +13,10 @@ from pathlib import Path
 import msgspec
 
 from bbcs import keys
+from bbcs.contracts import dsp as bus
 from bbcs.contracts.errors import ErrorReport
 from bbcs.errors import BusErrorCode
 from bbcs.testing import wait_until
-from modules.dsp import bus
 from modules.dsp import protocol as p
 
 ROOT = Path(__file__).resolve().parents[2]

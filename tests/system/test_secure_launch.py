@@ -22,8 +22,8 @@ import pytest
 
 from bbcs.contracts import gri
 from bbcs.testing import child_env, free_port, wait_until
+from cromat import certs
 from module_manager.manifest import ManifestError, load_manifest
-from ral import certs
 from ral.gcs.api import Gcs, NoReply, Unreachable, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))

@@ -8,9 +8,9 @@ from collections.abc import Iterator
 
 import pytest
 
+from bbcs.contracts.dsp import LinkErrorCode
 from bbcs.contracts.path_follower import ControlModoSegCam, DatoPuntoSegCam, DatosSegCam, SpeedSegCam
 from modules.dsp import protocol as p
-from modules.dsp.errors import LinkErrorCode
 
 from .uav_stack import Stack, wait_until
 

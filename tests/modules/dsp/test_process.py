@@ -15,14 +15,14 @@ import msgspec
 import pytest
 
 from bbcs import keys
+from bbcs.contracts import dsp as bus
+from bbcs.contracts.dsp import LinkErrorCode, LinkStats
 from bbcs.errors import EXIT_CONFIG
 from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import stop_process, wait_until
-from modules.dsp import bus
 from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
-from modules.dsp.errors import LinkErrorCode
-from modules.dsp.link import LinkStats, startup_commands
+from modules.dsp.link import startup_commands
 
 from .conftest import UAV1
 

@@ -8,11 +8,12 @@ import msgspec
 import pytest
 
 from bbcs.codec import field_of
+from bbcs.contracts.dsp import DspErrorReport
+from bbcs.contracts.error_codes import PanTiltError
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from modules.dsp import protocol as p
-from modules.dsp.bus import DspErrorReport
 from modules.pan_tilt import logic
-from modules.pan_tilt.logic import PanTiltError, PanTiltState
+from modules.pan_tilt.logic import PanTiltState
 
 DATOS = DatosPT(ref_pan=30.0, ref_tilt=-20.0, latitud=37.41, longitud=-6.0, altura=50.0)
 

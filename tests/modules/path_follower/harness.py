@@ -17,7 +17,7 @@ import msgspec
 
 from bbcs import keys
 from bbcs.codec import type_name
-from bbcs.contracts.dsp import commands_slot
+from bbcs.contracts.dsp import DspCommands, commands_slot
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from bbcs.contracts.path_follower import (
@@ -30,7 +30,6 @@ from bbcs.contracts.path_follower import (
 from bbcs.routing import RouteAck, SlotRef, SlotTable
 from bbcs.slots import Kind, OutputSlot, Publisher, Safety
 from bbcs.testing import Processes, wait_until
-from modules.dsp.bus import DspCommands
 
 ROOT = Path(__file__).resolve().parents[3]
 CONF = ROOT / "bbcs_conf" / "uav1.conf"

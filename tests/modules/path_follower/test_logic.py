@@ -8,6 +8,8 @@ import msgspec
 import pytest
 
 from bbcs.codec import field_of
+from bbcs.contracts.dsp import DspErrorReport
+from bbcs.contracts.error_codes import FollowerError
 from bbcs.contracts.path_follower import (
     ControlEntradaSegCam,
     ControlModoSegCam,
@@ -18,9 +20,8 @@ from bbcs.contracts.path_follower import (
     SpeedSegCam,
 )
 from modules.dsp import protocol as p
-from modules.dsp.bus import DspErrorReport
 from modules.path_follower import logic
-from modules.path_follower.logic import FollowerError, FollowerState
+from modules.path_follower.logic import FollowerState
 
 PT = DatoPuntoSegCam(latitud=37.4118, longitud=-6.0024, altura=20.0)
 REFS = RefsSegCam(

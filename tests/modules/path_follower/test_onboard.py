@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
+from bbcs.contracts.error_codes import FollowerError
 from bbcs.contracts.path_follower import ControlModoSegCam, DatoPuntoSegCam, DatosSegCam
 from control.linearize import discretize
 from modules.dsp import codec
@@ -18,7 +19,7 @@ from modules.dsp.framing import Frame
 from modules.dsp.sim.machine import DspMachine
 from modules.path_follower import logic
 from modules.path_follower.logic import FollowerState
-from modules.path_follower.onboard import OnboardError, OnboardFollower, OnboardParams, decide
+from modules.path_follower.onboard import OnboardFollower, OnboardParams, decide
 
 DT = 0.02
 CELL = 1e-4
@@ -110,7 +111,7 @@ def test_own_errors_no_navigation_once_and_off_path_aborts() -> None:
     f.set_speed(3.0)
     f.set_points([(37.5, -6.0, 30.0)])
     bare = p.Telemetry(time_ms=0, heading=0.0)
-    assert f.step(0.0, bare).errors == (OnboardError.NO_NAVIGATION,)
+    assert f.step(0.0, bare).errors == (FollowerError.NO_NAVIGATION,)
     assert f.step(0.05, bare) == f.step(0.1, bare)  # reported once, nothing sent
     far = p.Telemetry(time_ms=100, heading=0.0, position=p.Position(lat=37.4, lon=-6.0, alt=30.0),
                       velocity=p.Velocity(vn=0.0, ve=0.0, vd=0.0))
@@ -121,7 +122,7 @@ def test_own_errors_no_navigation_once_and_off_path_aborts() -> None:
     off = p.Telemetry(time_ms=200, heading=0.0, position=p.Position(lat=37.45, lon=-5.99, alt=30.0),
                       velocity=p.Velocity(vn=0.0, ve=0.0, vd=0.0))
     d = decide(f2, d.state, off)  # ≈ 880 m east of that line
-    assert d.errors == (OnboardError.OFF_PATH,) and d.commands == (p.Abort(),) and d.state.path == ()
+    assert d.errors == (FollowerError.OFF_PATH,) and d.commands == (p.Abort(),) and d.state.path == ()
 
 
 def test_a_second_datos_extends_the_trajectory_also_before_the_first_fix() -> None:

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from bbcs.robot import Attitude, GeoPoint, VelocityNED
-
 from bbcs.contracts import gri
+from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED
 from cromat.tools.error_names import error_name
 from ral.gcs.watch_view import WatchScreen, render
 

@@ -193,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _from_manifest(path: str) -> tuple[Path, str, list[str], list[str]]:
     """(pki folder, robot, GCS identities, module identities incl. the RAL's) of a ``[bus.tls]`` manifest."""
-    from module_manager.manifest import ManifestError, load_manifest  # only this form needs the manager
+    from module_manager.manifest import ManifestError, load_manifest  # only this form reads a manifest
 
     try:
         manifest = load_manifest(path, check_pki=False)
