@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import re
+import select
 import shutil
 import signal
 import sys
@@ -479,13 +480,23 @@ class Manager:
                     self.out("not every module came up")
                     code = 1
                     break
-                self.stop_event.wait(0.02)
+                self._sleep_until_event(0.02)
         except LaunchError as exc:
             self.out(f"cromat launch: {exc}")
             code = 1
         finally:
             self.shutdown()
         return code
+
+    def _sleep_until_event(self, timeout_s: float) -> None:
+        """Sleep until a module process exits (its pidfd turns readable) or ``timeout_s``: a SIGKILLed module is
+        reaped and respawned at once instead of at the next poll."""
+        with self.lock:
+            fds = [m.child.pidfd for m in self.modules.values() if m.child is not None and m.child.pidfd is not None]
+        if not fds:
+            self.stop_event.wait(timeout_s)
+            return
+        select.select(fds, [], [], timeout_s)
 
     def shutdown(self) -> None:
         """Stop modules (reverse manifest order), then processes, then the bus, then the router."""

@@ -93,6 +93,7 @@ def test_kill9_module_is_restarted_with_its_current_routing(launch, clients, tmp
     before = modules(s)["sink"]
     assert before.state == "up" and before.pid is not None
     os.kill(before.pid, signal.SIGKILL)
+    la.wait_line("killed by signal 9; restart in 0 s")  # a first failure: restarted with no backoff delay
     wait_until(lambda: (m := modules(s)["sink"]).state == "up" and m.pid != before.pid, 30, "sink restarted and up")
     after = modules(s)["sink"]
     assert after.restarts == 1
