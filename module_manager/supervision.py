@@ -136,6 +136,12 @@ class Supervisor:
 
     # ------------------------------------------------------------------ events from the runtime
 
+    def blocked(self, reason: str) -> None:
+        """Never started: a module it must start after failed. Shown as failed; an operator start still works."""
+        self.phase = Phase.FAILED
+        self.reason = reason
+        self.next_start_at = None
+
     def spawned(self, now: float) -> None:
         self.phase = Phase.STARTING
         self.started_at = now
@@ -269,6 +275,24 @@ class Supervisor:
         if failure:
             self.reason = reason
         return [Kill(reason=reason, graceful=graceful)]
+
+
+def startable(waiting: set[str], after: dict[str, tuple[str, ...]], phases: dict[str, Phase]
+              ) -> tuple[list[str], dict[str, str]]:
+    """The launch's start order, one step: which of the ``waiting`` modules may start now (every module they
+    start ``after`` is up; names that are not modules — processes — are ready before any module starts), and which
+    can never start because one of those failed or was stopped (name → reason)."""
+    start: list[str] = []
+    blocked: dict[str, str] = {}
+    for name in sorted(waiting):
+        deps = [d for d in after.get(name, ()) if d in phases]
+        dead = [d for d in deps if phases[d] in (Phase.FAILED, Phase.STOPPED) and d not in waiting]
+        if dead:
+            states = ", ".join(f"{d} {phases[d]}" for d in dead)
+            blocked[name] = f"not started: it starts after {', '.join(dead)} ({states})"
+        elif all(phases[d] is Phase.UP for d in deps):
+            start.append(name)
+    return start, blocked
 
 
 def backoff_delay(policy: Policy, recent_restarts: int) -> float:

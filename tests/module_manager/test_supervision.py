@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from bbcs.errors import EXIT_CONFIG
-from module_manager.supervision import Kill, Phase, Policy, Spawn, Supervisor, backoff_delay
+from module_manager.manifest import find_cycle
+from module_manager.supervision import Kill, Phase, Policy, Spawn, Supervisor, backoff_delay, startable
 
 
 def started(policy: Policy, needs_ack: bool = True, now: float = 0.0) -> Supervisor:
@@ -198,3 +199,44 @@ def test_failed_module_can_be_started_again_by_the_operator():
     sup.start(2.0)
     assert sup.tick(2.0) == [Spawn(restart_count=1)]
     assert sup.reason == ""
+
+
+AFTER = {"dsp": (), "follower": ("dsp",), "gcs_link": ("dsp", "follower"), "logger": ("sim",)}
+"""A start graph: ``sim`` is a process (ready before any module starts), the others are modules."""
+
+
+def phases(**given: Phase) -> dict[str, Phase]:
+    return {name: given.get(name, Phase.STOPPED) for name in AFTER}
+
+
+def test_modules_without_dependencies_start_together_dependents_wait_until_up():
+    waiting = set(AFTER)
+    start, blocked = startable(waiting, AFTER, phases())
+    assert start == ["dsp", "logger"] and blocked == {}, "a process dependency does not hold a module back"
+    waiting -= set(start)
+    assert startable(waiting, AFTER, phases(dsp=Phase.STARTING, logger=Phase.STARTING)) == ([], {})
+    start, _ = startable(waiting, AFTER, phases(dsp=Phase.UP, logger=Phase.STARTING))
+    assert start == ["follower"], "gcs_link also waits for follower"
+    waiting -= {"follower"}
+    start, _ = startable(waiting, AFTER, phases(dsp=Phase.UP, follower=Phase.UP))
+    assert start == ["gcs_link"]
+
+
+def test_dependency_that_failed_blocks_its_dependents_with_a_reason():
+    start, blocked = startable({"follower", "gcs_link"}, AFTER, phases(dsp=Phase.FAILED))
+    assert start == []
+    assert blocked == {"follower": "not started: it starts after dsp (dsp failed)",
+                       "gcs_link": "not started: it starts after dsp (dsp failed)"}
+    _, later = startable({"gcs_link"}, AFTER, phases(dsp=Phase.UP, follower=Phase.STOPPED))
+    assert later == {"gcs_link": "not started: it starts after follower (follower stopped)"}
+    sup = Supervisor(Policy())
+    sup.blocked(blocked["follower"])
+    assert sup.phase is Phase.FAILED and sup.tick(100.0) == [], "never spawned by itself"
+    sup.start(101.0)
+    assert sup.tick(101.0) == [Spawn(restart_count=0)], "an operator may still start it"
+
+
+def test_find_cycle():
+    assert find_cycle({"a": ["b"], "b": ["c"], "c": []}) == []
+    assert find_cycle({"a": ["b"], "b": ["c"], "c": ["a"]}) == ["a", "b", "c", "a"]
+    assert find_cycle({"x": [], "a": ["b"], "b": ["b"]}) == ["b", "b"]
