@@ -101,6 +101,11 @@ def test_kill9_module_is_restarted_with_its_current_routing(launch, clients, tmp
     assert after.routes == {"datos": 2, "modo": 3}
     starts = [{k: v for k, v in r.items() if k != "t"} for r in sink_records(tmp_path) if r.get("event") == "start"]
     assert starts[-1] == {"module": "sink", "event": "start", "restart": 1, "routes": {"datos": 2, "modo": 3}}
+    rows = sink_records(tmp_path)
+    last_start = max(i for i, r in enumerate(rows) if r.get("event") == "start")
+    # the last safe-state value (the manager's mode slot, advanced pub/sub history) reaches the new run
+    wait_until(lambda: {"module": "sink", "slot": "modo", "mode": 0} in sink_records(tmp_path)[last_start:], 30,
+               "the mode slot's last value handled by the restarted sink")
     n = len(sink_records(tmp_path))
     wait_until(lambda: any(r.get("slot") == "datos" for r in sink_records(tmp_path)[n:]), 30, "data after restart")
     assert {r["source"] for r in sink_records(tmp_path)[n:] if r.get("slot") == "datos"} == {"src_b"}
