@@ -14,8 +14,10 @@ Environment ``w`` (4): wind north, east, up (m/s), rotor speed / nominal rotor s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import casadi as ca
+if TYPE_CHECKING:  # casadi takes ~1 s to import: only the functions that build a model import it
+    import casadi as ca
 
 G = 9.80665
 NX, NU, NW = 15, 4, 4
@@ -40,6 +42,8 @@ class HeliParams:
 
 def dynamics(par: HeliParams | None = None) -> ca.Function:
     """``f(x, u, w) → ẋ`` as a casadi Function."""
+    import casadi as ca
+
     par = par or HeliParams()
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
@@ -69,6 +73,8 @@ def dynamics(par: HeliParams | None = None) -> ca.Function:
 
 def rk4_step(par: HeliParams | None = None) -> ca.Function:
     """``F(x, u, w, h) → x(t+h)``: one classical Runge-Kutta step of :func:`dynamics`, inputs held."""
+    import casadi as ca
+
     f = dynamics(par)
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
@@ -108,6 +114,8 @@ def guided_params(heli: HeliParams | None = None, roll_kp_per_deg: float = 0.045
 
 def guided_model(par: GuidedParams | None = None) -> ca.Function:
     """``f(x, u) → ẋ``: x = n, e, h, vn, ve, vu; u = commanded vn, ve, vu (the follower's input)."""
+    import casadi as ca
+
     par = par or GuidedParams()
     x = ca.SX.sym("x", 6)
     u = ca.SX.sym("u", 3)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import re
+import select
 import shutil
 import signal
 import sys
@@ -38,7 +39,7 @@ from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import route_audit, secure
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
 from module_manager.process import Child, stop_children
-from module_manager.supervision import Kill, Phase, Spawn, Supervisor
+from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
 from module_manager.tasks import Changes, TaskBook
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -137,6 +138,8 @@ class Manager:
         self._mri_thread: threading.Thread | None = None
         self._state_dirty = True
         self.t0 = clock()
+        self._waiting: set[str] = set()
+        """Modules not started yet because a module they start ``after`` is not up yet."""
         self.all_up_at: float | None = None
         self._ack_decode = msgspec.msgpack.Decoder(RouteAck).decode
         self.route_drifts = 0  # routes found differing from the manager's view (module_manager/route_audit.py)
@@ -192,18 +195,23 @@ class Manager:
         self.out(f"  router      listening on {', '.join(self.listen)} ({self.clock() - t:.2f} s)")
 
     def start_processes(self) -> None:
+        """Start every plain process (simulators) at once, then wait for each one's readiness: their start-up
+        times overlap instead of adding up. Modules start only once all of them are ready."""
+        t = self.clock()
+        started: list[tuple[str, Any, list[str], Child]] = []
         for name, spec in self.m.raw.processes.items():
-            t = self.clock()
             argv = [self.expand(a) for a in spec.command]
-            ready = spec.ready
             child = Child(name, argv, self.child_env(spec.env), cwd=str(self.m.dir), log_dir=self.log_dir,
-                          watch_stdout=ready.kind == "stdout")
+                          watch_stdout=spec.ready.kind == "stdout")
             self.processes[name] = child
+            started.append((name, spec.ready, argv, child))
+        for name, ready, argv, child in started:
+            left = max(0.2, ready.timeout_s - (self.clock() - t))
             if ready.kind == "tcp":
-                ok = wait_tcp(self.expand(ready.host), int(self.expand(ready.port)), ready.timeout_s,
+                ok = wait_tcp(self.expand(ready.host), int(self.expand(ready.port)), left,
                               lambda c=child: c.poll() is None)
             elif ready.kind == "stdout":
-                ok = child.wait_line(ready.pattern, ready.timeout_s)
+                ok = child.wait_line(ready.pattern, left)
             else:
                 ok = child.poll() is None
             if not ok:
@@ -368,9 +376,26 @@ class Manager:
                 else:
                     mod.child.signal(signal.SIGKILL)
 
+    def _start_ready_modules(self) -> None:
+        """Start, all at once, every waiting module whose ``after`` modules are up (the first call: every module
+        without dependencies); a module whose dependency failed is marked failed and never started."""
+        if not self._waiting:
+            return
+        now = self.clock()
+        after = {n: tuple(m.info.spec.after) for n, m in self.modules.items()}
+        start, blocked = startable(self._waiting, after, {n: m.sup.phase for n, m in self.modules.items()})
+        for name in start:
+            self._waiting.discard(name)
+            self.modules[name].sup.start(now)
+        for name, reason in blocked.items():
+            self._waiting.discard(name)
+            self.modules[name].sup.blocked(reason)
+            self._touch()
+
     def step(self) -> None:
         """Reap exits, tick every supervisor, escalate overdue stops; publish the state when it changed."""
         with self.lock:
+            self._start_ready_modules()
             now = self.clock()
             for mod in self.modules.values():
                 child = mod.child
@@ -456,9 +481,8 @@ class Manager:
             self.open_bus()
             self.start_processes()
             with self.lock:
-                now = self.clock()
-                for mod in self.modules.values():
-                    mod.sup.start(now)
+                self._waiting = set(self.modules)
+                self._start_ready_modules()
             next_state = next_status = self.clock()
             while not self.stop_event.is_set():
                 self.step()
@@ -474,18 +498,28 @@ class Manager:
                     next_status = now + status_interval
                 if once_up and self.all_up_at is not None:
                     break
-                if once_up and all(m.sup.phase in (Phase.UP, Phase.FAILED, Phase.STOPPED)
-                                   for m in self.modules.values()) and self.all_up_at is None:
+                if once_up and not self._waiting and all(m.sup.phase in (Phase.UP, Phase.FAILED, Phase.STOPPED)
+                                                         for m in self.modules.values()) and self.all_up_at is None:
                     self.out("not every module came up")
                     code = 1
                     break
-                self.stop_event.wait(0.02)
+                self._sleep_until_event(0.02)
         except LaunchError as exc:
             self.out(f"cromat launch: {exc}")
             code = 1
         finally:
             self.shutdown()
         return code
+
+    def _sleep_until_event(self, timeout_s: float) -> None:
+        """Sleep until a module process exits (its pidfd turns readable) or ``timeout_s``: a SIGKILLed module is
+        reaped and respawned at once instead of at the next poll."""
+        with self.lock:
+            fds = [m.child.pidfd for m in self.modules.values() if m.child is not None and m.child.pidfd is not None]
+        if not fds:
+            self.stop_event.wait(timeout_s)
+            return
+        select.select(fds, [], [], timeout_s)
 
     def shutdown(self) -> None:
         """Stop modules (reverse manifest order), then processes, then the bus, then the router."""

@@ -123,6 +123,8 @@ class ModuleDef(_Section):
     env: dict[str, str] = msgspec.field(default_factory=dict)
     identity: str | None = None
     """Certificate name under ``[bus.tls]`` (``<pki>/<identity>.pem``); default: the module's name."""
+    after: list[str] = msgspec.field(default_factory=list)
+    """Modules that must be up (and processes ready) before this one starts; the others start in parallel."""
     restart: Literal["never", "on-failure", "always"] | None = None
     backoff_s: Positive | None = None
     backoff_max_s: Positive | None = None
@@ -376,6 +378,7 @@ class _Checker:
                 raise self.fail(f"processes.{name}.command", "empty command")
             if proc.ready.kind == "tcp" and not proc.ready.port:
                 raise self.fail(f"processes.{name}.ready.port", "ready kind 'tcp' needs a port")
+        self.start_order(modules)
         for mname, mode in modes.items():
             if mode.module not in modules:
                 raise self.fail(f"mode.{mname}.module", f"mode slot {mname!r} drives unknown module {mode.module!r}")
@@ -385,6 +388,24 @@ class _Checker:
         return Manifest(path=self.path.resolve(), raw=raw, robot=raw.robot.name, kind=raw.robot.kind, conf=conf,
                         slot_table=table, modules=modules, modes=modes, tasks=tasks, task_types=task_types,
                         stop_grace_s=raw.supervision.stop_grace_s, pythonpath=pythonpath, pki=pki)
+
+    def start_order(self, modules: dict[str, ModuleInfo]) -> None:
+        """``after``: every name is a module or a process of this manifest, not the module itself, and the
+        dependencies have no cycle (a cycle would keep its modules from ever starting)."""
+        known = set(modules) | set(self.raw.processes)
+        for name, info in modules.items():
+            for i, dep in enumerate(info.spec.after):
+                key = f"modules.{name}.after"
+                if dep == name:
+                    raise self.fail(key, f"module {name} cannot start after itself")
+                if dep not in known:
+                    raise self.fail(key, f"after[{i}]: no module or process {dep!r} in this manifest "
+                                         f"(modules: {', '.join(sorted(modules))}; processes: "
+                                         f"{', '.join(sorted(self.raw.processes)) or 'none'})")
+        cycle = find_cycle({n: [d for d in i.spec.after if d in modules] for n, i in modules.items()})
+        if cycle:
+            raise self.fail(f"modules.{cycle[0]}.after",
+                            f"start dependency cycle: {' -> '.join(cycle)} (no module of it could ever start)")
 
     def tls(self, modules: dict[str, ModuleInfo]) -> Path | None:
         """``[bus.tls]``: tls/ listeners only, identities valid, every certificate file present."""
@@ -584,6 +605,29 @@ class _Checker:
                 raise self.fail(f"{key}.modes.{slot}", f"unknown mode slot {slot!r}")
             self.convert(value, mode.type, f"{key}.modes.{slot}")
         return t
+
+
+def find_cycle(after: dict[str, list[str]]) -> list[str]:
+    """A dependency cycle as ``[a, b, ..., a]`` (names in ``after`` order), or ``[]`` when there is none."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(name: str) -> list[str]:
+        state[name] = 1
+        path.append(name)
+        for dep in after.get(name, []):
+            if state.get(dep) == 1:
+                return [*path[path.index(dep):], dep]
+            if dep not in state and (found := visit(dep)):
+                return found
+        path.pop()
+        state[name] = 2
+        return []
+
+    for name in after:
+        if name not in state and (found := visit(name)):
+            return found
+    return []
 
 
 def route_problem(table: SlotTable, input_type: str, number: int) -> str:

@@ -55,6 +55,12 @@ class Child:
                                      stderr=out, preexec_fn=lambda: _child_setup(parent))
         self.pid = self.proc.pid
         self.started = time.monotonic()
+        self.pidfd: int | None = None
+        """Readable once the process exits (Linux ``pidfd_open``): the manager sleeps on it to reap at once."""
+        try:
+            self.pidfd = os.pidfd_open(self.pid)
+        except (AttributeError, OSError):  # not Linux ≥ 5.3: the manager's periodic poll still reaps it
+            self.pidfd = None
         self._reader: threading.Thread | None = None
         if watch_stdout:
             self._reader = threading.Thread(target=self._pump, name=f"stdout-{name}", daemon=True)
@@ -98,6 +104,9 @@ class Child:
                 pass
 
     def close(self) -> None:
+        if self.pidfd is not None:
+            os.close(self.pidfd)
+            self.pidfd = None
         if self._reader is not None:
             self._reader.join(1.0)
         if self.proc.stdout is not None:

@@ -11,7 +11,9 @@ Rules (after systemd, OTP and dora, see docs/manifest.md):
   gets its routing back before it is counted as up);
 - ``never``: no restart; ``on-failure``: restart after a non-zero exit, a signal, a start timeout or a watchdog
   kill; ``always``: restart after any exit that the manager did not ask for;
-- backoff doubles per restart still inside the intensity window, capped; more than ``intensity`` restarts within
+- the first failure inside the intensity window restarts at once (a crash or a SIGKILL costs no waiting);
+  backoff applies from the second: ``backoff_s``, then doubling per further restart still inside the window,
+  capped at ``backoff_max_s``; more than ``intensity`` restarts within
   ``period_s`` marks the module ``failed`` (it stays down and is reported) — counted also after a good start.
 - exit status 78 (``bbcs.errors.EXIT_CONFIG``: the module's configuration is invalid) marks the module ``failed``
   at once, whatever the policy: a restart reads the same file and fails the same way.
@@ -134,6 +136,12 @@ class Supervisor:
 
     # ------------------------------------------------------------------ events from the runtime
 
+    def blocked(self, reason: str) -> None:
+        """Never started: a module it must start after failed. Shown as failed; an operator start still works."""
+        self.phase = Phase.FAILED
+        self.reason = reason
+        self.next_start_at = None
+
     def spawned(self, now: float) -> None:
         self.phase = Phase.STARTING
         self.started_at = now
@@ -209,7 +217,7 @@ class Supervisor:
             self.reason = (f"{how}; restart intensity exceeded ({len(self._window)} restarts in "
                            f"{self.policy.period_s:g} s): not restarted again")
             return []
-        delay = min(self.policy.backoff_s * (2 ** len(self._window)), self.policy.backoff_max_s)
+        delay = backoff_delay(self.policy, len(self._window))
         self._window.append(now)
         self.restarts += 1
         self.phase = Phase.RESTARTING
@@ -267,6 +275,32 @@ class Supervisor:
         if failure:
             self.reason = reason
         return [Kill(reason=reason, graceful=graceful)]
+
+
+def startable(waiting: set[str], after: dict[str, tuple[str, ...]], phases: dict[str, Phase]
+              ) -> tuple[list[str], dict[str, str]]:
+    """The launch's start order, one step: which of the ``waiting`` modules may start now (every module they
+    start ``after`` is up; names that are not modules — processes — are ready before any module starts), and which
+    can never start because one of those failed or was stopped (name → reason)."""
+    start: list[str] = []
+    blocked: dict[str, str] = {}
+    for name in sorted(waiting):
+        deps = [d for d in after.get(name, ()) if d in phases]
+        dead = [d for d in deps if phases[d] in (Phase.FAILED, Phase.STOPPED) and d not in waiting]
+        if dead:
+            states = ", ".join(f"{d} {phases[d]}" for d in dead)
+            blocked[name] = f"not started: it starts after {', '.join(dead)} ({states})"
+        elif all(phases[d] is Phase.UP for d in deps):
+            start.append(name)
+    return start, blocked
+
+
+def backoff_delay(policy: Policy, recent_restarts: int) -> float:
+    """Seconds to wait before a restart, given how many restarts are already in the intensity window: none for
+    the first (a one-off crash is back at once), then ``backoff_s`` doubling per restart, capped."""
+    if recent_restarts <= 0:
+        return 0.0
+    return min(policy.backoff_s * (2 ** (recent_restarts - 1)), policy.backoff_max_s)
 
 
 def _describe_exit(code: int) -> str:

@@ -16,6 +16,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -23,8 +24,6 @@ from bbcs.contracts import dsp as p
 from bbcs.contracts.error_codes import FollowerError
 from control.heli import GuidedParams, guided_model, guided_params
 from control.laws import AntiWindup, integral_action, integrate_scalar, total_action
-from control.linearize import discretize, linearize_along
-from control.lqr import dlqr
 from modules.path_follower.logic import Decision, FollowerState
 
 METRES_PER_DEG = 6378137.0 * math.pi / 180.0
@@ -90,7 +89,7 @@ class OnboardFollower:
     def __init__(self, params: OnboardParams | None = None) -> None:
         self.params = params or OnboardParams()
         self.guided = self.params.guided or guided_params()
-        self.model = guided_model(self.guided)
+        self.model: Any = None  # the casadi model, built with the first trajectory (mode 3 only needs casadi)
         self.speed = 0.0
         self.heading_rad: float | None = None
         self.reset()
@@ -159,6 +158,9 @@ class OnboardFollower:
             ops.append((np.concatenate([prev, v0]), v0))
             geo.append((prev, end, tangent, normal, binormal, length))
             prev = end
+        from control.linearize import linearize_along  # casadi + scipy: imported by mode 3 only, not at start-up
+
+        self.model = self.model or guided_model(self.guided)
         for (a, b), (s, e, t, n, bn, length) in zip(linearize_along(self.model, ops), geo, strict=True):
             self.segments.append(Segment(s, e, t, n, bn, length, self._gain(a, b, n, bn)))
 
@@ -169,6 +171,9 @@ class OnboardFollower:
         b_v = proj @ b[3:6, :] @ proj.T
         az = np.block([[np.zeros((2, 2)), np.eye(2)], [np.zeros((2, 2)), a_vv]])
         bz = np.vstack([np.zeros((2, 2)), b_v])
+        from control.linearize import discretize
+        from control.lqr import dlqr
+
         ad, bd = discretize(az, bz, self.params.period_s)
         par = self.params
         k, _ = dlqr(ad, bd, np.diag([par.q_pos, par.q_pos, par.q_vel, par.q_vel]), np.eye(2) * par.r)

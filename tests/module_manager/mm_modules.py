@@ -60,7 +60,7 @@ class Sink(Module):
             os._exit(EXIT_CONFIG)
         record = self.context.params.get("record")
         self.record = Path(record).open("a", buffering=1) if record else None
-        self._write({"event": "start", "restart": self.restart_count, "routes": self.routes})
+        self._write({"event": "start", "restart": self.restart_count, "routes": self.routes, "t": time.time()})
 
     def on_stop(self) -> None:
         self._write({"event": "stop"})
@@ -84,7 +84,11 @@ class Sink(Module):
 
 
 class Source(Module):
-    """Publishes ProbeMsg(source=<instance name>) on ``datos`` every ``params['period_ms']`` (default 10)."""
+    """Publishes ProbeMsg(source=<instance name>) on ``datos`` every ``params['period_ms']`` (default 10).
+
+    ``params['start_delay_ms']`` makes its start slow; ``params['record']`` gets one ``ready`` line at the end of
+    its start.
+    """
 
     name = "source"
     slots = (OutputSlot("datos", ProbeMsg, kind=Kind.STREAM),)
@@ -92,6 +96,11 @@ class Source(Module):
     def on_start(self) -> None:
         self.seq = 0
         self.tick_period = float(self.context.params.get("period_ms", "10")) / 1000
+        time.sleep(float(self.context.params.get("start_delay_ms", "0")) / 1000)  # a slow start (launch order test)
+        record = self.context.params.get("record")
+        if record:  # alive right after on_start: this stamp is just before the module can count as up
+            with Path(record).open("a") as f:
+                f.write(json.dumps({"module": self.module, "event": "ready", "t": time.time()}) + "\n")
 
     def on_tick(self) -> None:
         self.seq += 1

@@ -93,17 +93,46 @@ def test_kill9_module_is_restarted_with_its_current_routing(launch, clients, tmp
     before = modules(s)["sink"]
     assert before.state == "up" and before.pid is not None
     os.kill(before.pid, signal.SIGKILL)
+    la.wait_line("killed by signal 9; restart in 0 s")  # a first failure: restarted with no backoff delay
     wait_until(lambda: (m := modules(s)["sink"]).state == "up" and m.pid != before.pid, 30, "sink restarted and up")
     after = modules(s)["sink"]
     assert after.restarts == 1
     assert after.last_exit == -signal.SIGKILL
     assert after.routes == {"datos": 2, "modo": 3}
-    starts = [r for r in sink_records(tmp_path) if r.get("event") == "start"]
+    starts = [{k: v for k, v in r.items() if k != "t"} for r in sink_records(tmp_path) if r.get("event") == "start"]
     assert starts[-1] == {"module": "sink", "event": "start", "restart": 1, "routes": {"datos": 2, "modo": 3}}
+    rows = sink_records(tmp_path)
+    last_start = max(i for i, r in enumerate(rows) if r.get("event") == "start")
+    # the last safe-state value (the manager's mode slot, advanced pub/sub history) reaches the new run
+    wait_until(lambda: {"module": "sink", "slot": "modo", "mode": 0} in sink_records(tmp_path)[last_start:], 30,
+               "the mode slot's last value handled by the restarted sink")
     n = len(sink_records(tmp_path))
     wait_until(lambda: any(r.get("slot") == "datos" for r in sink_records(tmp_path)[n:]), 30, "data after restart")
     assert {r["source"] for r in sink_records(tmp_path)[n:] if r.get("slot") == "datos"} == {"src_b"}
     la.wait_line("restarts 1")
+    assert la.stop() == 0
+
+
+def slow_src_a_sink_after_it(text: str) -> str:
+    """src_a starts slowly (1.5 s in its on_start), the sink starts after src_a, src_b depends on nothing."""
+    record = 'params = { record = "{manifest_dir}/sink.jsonl" }'
+    text = text.replace('params = { period_ms = "5" }', 'params = { period_ms = "5", start_delay_ms = "1500", '
+                        'record = "{manifest_dir}/sink.jsonl" }', 1)
+    text = text.replace('params = { period_ms = "5" }', 'params = { period_ms = "5", '
+                        'record = "{manifest_dir}/sink.jsonl" }', 1)
+    return text.replace(record, record + '\nafter = ["src_a"]')
+
+
+def test_modules_start_in_parallel_and_a_dependent_only_once_its_dependency_is_up(launch, tmp_path):
+    la = launch(edit=slow_src_a_sink_after_it)
+    la.wait_line(UP)
+    rows = sink_records(tmp_path)
+    ready = {r["module"]: r["t"] for r in rows if r.get("event") == "ready"}
+    sink_start = next(r["t"] for r in rows if r.get("event") == "start")
+    assert ready["src_b"] < ready["src_a"] - 1.0, "src_b did not wait for the slow src_a: they start in parallel"
+    assert sink_start > ready["src_a"], "the sink started only after src_a (its 'after') was up"
+    first = next(r for r in rows if r.get("slot") == "datos")
+    assert first["source"] == "src_a" and first["seq"] >= 1
     assert la.stop() == 0
 
 

@@ -58,6 +58,14 @@ BAD = [
     pytest.param(lambda t: t.replace('slot = "datos"', 'slot = "datas"', 1),
                  "slot.0.slot", "has no output slot 'datas' (outputs: datos)", 'slot = "datas"',
                  id="slot-not-an-output"),
+    pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\nafter = ["dsp"]'),
+                 "modules.sink.after", "after[0]: no module or process 'dsp'", 'after = ["dsp"]', id="after-unknown"),
+    pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\nafter = ["src_a"]')
+                 .replace('params = { period_ms = "5" }', 'params = { period_ms = "5" }\nafter = ["sink"]', 1),
+                 "modules.src_a.after", "start dependency cycle: src_a -> sink -> src_a", 'after = ["sink"]',
+                 id="after-cycle"),
+    pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\nafter = ["sink"]'),
+                 "modules.sink.after", "cannot start after itself", 'after = ["sink"]', id="after-itself"),
 ]
 
 

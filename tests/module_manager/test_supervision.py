@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from bbcs.errors import EXIT_CONFIG
-from module_manager.supervision import Kill, Phase, Policy, Spawn, Supervisor
+from module_manager.manifest import find_cycle
+from module_manager.supervision import Kill, Phase, Policy, Spawn, Supervisor, backoff_delay, startable
 
 
 def started(policy: Policy, needs_ack: bool = True, now: float = 0.0) -> Supervisor:
@@ -75,11 +76,34 @@ def test_exponential_backoff_with_cap():
         assert sup.next_start_at is not None
         delay = sup.next_start_at - now
         delays.append(delay)
-        assert sup.tick(now + delay - 0.01) == [], "not before the backoff delay"
+        if delay > 0:
+            assert sup.tick(now + delay - 0.01) == [], "not before the backoff delay"
         now += delay
         assert sup.tick(now) == [Spawn(restart_count=run)]
         sup.spawned(now)
-    assert delays == [0.5, 1.0, 2.0, 3.0, 3.0, 3.0]
+    assert delays == [0.0, 0.5, 1.0, 2.0, 3.0, 3.0], "the first failure in the window restarts at once"
+
+
+def test_sigkilled_module_is_respawned_on_the_same_tick_without_backoff():
+    sup = started(Policy(restart="on-failure", backoff_s=2.0, intensity=5, period_s=10))
+    bring_up(sup, 0.0)
+    sup.exited(30.0, -9)
+    assert sup.phase is Phase.RESTARTING and sup.reason == "killed by signal 9; restart in 0 s"
+    assert sup.tick(30.0) == [Spawn(restart_count=1)], "no waiting for a first failure"
+    sup.spawned(30.0)
+    bring_up(sup, 30.2)
+    sup.exited(31.0, -9)  # a second failure inside the window: now the backoff applies
+    assert sup.tick(31.0) == [] and sup.next_start_at == 33.0
+    assert sup.tick(33.0) == [Spawn(restart_count=2)]
+    sup.spawned(33.0)
+    bring_up(sup, 33.1)
+    sup.exited(50.0, -9)  # the earlier restarts left the window: a first failure again
+    assert sup.tick(50.0) == [Spawn(restart_count=3)]
+
+
+def test_backoff_delay_rule():
+    p = Policy(backoff_s=0.5, backoff_max_s=3.0)
+    assert [backoff_delay(p, n) for n in range(6)] == [0.0, 0.5, 1.0, 2.0, 3.0, 3.0]
 
 
 def test_intensity_limit_marks_failed_and_stops_restarting():
@@ -175,3 +199,44 @@ def test_failed_module_can_be_started_again_by_the_operator():
     sup.start(2.0)
     assert sup.tick(2.0) == [Spawn(restart_count=1)]
     assert sup.reason == ""
+
+
+AFTER = {"dsp": (), "follower": ("dsp",), "gcs_link": ("dsp", "follower"), "logger": ("sim",)}
+"""A start graph: ``sim`` is a process (ready before any module starts), the others are modules."""
+
+
+def phases(**given: Phase) -> dict[str, Phase]:
+    return {name: given.get(name, Phase.STOPPED) for name in AFTER}
+
+
+def test_modules_without_dependencies_start_together_dependents_wait_until_up():
+    waiting = set(AFTER)
+    start, blocked = startable(waiting, AFTER, phases())
+    assert start == ["dsp", "logger"] and blocked == {}, "a process dependency does not hold a module back"
+    waiting -= set(start)
+    assert startable(waiting, AFTER, phases(dsp=Phase.STARTING, logger=Phase.STARTING)) == ([], {})
+    start, _ = startable(waiting, AFTER, phases(dsp=Phase.UP, logger=Phase.STARTING))
+    assert start == ["follower"], "gcs_link also waits for follower"
+    waiting -= {"follower"}
+    start, _ = startable(waiting, AFTER, phases(dsp=Phase.UP, follower=Phase.UP))
+    assert start == ["gcs_link"]
+
+
+def test_dependency_that_failed_blocks_its_dependents_with_a_reason():
+    start, blocked = startable({"follower", "gcs_link"}, AFTER, phases(dsp=Phase.FAILED))
+    assert start == []
+    assert blocked == {"follower": "not started: it starts after dsp (dsp failed)",
+                       "gcs_link": "not started: it starts after dsp (dsp failed)"}
+    _, later = startable({"gcs_link"}, AFTER, phases(dsp=Phase.UP, follower=Phase.STOPPED))
+    assert later == {"gcs_link": "not started: it starts after follower (follower stopped)"}
+    sup = Supervisor(Policy())
+    sup.blocked(blocked["follower"])
+    assert sup.phase is Phase.FAILED and sup.tick(100.0) == [], "never spawned by itself"
+    sup.start(101.0)
+    assert sup.tick(101.0) == [Spawn(restart_count=0)], "an operator may still start it"
+
+
+def test_find_cycle():
+    assert find_cycle({"a": ["b"], "b": ["c"], "c": []}) == []
+    assert find_cycle({"a": ["b"], "b": ["c"], "c": ["a"]}) == ["a", "b", "c", "a"]
+    assert find_cycle({"x": [], "a": ["b"], "b": ["b"]}) == ["b", "b"]
