@@ -106,6 +106,8 @@ def _arrivals_ok(bid: Bid, route: Sequence[Target], now: float) -> bool:
 
 def _best_insertion(bid: Bid, route: list[Target], target: Target, now: float) -> tuple[float, int] | None:
     """Cheapest (marginal cost, position) to insert ``target`` in ``route``; None if no position meets deadlines."""
+    if target.deadline is None and all(t.deadline is None for t in route):
+        return _cheap_insertion(bid, route, target)
     base = route_cost(bid, route) if route else 0.0  # the first target also pays for finishing the current task
     best: tuple[float, int] | None = None
     for pos in range(len(route) + 1):
@@ -116,6 +118,25 @@ def _best_insertion(bid: Bid, route: list[Target], target: Target, now: float) -
         if best is None or marginal < best[0] - 1e-12:
             best = (marginal, pos)
     return best
+
+
+def _cheap_insertion(bid: Bid, route: list[Target], target: Target) -> tuple[float, int]:
+    """No deadline in play: the marginal cost of each position is the detour it adds, in O(1) per position."""
+    f = _factor(bid)
+    best_delta, best_pos = math.inf, 0
+    px, py = bid.x, bid.y
+    for pos in range(len(route) + 1):
+        into = math.hypot(target.x - px, target.y - py)
+        if pos < len(route):
+            nxt = route[pos]
+            delta = into + math.hypot(nxt.x - target.x, nxt.y - target.y) - math.hypot(nxt.x - px, nxt.y - py)
+        else:
+            delta = into
+        if delta < best_delta - 1e-12:
+            best_delta, best_pos = delta, pos
+        if pos < len(route):
+            px, py = route[pos].x, route[pos].y
+    return f * (best_delta / bid.speed + (0.0 if route else bid.busy_s)), best_pos
 
 
 def allocate(targets: Iterable[Target], bids: Iterable[Bid], now: float = 0.0, *,
