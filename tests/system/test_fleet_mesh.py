@@ -2,14 +2,13 @@
 routers meshed by Zenoh itself through ``[bus] peers`` (loopback, no scouting).
 
 A ground station on any router sees every robot and its GRI state; a second robot under a name already alive on
-the mesh is refused before it starts anything; a robot whose peer router dies keeps flying its path, shown by
-what its simulated DSP received and by the task's completion.
+the mesh is refused before it starts anything. (A robot that loses the mesh keeping its path is not tested yet:
+docs/fleet.md.)
 """
 
 from __future__ import annotations
 
-import os
-import signal
+import re
 import sys
 import threading
 from pathlib import Path
@@ -20,8 +19,8 @@ from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
-from launch_support import Launch, group_members  # noqa: E402
-from test_gcs_mission import N_MODULES, grid_path, sim_manifest  # noqa: E402
+from launch_support import ROOT, Launch, group_members  # noqa: E402
+from test_gcs_mission import N_MODULES, sim_manifest  # noqa: E402
 
 
 def fleet_manifest(tmp_path: Path, name: str, peers: list[int]) -> tuple[Path, Path]:
@@ -29,8 +28,14 @@ def fleet_manifest(tmp_path: Path, name: str, peers: list[int]) -> tuple[Path, P
     folder = tmp_path / name
     folder.mkdir(exist_ok=True)
 
+    conf = folder / f"{name}.conf"  # the robot .conf names the robot too (ROBOT: uav1)
+    text = (ROOT / "bbcs_conf" / "uav1.conf").read_text()
+    assert "\nROBOT: uav1\n" in text, "uav1.conf no longer names its robot on a ROBOT line"
+    conf.write_text(text.replace("\nROBOT: uav1\n", f"\nROBOT: {name}\n", 1))
+
     def edit(text: str) -> str:
         text = text.replace('name = "uav1"', f'name = "{name}"', 1)
+        text = re.sub(r'(\[robot\][^\[]*?conf = )"[^"]*"', rf'\g<1>"{conf}"', text, count=1)
         endpoints = ", ".join(f'"tcp/127.0.0.1:{p}"' for p in peers)
         return text.replace("[bus]\n", f"[bus]\npeers = [{endpoints}]\n", 1)
 
@@ -40,18 +45,6 @@ def fleet_manifest(tmp_path: Path, name: str, peers: list[int]) -> tuple[Path, P
 def launch(tmp_path: Path, name: str, peers: list[int]) -> tuple[Launch, Path]:
     manifest, record = fleet_manifest(tmp_path, name, peers)
     return Launch(manifest, tmp_path / name), record
-
-
-def router_pid(pgid: int) -> int:
-    """The robot router (``python -m bbcs.router``) among a launch's processes."""
-    for pid in group_members(pgid):
-        try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if b"bbcs.router" in cmd:
-            return pid
-    raise AssertionError(f"no router process in process group {pgid}")
 
 
 def gcs_on(port: int, name: str, link: list[str]) -> Gcs:
@@ -106,68 +99,3 @@ def test_meshed_robots_are_seen_from_any_router_and_duplicates_are_refused(tmp_p
         for la in reversed(launches):
             la.stop()
             la.cleanup()
-
-
-def test_robot_that_loses_the_mesh_keeps_flying_its_path(tmp_path: Path) -> None:
-    launches: list[Launch] = []
-    gcs = None
-    try:
-        a, _ = launch(tmp_path, "uav_a", [])
-        launches.append(a)
-        a.wait_line(f"all {N_MODULES} modules up", 90)
-        b, record = launch(tmp_path, "uav_b", [a.port])
-        launches.append(b)
-        b.wait_line(f"all {N_MODULES} modules up", 90)
-        # the ground station sits on b's own router (a robot's link to its station is not the mesh)
-        gcs = gcs_on(b.port, "ground_b", ["uav_b"])
-        wait_until(lambda: gcs.robots(1.0) == ["uav_a", "uav_b"], 30, "both robots seen through the mesh")
-        states: list[gri.GriState] = []
-        events: list[gri.GriEvent] = []
-        gcs.watch("uav_b", states.append)
-        gcs.events("uav_b", events.append)
-        wait_until(lambda: bool(states) and states[-1].position is not None and states[-1].airborne is not None,
-                   30, "uav_b's telemetry")
-        reply = gcs.send("uav_b", gri.TakeOff(height=10.0))
-        assert reply.accepted, reply.reason
-        wait_until(lambda: any(e.kind == "task_completed" and e.task_id == reply.task_id for e in events),
-                   40, "take-off completed")
-        wait_until(lambda: bool(states[-1].airborne) and states[-1].position is not None, 15, "airborne")
-        path = grid_path(states[-1].position, scale=3)
-        reply = gcs.send("uav_b", gri.FollowPath(waypoints=path, speed=5.0))
-        assert reply.accepted, reply.reason
-        wait_until(lambda: bool(states[-1].waypoints_queued), 20, "uav_b's DSP queue filled")
-
-        os.kill(router_pid(a.pgid), signal.SIGKILL)  # the mesh is gone: b's peer router dies mid-path
-        wait_until(lambda: gcs.robots(1.0) == ["uav_b"], 30, "uav_a gone from the robot list")
-        killed_at = len(read_record(record))
-        ends = [e for e in events if e.task_id == reply.task_id and e.kind != "task_accepted"]
-        assert not ends, f"the path ended before the peer router died: {ends}"
-
-        wait_until(lambda: any(e.task_id == reply.task_id and e.kind != "task_accepted" for e in events),
-                   120, "the path task ended")
-        done = next(e for e in events if e.task_id == reply.task_id and e.kind != "task_accepted")
-        assert done.kind == "task_completed", done
-        commands = read_record(record)
-        added = [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4))
-                 for c in commands if c["name"] == "ADD_WAYPOINT"]
-        assert added[-len(path):] == [(w.lat, w.lon) for w in path]
-        stopping = [c for c in commands[killed_at:] if c["name"] in ("ABORT", "INVALIDATE_PATH")
-                    or (c["name"] == "SET_MODE" and c["fields"]["mode"] == 5)]
-        assert not stopping, f"the robot stopped its path when the mesh went: {stopping}"
-        end = states[-1]
-        assert end.position is not None and abs(end.position.lat - path[-1].lat) * 111_320 < 5.0
-    finally:
-        if gcs is not None:
-            gcs.close()
-        for la in reversed(launches):
-            la.stop()
-            la.cleanup()
-
-
-def read_record(record: Path) -> list[dict]:
-    import json
-
-    if not record.exists():
-        return []
-    text = record.read_text()
-    return [json.loads(line) for line in text[: text.rfind("\n") + 1].splitlines() if line.strip()]
