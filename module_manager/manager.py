@@ -36,7 +36,7 @@ from bbcs.net import free_port, wait_tcp
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import route_audit, secure
+from module_manager import mesh, route_audit, secure
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
 from module_manager.process import Child, stop_children
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
@@ -186,6 +186,8 @@ class Manager:
             argv += ["--config", str(secure.write_router_config(self.m, self.listen, self.runtime_dir))]
         if self.m.raw.bus.admin_space:
             argv.append("--admin-space")
+        for peer in self.m.raw.bus.peers:
+            argv += ["--connect", self.expand(peer)]
         t = self.clock()
         self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir)
         host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))
@@ -477,6 +479,11 @@ class Manager:
                  f"manifest {self.m.path}")
         code = 0
         try:
+            if self.m.raw.bus.peers:
+                problem = mesh.duplicate_name_problem(self.m.robot, [self.expand(e) for e in self.m.raw.bus.peers],
+                                                      self.out)
+                if problem is not None:
+                    raise LaunchError(problem)
             self.start_router()
             self.open_bus()
             self.start_processes()

@@ -89,6 +89,9 @@ class BusSection(_Section):
     """Mutual TLS (and access control) on the router; see docs/manifest.md."""
     admin_space: bool = False
     """Let clients read the router's Zenoh admin space (``@/<zid>/router/**``), read-only."""
+    peers: list[str] = msgspec.field(default_factory=list)
+    """Other routers (robots', ground stations') this robot's router connects to: the fleet mesh, routed by Zenoh
+    itself (docs/fleet.md). Before anything starts, the launch refuses a robot name already alive there."""
 
 
 class SupervisionSection(_Section):
@@ -366,6 +369,10 @@ class _Checker:
             raise self.fail("bus.zenoh_config", f"Zenoh config file {base / raw.bus.zenoh_config} does not exist")
         if not raw.bus.listen:
             raise self.fail("bus.listen", "the router needs at least one listen endpoint")
+        for i, endpoint in enumerate(raw.bus.peers):
+            if not endpoint.startswith("tcp/"):
+                raise self.fail(f"bus.peers.{i}", f"{endpoint!r}: the fleet mesh is built over tcp/ endpoints only "
+                                                  "(tls/ peers are not supported yet, docs/fleet.md)")
         task_types = tuple(raw.robot.task_types)
         table = self.slot_table()
         modes = self.modes(table)

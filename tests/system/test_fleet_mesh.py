@@ -1,0 +1,101 @@
+"""Issue 17, the mesh: robots launched from uav1_sim.toml under their own names, each with its own router, the
+routers meshed by Zenoh itself through ``[bus] peers`` (loopback, no scouting).
+
+A ground station on any router sees every robot and its GRI state; a second robot under a name already alive on
+the mesh is refused before it starts anything. (A robot that loses the mesh keeping its path is not tested yet:
+docs/fleet.md.)
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import threading
+from pathlib import Path
+
+from bbcs.contracts import gri
+from bbcs.testing import wait_until
+from ral.gcs.api import Gcs, session_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
+from launch_support import ROOT, Launch, group_members  # noqa: E402
+from test_gcs_mission import N_MODULES, sim_manifest  # noqa: E402
+
+
+def fleet_manifest(tmp_path: Path, name: str, peers: list[int]) -> tuple[Path, Path]:
+    """uav1_sim.toml renamed to ``name``, meshed with the routers on ``peers`` (ports on 127.0.0.1)."""
+    folder = tmp_path / name
+    folder.mkdir(exist_ok=True)
+
+    conf = folder / f"{name}.conf"  # the robot .conf names the robot too (ROBOT: uav1)
+    text = (ROOT / "bbcs_conf" / "uav1.conf").read_text()
+    assert "\nROBOT: uav1\n" in text, "uav1.conf no longer names its robot on a ROBOT line"
+    conf.write_text(text.replace("\nROBOT: uav1\n", f"\nROBOT: {name}\n", 1))
+
+    def edit(text: str) -> str:
+        text = text.replace('name = "uav1"', f'name = "{name}"', 1)
+        text = re.sub(r'(\[robot\][^\[]*?conf = )"[^"]*"', rf'\g<1>"{conf}"', text, count=1)
+        endpoints = ", ".join(f'"tcp/127.0.0.1:{p}"' for p in peers)
+        return text.replace("[bus]\n", f"[bus]\npeers = [{endpoints}]\n", 1)
+
+    return sim_manifest(folder, edit=edit)
+
+
+def launch(tmp_path: Path, name: str, peers: list[int]) -> tuple[Launch, Path]:
+    manifest, record = fleet_manifest(tmp_path, name, peers)
+    return Launch(manifest, tmp_path / name), record
+
+
+def gcs_on(port: int, name: str, link: list[str]) -> Gcs:
+    return Gcs(session_config([f"tcp/127.0.0.1:{port}"]), name=name, link=link, timeout_s=10.0)
+
+
+def test_meshed_robots_are_seen_from_any_router_and_duplicates_are_refused(tmp_path: Path) -> None:
+    launches: list[Launch] = []
+    stations: list[Gcs] = []
+    try:
+        a, _ = launch(tmp_path, "uav_a", [])
+        launches.append(a)
+        a.wait_line(f"all {N_MODULES} modules up", 90)
+        b, _ = launch(tmp_path, "uav_b", [a.port])
+        launches.append(b)
+        b.wait_line(f"all {N_MODULES} modules up", 90)
+        assert "robot name 'uav_b' is free on the mesh" in b.wait_line("  mesh ")
+        c, _ = launch(tmp_path, "uav_c", [b.port])  # a chain: a <- b <- c, routed by Zenoh through b
+        launches.append(c)
+        c.wait_line(f"all {N_MODULES} modules up", 90)
+
+        names = ["uav_a", "uav_b", "uav_c"]
+        for la in (a, c):  # both ends of the chain see every robot and its GRI state
+            gcs = gcs_on(la.port, f"ground_{la.port}", [])
+            stations.append(gcs)
+            wait_until(lambda g=gcs: g.robots(1.0) == names, 30, "every robot in the robot list")
+            seen: dict[str, gri.GriState] = {}
+            lock = threading.Lock()
+
+            def on_state(state: gri.GriState, seen=seen, lock=lock) -> None:
+                with lock:
+                    seen[state.robot] = state
+
+            gcs.watch("*", on_state)
+            wait_until(lambda seen=seen: sorted(seen) == names and all(s.manager_up for s in seen.values()),
+                       30, "a GRI state with the manager up from every robot")
+            assert {s.kind for s in seen.values()} == {"uav"}
+
+        # a duplicate name, meshed through c (two hops from a): refused before anything starts
+        dup, _ = launch(tmp_path, "uav_a", [c.port])
+        launches.append(dup)
+        code = dup.proc.wait(60)
+        out = "\n".join(dup.lines)
+        assert code != 0, out
+        assert "robot name 'uav_a' is already alive on the fleet mesh" in out, out
+        assert "router      listening" not in out and "modules up" not in out, out
+        wait_until(lambda: group_members(dup.pgid) == [], 20, "nothing of the refused launch left")
+        assert stations[0].robots(1.0) == names
+    finally:
+        for gcs in stations:
+            gcs.close()
+        for la in reversed(launches):
+            la.stop()
+            la.cleanup()
