@@ -33,7 +33,15 @@ from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import DatosPT
-from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam, HeadingSegCam, RefsSegCam, SpeedSegCam
+from bbcs.contracts.path_follower import (
+    SPEED_ACK_SLOT,
+    DatoPuntoSegCam,
+    DatosSegCam,
+    HeadingSegCam,
+    RefsSegCam,
+    SpeedAck,
+    SpeedSegCam,
+)
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.module import Module
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
@@ -76,6 +84,8 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     mri_timeout_s: float = mri.REPLY_TIMEOUT_S
     """Must exceed the manager's ack wait (``mri.MANAGER_ACK_S``), else a task can be applied after being refused."""
     state_period_s: float = 0.2
+    speed_ack_s: float = 3.0
+    """How long the RAL waits for the path follower's answer to a path's speed before the path is not sent."""
     kind: str = ""
     """Robot kind shown in the GRI state when the manager's state has none."""
 
@@ -157,6 +167,8 @@ class Ral(Module):
         self._refs_pub: Publisher[RefsSegCam] | None = None
         self._next_state = 0.0
         self._tasks_fetched = 0.0
+        self._speed_acks: list[SpeedAck] = []
+        self._speed_acked = threading.Condition()
 
     # ------------------------------------------------------------ bus
 
@@ -188,6 +200,7 @@ class Ral(Module):
             ),
             s.liveliness().declare_subscriber(gri.gcs_alive_key("*"), self._on_gcs_token, history=True),
             s.declare_subscriber(gri.gcs_heartbeat_key("*"), self._on_gcs_heartbeat),
+            s.declare_subscriber(keys.slot_key(self.robot, "path_follower", SPEED_ACK_SLOT), self._on_speed_ack),
             s.declare_queryable(gri.task_key(self.robot), self._jobs.put),
             wire.declare_service_schemas(s, keys.ral_key(self.robot), lambda: {
                 gri.state_key(self.robot): gri.GriState, gri.events_key(self.robot): gri.GriEvent,
@@ -218,6 +231,39 @@ class Ral(Module):
             self._manager_state = state
             self._manager_seen = self.clock()
             self._manager_new = True
+
+    def _on_speed_ack(self, sample: zenoh.Sample) -> None:
+        try:
+            ack = msgspec.msgpack.decode(sample.payload.to_bytes(), type=SpeedAck)
+        except msgspec.MsgspecError:
+            return
+        with self._speed_acked:
+            self._speed_acks.append(ack)
+            del self._speed_acks[:-16]
+            self._speed_acked.notify_all()
+
+    def _send_speed(self, speed: float) -> str | None:
+        """Publish a path's speed and wait until the path follower answered it (its SET_SPEED is then on the DSP
+        command stream, ahead of any path sent after): None, or why the path must not go out. The speed input is
+        best-effort, so it is published again every half second until answered."""
+        deadline = time.monotonic() + self.cfg.speed_ack_s
+        with self._speed_acked:
+            self._speed_acks.clear()
+        while True:
+            self.publish("speed", SpeedSegCam(speed=speed))
+            with self._speed_acked:
+                self._speed_acked.wait_for(
+                    lambda: any(a.speed == speed for a in self._speed_acks),
+                    timeout=max(0.0, min(0.5, deadline - time.monotonic())),
+                )
+                ack = next((a for a in self._speed_acks if a.speed == speed), None)
+            if ack is not None:
+                if ack.accepted:
+                    return None
+                return f"the path follower refused speed {speed:g} m/s (code {ack.code}): {ack.reason}"
+            if time.monotonic() >= deadline:
+                return (f"the path follower did not acknowledge speed {speed:g} m/s within {self.cfg.speed_ack_s:g} s;"
+                        " the path was not sent")
 
     def _on_gcs_token(self, sample: zenoh.Sample) -> None:
         if sample.kind != zenoh.SampleKind.PUT:  # a station that leaves stops linking every robot
@@ -469,15 +515,25 @@ class Ral(Module):
                                  code=reply.code if reply else None)
         running = next((i for i in reply.data.active if i.task_type == plan.task_type), None) if isinstance(
             reply.data, mri.TaskList) else None
-        self._publish_data(plan)
-        return gri.TaskReply(accepted=True, task_id=running.id if running else 0, task_type=plan.task_type)
+        task_id = running.id if running else 0
+        problem = self._publish_data(plan)
+        if problem is not None:
+            if running is not None:
+                self._end(mri.EndTask(task_type=plan.task_type, task_id=task_id, status="failed", detail=problem))
+            self.emit("task_rejected", task_type=plan.task_type, detail=problem)
+            return gri.TaskReply(accepted=False, reason=problem, task_id=task_id, task_type=plan.task_type)
+        return gri.TaskReply(accepted=True, task_id=task_id, task_type=plan.task_type)
 
-    def _publish_data(self, plan: Plan) -> None:
-        """The task's data, after the manager's reply (so after the module answered the task's mode)."""
+    def _publish_data(self, plan: Plan) -> str | None:
+        """The task's data, after the manager's reply (so after the module answered the task's mode). A path's
+        speed goes first and is acknowledged before the path (docs/gcs.md, "Speed before path"). Returns None, or
+        why the task's data could not go out."""
         req = plan.params
         if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath):
             assert req.speed is not None, "admission fills in the cruise speed"
-            self.publish("speed", SpeedSegCam(speed=req.speed))
+            problem = self._send_speed(req.speed)
+            if problem is not None:
+                return problem
         if isinstance(req, t.FollowPath) and req.heading is not None:
             self.publish("heading", HeadingSegCam(heading=req.heading))
         if isinstance(req, t.Goto | t.FollowPath):
@@ -491,6 +547,7 @@ class Ral(Module):
             self.publish("pt_datos", DatosPT(latitud=req.lat, longitud=req.lon, altura=req.alt))
         elif isinstance(req, t.SetPanTilt):
             self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
+        return None
 
     def _abort(self) -> gri.TaskReply:
         """The manifest's ``abort`` task if it has one (empties both queues, stops motion; the task it replaces
