@@ -20,11 +20,11 @@ from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.path_follower import (
+    SPEED_ACK_SLOT,
     ControlEntradaSegCam,
     ControlModoSegCam,
     DatosSegCam,
     HeadingSegCam,
-    SPEED_ACK_SLOT,
     RefsSegCam,
     SpeedAck,
     SpeedSegCam,

@@ -19,11 +19,11 @@ import pytest
 import zenoh
 
 from bbcs import keys
-from bbcs.testing import wait_until
 from bbcs.contracts import tasks as t
+from bbcs.testing import wait_until
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_command_path import Factory, ended, make_robot, names  # noqa: E402,F401
+from test_command_path import Factory, ended, make_robot, names  # noqa: E402,F401,F811
 from test_gcs_mission import ROBOT, grid_path  # noqa: E402
 
 DELAY_S = 0.5
@@ -39,7 +39,7 @@ def relay_speed_slot(text: str) -> str:
     return text.replace(old, f'number = 13\nmodule = "{RELAY}"\nslot = "speed"')
 
 
-def test_the_speed_reaches_the_dsp_before_the_first_waypoint_even_when_delayed(make_robot: Factory) -> None:
+def test_the_speed_reaches_the_dsp_before_the_first_waypoint_even_when_delayed(make_robot: Factory) -> None:  # noqa: F811
     robot = make_robot(edit=relay_speed_slot)
     session = robot.gcs.session
     target = keys.slot_key(ROBOT, RELAY, "speed")
