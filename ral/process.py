@@ -43,6 +43,8 @@ from bbcs.contracts.path_follower import (
     SpeedSegCam,
 )
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
+from bbcs.contracts.trajectory import GeoPoint as TrajPoint
+from bbcs.contracts.trajectory import OrbitRequest, SurveyRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.module import Module
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from modules.dsp.bus import FORWARDED_DSP_ERROR_BASE
@@ -168,6 +170,14 @@ class Ral(Module):
         self._next_state = 0.0
         self._tasks_fetched = 0.0
         self._speed_acks: list[SpeedAck] = []
+        self._traj_pub: Publisher[TrajectoryRequest] | None = None
+        self._traj_status: dict[int, TrajectoryStatus] = {}
+        self._traj_paths: dict[str, tuple[int, t.Waypoint]] = {}
+        """Generator output kind → (how many paths seen, the last path's last waypoint)."""
+        self._traj_seen = threading.Condition()
+        self._traj_next_id = int(time.time()) % 1_000_000 * 1000
+        self._generated: dict[int, t.Waypoint] = {}
+        """Task id → last waypoint of the path the generator planned for it (what completes a survey/orbit)."""
         self._speed_acked = threading.Condition()
 
     # ------------------------------------------------------------ bus
@@ -186,6 +196,11 @@ class Ral(Module):
             SlotSpec("events", gri.GriEvent, Direction.OUT, Kind.STREAM, Safety.SAFE),
         )
         # REFS is not routed (the seed's CONTROL_ENTRADA has no field for it): written on the follower's own key
+        self._traj_pub = Publisher(
+            s,
+            keys.slot_key(self.robot, "trajectory", "request"),
+            SlotSpec("request", TrajectoryRequest, Direction.OUT, Kind.STREAM, Safety.SAFE),
+        )
         self._refs_pub = Publisher(
             s,
             keys.slot_key(self.robot, "path_follower", "refs"),
@@ -201,6 +216,11 @@ class Ral(Module):
             s.liveliness().declare_subscriber(gri.gcs_alive_key("*"), self._on_gcs_token, history=True),
             s.declare_subscriber(gri.gcs_heartbeat_key("*"), self._on_gcs_heartbeat),
             s.declare_subscriber(keys.slot_key(self.robot, "path_follower", SPEED_ACK_SLOT), self._on_speed_ack),
+            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "status"), self._on_traj_status),
+            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "survey"),
+                                 lambda sample: self._on_traj_path("survey", sample)),
+            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "orbit"),
+                                 lambda sample: self._on_traj_path("orbit", sample)),
             s.declare_queryable(gri.task_key(self.robot), self._jobs.put),
             wire.declare_service_schemas(s, keys.ral_key(self.robot), lambda: {
                 gri.state_key(self.robot): gri.GriState, gri.events_key(self.robot): gri.GriEvent,
@@ -241,6 +261,66 @@ class Ral(Module):
             self._speed_acks.append(ack)
             del self._speed_acks[:-16]
             self._speed_acked.notify_all()
+
+    def _on_traj_status(self, sample: zenoh.Sample) -> None:
+        try:
+            status = msgspec.msgpack.decode(sample.payload.to_bytes(), type=TrajectoryStatus)
+        except msgspec.MsgspecError:
+            return
+        with self._traj_seen:
+            self._traj_status[status.request_id] = status
+            while len(self._traj_status) > 32:
+                del self._traj_status[next(iter(self._traj_status))]
+            self._traj_seen.notify_all()
+
+    def _on_traj_path(self, kind: str, sample: zenoh.Sample) -> None:
+        try:
+            path = msgspec.msgpack.decode(sample.payload.to_bytes(), type=DatosSegCam)
+        except msgspec.MsgspecError:
+            return
+        last = path.puntos[-1]
+        with self._traj_seen:
+            count = self._traj_paths.get(kind, (0, None))[0] + 1
+            self._traj_paths[kind] = (count, t.Waypoint(lat=last.latitud, lon=last.longitud, alt=last.altura))
+            self._traj_seen.notify_all()
+
+    def _request_path(self, req: t.Survey | t.Orbit, task_id: int) -> str | None:
+        """Ask the trajectory generator for the task's path (the task already runs, so the path follower reads
+        the generator's output) and wait for its answer and its path: None, or the reason it failed."""
+        assert self._traj_pub is not None
+        kind = t.kind_of(req)
+        pos = self.telemetry.position if self.telemetry else None
+        start = TrajPoint(lat=pos.lat, lon=pos.lon) if pos is not None else None
+        with self._traj_seen:
+            self._traj_next_id = (self._traj_next_id + 1) % 2**31
+            request_id = self._traj_next_id
+            paths_before = self._traj_paths.get(kind, (0, None))[0]
+        if isinstance(req, t.Survey):
+            request = TrajectoryRequest(request_id=request_id, survey=SurveyRequest(
+                polygon=[TrajPoint(lat=v.lat, lon=v.lon) for v in req.polygon], height=req.height,
+                overlap=req.overlap, start=start))
+        else:
+            request = TrajectoryRequest(request_id=request_id, orbit=OrbitRequest(
+                centre=TrajPoint(lat=req.lat, lon=req.lon), radius=req.radius, height=req.height,
+                clockwise=req.clockwise, turns=req.turns))
+        self._traj_pub.publish(request)
+        deadline = time.monotonic() + self.cfg.mri_timeout_s
+        with self._traj_seen:
+            answered = self._traj_seen.wait_for(lambda: request_id in self._traj_status,
+                                                timeout=max(0.0, deadline - time.monotonic()))
+            if not answered:
+                return f"the trajectory generator did not answer the {kind} request within {self.cfg.mri_timeout_s:g} s"
+            status = self._traj_status[request_id]
+            if not status.accepted:
+                return f"the trajectory generator refused the {kind}: {status.reason}"
+            got = self._traj_seen.wait_for(lambda: self._traj_paths.get(kind, (0, None))[0] > paths_before,
+                                           timeout=max(0.0, deadline - time.monotonic()))
+            if not got:
+                return f"the trajectory generator accepted the {kind} but its path did not arrive"
+            last = self._traj_paths[kind][1]
+            assert last is not None
+            self._generated[task_id] = last
+        return None
 
     def _send_speed(self, speed: float) -> str | None:
         """Publish a path's speed and wait until the path follower answered it (its SET_SPEED is then on the DSP
@@ -378,7 +458,8 @@ class Ral(Module):
                 self.home = tel.position
             verdicts = []
             for task_id, info in self._live.items():
-                v = judge(info, self._progress[task_id], tel, self.home, self.limits, self.judge_cfg, now)
+                v = judge(info, self._progress[task_id], tel, self.home, self.limits, self.judge_cfg, now,
+                          generated=self._generated.get(task_id))
                 self._progress[task_id] = v.progress
                 if v.status != "running":
                     verdicts.append((info, v.status, v.detail))
@@ -516,7 +597,7 @@ class Ral(Module):
         running = next((i for i in reply.data.active if i.task_type == plan.task_type), None) if isinstance(
             reply.data, mri.TaskList) else None
         task_id = running.id if running else 0
-        problem = self._publish_data(plan)
+        problem = self._publish_data(plan, task_id)
         if problem is not None:
             if running is not None:
                 self._end(mri.EndTask(task_type=plan.task_type, task_id=task_id, status="failed", detail=problem))
@@ -524,16 +605,18 @@ class Ral(Module):
             return gri.TaskReply(accepted=False, reason=problem, task_id=task_id, task_type=plan.task_type)
         return gri.TaskReply(accepted=True, task_id=task_id, task_type=plan.task_type)
 
-    def _publish_data(self, plan: Plan) -> str | None:
+    def _publish_data(self, plan: Plan, task_id: int = 0) -> str | None:
         """The task's data, after the manager's reply (so after the module answered the task's mode). A path's
         speed goes first and is acknowledged before the path (docs/gcs.md, "Speed before path"). Returns None, or
         why the task's data could not go out."""
         req = plan.params
-        if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath):
+        if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath | t.Survey | t.Orbit):
             assert req.speed is not None, "admission fills in the cruise speed"
             problem = self._send_speed(req.speed)
             if problem is not None:
                 return problem
+        if isinstance(req, t.Survey | t.Orbit):
+            return self._request_path(req, task_id)
         if isinstance(req, t.FollowPath) and req.heading is not None:
             self.publish("heading", HeadingSegCam(heading=req.heading))
         if isinstance(req, t.Goto | t.FollowPath):
