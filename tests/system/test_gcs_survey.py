@@ -29,9 +29,9 @@ from launch_support import ROOT, Launch  # noqa: E402
 TIME_SCALE = 4.0
 HOME = (37.4117, -6.0025)
 M_PER_DEG = 111_320.0
-# about 60 m × 45 m north of home: one or two sweep lines at 25 m
+# about 60 m × 90 m north of home: two sweep lines at 25 m
 POLYGON = [t.Vertex(lat=HOME[0] + dlat, lon=HOME[1] + dlon)
-           for dlat, dlon in ((0.0003, -0.0003), (0.0003, 0.0004), (0.0007, 0.0004), (0.0007, -0.0003))]
+           for dlat, dlon in ((0.0003, -0.0003), (0.0003, 0.0004), (0.0011, 0.0004), (0.0011, -0.0003))]
 
 
 def manifest(tmp_path: Path) -> tuple[Path, Path]:
