@@ -67,11 +67,16 @@ def robot(tmp_path: Path) -> Iterator[SimRobot]:
 
 
 @pytest.mark.timeout(300)
-def test_gcs_survey_is_planned_flown_and_completed(robot: SimRobot) -> None:
+def test_gcs_survey_and_orbit_are_planned_flown_and_completed(robot: SimRobot) -> None:
     paths: list[DatosSegCam] = []
     sub = robot.gcs.session.declare_subscriber(
         keys.slot_key(ROBOT, "trajectory", "survey"),
         lambda s: paths.append(msgspec.msgpack.decode(s.payload.to_bytes(), type=DatosSegCam)),
+    )
+    orbits: list[DatosSegCam] = []
+    orbit_sub = robot.gcs.session.declare_subscriber(
+        keys.slot_key(ROBOT, "trajectory", "orbit"),
+        lambda s: orbits.append(msgspec.msgpack.decode(s.payload.to_bytes(), type=DatosSegCam)),
     )
     try:
         robot.ensure_airborne()
@@ -110,5 +115,21 @@ def test_gcs_survey_is_planned_flown_and_completed(robot: SimRobot) -> None:
         )
         routes = robot.gcs.routes(ROBOT)
         assert routes.routes["path_follower"]["datos"] != 30, "DATOS routed back after the survey"
+
+        # an orbit around home, asked the same way
+        mark = len(robot.commands())
+        start = len(robot.events)
+        orbit = robot.gcs.send(ROBOT, t.Orbit(lat=HOME[0], lon=HOME[1], radius=30.0, height=20.0))
+        assert orbit.accepted, orbit.reason
+        wait_until(lambda: len(orbits) >= 1, 20, "the generated orbit")
+        circle = orbits[-1].puntos
+        done = robot.wait_event(lambda e: e.task_id == orbit.task_id and e.kind != "task_accepted", 120,
+                                "the orbit ended", after=start)
+        assert done.kind == "task_completed", done
+        added = [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in robot.commands()[mark:]
+                 if c["name"] == "ADD_WAYPOINT"]
+        assert added == [(round(p.latitud, 4), round(p.longitud, 4)) for p in circle]
+        assert robot.gcs.routes(ROBOT).routes["path_follower"]["datos"] != 31, "DATOS routed back after the orbit"
     finally:
         sub.undeclare()
+        orbit_sub.undeclare()
