@@ -34,8 +34,18 @@ from bbcs.contracts.dsp import FORWARDED_DSP_ERROR_BASE, MAX_SPEED_LIMIT, LinkEr
 from bbcs.contracts.error_codes import RalErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import DatosPT
-from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam, HeadingSegCam, RefsSegCam, SpeedSegCam
+from bbcs.contracts.path_follower import (
+    SPEED_ACK_SLOT,
+    DatoPuntoSegCam,
+    DatosSegCam,
+    HeadingSegCam,
+    RefsSegCam,
+    SpeedAck,
+    SpeedSegCam,
+)
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
+from bbcs.contracts.trajectory import GeoPoint as TrajPoint
+from bbcs.contracts.trajectory import OrbitRequest, SurveyRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.module import Module
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
@@ -66,6 +76,8 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     mri_timeout_s: float = mri.REPLY_TIMEOUT_S
     """Must exceed the manager's ack wait (``mri.MANAGER_ACK_S``), else a task can be applied after being refused."""
     state_period_s: float = 0.2
+    speed_ack_s: float = 3.0
+    """How long the RAL waits for the path follower's answer to a path's speed before the path is not sent."""
     kind: str = ""
     """Robot kind shown in the GRI state when the manager's state has none."""
 
@@ -147,6 +159,16 @@ class Ral(Module):
         self._refs_pub: Publisher[RefsSegCam] | None = None
         self._next_state = 0.0
         self._tasks_fetched = 0.0
+        self._speed_acks: list[SpeedAck] = []
+        self._traj_pub: Publisher[TrajectoryRequest] | None = None
+        self._traj_status: dict[int, TrajectoryStatus] = {}
+        self._traj_paths: dict[str, tuple[int, t.Waypoint]] = {}
+        """Generator output kind → (how many paths seen, the last path's last waypoint)."""
+        self._traj_seen = threading.Condition()
+        self._traj_next_id = int(time.time()) % 1_000_000 * 1000
+        self._generated: dict[int, t.Waypoint] = {}
+        """Task id → last waypoint of the path the generator planned for it (what completes a survey/orbit)."""
+        self._speed_acked = threading.Condition()
 
     # ------------------------------------------------------------ bus
 
@@ -164,6 +186,11 @@ class Ral(Module):
             SlotSpec("events", gri.GriEvent, Direction.OUT, Kind.STREAM, Safety.SAFE),
         )
         # REFS is not routed (the seed's CONTROL_ENTRADA has no field for it): written on the follower's own key
+        self._traj_pub = Publisher(
+            s,
+            keys.slot_key(self.robot, "trajectory", "request"),
+            SlotSpec("request", TrajectoryRequest, Direction.OUT, Kind.STREAM, Safety.SAFE),
+        )
         self._refs_pub = Publisher(
             s,
             keys.slot_key(self.robot, "path_follower", "refs"),
@@ -178,6 +205,12 @@ class Ral(Module):
             ),
             s.liveliness().declare_subscriber(gri.gcs_alive_key("*"), self._on_gcs_token, history=True),
             s.declare_subscriber(gri.gcs_heartbeat_key("*"), self._on_gcs_heartbeat),
+            s.declare_subscriber(keys.slot_key(self.robot, "path_follower", SPEED_ACK_SLOT), self._on_speed_ack),
+            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "status"), self._on_traj_status),
+            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "survey"),
+                                 lambda sample: self._on_traj_path("survey", sample)),
+            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "orbit"),
+                                 lambda sample: self._on_traj_path("orbit", sample)),
             s.declare_queryable(gri.task_key(self.robot), self._jobs.put),
             wire.declare_service_schemas(s, keys.ral_key(self.robot), lambda: {
                 gri.state_key(self.robot): gri.GriState, gri.events_key(self.robot): gri.GriEvent,
@@ -208,6 +241,99 @@ class Ral(Module):
             self._manager_state = state
             self._manager_seen = self.clock()
             self._manager_new = True
+
+    def _on_speed_ack(self, sample: zenoh.Sample) -> None:
+        try:
+            ack = msgspec.msgpack.decode(sample.payload.to_bytes(), type=SpeedAck)
+        except msgspec.MsgspecError:
+            return
+        with self._speed_acked:
+            self._speed_acks.append(ack)
+            del self._speed_acks[:-16]
+            self._speed_acked.notify_all()
+
+    def _on_traj_status(self, sample: zenoh.Sample) -> None:
+        try:
+            status = msgspec.msgpack.decode(sample.payload.to_bytes(), type=TrajectoryStatus)
+        except msgspec.MsgspecError:
+            return
+        with self._traj_seen:
+            self._traj_status[status.request_id] = status
+            while len(self._traj_status) > 32:
+                del self._traj_status[next(iter(self._traj_status))]
+            self._traj_seen.notify_all()
+
+    def _on_traj_path(self, kind: str, sample: zenoh.Sample) -> None:
+        try:
+            path = msgspec.msgpack.decode(sample.payload.to_bytes(), type=DatosSegCam)
+        except msgspec.MsgspecError:
+            return
+        last = path.puntos[-1]
+        with self._traj_seen:
+            count = self._traj_paths.get(kind, (0, None))[0] + 1
+            self._traj_paths[kind] = (count, t.Waypoint(lat=last.latitud, lon=last.longitud, alt=last.altura))
+            self._traj_seen.notify_all()
+
+    def _request_path(self, req: t.Survey | t.Orbit, task_id: int) -> str | None:
+        """Ask the trajectory generator for the task's path (the task already runs, so the path follower reads
+        the generator's output) and wait for its answer and its path: None, or the reason it failed."""
+        assert self._traj_pub is not None
+        kind = t.kind_of(req)
+        pos = self.telemetry.position if self.telemetry else None
+        start = TrajPoint(lat=pos.lat, lon=pos.lon) if pos is not None else None
+        with self._traj_seen:
+            self._traj_next_id = (self._traj_next_id + 1) % 2**31
+            request_id = self._traj_next_id
+            paths_before = self._traj_paths.get(kind, (0, None))[0]
+        if isinstance(req, t.Survey):
+            request = TrajectoryRequest(request_id=request_id, survey=SurveyRequest(
+                polygon=[TrajPoint(lat=v.lat, lon=v.lon) for v in req.polygon], height=req.height,
+                overlap=req.overlap, start=start))
+        else:
+            request = TrajectoryRequest(request_id=request_id, orbit=OrbitRequest(
+                centre=TrajPoint(lat=req.lat, lon=req.lon), radius=req.radius, height=req.height,
+                clockwise=req.clockwise, turns=req.turns))
+        self._traj_pub.publish(request)
+        deadline = time.monotonic() + self.cfg.mri_timeout_s
+        with self._traj_seen:
+            answered = self._traj_seen.wait_for(lambda: request_id in self._traj_status,
+                                                timeout=max(0.0, deadline - time.monotonic()))
+            if not answered:
+                return f"the trajectory generator did not answer the {kind} request within {self.cfg.mri_timeout_s:g} s"
+            status = self._traj_status[request_id]
+            if not status.accepted:
+                return f"the trajectory generator refused the {kind}: {status.reason}"
+            got = self._traj_seen.wait_for(lambda: self._traj_paths.get(kind, (0, None))[0] > paths_before,
+                                           timeout=max(0.0, deadline - time.monotonic()))
+            if not got:
+                return f"the trajectory generator accepted the {kind} but its path did not arrive"
+            last = self._traj_paths[kind][1]
+            assert last is not None
+            self._generated[task_id] = last
+        return None
+
+    def _send_speed(self, speed: float) -> str | None:
+        """Publish a path's speed and wait until the path follower answered it (its SET_SPEED is then on the DSP
+        command stream, ahead of any path sent after): None, or why the path must not go out. The speed input is
+        best-effort, so it is published again every half second until answered."""
+        deadline = time.monotonic() + self.cfg.speed_ack_s
+        with self._speed_acked:
+            self._speed_acks.clear()
+        while True:
+            self.publish("speed", SpeedSegCam(speed=speed))
+            with self._speed_acked:
+                self._speed_acked.wait_for(
+                    lambda: any(a.speed == speed for a in self._speed_acks),
+                    timeout=max(0.0, min(0.5, deadline - time.monotonic())),
+                )
+                ack = next((a for a in self._speed_acks if a.speed == speed), None)
+            if ack is not None:
+                if ack.accepted:
+                    return None
+                return f"the path follower refused speed {speed:g} m/s (code {ack.code}): {ack.reason}"
+            if time.monotonic() >= deadline:
+                return (f"the path follower did not acknowledge speed {speed:g} m/s within {self.cfg.speed_ack_s:g} s;"
+                        " the path was not sent")
 
     def _on_gcs_token(self, sample: zenoh.Sample) -> None:
         if sample.kind != zenoh.SampleKind.PUT:  # a station that leaves stops linking every robot
@@ -322,7 +448,8 @@ class Ral(Module):
                 self.home = tel.position
             verdicts = []
             for task_id, info in self._live.items():
-                v = judge(info, self._progress[task_id], tel, self.home, self.limits, self.judge_cfg, now)
+                v = judge(info, self._progress[task_id], tel, self.home, self.limits, self.judge_cfg, now,
+                          generated=self._generated.get(task_id))
                 self._progress[task_id] = v.progress
                 if v.status != "running":
                     verdicts.append((info, v.status, v.detail))
@@ -459,15 +586,27 @@ class Ral(Module):
                                  code=reply.code if reply else None)
         running = next((i for i in reply.data.active if i.task_type == plan.task_type), None) if isinstance(
             reply.data, mri.TaskList) else None
-        self._publish_data(plan)
-        return gri.TaskReply(accepted=True, task_id=running.id if running else 0, task_type=plan.task_type)
+        task_id = running.id if running else 0
+        problem = self._publish_data(plan, task_id)
+        if problem is not None:
+            if running is not None:
+                self._end(mri.EndTask(task_type=plan.task_type, task_id=task_id, status="failed", detail=problem))
+            self.emit("task_rejected", task_type=plan.task_type, detail=problem)
+            return gri.TaskReply(accepted=False, reason=problem, task_id=task_id, task_type=plan.task_type)
+        return gri.TaskReply(accepted=True, task_id=task_id, task_type=plan.task_type)
 
-    def _publish_data(self, plan: Plan) -> None:
-        """The task's data, after the manager's reply (so after the module answered the task's mode)."""
+    def _publish_data(self, plan: Plan, task_id: int = 0) -> str | None:
+        """The task's data, after the manager's reply (so after the module answered the task's mode). A path's
+        speed goes first and is acknowledged before the path (docs/gcs.md, "Speed before path"). Returns None, or
+        why the task's data could not go out."""
         req = plan.params
-        if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath):
+        if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath | t.Survey | t.Orbit):
             assert req.speed is not None, "admission fills in the cruise speed"
-            self.publish("speed", SpeedSegCam(speed=req.speed))
+            problem = self._send_speed(req.speed)
+            if problem is not None:
+                return problem
+        if isinstance(req, t.Survey | t.Orbit):
+            return self._request_path(req, task_id)
         if isinstance(req, t.FollowPath) and req.heading is not None:
             self.publish("heading", HeadingSegCam(heading=req.heading))
         if isinstance(req, t.Goto | t.FollowPath):
@@ -481,6 +620,7 @@ class Ral(Module):
             self.publish("pt_datos", DatosPT(latitud=req.lat, longitud=req.lon, altura=req.alt))
         elif isinstance(req, t.SetPanTilt):
             self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
+        return None
 
     def _abort(self) -> gri.TaskReply:
         """The manifest's ``abort`` task if it has one (empties both queues, stops motion; the task it replaces

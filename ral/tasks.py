@@ -122,6 +122,10 @@ def admit(request: t.TaskParams, *, available: dict[str, str], task_names: dict[
         if abs(request.height - limits.takeoff_height_m) > cfg.altitude_tolerance_m:
             return Rejected(f"take_off: the DSP climbs to its fixed take-off height {limits.takeoff_height_m:g} m "
                             f"above home; {request.height:g} m cannot be honoured")
+    if isinstance(request, t.Survey | t.Orbit):
+        why = _generated_area(request, limits, cfg, telemetry)
+        if why:
+            return Rejected(f"{kind}: {why}")
     points = _points(request)
     if points:
         why = _check_points(points, limits, cfg, telemetry, home)
@@ -137,6 +141,34 @@ def _points(request: t.TaskParams) -> list[tuple[str, float, float, float | None
     if isinstance(request, t.Bridge):
         return [("ref_altura", math.nan, math.nan, request.ref_altura)]
     return []
+
+
+def _generated_area(request: t.Survey | t.Orbit, limits: Limits, cfg: JudgeConfig,
+                    telemetry: RobotTelemetry | None) -> str:
+    """A survey's polygon / an orbit's circle against the robot's range and geofence, its height against the
+    clearance and the ceiling (heights above the take-off point): why not, or ""."""
+    if limits.min_clearance_m is not None and request.height < limits.min_clearance_m:
+        return f"height {request.height:g} m above the take-off point is under the minimum clearance " \
+               f"{limits.min_clearance_m:g} m"
+    if limits.max_height_m is not None and request.height > limits.max_height_m:
+        return f"height {request.height:g} m above the take-off point is above the ceiling {limits.max_height_m:g} m"
+    if isinstance(request, t.Survey):
+        places = [(f"polygon vertex {i}", v.lat, v.lon, 0.0) for i, v in enumerate(request.polygon)]
+    else:
+        places = [("orbit", request.lat, request.lon, request.radius)]
+    pos = telemetry.position if telemetry else None
+    for label, lat, lon, radius in places:
+        if pos is not None:
+            d = distance_m(pos.lat, pos.lon, lat, lon) + radius
+            if d > cfg.max_range_m:
+                return f"{label} reaches {d / 1000:.1f} km from the robot (max {cfg.max_range_m / 1000:g} km)"
+        fence = limits.geofence
+        if fence is not None:
+            d = distance_m(fence.lat, fence.lon, lat, lon) + radius
+            if d > fence.radius_m:
+                return (f"{label} ({lat:.6f}, {lon:.6f}) reaches outside the geofence: {d:.0f} m from its centre, "
+                        f"radius {fence.radius_m:g} m")
+    return ""
 
 
 def _check_points(points: list[tuple[str, float, float, float | None]], limits: Limits, cfg: JudgeConfig,
@@ -192,8 +224,9 @@ class Verdict:
 
 
 def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPoint | None, limits: Limits,
-          cfg: JudgeConfig, now: float) -> Verdict:
-    """Has ``task`` completed, stalled, or is it still running, given ``tel`` at ``now``?"""
+          cfg: JudgeConfig, now: float, generated: t.Waypoint | None = None) -> Verdict:
+    """Has ``task`` completed, stalled, or is it still running, given ``tel`` at ``now``? ``generated``: the last
+    waypoint of the path the trajectory generator planned for a survey/orbit (None until it published it)."""
     req = task.params
     if req is None or isinstance(req, t.LookAt | t.SetPanTilt | t.Hold | t.Track | t.FollowVisionPath | t.Bridge):
         return Verdict(progress)  # continuous: runs until replaced, cancelled or aborted
@@ -203,8 +236,11 @@ def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPo
     if pos is None:
         return _stalled(pr, cfg, now)
     settled = now - pr.started >= cfg.settle_s
-    if isinstance(req, t.Goto | t.FollowPath):
-        last = req.waypoints[-1]
+    if isinstance(req, t.Survey | t.Orbit) and generated is None:
+        return _stalled(pr, cfg, now)  # no path yet: the generator's answer is awaited by the RAL
+    if isinstance(req, t.Goto | t.FollowPath | t.Survey | t.Orbit):
+        last = req.waypoints[-1] if isinstance(req, t.Goto | t.FollowPath) else generated
+        assert last is not None
         horiz = distance_m(pos.lat, pos.lon, last.lat, last.lon)
         togo = horiz + abs(pos.alt - last.alt) + 50.0 * (tel.waypoints_queued or 0)
         near = horiz <= cfg.position_tolerance_m and abs(pos.alt - last.alt) <= cfg.altitude_tolerance_m

@@ -37,13 +37,16 @@ from bbcs.contracts.tasks import (
     Latitude,
     Longitude,
     LookAt,
+    Orbit,
     SetPanTilt,
     Speed,
+    Survey,
     TakeOff,
     TaskInfo,
     TaskParams,
     TaskStatus,
     Track,
+    Vertex,
     Waypoint,
     Waypoints,
     kind_of,
@@ -74,11 +77,12 @@ Task = TaskParams
 """Tasks that occupy a task type until completed, replaced, cancelled, aborted or failed."""
 TaskRequest = (
     TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | LookAt | SetPanTilt | Hold | Track
-    | Abort | Cancel | RestartModule
+    | Survey | Orbit | Abort | Cancel | RestartModule
 )
 __all__ = [
     "MAX_WAYPOINTS", "TASK_KINDS", "AltitudeAMSL", "Bridge", "FollowPath", "FollowVisionPath", "Goto",
-    "HeightAboveHome", "Hold", "Land", "Latitude", "LookAt", "Longitude", "SetPanTilt", "Speed", "TakeOff",
+    "HeightAboveHome", "Hold", "Land", "Latitude", "LookAt", "Longitude", "Orbit", "SetPanTilt", "Speed", "Survey",
+    "TakeOff", "Vertex",
     "TaskInfo", "TaskStatus", "Track", "Waypoint", "Waypoints", "kind_of", "Abort", "Cancel", "RestartModule",
     "Task", "TaskRequest", "TaskReply", "GriState", "GriEvent", "GcsHeartbeat", "ModuleHealth", "ErrorRecord",
     "LinkState", "EventKind", "state_key", "events_key", "task_key", "gcs_alive_key", "gcs_heartbeat_key",

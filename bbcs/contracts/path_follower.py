@@ -47,6 +47,20 @@ class SpeedSegCam(msgspec.Struct, frozen=True, kw_only=True):
     speed: Annotated[float, msgspec.Meta(ge=0.0)]
 
 
+SPEED_ACK_SLOT = "speed_ack"
+"""The path follower's answer to each VELOCIDAD, after its SET_SPEED went out (docs/gcs.md, "speed before path")."""
+
+
+class SpeedAck(msgspec.Struct, frozen=True, kw_only=True):
+    """The path follower handled a VELOCIDAD: ``accepted`` means its SET_SPEED is on the DSP command stream, so
+    every DATOS published after this answer is flown at ``speed``; refused with the module's ``code``."""
+
+    speed: float
+    accepted: bool
+    code: int | None = None
+    reason: str = ""
+
+
 class DatoPuntoSegCam(msgspec.Struct, frozen=True, kw_only=True):
     """DATO_PUNTO_SEG_CAM: one waypoint (WGS84 degrees, metres). Heading is not part of a waypoint."""
 

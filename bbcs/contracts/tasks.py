@@ -103,10 +103,44 @@ class Track(msgspec.Struct, frozen=True, kw_only=True, tag="track"):
     """Point the pan & tilt at what the perception module tracks, until replaced."""
 
 
-TaskParams = TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | LookAt | SetPanTilt | Hold | Track
+class Vertex(msgspec.Struct, frozen=True, kw_only=True):
+    """A polygon corner, WGS84 degrees."""
+
+    lat: Latitude
+    lon: Longitude
+
+
+class Survey(msgspec.Struct, frozen=True, kw_only=True, tag="survey"):
+    """Lawnmower over ``polygon`` (not closed) at ``height`` above the take-off point, neighbouring lidar swaths
+    overlapping by ``overlap``; planned by the trajectory generator (docs/trajectory.md)."""
+
+    polygon: Annotated[list[Vertex], msgspec.Meta(min_length=3, max_length=200)]
+    height: HeightAboveHome
+    overlap: Annotated[float, msgspec.Meta(ge=0.0, le=0.9)] = 0.2
+    speed: Speed | None = None
+
+
+class Orbit(msgspec.Struct, frozen=True, kw_only=True, tag="orbit"):
+    """Circle ``turns`` times around (lat, lon) at ``radius`` metres, ``height`` above the take-off point;
+    planned by the trajectory generator."""
+
+    lat: Latitude
+    lon: Longitude
+    radius: Annotated[float, msgspec.Meta(gt=0.0, le=5000.0)]
+    height: HeightAboveHome = 20.0
+    clockwise: bool = True
+    turns: Annotated[float, msgspec.Meta(gt=0.0, le=20.0)] = 1.0
+    speed: Speed | None = None
+
+
+TaskParams = (TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | LookAt | SetPanTilt | Hold | Track
+              | Survey | Orbit)
 """Every task a ground station can send; each occupies its task type until it ends."""
 TASK_KINDS: tuple[str, ...] = tuple(t.__struct_config__.tag for t in TaskParams.__args__)  # type: ignore[attr-defined]
-MOVEMENT_KINDS = frozenset({"take_off", "land", "goto", "follow_path", "follow_vision_path", "bridge", "hold"})
+MOVEMENT_KINDS = frozenset({"take_off", "land", "goto", "follow_path", "follow_vision_path", "bridge", "hold",
+                            "survey", "orbit"})
+GENERATED_KINDS = frozenset({"survey", "orbit"})
+"""Kinds whose path the trajectory generator plans (the RAL sends it a request once the task runs)."""
 """Kinds that move the aircraft: a new one empties both waypoint queues before anything else goes out."""
 
 

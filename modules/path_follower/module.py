@@ -21,11 +21,13 @@ from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.path_follower import (
+    SPEED_ACK_SLOT,
     ControlEntradaSegCam,
     ControlModoSegCam,
     DatosSegCam,
     HeadingSegCam,
     RefsSegCam,
+    SpeedAck,
     SpeedSegCam,
 )
 from bbcs.module import Control, Module
@@ -69,6 +71,7 @@ class PathFollowerModule(Module):
         dsp_client.errors_input(),
         dsp_client.commands_output("path_follower"),
         OutputSlot(MODE_ACK_SLOT, ModeAck),
+        OutputSlot(SPEED_ACK_SLOT, SpeedAck),
         OutputSlot("error", ErrorReport),
     )
     control = Control(
@@ -126,7 +129,13 @@ class PathFollowerModule(Module):
     def on_velocidad(self, msg: SpeedSegCam) -> None:
         if msg.speed <= self.max_speed:
             self.onboard.set_speed(msg.speed)
-        self._apply(logic.on_velocidad(self.state, msg, self.max_speed))
+        decision = logic.on_velocidad(self.state, msg, self.max_speed)
+        self._apply(decision)
+        # after the SET_SPEED batch is on the command stream: a path its sender publishes after this answer goes
+        # out behind it (one publisher, in order), so its first waypoint is flown at this speed
+        code = decision.errors[0] if decision.errors else None
+        self.publish(SPEED_ACK_SLOT, SpeedAck(speed=msg.speed, accepted=code is None, code=code,
+                                             reason=decision.detail if code is not None else ""))
 
     def on_datos(self, msg: DatosSegCam) -> None:
         self._apply(logic.on_datos(self.state, msg))

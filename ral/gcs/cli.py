@@ -24,7 +24,7 @@ from bbcs.contracts import gri
 from bbcs.contracts.error_codes import error_name
 from ral.gcs import watch_view
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
-from ral.gcs.waypoints import WaypointFileError, load_waypoints
+from ral.gcs.waypoints import WaypointFileError, load_polygon, load_waypoints
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,6 +70,19 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "follow_path":
             k.add_argument("--heading", type=float, metavar="DEG",
                            help="hold this heading (degrees, path mode 1 with the HEADING slot)")
+    k = kinds.add_parser("survey", help="lawnmower over a GeoJSON polygon, planned by the trajectory generator")
+    k.add_argument("polygon", metavar="POLYGON.geojson")
+    k.add_argument("--height", type=float, required=True, help="metres above the take-off point")
+    k.add_argument("--overlap", type=float, default=0.2, help="of neighbouring lidar swaths, [0, 0.9] (default 0.2)")
+    k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
+    k = kinds.add_parser("orbit", help="circle a point, planned by the trajectory generator")
+    k.add_argument("lat", type=float)
+    k.add_argument("lon", type=float)
+    k.add_argument("--radius", type=float, required=True, help="metres")
+    k.add_argument("--height", type=float, default=20.0, help="metres above the take-off point (default 20)")
+    k.add_argument("--turns", type=float, default=1.0, help="how many times round (default 1)")
+    k.add_argument("--counter-clockwise", action="store_true")
+    k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
     k = kinds.add_parser("follow_vision_path", help="follow the paths the perception module writes")
     k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
     k = kinds.add_parser("bridge", help="path mode 6: the DSP flies these references (REFS)")
@@ -123,6 +136,12 @@ def task_request(args: argparse.Namespace) -> gri.TaskRequest:
         }
         if kind == "follow_path" and args.heading is not None:
             raw["heading"] = _heading_rad(args.heading)
+    elif kind == "survey":
+        raw = {"type": kind, "polygon": [msgspec.to_builtins(v) for v in load_polygon(args.polygon)],
+               "height": args.height, "overlap": args.overlap, "speed": args.speed}
+    elif kind == "orbit":
+        raw = {"type": kind, "lat": args.lat, "lon": args.lon, "radius": args.radius, "height": args.height,
+               "turns": args.turns, "clockwise": not args.counter_clockwise, "speed": args.speed}
     elif kind == "follow_vision_path":
         raw = {"type": kind, "speed": args.speed}
     elif kind == "bridge":

@@ -10,7 +10,9 @@ from dataclasses import dataclass, field
 import msgspec
 import zenoh
 
+from bbcs import keys
 from bbcs.contracts import mri
+from bbcs.contracts.path_follower import SPEED_ACK_SLOT, SpeedAck, SpeedSegCam
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager.manifest import TaskDef
@@ -40,10 +42,24 @@ class StandIn:
     book: TaskBook = field(default_factory=lambda: TaskBook({n: TaskDef(type=t) for n, t in AVAILABLE.items()}))
     epoch: float = 1.0
     tel: RobotTelemetry | None = None
+    answer_speed: bool = True
+    """Answer the RAL's speed as the path follower does (SpeedAck); False: a path follower that never answers."""
+    speed_ack_pub: Publisher | None = None
 
     def start(self) -> None:
         for verb in ("tasks", "task"):
             self.entities.append(self.session.declare_queryable(mri.mri_key(ROBOT, verb), self._answer))
+        self.speed_ack_pub = Publisher(
+            self.session,
+            keys.slot_key(ROBOT, "path_follower", SPEED_ACK_SLOT),
+            SlotSpec(SPEED_ACK_SLOT, SpeedAck, Direction.OUT, Kind.STATE, Safety.SAFE),
+        )
+        self.entities.append(self.session.declare_subscriber(keys.slot_key(ROBOT, "ral", "speed"), self._speed))
+
+    def _speed(self, sample: zenoh.Sample) -> None:
+        if self.answer_speed and self.speed_ack_pub is not None:
+            msg = msgspec.msgpack.decode(sample.payload.to_bytes(), type=SpeedSegCam)
+            self.speed_ack_pub.publish(SpeedAck(speed=msg.speed, accepted=True))
         self.state_pub = Publisher(
             self.session,
             mri.mri_key(ROBOT, mri.STATE),
@@ -101,3 +117,5 @@ class StandIn:
             e.undeclare()
         if self.state_pub is not None:
             self.state_pub.close()
+        if self.speed_ack_pub is not None:
+            self.speed_ack_pub.close()

@@ -247,3 +247,26 @@ def test_a_lost_effect_fails_the_task_with_a_reason(rig: Rig) -> None:
                what="task_failed after a manager restart")
     assert "Module Manager restarted" in next(e for e in rig.events if e.task_id == look.task_id
                                               and e.kind == "task_failed").detail
+
+
+def test_a_path_whose_speed_the_path_follower_never_answers_is_not_sent(rig: Rig) -> None:
+    """Speed before path: without the path follower's answer to the speed, the path never goes out (it would be
+    flown at whatever speed the DSP had) and the ground station is told why; the started task ends failed."""
+    paths: list[DatosSegCam] = []
+    sub = rig.gcs.session.declare_subscriber(
+        keys.slot_key(ROBOT, "ral", "path"),
+        lambda s: paths.append(msgspec.msgpack.decode(s.payload.to_bytes(), type=DatosSegCam)),
+    )
+    rig.manager.answer_speed = False
+    try:
+        reply = rig.gcs.send(ROBOT, ten_waypoints())
+        assert not reply.accepted and "did not acknowledge speed 4 m/s" in reply.reason, reply
+        ended = rig.manager.end_tasks()[-1]
+        assert ended.status == "failed" and ended.task_id == reply.task_id and "acknowledge" in ended.detail
+        rig.manager.answer_speed = True
+        again = rig.gcs.send(ROBOT, ten_waypoints())
+        assert again.accepted, again.reason
+        wait_until(lambda: len(paths) == 1, what="the answered task's path on ral/path")
+        assert len(paths) == 1, "the unanswered task's path was never published"
+    finally:
+        sub.undeclare()

@@ -32,6 +32,8 @@ AVAILABLE = {
     "look_at": "pan_tilt",
     "pan_tilt": "pan_tilt",
     "abort": "movement",
+    "survey": "movement",
+    "orbit": "movement",
 }
 HOME = GeoPoint(lat=37.41, lon=-6.0, alt=12.0)
 LIMITS = Limits(max_speed=8.0, cruise_speed=5.0, min_clearance_m=5.0, max_height_m=120.0,
@@ -210,3 +212,38 @@ def test_requests_round_trip_with_every_kind() -> None:
                 t.Bridge(ref_altura=30.0), gri.RestartModule(module="dsp")]
     for request in requests:
         assert gri.decode_request(gri.encode(request)) == request
+
+
+SQUARE = [t.Vertex(lat=37.41 + dlat, lon=-6.0 + dlon) for dlat, dlon in ((0, 0), (0, 0.001), (0.001, 0.001),
+                                                                          (0.001, 0))]
+
+
+def test_survey_and_orbit_are_admitted_at_the_cruise_speed_within_the_limits() -> None:
+    plan = check(t.Survey(polygon=SQUARE, height=40.0))
+    assert isinstance(plan, Plan) and plan.name == "survey" and plan.params.speed == 5.0  # type: ignore[union-attr]
+    assert isinstance(check(t.Orbit(lat=37.41, lon=-6.0, radius=100.0, speed=6.0)), Plan)
+    fast = check(t.Orbit(lat=37.41, lon=-6.0, radius=100.0, speed=9.0))
+    assert isinstance(fast, Rejected) and "above MAX_SPEED 8" in fast.reason
+    low = check(t.Survey(polygon=SQUARE, height=3.0))
+    assert isinstance(low, Rejected) and "minimum clearance 5 m" in low.reason
+    high = check(t.Orbit(lat=37.41, lon=-6.0, radius=100.0, height=150.0))
+    assert isinstance(high, Rejected) and "ceiling 120 m" in high.reason
+
+
+def test_an_orbit_reaching_out_of_the_geofence_is_refused() -> None:
+    r = check(t.Orbit(lat=37.41 + 0.025, lon=-6.0, radius=300.0))  # centre 2.8 km out, circle to 3.1 km
+    assert isinstance(r, Rejected) and "outside the geofence" in r.reason
+    far = check(t.Survey(polygon=[*SQUARE[:3], t.Vertex(lat=37.41 + 0.04, lon=-6.0)], height=40.0))
+    assert isinstance(far, Rejected) and "polygon vertex 3" in far.reason
+
+
+def test_a_survey_completes_at_the_generated_paths_last_waypoint_only() -> None:
+    task = running(t.Survey(polygon=SQUARE, height=40.0, speed=5.0))
+    end = t.Waypoint(lat=37.411, lon=-6.0, alt=52.0)
+    at_end = tel(end.lat, end.lon, 52.0, queued=0)
+    v = judge(task, Progress(started=0.0), at_end, HOME, LIMITS, CFG, 5.0)
+    assert v.status == "running", "no generated path yet: nothing to complete"
+    v = judge(task, Progress(started=0.0), tel(37.41, -6.0, 52.0, queued=0), HOME, LIMITS, CFG, 5.0, generated=end)
+    assert v.status == "running", "not at the generated path's end"
+    v = judge(task, v.progress, at_end, HOME, LIMITS, CFG, 6.0, generated=end)
+    assert v.status == "completed"

@@ -172,8 +172,8 @@ def test_case3_a_path_without_speed_flies_at_the_cruise_speed_also_after_a_dsp_r
         sent = robot.commands()[mark:]
         speeds = [c["fields"]["speed"] for c in sent if c["name"] == "SET_SPEED"]
         assert speeds == [pytest.approx(5.0)], f"{round_}: the DSP got speeds {speeds}, not CRUISE_SPEED 5"
-        # speed and path are two inputs of the path follower: the speed reaches the DSP within the path's batch
-        # time, not necessarily before its first waypoint (docs/gcs.md)
+        # speed before path (docs/gcs.md): the cruise speed reaches the DSP before the path's first waypoint
+        assert names(sent).index("SET_SPEED") < names(sent).index("ADD_WAYPOINT"), names(sent)
         if round_ == "fresh":
             dsp = next(m for m in robot.gcs.modules(ROBOT).modules if m.name == "dsp")
             assert dsp.pid is not None

@@ -132,12 +132,17 @@ def test_every_task_kind_has_a_command(tmp_path: Path) -> None:
 
     f = tmp_path / "wp.csv"
     f.write_text("37.41,-6.0,30\n")
+    poly = tmp_path / "area.geojson"
+    poly.write_text('{"type": "Feature", "geometry": {"type": "Polygon", "coordinates": '
+                    '[[[-6.0, 37.41], [-5.999, 37.41], [-5.999, 37.411], [-6.0, 37.41]]]}}')
     argv = {
         "take_off": ["take_off", "--height", "10"], "land": ["land"], "hold": ["hold"], "track": ["track"],
         "goto": ["goto", str(f)], "follow_path": ["follow_path", str(f), "--heading", "90"],
         "follow_vision_path": ["follow_vision_path", "--speed", "3"],
         "bridge": ["bridge", "40", "--error-lateral", "2", "--ref-heading", "180"],
         "look_at": ["look_at", "37.41", "-6.0", "12"], "pan_tilt": ["pan_tilt", "10", "-20"],
+        "survey": ["survey", str(poly), "--height", "40", "--overlap", "0.3"],
+        "orbit": ["orbit", "37.41", "-6.0", "--radius", "50", "--counter-clockwise"],
     }
     assert set(argv) == set(t.TASK_KINDS)
     for kind, rest in argv.items():
@@ -155,3 +160,23 @@ def test_errors_print_names_and_detail() -> None:
     line = cli.format_error(mri.ErrorEvent(module="path_follower", code=106, stamp=0.0, detail="speed 12"))
     assert "SPEED_ABOVE_MAX" in line and "speed 12" in line and "path_follower" in line
     assert "DSP_" in cli.format_error(mri.ErrorEvent(module="path_follower", code=1001, stamp=0.0))
+
+
+def test_survey_polygon_files_are_checked_before_connecting(tmp_path: Path) -> None:
+    from bbcs.contracts import tasks as t
+    from ral.gcs.waypoints import WaypointFileError
+
+    good = tmp_path / "area.geojson"
+    good.write_text('{"type": "Polygon", "coordinates": [[[-6.0, 37.41], [-5.999, 37.41], [-5.999, 37.411], '
+                    '[-6.0, 37.411], [-6.0, 37.41]]]}')
+    survey = cli.task_request(cli.build_parser().parse_args(["task", ROBOT, "survey", str(good), "--height", "30"]))
+    assert isinstance(survey, t.Survey) and len(survey.polygon) == 4, "the closing point is dropped"
+    assert survey.polygon[1] == t.Vertex(lat=37.41, lon=-5.999) and survey.overlap == 0.2
+    line = tmp_path / "line.geojson"
+    line.write_text('{"type": "LineString", "coordinates": [[-6.0, 37.41, 30], [-5.999, 37.41, 30]]}')
+    with pytest.raises(WaypointFileError, match="is not a Polygon"):
+        cli.task_request(cli.build_parser().parse_args(["task", ROBOT, "survey", str(line), "--height", "30"]))
+    bad = tmp_path / "bad.geojson"
+    bad.write_text('{"type": "Polygon", "coordinates": [[[-6.0, 97.0], [-5.999, 37.41], [-5.999, 37.411]]]}')
+    with pytest.raises(WaypointFileError, match="vertex 0"):
+        cli.task_request(cli.build_parser().parse_args(["task", ROBOT, "survey", str(bad), "--height", "30"]))
