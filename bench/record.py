@@ -22,9 +22,9 @@ import threading
 import time
 from pathlib import Path
 
-from bbcs.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
 from benchlib import ROOT, write_results
 
+from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
 from bbcs.session import local_client, open_session
 from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import Processes, child_env, start_router
