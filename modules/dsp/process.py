@@ -66,7 +66,7 @@ class DspModule(Module):
 
     def on_start(self) -> None:
         self.conf = self._load_conf()
-        self._queue: deque[bus.DspCommands] = deque()
+        self._batches: deque[bus.DspCommands] = deque()
         self._cond = threading.Condition()
         self._abort_generation = 0
         self._sender_stop = False
@@ -167,13 +167,13 @@ class DspModule(Module):
                 return
         with self._cond:
             if any(isinstance(cmd, p.Abort) for cmd in batch.commands):
-                flushed = list(self._queue)
-                self._queue.clear()
+                flushed = list(self._batches)
+                self._batches.clear()
                 self._abort_generation += 1
-                self._queue.appendleft(batch)
+                self._batches.appendleft(batch)
             else:
                 flushed = []
-                self._queue.append(batch)
+                self._batches.append(batch)
             self._cond.notify_all()
         for old in flushed:
             self._publish_report(LinkErrorCode.FLUSHED, f"batch flushed by an ABORT from {batch.sender}", old)
@@ -181,10 +181,10 @@ class DspModule(Module):
     def _send_loop(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._queue or self._sender_stop)
+                self._cond.wait_for(lambda: self._batches or self._sender_stop)
                 if self._sender_stop:
                     return
-                batch = self._queue.popleft()
+                batch = self._batches.popleft()
                 generation = self._abort_generation
             self._send_batch(batch, generation)
 
