@@ -34,7 +34,7 @@ def test_list_names_every_slot_with_type_writer_readers_and_rate(uav):
     assert r.returncode == 0, r.stderr
     rows = {row["key"]: row for row in map(json.loads, r.stdout.splitlines())}
     tel = rows["cromat/uav1/dsp/telemetry"]
-    assert tel["type"] == "modules.dsp.protocol:Telemetry" and tel["writers"] == ["dsp"]
+    assert tel["type"] == "bbcs.contracts.dsp:Telemetry" and tel["writers"] == ["dsp"]
     assert tel["number"] == 2 and "telemetry.dsp_telemetry" in tel["readers"]
     assert 10 <= tel["hz"] <= 30, tel  # the DSP simulator's 20 Hz telemetry
     mode = rows["cromat/uav1/manager/pan_tilt_mode"]

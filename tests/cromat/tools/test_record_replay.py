@@ -61,11 +61,12 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
                     "cromat/uav1/manager/path_follower_mode"):
             assert key in counts, f"{key} recorded"
         assert 12 * (SECONDS - 1) <= counts["cromat/uav1/dsp/telemetry"] <= 25 * (SECONDS + 1)
-        assert channels["cromat/uav1/dsp/telemetry"]["meta"]["cromat.type"] == "modules.dsp.protocol:Telemetry"
+        assert channels["cromat/uav1/dsp/telemetry"]["meta"]["cromat.type"] == "bbcs.contracts.dsp:Telemetry"
         for key, msgs in data.items():
             for m in msgs[:3]:
                 jsonschema.validate(m, channels[key]["schema"])
-        alts = [s["position"]["alt"] for s in data["cromat/uav1/@ral/state"] if s["position"]]
+        alts = [s["telemetry"]["position"]["alt"] for s in data["cromat/uav1/@ral/state"]
+                if s["telemetry"] and s["telemetry"]["position"]]
         assert max(alts) > alts[0] + 1.0, "the recording holds the climb"
         assert any(m["modo_de_funcionamiento"] == 4 for m in data["cromat/uav1/manager/path_follower_mode"])
 
@@ -77,8 +78,13 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
         sub = session.declare_subscriber(
             "cromat/uav9/@ral/state", lambda s: replayed.append(msgspec.to_builtins(decode(s.payload.to_bytes()))))
         tel: list[dict] = []
-        sub2 = session.declare_subscriber(
-            "cromat/uav9/dsp/telemetry", lambda s: tel.append(msgspec.msgpack.decode(s.payload.to_bytes())))
+        encodings: set[str] = set()
+
+        def on_tel(s) -> None:
+            encodings.add(str(s.encoding))
+            tel.append(msgspec.msgpack.decode(s.payload.to_bytes()))
+
+        sub2 = session.declare_subscriber("cromat/uav9/dsp/telemetry", on_tel)
         watch = spawn("gcs", "--connect", f"tcp/127.0.0.1:{port}", "watch", "uav9", "--count", "3")
         try:
             wait_until(lambda: _gcs_alive(session), 20, "cromat gcs watch connected")
@@ -91,6 +97,7 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
             wait_until(lambda: len(tel) >= len(data["cromat/uav1/dsp/telemetry"]), 10, "replayed telemetry")
             assert replayed == expected
             assert tel == data["cromat/uav1/dsp/telemetry"]
+            assert encodings == {"application/msgpack;bbcs.contracts.dsp:Telemetry"}  # says its type, as live
             wout, werr = watch.communicate(timeout=20)
             assert watch.returncode == 0, werr
             heads = [line for line in wout.splitlines() if line.startswith("uav9 [uav] ")]
