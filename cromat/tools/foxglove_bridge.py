@@ -142,14 +142,14 @@ class Bridge:
             robot.has_telemetry = True
         if tname == GRI_STATE_TYPE:
             self._errors(robot, value, stamp_ns)
-            if robot.has_telemetry:
+            value = value.get("telemetry")  # GriState embeds the robot's RobotTelemetry
+            if robot.has_telemetry or not value:
                 return
-            value = value.get("telemetry") or value  # a GRI state carrying its telemetry nested
         self._pose(robot, value, stamp_ns)
 
     def _errors(self, robot: _Robot, state: dict[str, Any], stamp_ns: int) -> None:
         for err in state.get("errors") or []:
-            source = err.get("module") or err.get("source") or "?"  # both GRI shapes
+            source = err["module"]
             ident = (source, err["code"], err["stamp"])
             if ident in robot.errors_seen:
                 continue
