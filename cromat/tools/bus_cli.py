@@ -23,11 +23,11 @@ from typing import Any, TextIO
 
 import msgspec
 import zenoh
+from msgspec.json import schema as json_schema
 
-from bbcs.codec import json_schema
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from cromat.tools import keyexpr
-from cromat.tools.catalog import Catalog, Decoder, discover, struct_type, type_from_encoding
+from cromat.tools.catalog import Catalog, Decoder, discover, stand_in, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
 from cromat.tools.render import graph_dot, graph_text, yamlish
 from cromat.tools.stats import RateMeter
@@ -106,7 +106,7 @@ class Decoders:
         self._by_key: dict[str, Decoder] = {}
 
     def type_of(self, key: str, encoding: str = "") -> str:
-        return self.catalog.info(key).type or type_from_encoding(encoding)
+        return self.catalog.info(key, encoding).type
 
     def decode(self, key: str, payload: bytes, encoding: str = "") -> tuple[Any, str]:
         dec = self._by_key.get(key)
@@ -310,7 +310,7 @@ def cmd_pub(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> in
     if reason:
         print(f"cromat bus pub: refused, nothing sent: {reason}", file=sys.stderr)
         return 1
-    spec_type = typ or _Raw
+    spec_type = typ or stand_in(type_name_)
     spec = SlotSpec(parts[3], spec_type, Direction.OUT, Kind(info.kind or "state"),
                     Safety(info.safety or "safe") if (info.kind or "state") == "state" else Safety.SAFE)
     pub = Publisher(session, key, spec)
@@ -324,10 +324,6 @@ def cmd_pub(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> in
         pub.close()
     print(f"published {max(1, args.count)} x {type_name_ or 'datum'} on {key}", file=out)
     return 0
-
-
-class _Raw(msgspec.Struct):
-    """Stands in as the slot type of a key whose struct is not installed (validated by its JSON Schema)."""
 
 
 def cmd_graph(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:

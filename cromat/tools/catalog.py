@@ -1,10 +1,10 @@
 """What is on a robot's bus: every slot's key, struct type, JSON Schema, writer, readers and routes.
 
-Learned from the bus itself: liveliness tokens name the modules alive; each module's ``@schema`` queryable
-describes its slots and routes (queried one module at a time, accepting a reply on the module's own key or on
-the query's key); the manager's ``routes`` answer turns slot numbers into names. Keys of the bus's own
-bookkeeping (GRI state and events, the manager's robot state, route acknowledgements, heartbeats) have known
-types. A key nobody describes is still decoded as plain msgpack.
+Learned from the bus itself, in one round of queries: liveliness tokens name the modules alive; one wildcard get
+on ``cromat/<robot>/*/@schema`` returns every module's description (slots, routes, and its ``@route`` /
+``@heartbeat`` keys), and ``@manager/@schema`` / ``@ral/@schema`` describe the manager's and the RAL's keys; the
+manager's ``routes`` answer turns slot numbers into names. A key nobody describes is typed by its samples'
+encoding (``application/msgpack;<package.module:Class>``), else decoded as plain msgpack.
 """
 
 from __future__ import annotations
@@ -18,12 +18,9 @@ import msgspec
 import zenoh
 
 from bbcs import keys
-from bbcs.codec import json_schema, resolve_type, type_name
-from bbcs.contracts import gri, mri
-from bbcs.module import Heartbeat
-from bbcs.routing import RouteAck
-
-ENCODING_PREFIX = "application/msgpack"
+from bbcs.codec import resolve_type
+from bbcs.contracts import mri
+from bbcs.wire import MSGPACK as ENCODING_PREFIX
 
 
 @dataclass
@@ -68,15 +65,16 @@ class Catalog:
     def robots(self) -> list[str]:
         return sorted({r for r, _ in self.modules})
 
-    def info(self, key: str) -> SlotInfo:
-        """What is known about ``key``: a discovered slot, a bookkeeping key, or an unknown key."""
+    def info(self, key: str, encoding: object = "") -> SlotInfo:
+        """What is known about ``key``: a described slot or key; else, once a sample's ``encoding`` names its
+        struct, that type (and its schema when this installation has the struct)."""
         known = self.slots.get(key)
-        if known is not None:
-            return known
-        typ = bookkeeping_type(key)
-        if typ is not None:
-            return self.slots.setdefault(key, SlotInfo(key, type_name(typ), json_schema(typ), writers=["(bus)"]))
-        return self.slots.setdefault(key, SlotInfo(key))
+        if known is None:
+            known = self.slots.setdefault(key, SlotInfo(key))
+        if not known.type and (tname := type_from_encoding(encoding)):
+            typ = struct_type(tname)
+            known.type, known.schema = tname, msgspec.json.schema(typ) if typ is not None else {}
+        return known
 
     def find(self, selection: str) -> list[SlotInfo]:
         """Slots whose key intersects the key expression ``selection``."""
@@ -97,21 +95,12 @@ def struct_type(name: str) -> type[msgspec.Struct] | None:
         return None
 
 
-def bookkeeping_type(key: str) -> type[msgspec.Struct] | None:
-    parts = key.split("/")
-    if len(parts) < 3 or parts[0] != keys.ROOT:
-        return None
-    if parts[1] == "@gcs":
-        return gri.GcsHeartbeat if len(parts) == 4 and parts[3] == "heartbeat" else None
-    if len(parts) == 4 and parts[2] == "@ral":
-        return {gri.STATE: gri.GriState, gri.EVENTS: gri.GriEvent}.get(parts[3])
-    if len(parts) == 4 and parts[2] == "@manager" and parts[3] == mri.STATE:
-        return mri.RobotState
-    if len(parts) == 4 and parts[3] == "@route":
-        return RouteAck
-    if len(parts) == 4 and parts[3] == "@heartbeat":
-        return Heartbeat
-    return None
+@functools.cache
+def stand_in(name: str) -> type[msgspec.Struct]:
+    """A field-less struct *named* ``package.module:Class``, the slot type of a publisher of bytes whose struct
+    is not installed here: what goes on the wire then says the real type (``application/msgpack;<name>``)."""
+    module, _, qualname = name.partition(":")
+    return msgspec.defstruct(qualname or "Unknown", [], module=module or __name__)
 
 
 def type_from_encoding(encoding: object) -> str:
@@ -161,18 +150,20 @@ def alive_modules(session: zenoh.Session, robot: str, timeout_s: float) -> list[
     return sorted(found)
 
 
-def module_schema(session: zenoh.Session, robot: str, module: str, timeout_s: float) -> dict[str, Any] | None:
-    """The module's ``@schema`` document (reply on its own key or on the query's key: both are accepted)."""
-    for reply in session.get(keys.schema_key(robot, module), timeout=timeout_s):
+def _schema_docs(session: zenoh.Session, selector: str, timeout_s: float) -> dict[str, dict[str, Any]]:
+    """``@schema`` key → its JSON document, for every queryable that answers ``selector`` (each replies on
+    its own key)."""
+    docs = {}
+    for reply in session.get(selector, timeout=timeout_s):
         if reply.ok is None:
             continue
         try:
             doc = json.loads(reply.ok.payload.to_bytes())
         except ValueError:
             continue
-        if isinstance(doc, dict) and doc.get("module", module) == module:
-            return doc
-    return None
+        if isinstance(doc, dict):
+            docs[str(reply.ok.key_expr)] = doc
+    return docs
 
 
 def _slot_table(session: zenoh.Session, robot: str, timeout_s: float) -> dict[int, str]:
@@ -200,10 +191,10 @@ def discover(session: zenoh.Session, robot: str = "*", timeout_s: float = 3.0) -
         cat.modules[(r, m)] = ModuleInfo(r, m)
     for r in sorted({r for r, _ in alive}):
         cat.slot_numbers[r] = _slot_table(session, r, timeout_s)
-    docs = {}
-    for r, m in alive:
-        doc = module_schema(session, r, m, timeout_s)
-        if doc is not None:
+    docs: dict[tuple[str, str], dict[str, Any]] = {}
+    for key, doc in _schema_docs(session, keys.schema_pattern(robot), timeout_s).items():
+        r, m = key.split("/")[1:3]
+        if (r, m) in cat.modules:
             docs[(r, m)] = doc
     for (r, m), doc in docs.items():
         _add_module(cat, r, m, doc)
@@ -213,15 +204,25 @@ def discover(session: zenoh.Session, robot: str = "*", timeout_s: float = 3.0) -
     for key, entry in cat.slots.items():
         if not entry.writers and _manager_writes(key, docs):
             entry.writers.append("(manager)")
-    for r, m in alive:
-        cat.info(keys.route_ack_key(r, m))
-        cat.info(keys.heartbeat_key(r, m))
-        if m == "ral":
-            cat.info(gri.state_key(r))
-            cat.info(gri.events_key(r))
-    for r in cat.slot_numbers:
-        cat.info(keys.manager_key(r, mri.STATE))
+    for service in (keys.manager_key(robot), keys.ral_key(robot)):
+        for key, doc in _schema_docs(session, keys.schema_key_of(service), timeout_s).items():
+            writer = f"({key.split('/')[2].lstrip('@')})"
+            _add_keys(cat, doc, writer)
+    for doc in docs.values():
+        _add_keys(cat, doc.get("keys") or {}, "(bus)")
     return cat
+
+
+def _add_keys(cat: Catalog, described: dict[str, Any], writer: str) -> None:
+    """Keys a service or module publishes besides its slots (``{key: {"type", "schema"}}``); queryables
+    (``{"request", "reply"}``) are answered, not published, and are left out."""
+    for key, entry in described.items():
+        if not isinstance(entry, dict) or "type" not in entry:
+            continue
+        info = cat.slots.setdefault(key, SlotInfo(key))
+        info.type, info.schema = str(entry["type"]), entry.get("schema") or {}
+        if writer not in info.writers:
+            info.writers.append(writer)
 
 
 def _manager_writes(key: str, docs: dict[tuple[str, str], dict[str, Any]]) -> bool:

@@ -1,7 +1,7 @@
 """``cromat foxglove``: a robot's bus, live, in Foxglove (WebSocket server of ``foxglove-sdk``).
 
 Every key becomes a channel of JSON messages with the struct's JSON Schema (as in recordings). From the robot
-telemetry (any ``bbcs.robot:RobotTelemetry`` slot, else the GRI state) the bridge also publishes, per robot:
+telemetry (any ``bbcs.contracts.robot:RobotTelemetry`` slot, else the GRI state) the bridge also publishes, per robot:
 
 | topic | schema | Foxglove panel |
 | --- | --- | --- |
@@ -46,13 +46,13 @@ from foxglove.messages import (  # noqa: E402
 )
 
 from cromat.tools import keyexpr, mcapfmt
-from cromat.tools.catalog import Catalog, Decoder, discover, type_from_encoding
+from cromat.tools.catalog import Catalog, Decoder, discover
 from cromat.tools.connection import ToolError, add_connection_options, connect
 from cromat.tools.error_names import error_name
 from cromat.tools.foxglove_convert import KINEMATICS_SCHEMA, enu_quaternion, kinematics, local_enu
 from cromat.tools.progress import StatusLine
 
-TELEMETRY_TYPE = "bbcs.robot:RobotTelemetry"
+TELEMETRY_TYPE = "bbcs.contracts.robot:RobotTelemetry"
 GRI_STATE_TYPE = "bbcs.contracts.gri:GriState"
 GRI_EVENT_TYPE = "bbcs.contracts.gri:GriEvent"
 
@@ -111,8 +111,8 @@ class Bridge:
                 self.failed += 1
 
     def _channel(self, key: str, encoding: str) -> tuple[foxglove.Channel, Decoder]:
-        info = self.catalog.info(key)
-        tname = info.type or type_from_encoding(encoding)
+        info = self.catalog.info(key, encoding)
+        tname = info.type
         dec = Decoder(tname)
         schema = mcapfmt.inline_refs(info.schema or (msgspec.json.schema(dec.type) if dec.type else {}))
         ch = foxglove.Channel(key, message_encoding="json", context=self.ctx,
@@ -142,14 +142,14 @@ class Bridge:
             robot.has_telemetry = True
         if tname == GRI_STATE_TYPE:
             self._errors(robot, value, stamp_ns)
-            if robot.has_telemetry:
+            value = value.get("telemetry")  # GriState embeds the robot's RobotTelemetry
+            if robot.has_telemetry or not value:
                 return
-            value = value.get("telemetry") or value  # a GRI state carrying its telemetry nested
         self._pose(robot, value, stamp_ns)
 
     def _errors(self, robot: _Robot, state: dict[str, Any], stamp_ns: int) -> None:
         for err in state.get("errors") or []:
-            source = err.get("module") or err.get("source") or "?"  # both GRI shapes
+            source = err["module"]
             ident = (source, err["code"], err["stamp"])
             if ident in robot.errors_seen:
                 continue

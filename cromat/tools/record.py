@@ -25,7 +25,7 @@ import zenoh
 import zenoh.ext
 
 from cromat.tools import keyexpr, mcapfmt
-from cromat.tools.catalog import Catalog, discover, struct_type, type_from_encoding
+from cromat.tools.catalog import Catalog, discover, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
 from cromat.tools.extras import require
 from cromat.tools.progress import StatusLine
@@ -142,17 +142,17 @@ class McapSink:
         self._close()
 
     def _channel(self, key: str, encoding: str) -> _Channel:
-        info = self.catalog.info(key)
-        tname = info.type or type_from_encoding(encoding)
+        info = self.catalog.info(key, encoding)
+        tname = info.type
         typ = struct_type(tname)
-        schema = mcapfmt.inline_refs(info.schema or (msgspec.json.schema(typ) if typ else {}))
+        schema = mcapfmt.inline_refs(info.schema)
         assert self._writer is not None
         schema_id = self._writer.register_schema(name=tname or key, encoding=mcapfmt.SCHEMA_ENCODING,
                                                  data=json.dumps(schema).encode())
         channel_id = self._writer.register_channel(
             topic=key, message_encoding=mcapfmt.MESSAGE_ENCODING, schema_id=schema_id,
             metadata={mcapfmt.META_KEY: key, mcapfmt.META_TYPE: tname, mcapfmt.META_KIND: info.kind,
-                      mcapfmt.META_SAFETY: info.safety, mcapfmt.META_BUS_ENCODING: "msgpack"})
+                      mcapfmt.META_SAFETY: info.safety, mcapfmt.META_BUS_ENCODING: encoding})
         stats = self.summary.channels.setdefault(key, ChannelStats())
         ch = self._channels[key] = _Channel(channel_id, msgspec.msgpack.Decoder(typ).decode if typ else None, stats)
         return ch

@@ -25,14 +25,10 @@ import zenoh
 
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from cromat.tools import keyexpr, mcapfmt
-from cromat.tools.catalog import bookkeeping_type, struct_type
+from cromat.tools.catalog import stand_in, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
 from cromat.tools.extras import require
 from cromat.tools.progress import StatusLine, bar
-
-
-class _Any(msgspec.Struct):
-    """Slot type of a channel whose struct is not installed here (published as decoded from JSON)."""
 
 
 @dataclass
@@ -96,12 +92,12 @@ class Replayer:
         if key in self._pubs:
             return self._pubs[key]
         tname = meta.get(mcapfmt.META_TYPE, "")
-        typ = struct_type(tname) if tname else bookkeeping_type(key)
+        typ = struct_type(tname)
         out_key = keyexpr.remap_robot(key, *self.remap) if self.remap else key
         kind = Kind(meta.get(mcapfmt.META_KIND) or "state")
         safety = Safety.SAFE  # every recorded message is delivered: unsafe slots are replayed reliably too
         name = out_key.rsplit("/", 1)[-1].lstrip("@") or "slot"
-        spec = SlotSpec(name, typ or _Any, Direction.OUT, kind, safety)
+        spec = SlotSpec(name, typ or stand_in(tname), Direction.OUT, kind, safety)
         pair = (Publisher(self.session, out_key, spec), Encoder(out_key, typ, self.remap))
         self._pubs[key] = pair
         return pair

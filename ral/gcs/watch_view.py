@@ -4,7 +4,9 @@ Every line fits the width given (80 columns by default). Per robot: mode, airbor
 altitude, heading, speed and climb; pan/tilt, battery, vision; tasks; modules not up; the last errors with their
 names. Below the robots, the last events stay on screen instead of being wiped by the next state.
 
-States are read by attribute, so both GRI shapes work: fields on the state itself, or under ``telemetry``.
+The body's data come from the state's ``telemetry`` (:class:`bbcs.contracts.robot.RobotTelemetry`). Battery:
+RobotTelemetry carries no battery field (the DSP's ``Engine.battery_v`` does not reach it), so the view prints
+``battery n/a`` rather than a guess.
 """
 
 from __future__ import annotations
@@ -22,13 +24,10 @@ EVENTS_KEPT = 8
 ErrorNamer = Callable[[str, int], str]
 
 
-def _get(obj: Any, name: str) -> Any:
-    """``obj.name``, else ``obj.telemetry.name`` (None when neither has it)."""
-    value = getattr(obj, name, None)
-    if value is None:
-        tel = getattr(obj, "telemetry", None)
-        value = getattr(tel, name, None) if tel is not None else None
-    return value
+def _get(state: Any, name: str) -> Any:
+    """The telemetry field ``name`` of a GRI state (None when the robot has sent no telemetry yet)."""
+    tel = state.telemetry
+    return getattr(tel, name) if tel is not None else None
 
 
 def _num(value: float | None, fmt: str, unit: str = "") -> str:
@@ -62,7 +61,6 @@ def robot_lines(state: Any, *, vision: Any = None, error_name: ErrorNamer | None
     climb = -vel.vd if vel is not None else None
     lines.append(f"  {where}  hdg {_num(heading, '.0f', '°')}  spd {_num(speed, '.1f')} m/s  "
                  f"vz {_num(climb, '+.1f')}")
-    battery = _battery(state)
     seen = "-"
     if vision is not None:
         seen = str(_field(vision, "state") or "?")
@@ -70,7 +68,7 @@ def robot_lines(state: Any, *, vision: Any = None, error_name: ErrorNamer | None
         if conf:
             seen += f" {conf:.2f}"
     lines.append(f"  pan {_num(_get(state, 'pan_deg'), '+.1f', '°')}  tilt {_num(_get(state, 'tilt_deg'), '+.1f', '°')}"
-                 f"  battery {battery}  vision {seen}")
+                 f"  battery n/a  vision {seen}")
     tasks = ", ".join(f"{t.task_type}:{t.kind}#{t.id} {t.status}" for t in state.tasks) or "none"
     lines.append(f"  tasks {tasks}")
     mods = list(state.modules)
@@ -80,20 +78,10 @@ def robot_lines(state: Any, *, vision: Any = None, error_name: ErrorNamer | None
     summary = (f"{len(mods)} up" if not down else f"{len(mods) - len(down)}/{len(mods)} up; " + ", ".join(down))
     lines.append(f"  modules {summary}" + (f"; restarted {' '.join(restarted)}" if restarted else ""))
     for err in list(state.errors)[-ERRORS_SHOWN:]:
-        source = getattr(err, "module", None) or getattr(err, "source", "?")
-        name = getattr(err, "name", "") or (error_name(source, err.code) if error_name else "")
-        detail = getattr(err, "detail", "")
-        lines.append(f"  error {_clock(err.stamp)} {source} {err.code} {name}".rstrip() + (f": {detail}" if detail
-                                                                                            else ""))
+        name = err.name or (error_name(err.module, err.code) if error_name else "")
+        lines.append(f"  error {_clock(err.stamp)} {err.module} {err.code} {name}".rstrip()
+                     + (f": {err.detail}" if err.detail else ""))
     return lines
-
-
-def _battery(state: Any) -> str:
-    for name, fmt in (("battery_pct", ".0f%"), ("battery_percent", ".0f%"), ("battery_v", ".1fV")):
-        value = _get(state, name)
-        if value is not None:
-            return f"{value:{fmt[:-1]}}{fmt[-1]}"
-    return "-"
 
 
 def _field(obj: Any, name: str) -> Any:

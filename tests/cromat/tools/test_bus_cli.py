@@ -10,9 +10,9 @@ from pathlib import Path
 import jsonschema
 import msgspec
 import pytest
-from bbcs.robot import RobotTelemetry
-from modules.pan_tilt.structs import DatosPT
 
+from bbcs.contracts.pan_tilt import DatosPT
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.session import local_client, open_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -34,11 +34,11 @@ def test_list_names_every_slot_with_type_writer_readers_and_rate(uav):
     assert r.returncode == 0, r.stderr
     rows = {row["key"]: row for row in map(json.loads, r.stdout.splitlines())}
     tel = rows["cromat/uav1/dsp/telemetry"]
-    assert tel["type"] == "modules.dsp.protocol:Telemetry" and tel["writers"] == ["dsp"]
+    assert tel["type"] == "bbcs.contracts.dsp:Telemetry" and tel["writers"] == ["dsp"]
     assert tel["number"] == 2 and "telemetry.dsp_telemetry" in tel["readers"]
     assert 10 <= tel["hz"] <= 30, tel  # the DSP simulator's 20 Hz telemetry
     mode = rows["cromat/uav1/manager/pan_tilt_mode"]
-    assert mode["type"] == "modules.pan_tilt.structs:ModoFuncionamientoPT"
+    assert mode["type"] == "bbcs.contracts.pan_tilt:ModoFuncionamientoPT"
     assert mode["writers"] == ["(manager)"] and mode["readers"] == ["pan_tilt.control_modo#5"]
     assert rows["cromat/uav1/@ral/state"]["type"] == "bbcs.contracts.gri:GriState"
     assert rows["cromat/uav1/@ral/state"]["messages"] > 0
@@ -61,7 +61,7 @@ def test_echo_json_validates_against_the_served_schema(uav):
     schema = cromat("bus", "--connect", uav, "schema", "uav1/telemetry/telemetry")
     assert schema.returncode == 0, schema.stderr
     doc = json.loads(schema.stdout)
-    assert doc["type"] == "bbcs.robot:RobotTelemetry"
+    assert doc["type"] == "bbcs.contracts.robot:RobotTelemetry"
     r = cromat("bus", "--connect", uav, "echo", "uav1/telemetry/telemetry", "--json", "--count", "3")
     assert r.returncode == 0, r.stderr
     lines = [json.loads(line) for line in r.stdout.splitlines()]
@@ -77,7 +77,7 @@ def test_echo_json_validates_against_the_served_schema(uav):
 
 
 def test_schema_of_a_struct_and_of_nothing(uav):
-    r = cromat("bus", "schema", "modules.pan_tilt.structs:DatosPT")
+    r = cromat("bus", "schema", "bbcs.contracts.pan_tilt:DatosPT")
     props = json.loads(r.stdout)["$defs"]["DatosPT"]["properties"]
     assert props["ref_pan"]["maximum"] == 180.0
     missing = cromat("bus", "--connect", uav, "schema", "uav1/nobody/here")

@@ -13,9 +13,9 @@ from pathlib import Path
 import jsonschema
 import msgspec
 import pytest
-from bbcs.robot import RobotTelemetry
 from websockets.sync.client import connect as ws_connect
 
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.session import local_client, open_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import msgspec
-from modules.pan_tilt.structs import DatosPT
 
 from bbcs.contracts import gri
+from bbcs.contracts.pan_tilt import DatosPT
+from bbcs.wire import encoding_for
 from cromat.tools import keyexpr
 from cromat.tools.bus_cli import validate_datum
-from cromat.tools.catalog import Decoder, bookkeeping_type, type_from_encoding
+from cromat.tools.catalog import Catalog, Decoder, stand_in, type_from_encoding
 from cromat.tools.mcapfmt import inline_refs
 from cromat.tools.render import yamlish
 from cromat.tools.stats import RateMeter
@@ -40,16 +41,20 @@ def test_validate_datum_by_struct_and_by_schema_alone():
 
 
 def test_decoder_types_and_falls_back_to_plain_msgpack():
-    dec = Decoder("modules.pan_tilt.structs:DatosPT")
+    dec = Decoder("bbcs.contracts.pan_tilt:DatosPT")
     assert dec.decode(msgspec.msgpack.encode(DatosPT(ref_pan=3.0)))[0]["ref_pan"] == 3.0
     value, problem = dec.decode(msgspec.msgpack.encode({"ref_pan": 500.0}))
     assert value == {"ref_pan": 500.0} and problem.startswith("does not validate: Expected `float` <= 180.0")
     assert Decoder("no.such:Type").decode(msgspec.msgpack.encode([1, 2])) == ([1, 2], "")
     assert type_from_encoding("application/msgpack;bbcs.contracts.gri:GriState") == "bbcs.contracts.gri:GriState"
     assert type_from_encoding("zenoh/bytes") == ""
-    assert bookkeeping_type("cromat/uav1/@ral/state") is gri.GriState
-    assert bookkeeping_type("cromat/uav1/@ral/events") is gri.GriEvent
-    assert bookkeeping_type("cromat/uav1/dsp/telemetry") is None
+    cat = Catalog()
+    assert cat.info("cromat/uav1/@ral/state").type == ""  # nobody described it, no sample yet
+    info = cat.info("cromat/uav1/@ral/state", "application/msgpack;bbcs.contracts.gri:GriState")
+    assert info.type == "bbcs.contracts.gri:GriState" and info.schema == msgspec.json.schema(gri.GriState)
+    unknown = cat.info("cromat/uav1/x/y", "application/msgpack;elsewhere.structs:Thing")
+    assert unknown.type == "elsewhere.structs:Thing" and unknown.schema == {}  # not installed here
+    assert str(encoding_for(stand_in("elsewhere.structs:Thing"))) == "application/msgpack;elsewhere.structs:Thing"
 
 
 def test_keyexpr_helpers():

@@ -61,27 +61,38 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
                     "cromat/uav1/manager/path_follower_mode"):
             assert key in counts, f"{key} recorded"
         assert 12 * (SECONDS - 1) <= counts["cromat/uav1/dsp/telemetry"] <= 25 * (SECONDS + 1)
-        assert channels["cromat/uav1/dsp/telemetry"]["meta"]["cromat.type"] == "modules.dsp.protocol:Telemetry"
+        assert channels["cromat/uav1/dsp/telemetry"]["meta"]["cromat.type"] == "bbcs.contracts.dsp:Telemetry"
         for key, msgs in data.items():
             for m in msgs[:3]:
                 jsonschema.validate(m, channels[key]["schema"])
-        alts = [s["position"]["alt"] for s in data["cromat/uav1/@ral/state"] if s["position"]]
+        alts = [s["telemetry"]["position"]["alt"] for s in data["cromat/uav1/@ral/state"]
+                if s["telemetry"] and s["telemetry"]["position"]]
         assert max(alts) > alts[0] + 1.0, "the recording holds the climb"
         assert any(m["modo_de_funcionamiento"] == 4 for m in data["cromat/uav1/manager/path_follower_mode"])
 
         # replay onto another router as robot uav9; a subscriber and a ground station watch it there
         port = start_router(procs)
         session = open_session(local_client(port))
+        # the watch waits for the robot's first state (as for a live robot that is slow to come up); the replay
+        # starts once its state subscriber reached the router (seen by a publisher's matching status)
+        watch = spawn("gcs", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "60", "watch", "uav9", "--count", "3")
+        subs = []
         replayed: list[dict] = []
-        decode = msgspec.msgpack.Decoder(gri.GriState).decode
-        sub = session.declare_subscriber(
-            "cromat/uav9/@ral/state", lambda s: replayed.append(msgspec.to_builtins(decode(s.payload.to_bytes()))))
         tel: list[dict] = []
-        sub2 = session.declare_subscriber(
-            "cromat/uav9/dsp/telemetry", lambda s: tel.append(msgspec.msgpack.decode(s.payload.to_bytes())))
-        watch = spawn("gcs", "--connect", f"tcp/127.0.0.1:{port}", "watch", "uav9", "--count", "3")
+        encodings: set[str] = set()
+        decode = msgspec.msgpack.Decoder(gri.GriState).decode
+
+        def on_tel(s) -> None:
+            encodings.add(str(s.encoding))
+            tel.append(msgspec.msgpack.decode(s.payload.to_bytes()))
+
         try:
-            wait_until(lambda: _gcs_alive(session), 20, "cromat gcs watch connected")
+            probe = session.declare_publisher("cromat/uav9/@ral/state")
+            subs.append(probe)
+            wait_until(lambda: probe.matching_status.matching, 30, "cromat gcs watch subscribed")
+            subs.append(session.declare_subscriber("cromat/uav9/@ral/state", lambda s: replayed.append(
+                msgspec.to_builtins(decode(s.payload.to_bytes())))))
+            subs.append(session.declare_subscriber("cromat/uav9/dsp/telemetry", on_tel))
             r = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", str(out), "--robot-map", "uav1=uav9",
                        "--speed", "2")
             assert r.returncode == 0, r.stderr
@@ -91,6 +102,7 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
             wait_until(lambda: len(tel) >= len(data["cromat/uav1/dsp/telemetry"]), 10, "replayed telemetry")
             assert replayed == expected
             assert tel == data["cromat/uav1/dsp/telemetry"]
+            assert encodings == {"application/msgpack;bbcs.contracts.dsp:Telemetry"}  # says its type, as live
             wout, werr = watch.communicate(timeout=20)
             assert watch.returncode == 0, werr
             heads = [line for line in wout.splitlines() if line.startswith("uav9 [uav] ")]
@@ -100,17 +112,13 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
             if watch.poll() is None:
                 watch.kill()
                 watch.communicate()
-            sub.undeclare()
-            sub2.undeclare()
+            for entity in subs:
+                entity.undeclare()
             session.close()
     finally:
         procs.stop_all()
         la.stop()
         la.cleanup()
-
-
-def _gcs_alive(session) -> bool:
-    return any(r.ok is not None for r in session.liveliness().get("cromat/@gcs/*", timeout=1))
 
 
 def test_split_by_duration_and_replay_of_the_parts(tmp_path):
