@@ -77,7 +77,10 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     """Must exceed the manager's ack wait (``mri.MANAGER_ACK_S``), else a task can be applied after being refused."""
     state_period_s: float = 0.2
     speed_ack_s: float = 3.0
-    """How long the RAL waits for the path follower's answer to a path's speed before the path is not sent."""
+    """How long the RAL waits for the answer to a path's speed before the path is not sent."""
+    speed_ack_from: str = ""
+    """The module whose ``speed_ack`` slot answers the RAL's speeds (the UAV: ``path_follower``); empty: the robot's
+    speed and path reach one consumer in order and nothing is waited for (the manifest says which)."""
     kind: str = ""
     """Robot kind shown in the GRI state when the manager's state has none."""
 
@@ -205,7 +208,8 @@ class Ral(Module):
             ),
             s.liveliness().declare_subscriber(gri.gcs_alive_key("*"), self._on_gcs_token, history=True),
             s.declare_subscriber(gri.gcs_heartbeat_key("*"), self._on_gcs_heartbeat),
-            s.declare_subscriber(keys.slot_key(self.robot, "path_follower", SPEED_ACK_SLOT), self._on_speed_ack),
+            *([s.declare_subscriber(keys.slot_key(self.robot, self.cfg.speed_ack_from, SPEED_ACK_SLOT),
+                                    self._on_speed_ack)] if self.cfg.speed_ack_from else []),
             s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "status"), self._on_traj_status),
             s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "survey"),
                                  lambda sample: self._on_traj_path("survey", sample)),
@@ -316,6 +320,9 @@ class Ral(Module):
         """Publish a path's speed and wait until the path follower answered it (its SET_SPEED is then on the DSP
         command stream, ahead of any path sent after): None, or why the path must not go out. The speed input is
         best-effort, so it is published again every half second until answered."""
+        if not self.cfg.speed_ack_from:
+            self.publish("speed", SpeedSegCam(speed=speed))
+            return None
         deadline = time.monotonic() + self.cfg.speed_ack_s
         with self._speed_acked:
             self._speed_acks.clear()
@@ -330,9 +337,9 @@ class Ral(Module):
             if ack is not None:
                 if ack.accepted:
                     return None
-                return f"the path follower refused speed {speed:g} m/s (code {ack.code}): {ack.reason}"
+                return f"{self.cfg.speed_ack_from} refused speed {speed:g} m/s (code {ack.code}): {ack.reason}"
             if time.monotonic() >= deadline:
-                return (f"the path follower did not acknowledge speed {speed:g} m/s within {self.cfg.speed_ack_s:g} s;"
+                return (f"{self.cfg.speed_ack_from} did not acknowledge speed {speed:g} m/s within {self.cfg.speed_ack_s:g} s;"
                         " the path was not sent")
 
     def _on_gcs_token(self, sample: zenoh.Sample) -> None:

@@ -57,6 +57,7 @@ def rig(router: int) -> Iterator[Rig]:
         "state_period_s": "0.05",
         "settle_s": "0",
         "failsafe_action": "hold",
+        "speed_ack_from": "path_follower",  # the stand-in answers speeds as the UAV's path follower does
     }
     ral = Ral(ModuleContext(robot=ROBOT, module="ral", bus=local_client(router), params=params))
     thread = threading.Thread(target=ral.run, daemon=True)
