@@ -36,7 +36,7 @@ from modules.lidar_logger.mtdata import utc_to_posix
 from modules.lidar_logger.sim import Flight, LdmrsOptions, LdmrsSimulator, MTiGSimulator, World
 from modules.lidar_logger.textlog import format_scan, read_text_log
 
-SCALE = 12.0
+SCALE = 4.0  # sim seconds per real second: the logger keeps up at this rate also beside other test workers
 
 
 def settings_for(imu: MTiGSimulator, lidar: LdmrsSimulator, out, **kw) -> LoggerSettings:
