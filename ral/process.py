@@ -339,8 +339,8 @@ class Ral(Module):
                     return None
                 return f"{self.cfg.speed_ack_from} refused speed {speed:g} m/s (code {ack.code}): {ack.reason}"
             if time.monotonic() >= deadline:
-                return (f"{self.cfg.speed_ack_from} did not acknowledge speed {speed:g} m/s within {self.cfg.speed_ack_s:g} s;"
-                        " the path was not sent")
+                return (f"{self.cfg.speed_ack_from} did not acknowledge speed {speed:g} m/s within "
+                        f"{self.cfg.speed_ack_s:g} s; the path was not sent")
 
     def _on_gcs_token(self, sample: zenoh.Sample) -> None:
         if sample.kind != zenoh.SampleKind.PUT:  # a station that leaves stops linking every robot
