@@ -158,20 +158,24 @@ class Record:
         self.offset = 0
         self.pending = ""
 
+    def _new_records(self) -> list[dict]:
+        """The records the simulator completed since the last call (a line still being written waits)."""
+        if not self.path.exists():
+            return []
+        with self.path.open() as f:
+            f.seek(self.offset)
+            chunk = f.read()
+            self.offset = f.tell()
+        self.pending += chunk
+        *lines, self.pending = self.pending.split("\n")
+        return [json.loads(line) for line in lines]
+
     def wait_abort(self, after: float, timeout_s: float = 5.0) -> float:
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
-            if self.path.exists():
-                with self.path.open() as f:
-                    f.seek(self.offset)
-                    chunk = f.read()
-                    self.offset = f.tell()
-                self.pending += chunk
-                *lines, self.pending = self.pending.split("\n")
-                for line in lines:
-                    rec = json.loads(line)
-                    if rec["name"] == "ABORT" and rec["mono"] >= after:
-                        return float(rec["mono"])
+            for rec in self._new_records():
+                if rec["name"] == "ABORT" and rec["mono"] >= after:
+                    return float(rec["mono"])
             time.sleep(0.001)
         raise RuntimeError("no ABORT in the DSP simulator's record")
 
@@ -182,23 +186,15 @@ class Record:
         cleared = False
         added = 0
         while time.monotonic() < end:
-            if self.path.exists():
-                with self.path.open() as f:
-                    f.seek(self.offset)
-                    chunk = f.read()
-                    self.offset = f.tell()
-                self.pending += chunk
-                *lines, self.pending = self.pending.split("\n")
-                for line in lines:
-                    rec = json.loads(line)
-                    if rec["mono"] < after:
-                        continue
-                    if rec["name"] == "INVALIDATE_PATH":
-                        cleared, added = True, 0
-                    elif rec["name"] == "ADD_WAYPOINT" and cleared:
-                        added += 1
-                        if added == n_points:
-                            return float(rec["mono"])
+            for rec in self._new_records():
+                if rec["mono"] < after:
+                    continue
+                if rec["name"] == "INVALIDATE_PATH":
+                    cleared, added = True, 0
+                elif rec["name"] == "ADD_WAYPOINT" and cleared:
+                    added += 1
+                    if added == n_points:
+                        return float(rec["mono"])
             time.sleep(0.001)
         raise RuntimeError("the new path never replaced the old one in the DSP simulator's record")
 
