@@ -76,12 +76,22 @@ class Control:
 
 _HELD, _LIVE, _DRAINING, _CLOSED = range(4)
 
+WAKE = b"bbcs-wake"
+"""Attachment of the empty, session-local sample that wakes a loop blocked on its channel input (never data:
+a datum is never empty msgpack)."""
+CHANNEL_BATCH = 256
+"""Samples the loop takes from its channel input in one go before it looks at timers and other inputs."""
+
 
 class _Reader:
-    """One input's subscriber and its hand-over to the loop (callbacks only enqueue)."""
+    """One input's subscriber and its hand-over to the loop.
 
-    __slots__ = ("spec", "key", "number", "sub", "handler", "decode", "is_control", "state", "lock", "held", "latest",
-                 "unsafe", "enqueued", "handled", "waiting", "room", "received")
+    A *channel* reader (the module's first stream input) has a Zenoh FIFO channel as its handler: Zenoh's thread
+    never runs Python for it, the loop takes its samples in batches and blocks on it when idle. Other readers
+    have a callback that only hands the sample to the loop's queue."""
+
+    __slots__ = ("spec", "key", "number", "sub", "chan", "handler", "decode", "is_control", "state", "lock", "held",
+                 "latest", "unsafe", "enqueued", "handled", "waiting", "room")
 
     def __init__(self, spec: SlotSpec[Any], key: str, number: int, handler: Callable[[Any], Any],
                  is_control: bool) -> None:
@@ -89,6 +99,8 @@ class _Reader:
         self.key = key
         self.number = number
         self.sub: Any = None
+        self.chan: Any = None
+        """The Zenoh channel (``try_recv``/``recv``) of a channel reader, else None."""
         self.handler = handler
         self.decode = spec.codec.decode
         self.is_control = is_control
@@ -101,7 +113,6 @@ class _Reader:
         self.handled = 0
         self.waiting = False
         self.room = threading.Condition(threading.Lock())
-        self.received = 0
 
 
 class Module:
@@ -121,6 +132,7 @@ class Module:
     _inputs: ClassVar[dict[str, SlotSpec[Any]]]
     _outputs: ClassVar[dict[str, SlotSpec[Any]]]
     _routed: ClassVar[frozenset[str]]
+    _channel_slot: ClassVar[str | None]
     _error_field: ClassVar[str | None]
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -146,6 +158,7 @@ class Module:
                     raise SlotError(f"{cls.__name__}: input {slot!r} has a fixed peer and cannot be routed")
                 routed.add(slot)
         cls._routed = frozenset(routed)
+        cls._channel_slot = next((s.name for s in specs if s.direction is Direction.IN and s.kind is Kind.STREAM), None)
         for name in cls._inputs:
             if name != (cls.control.slot if cls.control else None) and not callable(getattr(cls, f"on_{name}", None)):
                 raise SlotError(f"{cls.__name__}: input slot {name!r} has no handler on_{name}()")
@@ -182,6 +195,16 @@ class Module:
         self._entities: list[Any] = []
         self._running = False
         self._loop_thread: threading.Thread | None = None
+        self._loop_ident = 0
+        self._channel_reader: _Reader | None = None
+        """The live channel reader the loop drains and blocks on (None: the loop blocks on its queue)."""
+        self._blocked_on: _Reader | None = None
+        """Set while the loop sits in that channel reader's ``recv()``: waking it takes a session-local sample."""
+        self._armed = float("inf")
+        self._kick = threading.Event()
+        self._wake_requested = False
+        self._timer_stop = False
+        self._timer_thread: threading.Thread | None = None
         self.error_count = 0
         self.rejected = 0
         self.dropped_after_switch = 0
@@ -217,10 +240,50 @@ class Module:
         self._bbcs_stopping = True
         self._stop.set()
         self._bbcs_queue.put((None, _STOP))
+        self._wake()
 
     def call_soon(self, fn: Callable[[], Any]) -> None:
         """Run ``fn()`` on the event loop, in arrival order with the inputs (for a module's own threads)."""
         self._bbcs_queue.put((None, fn))
+        if self._blocked_on is not None:
+            self._wake()
+
+    def _wake(self) -> None:
+        """Wake a loop blocked on its channel reader: something is in its queue (or a deadline passed). From the
+        loop's own thread (a signal handler run inside ``recv()``) the timer thread does it: a put into a full
+        channel from the thread that drains it would never return."""
+        if self._blocked_on is None:
+            return
+        if threading.get_ident() == self._loop_ident:
+            self._wake_requested = True
+            self._kick.set()
+            return
+        self._wake_now()
+
+    def _wake_now(self) -> None:
+        reader = self._blocked_on
+        if reader is None or self.session is None:
+            return
+        self._blocked_on = None  # one wake is enough; the loop re-checks everything before it blocks again
+        try:
+            self.session.put(reader.key, b"", attachment=WAKE, allowed_destination=zenoh.Locality.SESSION_LOCAL)
+        except Exception as exc:  # the session is closing: the loop is on its way out anyway
+            self.log.debug("wake: %s", exc)
+
+    def _timer(self) -> None:
+        """Wakes a loop blocked on its channel reader at its next deadline (heartbeat, tick) or when asked."""
+        kick = self._kick
+        monotonic = time.monotonic
+        while not self._timer_stop:
+            delay = self._armed - monotonic()
+            if delay > 0 and not self._wake_requested:
+                kick.wait(delay if delay < 3600 else None)
+                kick.clear()
+                continue
+            self._wake_requested = False
+            self._wake_now()
+            kick.wait(0.01)  # until the loop re-arms a later deadline (it does each time before it blocks)
+            kick.clear()
 
     @property
     def stopping(self) -> bool:
@@ -243,15 +306,26 @@ class Module:
             self._shutdown()
 
     def _serve(self) -> None:
-        """The event loop: inputs, route changes and calls in arrival order; heartbeat and tick between them."""
+        """The event loop: inputs, route changes and calls in arrival order; heartbeat and tick between them.
+
+        What the queue holds (local events, callback inputs) is handled first, then up to ``CHANNEL_BATCH`` samples
+        of the channel reader; with nothing to do the loop blocks on the channel reader's ``recv()`` (the timer
+        thread and the queue's producers wake it) or, without one, on the queue with the next deadline."""
         self._loop_thread = threading.current_thread()
+        self._loop_ident = threading.get_ident()
+        if self._channel_slot is not None:
+            self._timer_thread = threading.Thread(target=self._timer, name=f"{self.module}-timer", daemon=True)
+            self._timer_thread.start()
         period = self.tick_period
         monotonic = time.monotonic
         next_tick = monotonic() + period if period else float("inf")
         next_beat = monotonic()
         seq = 0
-        get = self._bbcs_queue.get
+        q = self._bbcs_queue
+        get = q.get
+        empty = q.empty
         handle = self._handle_sample
+        drain = self._drain_channel
         while not self._bbcs_stopping:
             now = monotonic()
             if now >= next_beat:
@@ -265,14 +339,80 @@ class Module:
                 self.handle_event(_TICK)
                 next_tick = max(next_tick + (period or 0.0), now)
                 continue
-            try:
-                reader, item = get(True, min(next_tick, next_beat) - now)  # both deadlines are ahead
-            except queue.Empty:
+            busy = False
+            for _ in range(q.qsize()):  # local events and callback inputs, in arrival order (those queued now)
+                if self._bbcs_stopping:
+                    break
+                reader, item = get()
+                if reader is not None:
+                    handle(reader, item)
+                else:
+                    self._handle_local(item)
+                busy = True
+            channel = self._channel_reader
+            if channel is not None and not self._bbcs_stopping and drain(channel, CHANNEL_BATCH):
+                busy = True
+            if busy or self._bbcs_stopping:
                 continue
-            if reader is not None:
-                handle(reader, item)
-            else:
-                self._handle_local(item)
+            deadline = min(next_tick, next_beat)
+            if channel is None:
+                self._armed = float("inf")
+                try:
+                    reader, item = get(True, max(0.0, deadline - monotonic()))
+                except queue.Empty:
+                    continue
+                if reader is not None:
+                    handle(reader, item)
+                else:
+                    self._handle_local(item)
+                continue
+            if deadline != self._armed:
+                self._armed = deadline
+                self._kick.set()
+            self._blocked_on = channel
+            if not empty() or self._bbcs_stopping:  # re-checked after announcing the block: no lost wake-up
+                self._blocked_on = None
+                continue
+            sample = channel.chan.recv()
+            self._blocked_on = None
+            self._handle_channel_sample(channel, sample)
+
+    def _drain_channel(self, reader: _Reader, limit: int) -> int:
+        """Handle up to ``limit`` samples waiting in a channel reader, in order; returns how many were taken."""
+        try_recv = reader.chan.try_recv
+        handle = self._handle_channel_sample
+        n = 0
+        try:
+            while n < limit:
+                sample = try_recv()
+                if sample is None:
+                    break
+                n += 1
+                handle(reader, sample)
+                if self._bbcs_stopping or reader.state != _LIVE:
+                    break
+        except zenoh.ZError as exc:  # a closed channel (its session is closing): nothing more will come
+            self.log.debug("input %s: %s", reader.spec.name, exc)
+            if self._channel_reader is reader:
+                self._channel_reader = None
+        return n
+
+    def _handle_channel_sample(self, reader: _Reader, sample: Any) -> None:
+        """One datum of a channel reader: decode (= validate), then the handler (the hot path: nothing else)."""
+        payload = sample.payload.to_bytes()
+        if not payload and _is_wake(sample):
+            return
+        try:
+            value = reader.decode(payload)
+        except msgspec.MsgspecError as exc:
+            self._reject(reader.spec.name, reader.key, exc, payload)
+            return
+        with self.lock:
+            try:
+                reader.handler(value)
+            except Exception:
+                self.log.exception("handler on_%s failed", reader.spec.name)
+                self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{reader.spec.name} raised")
 
     def _handle_local(self, item: Any) -> None:
         if item is _STOP or isinstance(item, _Marker):
@@ -327,6 +467,8 @@ class Module:
         self._closed = True
         self._bbcs_stopping = True
         self._stop.set()
+        self._timer_stop = True
+        self._kick.set()
         try:
             with self.lock:
                 self._call_safely("stop", self.on_stop)
@@ -334,6 +476,8 @@ class Module:
             for reader in list(self._readers.values()):
                 self._close_reader(reader)
             self._readers.clear()
+            if self._timer_thread is not None:  # after the readers: a wake put into a full channel has returned
+                self._timer_thread.join(5)
             for pub in [*self._outputs_by_name.values(), self._ack_pub, self._heartbeat_pub]:
                 if pub is not None:
                     pub.close()
@@ -384,11 +528,20 @@ class Module:
         return reader.key if reader is not None else spec.key(self.robot, self.module)
 
     def _make_reader(self, spec: SlotSpec[Any], key: str, number: int) -> _Reader:
-        """Subscribe; the reader holds what it receives until ``_release`` (running, or past a switch point)."""
+        """Subscribe; the reader holds what it receives until ``_release`` (running, or past a switch point).
+
+        The module's first stream input gets a Zenoh FIFO channel of ``queue`` samples (a full channel blocks
+        Zenoh's thread: back-pressure, nothing dropped), unless another input reads the same key (the wake sample
+        would reach it too); every other input a callback into the loop's queue."""
         is_control = self.control is not None and spec.name == self.control.slot
         reader = _Reader(spec, key, number, self._handler_for(spec), is_control)
         if self.session is not None:
-            reader.sub = declare_reader(self.session, key, spec, self._enqueuer(reader))
+            shared = any(r.key == key for r in self._readers.values() if r.spec.name != spec.name)
+            if spec.name == self._channel_slot and not shared:
+                reader.sub = declare_reader(self.session, key, spec, zenoh.handlers.FifoChannel(spec.queue))
+                reader.chan = reader.sub.handler
+            else:
+                reader.sub = declare_reader(self.session, key, spec, self._enqueuer(reader))
         return reader
 
     def _enqueuer(self, reader: _Reader) -> Callable[[zenoh.Sample], None]:
@@ -405,6 +558,8 @@ class Module:
                         return
                 if fresh:
                     put(item)
+                    if self._blocked_on is not None:
+                        self._wake()
             return newest
 
         bound = reader.spec.queue
@@ -420,7 +575,9 @@ class Module:
             n = next(enqueued)
             if n - reader.handled > bound:
                 self._wait_for_room(reader, n)
-            put((reader, sample))  # last: the loop wakes to a free GIL (no second wake-up)
+            put((reader, sample))  # the loop wakes to a free GIL (no second wake-up) ...
+            if self._blocked_on is not None:  # ... unless it sits on its channel reader
+                self._wake()
         return in_order
 
     def _wait_for_room(self, reader: _Reader, enqueued: int) -> None:
@@ -438,6 +595,10 @@ class Module:
         with reader.lock:
             if reader.state != _HELD:
                 return
+            if reader.chan is not None:  # its samples wait in the channel: the loop now drains it
+                reader.state = _LIVE
+                self._channel_reader = reader
+                return
             if reader.unsafe:
                 if reader.latest is not None:
                     self._bbcs_queue.put((reader, None))
@@ -449,11 +610,17 @@ class Module:
             reader.state = _LIVE
 
     def _close_reader(self, reader: _Reader) -> None:
+        """Undeclare (on the loop's thread, never while it sits in ``recv()``) and drop the channel: a Zenoh
+        thread blocked on a full channel is released when its receiver goes."""
         try:
             if reader.sub is not None:
                 reader.sub.undeclare()
         except Exception as exc:  # an undeclare racing session close must not stop the shutdown
             self.log.debug("undeclare %s: %s", reader.key, exc)
+        reader.sub = None
+        reader.chan = None
+        if self._channel_reader is reader:
+            self._channel_reader = None
         reader.state = _CLOSED
         with reader.room:
             reader.room.notify_all()
@@ -474,8 +641,9 @@ class Module:
         if reader.state == _CLOSED:
             self.dropped_after_switch += 1
             return
-        reader.received += 1
         payload = sample.payload.to_bytes()
+        if not payload and _is_wake(sample):
+            return
         try:
             value = reader.decode(payload)
         except msgspec.MsgspecError as exc:
@@ -549,6 +717,9 @@ class Module:
                 reader.sub = None
         deferred = self._drain_until_switch() if old and self._running else []
         for reader in old:
+            if reader.chan is not None and self._running and reader is self._channel_reader:
+                self._drain_channel_to_end(reader)
+        for reader in old:
             self._close_reader(reader)
         for slot in changed:
             self._routes[slot] = wanted[slot]
@@ -565,6 +736,15 @@ class Module:
                 self._release(reader)
         for reader, item in deferred:
             self._bbcs_queue.put((reader, item))
+
+    def _drain_channel_to_end(self, reader: _Reader) -> None:
+        """An old route's channel reader, already undeclared: handle every datum it had received."""
+        try_recv = reader.chan.try_recv
+        try:
+            while (sample := try_recv()) is not None:
+                self._handle_channel_sample(reader, sample)
+        except zenoh.ZError:  # "empty and closed": everything it had is handled
+            pass
 
     def _drain_until_switch(self) -> list[tuple[Any, Any]]:
         """Handle everything already queued (old sources included) up to the switch point; a CONTROL_ENTRADA met
@@ -651,6 +831,11 @@ class Module:
             module.log.error("%s", exc)
             return 2
         return 0
+
+
+def _is_wake(sample: Any) -> bool:
+    attachment = sample.attachment
+    return attachment is not None and attachment.to_bytes() == WAKE
 
 
 class _Marker:

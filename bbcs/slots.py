@@ -182,16 +182,17 @@ class Publisher(Generic[T]):
 
 
 def declare_reader(session: zenoh.Session, key: str, spec: SlotSpec[Any],
-                   callback: Callable[[zenoh.Sample], None]) -> Any:
-    """Declare the Zenoh subscriber behind an input slot, calling ``callback`` (which only enqueues) per sample.
+                   handler: Callable[[zenoh.Sample], None] | zenoh.handlers.FifoChannel[zenoh.Sample]) -> Any:
+    """Declare the Zenoh subscriber behind an input slot: ``handler`` is a callback (which only enqueues) or a
+    Zenoh FIFO channel the module's loop drains.
 
     Newest-only (unsafe) and the bounded in-order queue (safe) are kept by the module's loop (bbcs.module);
     safe state → AdvancedSubscriber with history of the last value (late joiners) and recovery.
     """
     if spec.safety is Safety.UNSAFE or spec.kind is Kind.STREAM:
-        return session.declare_subscriber(key, callback)
+        return session.declare_subscriber(key, handler)
     return zenoh.ext.declare_advanced_subscriber(
-        session, key, callback,
+        session, key, handler,
         history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
         recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
         subscriber_detection=True)
