@@ -195,7 +195,6 @@ class Module:
         self._entities: list[Any] = []
         self._running = False
         self._loop_thread: threading.Thread | None = None
-        self._loop_ident = 0
         self._channel_reader: _Reader | None = None
         """The live channel reader the loop drains and blocks on (None: the loop blocks on its queue)."""
         self._blocked_on: _Reader | None = None
@@ -249,16 +248,14 @@ class Module:
             self._wake()
 
     def _wake(self) -> None:
-        """Wake a loop blocked on its channel reader: something is in its queue (or a deadline passed). From the
-        loop's own thread (a signal handler run inside ``recv()``) the timer thread does it: a put into a full
-        channel from the thread that drains it would never return."""
+        """Wake a loop blocked on its channel reader: something is in its queue. The timer thread sends the wake
+        sample, never the caller: from the loop's own thread (a signal handler run inside ``recv()``) a put into
+        a full channel would never return, and a caller's thread may be a daemon still inside Zenoh's ``put`` when
+        the woken loop closes the session and the interpreter exits (the timer thread is joined before that)."""
         if self._blocked_on is None:
             return
-        if threading.get_ident() == self._loop_ident:
-            self._wake_requested = True
-            self._kick.set()
-            return
-        self._wake_now()
+        self._wake_requested = True
+        self._kick.set()
 
     def _wake_now(self) -> None:
         reader = self._blocked_on
@@ -312,7 +309,6 @@ class Module:
         of the channel reader; with nothing to do the loop blocks on the channel reader's ``recv()`` (the timer
         thread and the queue's producers wake it) or, without one, on the queue with the next deadline."""
         self._loop_thread = threading.current_thread()
-        self._loop_ident = threading.get_ident()
         if self._channel_slot is not None:
             self._timer_thread = threading.Thread(target=self._timer, name=f"{self.module}-timer", daemon=True)
             self._timer_thread.start()
