@@ -374,9 +374,13 @@ class Module:
             self._handle_channel_sample(channel, sample)
 
     def _drain_channel(self, reader: _Reader, limit: int) -> int:
-        """Handle up to ``limit`` samples waiting in a channel reader, in order; returns how many were taken."""
+        """Handle up to ``limit`` samples waiting in a channel reader, in order; returns how many were taken.
+        (The hot path, written out: per datum one ``try_recv``, the payload's bytes, decode = validate, the
+        handler under the module lock; a wake sample is told apart only when it fails to decode.)"""
         try_recv = reader.chan.try_recv
-        handle = self._handle_channel_sample
+        decode = reader.decode
+        handler = reader.handler
+        lock = self.lock
         n = 0
         try:
             while n < limit:
@@ -384,7 +388,18 @@ class Module:
                 if sample is None:
                     break
                 n += 1
-                handle(reader, sample)
+                payload = sample.payload.to_bytes()
+                try:
+                    value = decode(payload)
+                except msgspec.MsgspecError as exc:
+                    if payload or not _is_wake(sample):
+                        self._reject(reader.spec.name, reader.key, exc, payload)
+                    continue
+                with lock:
+                    try:
+                        handler(value)
+                    except Exception:
+                        self._handler_failed(reader.spec.name)
                 if self._bbcs_stopping or reader.state != _LIVE:
                     break
         except zenoh.ZError as exc:  # a closed channel (its session is closing): nothing more will come
@@ -394,21 +409,23 @@ class Module:
         return n
 
     def _handle_channel_sample(self, reader: _Reader, sample: Any) -> None:
-        """One datum of a channel reader: decode (= validate), then the handler (the hot path: nothing else)."""
+        """One datum of a channel reader (the one ``recv()`` returned, or a route switch's drain)."""
         payload = sample.payload.to_bytes()
-        if not payload and _is_wake(sample):
-            return
         try:
             value = reader.decode(payload)
         except msgspec.MsgspecError as exc:
-            self._reject(reader.spec.name, reader.key, exc, payload)
+            if payload or not _is_wake(sample):
+                self._reject(reader.spec.name, reader.key, exc, payload)
             return
         with self.lock:
             try:
                 reader.handler(value)
             except Exception:
-                self.log.exception("handler on_%s failed", reader.spec.name)
-                self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{reader.spec.name} raised")
+                self._handler_failed(reader.spec.name)
+
+    def _handler_failed(self, slot: str) -> None:
+        self.log.exception("handler on_%s failed", slot)
+        self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{slot} raised")
 
     def _handle_local(self, item: Any) -> None:
         if item is _STOP or isinstance(item, _Marker):

@@ -37,6 +37,7 @@ from bbcs.errors import SlotError
 from bbcs.wire import encoding_for
 
 log = logging.getLogger("bbcs.slots")
+_monotonic = time.monotonic
 
 T = TypeVar("T", bound=msgspec.Struct)
 
@@ -151,23 +152,24 @@ class Publisher(Generic[T]):
                 key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE,
                 congestion_control=zenoh.CongestionControl.BLOCK)
         self._safe = spec.safety is Safety.SAFE
+        self._type = spec.type
+        self._put = self._pub.put
 
     def publish(self, value: T) -> None:
         """Encode and put ``value``. Types are checked where they are cheap: the struct class must match."""
-        if type(value) is not self.spec.type:
+        if type(value) is not self._type:
             raise SlotError(f"slot {self.spec.name!r} carries {self.spec.type.__name__}, "
                             f"not {type(value).__name__}")
-        payload = encode(value)
         if self._safe:
-            t0 = time.monotonic()
-            self._pub.put(payload)
-            blocked = time.monotonic() - t0
+            t0 = _monotonic()
+            self._put(encode(value))
+            blocked = _monotonic() - t0
             if blocked > BACKPRESSURE_S:
                 self.backpressure_events += 1
                 log.warning("slot %s: put blocked %.0f ms: a consumer's safe queue is full (back-pressure)",
                             self.key, blocked * 1000)
         else:
-            self._pub.put(payload)
+            self._put(encode(value))
         self.published += 1
 
     def publish_raw(self, payload: bytes) -> None:
