@@ -5,17 +5,23 @@ robot's bus, validates every datum before a handler sees it, reports errors on t
 the slot numbers the manager puts in CONTROL_ENTRADA, holds a liveliness token, answers a schema query, and
 stops cleanly on SIGINT/SIGTERM (undeclare everything, close the session, exit 0).
 
-**One loop, one thread.** Zenoh's callbacks only enqueue; the loop (the thread that called ``run()``) takes the
-typed events of :mod:`bbcs.events` in arrival order (an input datum, a tick, a route change, stop), decodes
-(= validates) and calls the module's code. The heartbeat is published by the same loop, so a stuck handler stops
+**One loop, one thread.** The loop (the thread that called ``run()``) takes the typed events of :mod:`bbcs.events`
+(an input datum, a tick, a route change, stop), decodes (= validates) and calls the module's code. The module's
+first stream input is a Zenoh FIFO channel (``queue`` samples) that the loop drains in batches and blocks on when
+idle: no Python runs on Zenoh's thread for it and there is no second thread hop. Every other input has a Zenoh
+callback that only enqueues; what is queued is handled before the next batch of the channel input. While the loop
+sits in the channel's ``recv()``, a timer thread wakes it (heartbeat and tick deadlines, ``call_soon``, stop, a
+queued input) with an empty session-local sample on that input's key, tagged ``WAKE``, that no handler sees.
+The heartbeat is published by the same loop, so a stuck handler stops
 the heartbeat and the manager's watchdog sees it. Other threads of a module hand work to the loop with
 ``call_soon(fn)``; ``self.lock`` is held around every handler for modules that still share state with their own
 threads.
 
 **Slot semantics in the loop.** An unsafe input keeps only its newest sample: a new one replaces a sample not yet
-handled. A safe input hands every sample over in order; when ``queue`` samples wait, Zenoh's receiving callback
-blocks, so Zenoh stops reading that link and the reliable BLOCK publisher is slowed down (reported by the
-publisher as back-pressure). A safe state input first gets the publisher's cached last value (late joiner).
+handled. A safe input hands every sample over in order; when ``queue`` samples wait, Zenoh's receiving thread
+blocks (on the full channel, or in the callback), so Zenoh stops reading that link and the reliable BLOCK publisher
+is slowed down (reported by the publisher as back-pressure).
+A safe state input first gets the publisher's cached last value (late joiner).
 
 **Routing switch (one clear point).** On a new CONTROL_ENTRADA the new source is subscribed at once but held;
 the old subscriber is undeclared and every datum it had already received is handled; ``on_route_change`` runs;
