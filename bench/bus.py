@@ -27,11 +27,17 @@ from benchlib import pct, write_results
 from bbcs import keys
 from bbcs.context import ModuleContext
 from bbcs.module import Module
-from bbcs.session import SessionConfig, local_client, open_session
+from bbcs.session import SessionConfig, local_client, open_session, peer_links_config
 from bbcs.slots import InputSlot, Kind, OutputSlot
-from bbcs.testing import Processes, child_env, start_router
+from bbcs.testing import Processes, child_env, free_port, start_router
 
 SIZES = {"small": 0, "1k": 1000, "32k": 32_000}
+MODES = ("raw", "bbcs", "rawpeer", "bbcspeer")
+"""Small messages run in all four; 1k/32k only through the router (raw, bbcs)."""
+MODE_LABEL = {"raw": "zenoh clients via router", "bbcs": "slot, links = router", "rawpeer": "zenoh peers, direct",
+              "bbcspeer": "slot, links = peers"}
+DEFAULT_LINKS_MODE = "bbcspeer"
+"""The mode that stands for ``[bus] links``'s default (module_manager/manifest.py)."""
 ROBOT = "bench"
 
 
@@ -45,7 +51,14 @@ class BenchMsg(msgspec.Struct, frozen=True, kw_only=True):
     body: bytes = b""
 
 
-def _cfg(port: int) -> SessionConfig:
+def _cfg(port: int, mode: str = "raw") -> SessionConfig:
+    """Client of the router (``raw``/``bbcs``), or a Zenoh peer linked directly to the other side (``*peer``).
+
+    A peer listens on a free 127.0.0.1 port and connects to the router; the router's gossip tells each peer the
+    other's locator, and they link directly (multicast scouting stays off): the topology of ``links = "peers"``.
+    """
+    if mode.endswith("peer"):
+        return peer_links_config(port, free_port())
     return local_client(port)
 
 
@@ -120,15 +133,15 @@ def _wait_alive(session: zenoh.Session, module: str) -> None:
 
 def role_main(args: argparse.Namespace) -> None:
     port, body = args.port, b"x" * SIZES[args.size]
-    ctx = lambda name: ModuleContext(robot=ROBOT, module=name, bus=_cfg(port))  # noqa: E731
+    ctx = lambda name: ModuleContext(robot=ROBOT, module=name, bus=_cfg(port, args.mode))  # noqa: E731
     raw_ping_key, raw_pong_key = f"bench/{args.tag}/ping", f"bench/{args.tag}/pong"
     qos = {"reliability": zenoh.Reliability.RELIABLE, "congestion_control": zenoh.CongestionControl.BLOCK}
-    if args.role == "echo" and args.mode == "bbcs":
+    if args.role == "echo" and args.mode.startswith("bbcs"):
         echo = Echo(ctx("echo"))
         threading.Thread(target=lambda: (sys.stdin.read(), echo.request_stop()), daemon=True).start()
         echo.run()
     elif args.role == "echo":
-        s = open_session(_cfg(port))
+        s = open_session(_cfg(port, args.mode))
         pub = s.declare_publisher(raw_pong_key, **qos)
         sub = s.declare_subscriber(raw_ping_key, lambda smp: pub.put(smp.payload.to_bytes()))
         token = s.liveliness().declare_token(keys.alive_key(ROBOT, "echo"))
@@ -136,7 +149,7 @@ def role_main(args: argparse.Namespace) -> None:
         token.undeclare()
         sub.undeclare()
         s.close()
-    elif args.role == "ping" and args.mode == "bbcs":
+    elif args.role == "ping" and args.mode.startswith("bbcs"):
         Pinger.count, Pinger.body = args.count, body
         pinger = Pinger(ctx("pinger"))
 
@@ -153,7 +166,7 @@ def role_main(args: argparse.Namespace) -> None:
         pinger.run()
         print(json.dumps(pinger.samples))
     elif args.role == "ping":
-        s = open_session(_cfg(port))
+        s = open_session(_cfg(port, args.mode))
         samples: list[float] = []
         done = threading.Event()
         pub = s.declare_publisher(raw_ping_key, **qos)
@@ -175,13 +188,13 @@ def role_main(args: argparse.Namespace) -> None:
         sub.undeclare()
         s.close()
         print(json.dumps(samples))
-    elif args.role == "sink" and args.mode == "bbcs":
+    elif args.role == "sink" and args.mode.startswith("bbcs"):
         Counter.expected = args.count
         counter = Counter(ctx("counter"))
         counter.run()
         print(json.dumps({"n": counter.n, "seconds": counter.last - counter.first}))
     elif args.role == "sink":
-        s = open_session(_cfg(port))
+        s = open_session(_cfg(port, args.mode))
         state = {"n": 0, "first": 0.0, "last": 0.0}
         done = threading.Event()
 
@@ -201,10 +214,10 @@ def role_main(args: argparse.Namespace) -> None:
         s.close()
         print(json.dumps({"n": state["n"], "seconds": state["last"] - state["first"]}))
     elif args.role == "blast":
-        s = open_session(_cfg(port))
+        s = open_session(_cfg(port, args.mode))
         _wait_alive(s, "counter")
         time.sleep(0.2)
-        if args.mode == "bbcs":
+        if args.mode.startswith("bbcs"):
             from bbcs.slots import Publisher
             pub = Publisher(s, keys.slot_key(ROBOT, "blaster", "data"), OutputSlot("data", BenchMsg, kind=Kind.STREAM))
             for seq in range(args.count + 1000):
@@ -299,9 +312,19 @@ def dds_throughput_run(count: int) -> float:
         procs.stop_all()
 
 
-DORA_WHY = ("dora-rs 1.1 installs (pip), but its Python node API only runs under a dora daemon (`dora run`), whose "
-            "Zenoh session and control ports are not confined to free 127.0.0.1 ports with scouting off the way "
-            "this project's tests and benches must be; not measured here (figures by hand in docs/performance.md)")
+def dora_latency_run(count: int) -> list[float]:
+    from bus_peers import dora_run
+
+    samples = dora_run(("ping", "echo"), count, SIZES["small"])
+    return samples[len(samples) // 10:]
+
+
+def dora_throughput_run(count: int) -> tuple[float, float]:
+    """Messages/s at the reader and the share of the sent messages it got (dora's queues drop the oldest)."""
+    from bus_peers import dora_run
+
+    res = dora_run(("blast", "sink"), count, SIZES["small"])
+    return (res["n"] - 1) / res["seconds"] if res["seconds"] > 0 else 0.0, res["n"] / count
 
 
 # ------------------------------------------------------------------ orchestration
@@ -347,7 +370,8 @@ def main() -> None:
     p.add_argument("--pings", type=int, default=2000)
     p.add_argument("--messages", type=int, default=200_000, help="messages per throughput run (small)")
     p.add_argument("--peers", action="store_true",
-                   help="also measure the IPC floor (UDP ping-pong on 127.0.0.1) in the same run")
+                   help="also measure Cyclone DDS, dora-rs (in a loopback-only netns) and the IPC floor (UDP "
+                        "ping-pong on 127.0.0.1) in the same run")
     p.add_argument("--role", help=argparse.SUPPRESS)
     p.add_argument("--mode", help=argparse.SUPPRESS)
     p.add_argument("--size", default="small", help=argparse.SUPPRESS)
@@ -365,11 +389,12 @@ def main() -> None:
     if args.role:
         role_main(args)
         return
-    dds_why = None
+    dds_why = dora_why = None
     if args.peers:
-        from bus_peers import cyclone_available
-        dds_why = cyclone_available()
+        from bus_peers import cyclone_available, dora_available
+        dds_why, dora_why = cyclone_available(), dora_available()
     procs = Processes()
+    dora_delivered: list[float] = []
     try:
         port = start_router(procs)
         lat: dict[tuple[str, str], list[float]] = {}
@@ -380,27 +405,32 @@ def main() -> None:
                 if dds_why is None:
                     lat.setdefault(("cyclonedds", "small"), []).extend(dds_latency_run(args.pings))
                     thr.setdefault(("cyclonedds", "small"), []).append(dds_throughput_run(args.messages // 10))
+                if dora_why is None:
+                    lat.setdefault(("dora", "small"), []).extend(dora_latency_run(args.pings))
+                    rate, got = dora_throughput_run(args.messages // 10)
+                    thr.setdefault(("dora", "small"), []).append(rate)
+                    dora_delivered.append(got)
             for size in SIZES:
-                for mode in ("raw", "bbcs"):
+                for mode in MODES if size == "small" else ("raw", "bbcs"):
                     lat.setdefault((mode, size), []).extend(
                         latency_run(port, mode, size, args.pings, f"l{rnd}{size}{mode}"))
             for size, count in (("small", args.messages), ("32k", max(5000, args.messages // 10))):
-                for mode in ("raw", "bbcs"):
+                for mode in MODES if size == "small" else ("raw", "bbcs"):
                     thr.setdefault((mode, size), []).append(
                         throughput_run(port, mode, size, count, f"t{rnd}{size}{mode}"))
     finally:
         procs.stop_all()
 
     rows = []
-    print(f"{'payload':8} {'mode':5} {'p50 µs':>9} {'p99 µs':>9} {'msgs/s':>11}")
+    print(f"{'payload':8} {'mode':9} {'p50 µs':>9} {'p99 µs':>9} {'msgs/s':>11}")
     for size in SIZES:
-        for mode in ("raw", "bbcs"):
+        for mode in MODES if size == "small" else ("raw", "bbcs"):
             s = lat[(mode, size)]
             rate = statistics.median(thr[(mode, size)]) if (mode, size) in thr else None
             rows.append({"payload": size, "mode": mode, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
                          "samples": len(s), "msgs_per_s": rate})
-            print(f"{size:8} {mode:5} {pct(s, 50):9.1f} {pct(s, 99):9.1f} "
-                  f"{'' if rate is None else f'{rate:11,.0f}'}")
+            print(f"{size:8} {mode:9} {pct(s, 50):9.1f} {pct(s, 99):9.1f} "
+                  f"{'' if rate is None else f'{rate:11,.0f}'}   ({MODE_LABEL[mode]})")
     get = {(r["mode"], r["payload"]): r for r in rows}
     summary = {
         "small_p50_ratio": get[("bbcs", "small")]["p50_us"] / get[("raw", "small")]["p50_us"],
@@ -408,31 +438,44 @@ def main() -> None:
         "throughput_ratio": get[("bbcs", "small")]["msgs_per_s"] / get[("raw", "small")]["msgs_per_s"],
         "scan_p50_ratio": get[("bbcs", "32k")]["p50_us"] / get[("raw", "32k")]["p50_us"],
         "scan_throughput_ratio": get[("bbcs", "32k")]["msgs_per_s"] / get[("raw", "32k")]["msgs_per_s"],
+        # links = "peers": a slot over a direct peer link, against raw zenoh peers (same topology) ...
+        "peer_link_small_p50_ratio": get[("bbcspeer", "small")]["p50_us"] / get[("rawpeer", "small")]["p50_us"],
+        "peer_link_throughput_ratio": (get[("bbcspeer", "small")]["msgs_per_s"]
+                                       / get[("rawpeer", "small")]["msgs_per_s"]),
+        # ... and against the same slot through the router (below 1: the peer links are faster)
+        "peer_link_over_router_p50": get[("bbcspeer", "small")]["p50_us"] / get[("bbcs", "small")]["p50_us"],
     }
+    summary_notes: dict[str, str] = {}
     if args.peers:
+        # "peer latency over bbcs latency" (above 1: the slot is faster); bbcs = a slot over the default links
+        bbcs_p50 = get[(DEFAULT_LINKS_MODE, "small")]["p50_us"]
+        bbcs_rate = get[(DEFAULT_LINKS_MODE, "small")]["msgs_per_s"]
         floor = lat[("udp", "small")]
         summary["ipc_floor_p50_us"] = pct(floor, 50)
         rows.append({"payload": "small", "mode": "udp", "p50_us": pct(floor, 50), "p99_us": pct(floor, 99),
                      "samples": len(floor), "msgs_per_s": None})
-        print(f"{'small':8} {'udp':5} {pct(floor, 50):9.1f} {pct(floor, 99):9.1f}   (IPC floor)")
-        bbcs_p50 = get[("bbcs", "small")]["p50_us"]
-        if dds_why is None:
-            dds = lat[("cyclonedds", "small")]
-            rate = statistics.median(thr[("cyclonedds", "small")])
-            summary["peer_cyclonedds_p50_ratio"] = pct(dds, 50) / bbcs_p50
-            summary["peer_cyclonedds_throughput_ratio"] = rate / get[("bbcs", "small")]["msgs_per_s"]
-            rows.append({"payload": "small", "mode": "cyclonedds", "p50_us": pct(dds, 50), "p99_us": pct(dds, 99),
-                         "samples": len(dds), "msgs_per_s": rate})
-            print(f"{'small':8} {'dds':5} {pct(dds, 50):9.1f} {pct(dds, 99):9.1f} {rate:11,.0f}   (Cyclone DDS)")
-        else:
-            summary["peer_cyclonedds_p50_ratio"] = None
-            print(f"peer cyclonedds: {dds_why}")
-        print(f"peer dora-rs: {DORA_WHY}")
-        summary["peer_dora_p50_ratio"] = None  # the contract key; why it has no value is in "notes"
-        summary_notes = {"peer_dora": DORA_WHY, **({"peer_cyclonedds": dds_why} if dds_why else {})}
-    else:
-        summary_notes = {}
-    print("\n" + "\n".join(f"{k:22} {'n/a' if v is None else f'{v:.3f}'}" for k, v in summary.items()))
+        print(f"{'small':8} {'udp':9} {pct(floor, 50):9.1f} {pct(floor, 99):9.1f}             (IPC floor)")
+        for peer, why, label in (("cyclonedds", dds_why, "Cyclone DDS Python, reliable, keep-all"),
+                                 ("dora", dora_why, "dora-rs 1.1 Python nodes, loopback-only netns")):
+            if why is not None:
+                summary[f"peer_{peer}_p50_ratio"] = None  # the contract key; why it has no value is in "notes"
+                summary_notes[f"peer_{peer}"] = why
+                print(f"peer {peer}: not measured: {why}")
+                continue
+            s = lat[(peer, "small")]
+            rate = statistics.median(thr[(peer, "small")])
+            summary[f"peer_{peer}_p50_ratio"] = pct(s, 50) / bbcs_p50
+            summary[f"peer_{peer}_throughput_ratio"] = rate / bbcs_rate
+            summary[f"peer_{peer}_over_router_p50_ratio"] = pct(s, 50) / get[("bbcs", "small")]["p50_us"]
+            rows.append({"payload": "small", "mode": peer, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
+                         "samples": len(s), "msgs_per_s": rate})
+            print(f"{'small':8} {peer:9} {pct(s, 50):9.1f} {pct(s, 99):9.1f} {rate:11,.0f}   ({label})")
+        if dora_delivered:
+            summary["peer_dora_delivered_share"] = min(dora_delivered)
+            summary_notes["peer_dora"] = "dora ran in a fresh network namespace with only loopback (unshare -n)"
+        summary_notes["bbcs_baseline"] = (f"peer_*_p50_ratio: peer p50 over a slot's p50 with the default links "
+                                          f"({DEFAULT_LINKS_MODE}); *_over_router_*: over a slot through the router")
+    print("\n" + "\n".join(f"{k:34} {'n/a' if v is None else f'{v:.3f}'}" for k, v in summary.items()))
     write_results("bus", {"summary": summary, "rows": rows, "notes": summary_notes, "rounds": args.rounds,
                           "pings": args.pings,
                           "messages": args.messages, "stamp": time.time()})
