@@ -85,7 +85,7 @@ def zenoh_config(cfg: SessionConfig) -> zenoh.Config:
         _set(conf, "scouting/gossip/enabled", cfg.mode == "router" or bool(cfg.connect))
     if cfg.mode == "peer" and not cfg.multicast_scouting:
         # learn the other peers from the router's gossip and link to them directly; never to a router but ours
-        _set(conf, "scouting/gossip/autoconnect", {"router": [], "peer": ["router", "peer"]})
+        _set(conf, "scouting/gossip/autoconnect", {"router": [], "peer": ["peer"]})
     if cfg.mode != "router":
         timeout_ms = -1 if cfg.connect_timeout_s < 0 else int(cfg.connect_timeout_s * 1000)
         _set(conf, "connect/timeout_ms", timeout_ms)
