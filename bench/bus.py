@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -27,15 +29,17 @@ from benchlib import pct, write_results
 from bbcs import keys
 from bbcs.context import ModuleContext
 from bbcs.module import Module
-from bbcs.session import SessionConfig, local_client, open_session, peer_links_config
+from bbcs.session import SessionConfig, TlsConfig, local_client, open_session, peer_links_config
 from bbcs.slots import InputSlot, Kind, OutputSlot
-from bbcs.testing import Processes, child_env, free_port, start_router
+from bbcs.testing import Processes, child_env, free_port, start_router, wait_port
+from module_manager.links import peer_session
 
 SIZES = {"small": 0, "1k": 1000, "32k": 32_000}
 MODES = ("raw", "bbcs", "rawpeer", "bbcspeer")
 """Small messages run in all four; 1k/32k only through the router (raw, bbcs)."""
 MODE_LABEL = {"raw": "zenoh clients via router", "bbcs": "slot, links = router", "rawpeer": "zenoh peers, direct",
-              "bbcspeer": "slot, links = peers"}
+              "bbcspeer": "slot, links = peers", "bbcs_tls": "slot, links = router, mTLS + policy on the router",
+              "bbcspeer_tls": "slot, links = peers, mTLS + policy on each receiver"}
 DEFAULT_LINKS_MODE = "bbcspeer"
 """The mode that stands for ``[bus] links``'s default (module_manager/manifest.py)."""
 ROBOT = "bench"
@@ -51,15 +55,48 @@ class BenchMsg(msgspec.Struct, frozen=True, kw_only=True):
     body: bytes = b""
 
 
-def _cfg(port: int, mode: str = "raw") -> SessionConfig:
+def _cfg(port: int, mode: str = "raw", identity: str = "pinger") -> SessionConfig:
     """Client of the router (``raw``/``bbcs``), or a Zenoh peer linked directly to the other side (``*peer``).
 
     A peer listens on a free 127.0.0.1 port and connects to the router; the router's gossip tells each peer the
     other's locator, and they link directly (multicast scouting stays off): the topology of ``links = "peers"``.
+    ``*_tls``: the same under mutual TLS with ``identity``'s certificate and, for a peer, the robot's access policy
+    on its ingress, exactly as ``module_manager/links.py`` configures a module of a ``[bus.tls]`` manifest.
     """
+    if mode.endswith("_tls"):
+        pki = Path(os.environ[PKI_ENV])
+        client = SessionConfig(mode="client", connect=[f"tls/127.0.0.1:{port}"], tls=TlsConfig(
+            root_ca=str(pki / "ca.pem"), cert=str(pki / f"{identity}.pem"), key=str(pki / f"{identity}.key")))
+        if "peer" not in mode:
+            return client
+        return peer_session(client, json.loads((pki / PEER_ACL).read_text()))
     if mode.endswith("peer"):
         return peer_links_config(port, free_port())
     return local_client(port)
+
+
+PKI_ENV, PEER_ACL = "CROMAT_BENCH_PKI", "peer_acl.json"
+IDENTITY = {"echo": "echo", "ping": "pinger", "sink": "counter", "blast": "blaster"}
+SECURE_MODES = ("bbcs_tls", "bbcspeer_tls")
+
+
+def start_secure_router(procs: Processes, folder: Path) -> int:
+    """Certificates for the bench's four modules (``cromat certs``), the robot router with mTLS and the access
+    policy (bbcs/acl.py) on a free port, and the peers' ingress policy for the children (``$CROMAT_BENCH_PKI``)."""
+    from cromat import certs
+    from module_manager.links import peer_policy
+
+    port, pki, cfg = free_port(), folder / "pki", folder / "router.json5"
+    if certs.main([str(pki), "--gcs", "gcs", "--modules", ",".join(IDENTITY.values()), "--robot", ROBOT,
+                   "--acl", str(cfg), "--listen", f"tls/127.0.0.1:{port}"]) != 0:
+        raise SystemExit("cromat certs failed")
+    router_cfg = json.loads(cfg.read_text().split("\n", 1)[1])  # after the generated header comment
+    (pki / PEER_ACL).write_text(json.dumps(peer_policy(router_cfg["access_control"])))
+    os.environ[PKI_ENV] = str(pki)
+    procs.start(["-m", "bbcs.router", "--config", str(cfg), "--listen", f"tls/127.0.0.1:{port}"],
+                stdout=subprocess.DEVNULL)
+    wait_port(port)
+    return port
 
 
 # ------------------------------------------------------------------ roles (run in child processes)
@@ -133,7 +170,7 @@ def _wait_alive(session: zenoh.Session, module: str) -> None:
 
 def role_main(args: argparse.Namespace) -> None:
     port, body = args.port, b"x" * SIZES[args.size]
-    ctx = lambda name: ModuleContext(robot=ROBOT, module=name, bus=_cfg(port, args.mode))  # noqa: E731
+    ctx = lambda name: ModuleContext(robot=ROBOT, module=name, bus=_cfg(port, args.mode, name))  # noqa: E731
     raw_ping_key, raw_pong_key = f"bench/{args.tag}/ping", f"bench/{args.tag}/pong"
     qos = {"reliability": zenoh.Reliability.RELIABLE, "congestion_control": zenoh.CongestionControl.BLOCK}
     if args.role == "echo" and args.mode.startswith("bbcs"):
@@ -154,7 +191,7 @@ def role_main(args: argparse.Namespace) -> None:
         pinger = Pinger(ctx("pinger"))
 
         def kick() -> None:
-            probe = open_session(_cfg(port))
+            probe = open_session(_cfg(port, "bbcs_tls" if args.mode.endswith("_tls") else "raw"))
             _wait_alive(probe, "echo")
             _wait_alive(probe, "pinger")
             probe.close()
@@ -214,7 +251,7 @@ def role_main(args: argparse.Namespace) -> None:
         s.close()
         print(json.dumps({"n": state["n"], "seconds": state["last"] - state["first"]}))
     elif args.role == "blast":
-        s = open_session(_cfg(port, args.mode))
+        s = open_session(_cfg(port, args.mode, IDENTITY["blast"]))
         _wait_alive(s, "counter")
         time.sleep(0.2)
         if args.mode.startswith("bbcs"):
@@ -372,6 +409,8 @@ def main() -> None:
     p.add_argument("--peers", action="store_true",
                    help="also measure Cyclone DDS, dora-rs (in a loopback-only netns) and the IPC floor (UDP "
                         "ping-pong on 127.0.0.1) in the same run")
+    p.add_argument("--secure", action="store_true",
+                   help="also measure small slots under mTLS and the access policy, links = router vs peers")
     p.add_argument("--role", help=argparse.SUPPRESS)
     p.add_argument("--mode", help=argparse.SUPPRESS)
     p.add_argument("--size", default="small", help=argparse.SUPPRESS)
@@ -395,8 +434,10 @@ def main() -> None:
         dds_why, dora_why = cyclone_available(), dora_available()
     procs = Processes()
     dora_delivered: list[float] = []
+    secure_dir = tempfile.TemporaryDirectory(prefix="cromat-bus-") if args.secure else None
     try:
         port = start_router(procs)
+        secure_port = start_secure_router(procs, Path(secure_dir.name)) if secure_dir else 0
         lat: dict[tuple[str, str], list[float]] = {}
         thr: dict[tuple[str, str], list[float]] = {}
         for rnd in range(args.rounds):
@@ -418,18 +459,25 @@ def main() -> None:
                 for mode in MODES if size == "small" else ("raw", "bbcs"):
                     thr.setdefault((mode, size), []).append(
                         throughput_run(port, mode, size, count, f"t{rnd}{size}{mode}"))
+            for mode in SECURE_MODES if secure_dir else ():
+                lat.setdefault((mode, "small"), []).extend(
+                    latency_run(secure_port, mode, "small", args.pings, f"l{rnd}{mode}"))
+                thr.setdefault((mode, "small"), []).append(
+                    throughput_run(secure_port, mode, "small", args.messages, f"t{rnd}{mode}"))
     finally:
         procs.stop_all()
+        if secure_dir is not None:
+            secure_dir.cleanup()
 
     rows = []
-    print(f"{'payload':8} {'mode':9} {'p50 µs':>9} {'p99 µs':>9} {'msgs/s':>11}")
+    print(f"{'payload':8} {'mode':12} {'p50 µs':>9} {'p99 µs':>9} {'msgs/s':>11}")
     for size in SIZES:
-        for mode in MODES if size == "small" else ("raw", "bbcs"):
+        for mode in (*MODES, *(SECURE_MODES if args.secure else ())) if size == "small" else ("raw", "bbcs"):
             s = lat[(mode, size)]
             rate = statistics.median(thr[(mode, size)]) if (mode, size) in thr else None
             rows.append({"payload": size, "mode": mode, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
                          "samples": len(s), "msgs_per_s": rate})
-            print(f"{size:8} {mode:9} {pct(s, 50):9.1f} {pct(s, 99):9.1f} "
+            print(f"{size:8} {mode:12} {pct(s, 50):9.1f} {pct(s, 99):9.1f} "
                   f"{'' if rate is None else f'{rate:11,.0f}'}   ({MODE_LABEL[mode]})")
     get = {(r["mode"], r["payload"]): r for r in rows}
     summary = {
@@ -446,6 +494,11 @@ def main() -> None:
         "peer_link_over_router_p50": get[("bbcspeer", "small")]["p50_us"] / get[("bbcs", "small")]["p50_us"],
     }
     summary_notes: dict[str, str] = {}
+    if args.secure:  # both under mTLS + the access policy: the router's, or each receiving peer's
+        summary["secure_peer_link_over_router_p50"] = (get[("bbcspeer_tls", "small")]["p50_us"]
+                                                       / get[("bbcs_tls", "small")]["p50_us"])
+        summary["secure_peer_link_throughput_ratio"] = (get[("bbcspeer_tls", "small")]["msgs_per_s"]
+                                                        / get[("bbcs_tls", "small")]["msgs_per_s"])
     if args.peers:
         # "peer latency over bbcs latency" (above 1: the slot is faster); bbcs = a slot over the default links
         bbcs_p50 = get[(DEFAULT_LINKS_MODE, "small")]["p50_us"]
@@ -454,7 +507,7 @@ def main() -> None:
         summary["ipc_floor_p50_us"] = pct(floor, 50)
         rows.append({"payload": "small", "mode": "udp", "p50_us": pct(floor, 50), "p99_us": pct(floor, 99),
                      "samples": len(floor), "msgs_per_s": None})
-        print(f"{'small':8} {'udp':9} {pct(floor, 50):9.1f} {pct(floor, 99):9.1f}             (IPC floor)")
+        print(f"{'small':8} {'udp':12} {pct(floor, 50):9.1f} {pct(floor, 99):9.1f}             (IPC floor)")
         for peer, why, label in (("cyclonedds", dds_why, "Cyclone DDS Python, reliable, keep-all"),
                                  ("dora", dora_why, "dora-rs 1.1 Python nodes, loopback-only netns")):
             if why is not None:
@@ -469,7 +522,7 @@ def main() -> None:
             summary[f"peer_{peer}_over_router_p50_ratio"] = pct(s, 50) / get[("bbcs", "small")]["p50_us"]
             rows.append({"payload": "small", "mode": peer, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
                          "samples": len(s), "msgs_per_s": rate})
-            print(f"{'small':8} {peer:9} {pct(s, 50):9.1f} {pct(s, 99):9.1f} {rate:11,.0f}   ({label})")
+            print(f"{'small':8} {peer:12} {pct(s, 50):9.1f} {pct(s, 99):9.1f} {rate:11,.0f}   ({label})")
         if dora_delivered:
             summary["peer_dora_delivered_share"] = min(dora_delivered)
             summary_notes["peer_dora"] = "dora ran in a fresh network namespace with only loopback (unshare -n)"

@@ -42,9 +42,15 @@ def peer_access_control(manifest: Manifest) -> dict[str, Any] | None:
     tls = manifest.raw.bus.tls
     if tls is None or not tls.acl:
         return None
-    ac = copy.deepcopy(secure.router_config(manifest, [])["access_control"])
+    return peer_policy(secure.router_config(manifest, [])["access_control"])
+
+
+def peer_policy(router_access_control: dict[str, Any], router_cn: str = secure.ROUTER) -> dict[str, Any]:
+    """The router's ``access_control`` section made a peer's: the same subjects and rules, plus the router's link
+    (certificate CN ``router_cn``) allowed every rule that allows, so that what the router forwards gets in."""
+    ac = copy.deepcopy(router_access_control)
     allowed = [rule["id"] for rule in ac["rules"] if rule["permission"] == "allow"]
-    ac["subjects"].append({"id": "router-link", "cert_common_names": [secure.ROUTER]})
+    ac["subjects"].append({"id": "router-link", "cert_common_names": [router_cn]})
     ac["policies"].append({"id": "router-link", "subjects": ["router-link"], "rules": allowed})
     return ac
 
@@ -54,6 +60,11 @@ def module_bus(manifest: Manifest, client: SessionConfig, access_control: dict[s
     identity as a peer listening on loopback and enforcing ``access_control`` on its ingress."""
     if links(manifest) != "peers":
         return client
+    return peer_session(client, access_control)
+
+
+def peer_session(client: SessionConfig, access_control: dict[str, Any] | None) -> SessionConfig:
+    """``client`` (a router client, its identity included) turned into a peer listening on loopback."""
     proto = "tls" if client.tls is not None else "tcp"
     # Peers reach each other by 127.0.0.1 locators that no module certificate names: the certificate chain (our
     # CA) and its CN (the access policy's subject) identify the other side, not the host name it was reached by.
