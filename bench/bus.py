@@ -1,11 +1,14 @@
 """Bus benchmark: one-way latency and throughput between two processes, raw zenoh-python vs a ``bbcs`` slot.
 
-Both sides run in the same harness in the same run, through the same router, with the same QoS (reliable,
-BLOCK): raw is ``put(bytes)`` → Python callback; bbcs is ``Publisher.publish(struct)`` → the Module's input
-thread → decode + validate → handler. Latency is ping-pong (RTT/2), each reply sent from the receiving
-handler. Throughput is a publisher blasting as fast as it can into a handler that counts.
+Both sides run in the same harness in the same run, with the same QoS (reliable, BLOCK), in the robot's two
+topologies (``[bus] links``): clients of one router (``raw``/``bbcs``), and Zenoh peers linked directly
+(``rawpeer``/``bbcspeer``). Raw is ``put(bytes)`` → Python callback; bbcs is ``Publisher.publish(struct)`` → the
+Module's event loop → decode + validate → handler. Latency is ping-pong (RTT/2), each reply sent from the
+receiving handler. Throughput is a publisher blasting as fast as it can into a handler that counts.
 
-    python bench/bus.py            # defaults: ~1 minute; table on stdout, JSON in bench/results/bus.json
+    python bench/bus.py            # defaults: ~1-2 minutes; table on stdout, JSON in bench/results/bus.json
+    python bench/bus.py --peers    # + Cyclone DDS, dora-rs (loopback-only netns), UDP floor, same run
+    python bench/bus.py --secure   # + slots under mTLS and the access policy, router vs peer links
 """
 
 from __future__ import annotations
