@@ -317,6 +317,22 @@ def udp_latency_run(count: int) -> list[float]:
         procs.stop_all()
 
 
+def in_netns(role: str, count: int) -> object:
+    """Run ``--role role`` (which starts both sides of a peer's measurement) inside a fresh loopback-only network
+    namespace, so that a peer that binds its sockets on every interface (Cyclone DDS does) still reaches nothing
+    but loopback; its JSON result. Without a namespace (not permitted here) the role runs here, confined by its
+    own configuration only."""
+    from bus_peers import NETNS_SHELL, netns_usable, unshare_argv
+
+    argv = [sys.executable, str(Path(__file__).resolve()), "--role", role, "--count", str(count)]
+    if netns_usable() is not None:
+        argv = [*unshare_argv(), "sh", "-c", NETNS_SHELL, "netns", *argv]
+    out = subprocess.run(argv, capture_output=True, text=True, timeout=300, env=child_env())
+    if out.returncode != 0:
+        raise SystemExit(f"{role} failed (exit {out.returncode}): {out.stderr[-800:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def dds_latency_run(count: int) -> list[float]:
     from bus_peers import cyclone_env, new_domain
 
@@ -424,6 +440,10 @@ def main() -> None:
     if args.role in ("udp_echo", "udp_ping"):
         udp_role(args)
         return
+    if args.role in ("netns_dds_latency", "netns_dds_throughput"):
+        run = dds_latency_run if args.role.endswith("latency") else dds_throughput_run
+        print(json.dumps(run(args.count)))
+        return
     if args.role and args.role.startswith("dds_"):
         from bus_peers import cyclone_role
         cyclone_role(args.role[4:], args.count or 0, SIZES[args.size])
@@ -447,8 +467,9 @@ def main() -> None:
             if args.peers:
                 lat.setdefault(("udp", "small"), []).extend(udp_latency_run(args.pings))
                 if dds_why is None:
-                    lat.setdefault(("cyclonedds", "small"), []).extend(dds_latency_run(args.pings))
-                    thr.setdefault(("cyclonedds", "small"), []).append(dds_throughput_run(args.messages // 10))
+                    lat.setdefault(("cyclonedds", "small"), []).extend(in_netns("netns_dds_latency", args.pings))
+                    thr.setdefault(("cyclonedds", "small"), []).append(
+                        in_netns("netns_dds_throughput", args.messages // 10))
                 if dora_why is None:
                     lat.setdefault(("dora", "small"), []).extend(dora_latency_run(args.pings))
                     rate, got = dora_throughput_run(args.messages // 10)

@@ -152,14 +152,30 @@ the reader's input queue sized so that the daemon's drop-oldest policy does not 
 NETNS_SHELL = "ip link set lo up && exec \"$@\""
 
 
-def _unshare_argv() -> list[str]:
+def unshare_argv() -> list[str]:
     return ["unshare", "-n"] if os.geteuid() == 0 else ["unshare", "-rn"]
+
+
+def netns_usable() -> str | None:
+    """None when a fresh network namespace with nothing but a loopback interface can be made here; else why."""
+    import shutil
+    import subprocess
+
+    if shutil.which("unshare") is None or shutil.which("ip") is None:
+        return "unshare(1) or ip(8) missing: cannot make a loopback-only network namespace"
+    probe = subprocess.run([*unshare_argv(), "sh", "-c", NETNS_SHELL + " && ip -o link", "netns"],
+                           capture_output=True, text=True, timeout=20)
+    if probe.returncode != 0:
+        return ("cannot make a loopback-only network namespace here (unshare -n needs root or user namespaces): "
+                + (probe.stderr.strip() or f"exit {probe.returncode}"))
+    links = [line.split(":")[1].strip() for line in probe.stdout.splitlines() if ":" in line]
+    if links != ["lo"]:
+        return f"the new network namespace is not loopback-only (links: {links})"
+    return None
 
 
 def dora_available() -> str | None:
     """None when a loopback-only namespace can be made and the ``dora`` CLI and Python node API are there; else why."""
-    import shutil
-    import subprocess
 
     try:
         import dora  # noqa: F401
@@ -169,17 +185,8 @@ def dora_available() -> str | None:
     cli = dora_cli()
     if cli is None:
         return "the `dora` CLI (pip package dora-rs-cli) is not installed (pip install '.[bench]')"
-    if shutil.which("unshare") is None or shutil.which("ip") is None:
-        return "unshare(1) or ip(8) missing: cannot confine dora's daemon to a loopback-only network namespace"
-    probe = subprocess.run([*_unshare_argv(), "sh", "-c", NETNS_SHELL + " && ip -o link", "netns"], capture_output=True,
-                           text=True, timeout=20)
-    if probe.returncode != 0:
-        return ("cannot make a loopback-only network namespace here (unshare -n needs root or user namespaces): "
-                + (probe.stderr.strip() or f"exit {probe.returncode}"))
-    links = [line.split(":")[1].strip() for line in probe.stdout.splitlines() if ":" in line]
-    if links != ["lo"]:
-        return f"the new network namespace is not loopback-only (links: {links})"
-    return None
+    why = netns_usable()
+    return None if why is None else f"dora's daemon cannot be confined to loopback: {why}"
 
 
 def dora_cli() -> str | None:
@@ -214,7 +221,7 @@ def dora_run(role_pair: tuple[str, str], count: int, body_len: int, timeout_s: f
         flow = os.path.join(tmp, "dataflow.yml")
         with open(flow, "w") as f:
             json.dump({"nodes": nodes}, f)  # JSON is YAML
-        proc = subprocess.run([*_unshare_argv(), "sh", "-c", NETNS_SHELL, "netns", dora_cli() or "dora", "run", flow],
+        proc = subprocess.run([*unshare_argv(), "sh", "-c", NETNS_SHELL, "netns", dora_cli() or "dora", "run", flow],
                               cwd=tmp, capture_output=True, text=True, timeout=timeout_s)
         if not os.path.exists(out):
             raise RuntimeError(f"dora run left no result (exit {proc.returncode}): {proc.stderr[-800:]}")
