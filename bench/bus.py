@@ -43,7 +43,7 @@ MODES = ("raw", "bbcs", "rawpeer", "bbcspeer")
 MODE_LABEL = {"raw": "zenoh clients via router", "bbcs": "slot, links = router", "rawpeer": "zenoh peers, direct",
               "bbcspeer": "slot, links = peers", "bbcs_tls": "slot, links = router, mTLS + policy on the router",
               "bbcspeer_tls": "slot, links = peers, mTLS + policy on each receiver"}
-DEFAULT_LINKS_MODE = "bbcspeer"
+DEFAULT_LINKS_MODE = "bbcspeer"  # links = "peers": the option this comparison is about (manifest default: router)
 """The mode that stands for ``[bus] links``'s default (module_manager/manifest.py)."""
 ROBOT = "bench"
 

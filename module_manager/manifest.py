@@ -94,7 +94,7 @@ class BusSection(_Section):
     itself (docs/fleet.md). Before anything starts, the launch refuses a robot name already alive there."""
     links: Literal["router", "peers"] | None = None
     """How modules reach each other: ``"peers"`` (linked directly, the access policy enforced by each receiver) or
-    ``"router"`` (through the router). Default: peers, router when ``zenoh_config`` is set (module_manager/links.py)."""
+    ``"router"`` (through the router). Default: ``links.DEFAULT_LINKS`` (router); router with ``zenoh_config``."""
 
 
 class SupervisionSection(_Section):

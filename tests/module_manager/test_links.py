@@ -21,9 +21,14 @@ def _with_bus(extra: str):
                                'listen = ["tcp/127.0.0.1:{port:router}"]\n' + extra)
 
 
-def test_default_links_modules_as_peers_and_keeps_the_manager_a_client(tmp_path: Path) -> None:
+def test_default_links_follow_the_default_setting(tmp_path: Path) -> None:
     m = load_manifest(write_manifest(tmp_path))
-    assert m.raw.bus.links is None and links.links(m) == "peers"
+    assert m.raw.bus.links is None and links.links(m) == links.DEFAULT_LINKS
+
+
+def test_links_peers_makes_modules_peers_and_keeps_the_manager_a_client(tmp_path: Path) -> None:
+    m = load_manifest(write_manifest(tmp_path, edit=_with_bus('links = "peers"\n')))
+    assert links.links(m) == "peers"
     mgr = Manager(m, listen=["tcp/127.0.0.1:17447"])
     bus = mgr.module_bus_for("sink")
     assert bus.mode == "peer" and bus.listen == ["tcp/127.0.0.1:0"] and bus.connect == ["tcp/127.0.0.1:17447"]

