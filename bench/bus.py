@@ -524,7 +524,7 @@ def main() -> None:
         summary["secure_peer_link_throughput_ratio"] = (get[("bbcspeer_tls", "small")]["msgs_per_s"]
                                                         / get[("bbcs_tls", "small")]["msgs_per_s"])
     if args.peers:
-        # "peer latency over bbcs latency" (above 1: the slot is faster); bbcs = a slot over the default links
+        # "peer latency over bbcs latency" (above 1: the slot is faster); bbcs = a slot over peer links
         bbcs_p50 = get[(DEFAULT_LINKS_MODE, "small")]["p50_us"]
         bbcs_rate = get[(DEFAULT_LINKS_MODE, "small")]["msgs_per_s"]
         floor = lat[("udp", "small")]
@@ -550,7 +550,7 @@ def main() -> None:
         if dora_delivered:
             summary["peer_dora_delivered_share"] = min(dora_delivered)
             summary_notes["peer_dora"] = "dora ran in a fresh network namespace with only loopback (unshare -n)"
-        summary_notes["bbcs_baseline"] = (f"peer_*_p50_ratio: peer p50 over a slot's p50 with the default links "
+        summary_notes["bbcs_baseline"] = (f"peer_*_p50_ratio: peer p50 over a slot's p50 over peer links "
                                           f"({DEFAULT_LINKS_MODE}); *_over_router_*: over a slot through the router")
     print("\n" + "\n".join(f"{k:34} {'n/a' if v is None else f'{v:.3f}'}" for k, v in summary.items()))
     write_results("bus", {"summary": summary, "rows": rows, "notes": summary_notes, "rounds": args.rounds,
