@@ -1,14 +1,21 @@
 """Open a Zenoh session from a small typed configuration.
 
-Each robot runs one Zenoh router (``cromat router``); its manager, RAL and modules are *clients* of it on
-loopback, and ground stations connect to it over the network. Tests use explicit ``127.0.0.1`` endpoints with
-multicast scouting off, so nothing leaves the machine.
+Each robot runs one Zenoh router (``cromat router``); ground stations and other robots connect to it over the
+network. The robot's own processes join it in one of two ways (the manifest's ``[bus] links``):
+
+* ``"router"``: every process is a *client* of the router on loopback; all traffic takes two hops through it;
+* ``"peers"``: every process is a Zenoh *peer* that listens on its own 127.0.0.1 port and connects to the router;
+  the router's gossip tells each peer the others' locators and they link to each other directly (one hop), while
+  ground stations and other robots still come through the router. Under mutual TLS each peer enforces the
+  robot's access policy on what arrives at it (:func:`peer_links_config`, docs/bus.md).
+
+Tests use explicit ``127.0.0.1`` endpoints with multicast scouting off, so nothing leaves the machine.
 """
 
 from __future__ import annotations
 
 import json
-from typing import Literal
+from typing import Any, Literal
 
 import msgspec
 import zenoh
@@ -53,6 +60,8 @@ class SessionConfig(msgspec.Struct, frozen=True, kw_only=True):
     user: str | None = None
     password: str | None = None
     """User/password authentication (Zenoh ``usrpwd``); authenticates but does not encrypt: combine with TLS."""
+    access_control: dict[str, Any] | None = None
+    """A Zenoh ``access_control`` section this session enforces on what arrives at it (a peer's ingress ACL)."""
 
 
 def _set(conf: zenoh.Config, key: str, value: object) -> None:
@@ -74,6 +83,9 @@ def zenoh_config(cfg: SessionConfig) -> zenoh.Config:
     _set(conf, "scouting/multicast/enabled", cfg.multicast_scouting)
     if not cfg.multicast_scouting:
         _set(conf, "scouting/gossip/enabled", cfg.mode == "router" or bool(cfg.connect))
+    if cfg.mode == "peer" and not cfg.multicast_scouting:
+        # learn the other peers from the router's gossip and link to them directly; never to a router but ours
+        _set(conf, "scouting/gossip/autoconnect", {"router": [], "peer": ["peer"]})
     if cfg.mode != "router":
         timeout_ms = -1 if cfg.connect_timeout_s < 0 else int(cfg.connect_timeout_s * 1000)
         _set(conf, "connect/timeout_ms", timeout_ms)
@@ -89,6 +101,8 @@ def zenoh_config(cfg: SessionConfig) -> zenoh.Config:
             if cfg.mode == "peer":
                 _set(conf, "transport/link/tls/listen_certificate", tls.cert)
                 _set(conf, "transport/link/tls/listen_private_key", tls.key)
+    if cfg.access_control is not None:
+        _set(conf, "access_control", cfg.access_control)
     if cfg.admin_space:
         _set(conf, "adminspace", {"enabled": True, "permissions": {"read": True, "write": False}})
     if cfg.user is not None:
@@ -115,3 +129,9 @@ def open_session(cfg: SessionConfig) -> zenoh.Session:
 def local_client(port: int, host: str = "127.0.0.1") -> SessionConfig:
     """A client of the router listening on ``tcp/host:port``: what tests and local modules use."""
     return SessionConfig(mode="client", connect=[f"tcp/{host}:{port}"])
+
+
+def peer_links_config(router_port: int, listen_port: int, host: str = "127.0.0.1") -> SessionConfig:
+    """A peer of the robot's processes: listens on ``tcp/host:listen_port`` for direct links from the others and
+    connects to the router on ``tcp/host:router_port`` (which gossips the others' locators to it)."""
+    return SessionConfig(mode="peer", listen=[f"tcp/{host}:{listen_port}"], connect=[f"tcp/{host}:{router_port}"])

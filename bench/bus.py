@@ -1,20 +1,25 @@
 """Bus benchmark: one-way latency and throughput between two processes, raw zenoh-python vs a ``bbcs`` slot.
 
-Both sides run in the same harness in the same run, through the same router, with the same QoS (reliable,
-BLOCK): raw is ``put(bytes)`` → Python callback; bbcs is ``Publisher.publish(struct)`` → the Module's input
-thread → decode + validate → handler. Latency is ping-pong (RTT/2), each reply sent from the receiving
-handler. Throughput is a publisher blasting as fast as it can into a handler that counts.
+Both sides run in the same harness in the same run, with the same QoS (reliable, BLOCK), in the robot's two
+topologies (``[bus] links``): clients of one router (``raw``/``bbcs``), and Zenoh peers linked directly
+(``rawpeer``/``bbcspeer``). Raw is ``put(bytes)`` → Python callback; bbcs is ``Publisher.publish(struct)`` → the
+Module's event loop → decode + validate → handler. Latency is ping-pong (RTT/2), each reply sent from the
+receiving handler. Throughput is a publisher blasting as fast as it can into a handler that counts.
 
-    python bench/bus.py            # defaults: ~1 minute; table on stdout, JSON in bench/results/bus.json
+    python bench/bus.py            # defaults: ~1-2 minutes; table on stdout, JSON in bench/results/bus.json
+    python bench/bus.py --peers    # + Cyclone DDS, dora-rs (loopback-only netns), UDP floor, same run
+    python bench/bus.py --secure   # + slots under mTLS and the access policy, router vs peer links
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -27,11 +32,19 @@ from benchlib import pct, write_results
 from bbcs import keys
 from bbcs.context import ModuleContext
 from bbcs.module import Module
-from bbcs.session import SessionConfig, local_client, open_session
+from bbcs.session import SessionConfig, TlsConfig, local_client, open_session, peer_links_config
 from bbcs.slots import InputSlot, Kind, OutputSlot
-from bbcs.testing import Processes, child_env, start_router
+from bbcs.testing import Processes, child_env, free_port, start_router, wait_port
+from module_manager.links import peer_session
 
 SIZES = {"small": 0, "1k": 1000, "32k": 32_000}
+MODES = ("raw", "bbcs", "rawpeer", "bbcspeer")
+"""Small messages run in all four; 1k/32k only through the router (raw, bbcs)."""
+MODE_LABEL = {"raw": "zenoh clients via router", "bbcs": "slot, links = router", "rawpeer": "zenoh peers, direct",
+              "bbcspeer": "slot, links = peers", "bbcs_tls": "slot, links = router, mTLS + policy on the router",
+              "bbcspeer_tls": "slot, links = peers, mTLS + policy on each receiver"}
+DEFAULT_LINKS_MODE = "bbcspeer"  # links = "peers": the option this comparison is about (manifest default: router)
+"""The mode that stands for ``[bus] links``'s default (module_manager/manifest.py)."""
 ROBOT = "bench"
 
 
@@ -45,8 +58,48 @@ class BenchMsg(msgspec.Struct, frozen=True, kw_only=True):
     body: bytes = b""
 
 
-def _cfg(port: int) -> SessionConfig:
+def _cfg(port: int, mode: str = "raw", identity: str = "pinger") -> SessionConfig:
+    """Client of the router (``raw``/``bbcs``), or a Zenoh peer linked directly to the other side (``*peer``).
+
+    A peer listens on a free 127.0.0.1 port and connects to the router; the router's gossip tells each peer the
+    other's locator, and they link directly (multicast scouting stays off): the topology of ``links = "peers"``.
+    ``*_tls``: the same under mutual TLS with ``identity``'s certificate and, for a peer, the robot's access policy
+    on its ingress, exactly as ``module_manager/links.py`` configures a module of a ``[bus.tls]`` manifest.
+    """
+    if mode.endswith("_tls"):
+        pki = Path(os.environ[PKI_ENV])
+        client = SessionConfig(mode="client", connect=[f"tls/127.0.0.1:{port}"], tls=TlsConfig(
+            root_ca=str(pki / "ca.pem"), cert=str(pki / f"{identity}.pem"), key=str(pki / f"{identity}.key")))
+        if "peer" not in mode:
+            return client
+        return peer_session(client, json.loads((pki / PEER_ACL).read_text()))
+    if mode.endswith("peer"):
+        return peer_links_config(port, free_port())
     return local_client(port)
+
+
+PKI_ENV, PEER_ACL = "CROMAT_BENCH_PKI", "peer_acl.json"
+IDENTITY = {"echo": "echo", "ping": "pinger", "sink": "counter", "blast": "blaster"}
+SECURE_MODES = ("bbcs_tls", "bbcspeer_tls")
+
+
+def start_secure_router(procs: Processes, folder: Path) -> int:
+    """Certificates for the bench's four modules (``cromat certs``), the robot router with mTLS and the access
+    policy (bbcs/acl.py) on a free port, and the peers' ingress policy for the children (``$CROMAT_BENCH_PKI``)."""
+    from cromat import certs
+    from module_manager.links import peer_policy
+
+    port, pki, cfg = free_port(), folder / "pki", folder / "router.json5"
+    if certs.main([str(pki), "--gcs", "gcs", "--modules", ",".join(IDENTITY.values()), "--robot", ROBOT,
+                   "--acl", str(cfg), "--listen", f"tls/127.0.0.1:{port}"]) != 0:
+        raise SystemExit("cromat certs failed")
+    router_cfg = json.loads(cfg.read_text().split("\n", 1)[1])  # after the generated header comment
+    (pki / PEER_ACL).write_text(json.dumps(peer_policy(router_cfg["access_control"])))
+    os.environ[PKI_ENV] = str(pki)
+    procs.start(["-m", "bbcs.router", "--config", str(cfg), "--listen", f"tls/127.0.0.1:{port}"],
+                stdout=subprocess.DEVNULL)
+    wait_port(port)
+    return port
 
 
 # ------------------------------------------------------------------ roles (run in child processes)
@@ -120,15 +173,15 @@ def _wait_alive(session: zenoh.Session, module: str) -> None:
 
 def role_main(args: argparse.Namespace) -> None:
     port, body = args.port, b"x" * SIZES[args.size]
-    ctx = lambda name: ModuleContext(robot=ROBOT, module=name, bus=_cfg(port))  # noqa: E731
+    ctx = lambda name: ModuleContext(robot=ROBOT, module=name, bus=_cfg(port, args.mode, name))  # noqa: E731
     raw_ping_key, raw_pong_key = f"bench/{args.tag}/ping", f"bench/{args.tag}/pong"
     qos = {"reliability": zenoh.Reliability.RELIABLE, "congestion_control": zenoh.CongestionControl.BLOCK}
-    if args.role == "echo" and args.mode == "bbcs":
+    if args.role == "echo" and args.mode.startswith("bbcs"):
         echo = Echo(ctx("echo"))
         threading.Thread(target=lambda: (sys.stdin.read(), echo.request_stop()), daemon=True).start()
         echo.run()
     elif args.role == "echo":
-        s = open_session(_cfg(port))
+        s = open_session(_cfg(port, args.mode))
         pub = s.declare_publisher(raw_pong_key, **qos)
         sub = s.declare_subscriber(raw_ping_key, lambda smp: pub.put(smp.payload.to_bytes()))
         token = s.liveliness().declare_token(keys.alive_key(ROBOT, "echo"))
@@ -136,12 +189,12 @@ def role_main(args: argparse.Namespace) -> None:
         token.undeclare()
         sub.undeclare()
         s.close()
-    elif args.role == "ping" and args.mode == "bbcs":
+    elif args.role == "ping" and args.mode.startswith("bbcs"):
         Pinger.count, Pinger.body = args.count, body
         pinger = Pinger(ctx("pinger"))
 
         def kick() -> None:
-            probe = open_session(_cfg(port))
+            probe = open_session(_cfg(port, "bbcs_tls" if args.mode.endswith("_tls") else "raw"))
             _wait_alive(probe, "echo")
             _wait_alive(probe, "pinger")
             probe.close()
@@ -153,7 +206,7 @@ def role_main(args: argparse.Namespace) -> None:
         pinger.run()
         print(json.dumps(pinger.samples))
     elif args.role == "ping":
-        s = open_session(_cfg(port))
+        s = open_session(_cfg(port, args.mode))
         samples: list[float] = []
         done = threading.Event()
         pub = s.declare_publisher(raw_ping_key, **qos)
@@ -175,13 +228,13 @@ def role_main(args: argparse.Namespace) -> None:
         sub.undeclare()
         s.close()
         print(json.dumps(samples))
-    elif args.role == "sink" and args.mode == "bbcs":
+    elif args.role == "sink" and args.mode.startswith("bbcs"):
         Counter.expected = args.count
         counter = Counter(ctx("counter"))
         counter.run()
         print(json.dumps({"n": counter.n, "seconds": counter.last - counter.first}))
     elif args.role == "sink":
-        s = open_session(_cfg(port))
+        s = open_session(_cfg(port, args.mode))
         state = {"n": 0, "first": 0.0, "last": 0.0}
         done = threading.Event()
 
@@ -201,10 +254,10 @@ def role_main(args: argparse.Namespace) -> None:
         s.close()
         print(json.dumps({"n": state["n"], "seconds": state["last"] - state["first"]}))
     elif args.role == "blast":
-        s = open_session(_cfg(port))
+        s = open_session(_cfg(port, args.mode, IDENTITY["blast"]))
         _wait_alive(s, "counter")
         time.sleep(0.2)
-        if args.mode == "bbcs":
+        if args.mode.startswith("bbcs"):
             from bbcs.slots import Publisher
             pub = Publisher(s, keys.slot_key(ROBOT, "blaster", "data"), OutputSlot("data", BenchMsg, kind=Kind.STREAM))
             for seq in range(args.count + 1000):
@@ -264,6 +317,22 @@ def udp_latency_run(count: int) -> list[float]:
         procs.stop_all()
 
 
+def in_netns(role: str, count: int) -> object:
+    """Run ``--role role`` (which starts both sides of a peer's measurement) inside a fresh loopback-only network
+    namespace, so that a peer that binds its sockets on every interface (Cyclone DDS does) still reaches nothing
+    but loopback; its JSON result. Without a namespace (not permitted here) the role runs here, confined by its
+    own configuration only."""
+    from bus_peers import NETNS_SHELL, netns_usable, unshare_argv
+
+    argv = [sys.executable, str(Path(__file__).resolve()), "--role", role, "--count", str(count)]
+    if netns_usable() is not None:
+        argv = [*unshare_argv(), "sh", "-c", NETNS_SHELL, "netns", *argv]
+    out = subprocess.run(argv, capture_output=True, text=True, timeout=300, env=child_env())
+    if out.returncode != 0:
+        raise SystemExit(f"{role} failed (exit {out.returncode}): {out.stderr[-800:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def dds_latency_run(count: int) -> list[float]:
     from bus_peers import cyclone_env, new_domain
 
@@ -299,9 +368,19 @@ def dds_throughput_run(count: int) -> float:
         procs.stop_all()
 
 
-DORA_WHY = ("dora-rs 1.1 installs (pip), but its Python node API only runs under a dora daemon (`dora run`), whose "
-            "Zenoh session and control ports are not confined to free 127.0.0.1 ports with scouting off the way "
-            "this project's tests and benches must be; not measured here (figures by hand in docs/performance.md)")
+def dora_latency_run(count: int) -> list[float]:
+    from bus_peers import dora_run
+
+    samples = dora_run(("ping", "echo"), count, SIZES["small"])
+    return samples[len(samples) // 10:]
+
+
+def dora_throughput_run(count: int) -> tuple[float, float]:
+    """Messages/s at the reader and the share of the sent messages it got (dora's queues drop the oldest)."""
+    from bus_peers import dora_run
+
+    res = dora_run(("blast", "sink"), count, SIZES["small"])
+    return (res["n"] - 1) / res["seconds"] if res["seconds"] > 0 else 0.0, res["n"] / count
 
 
 # ------------------------------------------------------------------ orchestration
@@ -347,7 +426,10 @@ def main() -> None:
     p.add_argument("--pings", type=int, default=2000)
     p.add_argument("--messages", type=int, default=200_000, help="messages per throughput run (small)")
     p.add_argument("--peers", action="store_true",
-                   help="also measure the IPC floor (UDP ping-pong on 127.0.0.1) in the same run")
+                   help="also measure Cyclone DDS, dora-rs (in a loopback-only netns) and the IPC floor (UDP "
+                        "ping-pong on 127.0.0.1) in the same run")
+    p.add_argument("--secure", action="store_true",
+                   help="also measure small slots under mTLS and the access policy, links = router vs peers")
     p.add_argument("--role", help=argparse.SUPPRESS)
     p.add_argument("--mode", help=argparse.SUPPRESS)
     p.add_argument("--size", default="small", help=argparse.SUPPRESS)
@@ -358,6 +440,10 @@ def main() -> None:
     if args.role in ("udp_echo", "udp_ping"):
         udp_role(args)
         return
+    if args.role in ("netns_dds_latency", "netns_dds_throughput"):
+        run = dds_latency_run if args.role.endswith("latency") else dds_throughput_run
+        print(json.dumps(run(args.count)))
+        return
     if args.role and args.role.startswith("dds_"):
         from bus_peers import cyclone_role
         cyclone_role(args.role[4:], args.count or 0, SIZES[args.size])
@@ -365,42 +451,58 @@ def main() -> None:
     if args.role:
         role_main(args)
         return
-    dds_why = None
+    dds_why = dora_why = None
     if args.peers:
-        from bus_peers import cyclone_available
-        dds_why = cyclone_available()
+        from bus_peers import cyclone_available, dora_available
+        dds_why, dora_why = cyclone_available(), dora_available()
     procs = Processes()
+    dora_delivered: list[float] = []
+    secure_dir = tempfile.TemporaryDirectory(prefix="cromat-bus-") if args.secure else None
     try:
         port = start_router(procs)
+        secure_port = start_secure_router(procs, Path(secure_dir.name)) if secure_dir else 0
         lat: dict[tuple[str, str], list[float]] = {}
         thr: dict[tuple[str, str], list[float]] = {}
         for rnd in range(args.rounds):
             if args.peers:
                 lat.setdefault(("udp", "small"), []).extend(udp_latency_run(args.pings))
                 if dds_why is None:
-                    lat.setdefault(("cyclonedds", "small"), []).extend(dds_latency_run(args.pings))
-                    thr.setdefault(("cyclonedds", "small"), []).append(dds_throughput_run(args.messages // 10))
+                    lat.setdefault(("cyclonedds", "small"), []).extend(in_netns("netns_dds_latency", args.pings))
+                    thr.setdefault(("cyclonedds", "small"), []).append(
+                        in_netns("netns_dds_throughput", args.messages // 10))
+                if dora_why is None:
+                    lat.setdefault(("dora", "small"), []).extend(dora_latency_run(args.pings))
+                    rate, got = dora_throughput_run(args.messages // 10)
+                    thr.setdefault(("dora", "small"), []).append(rate)
+                    dora_delivered.append(got)
             for size in SIZES:
-                for mode in ("raw", "bbcs"):
+                for mode in MODES if size == "small" else ("raw", "bbcs"):
                     lat.setdefault((mode, size), []).extend(
                         latency_run(port, mode, size, args.pings, f"l{rnd}{size}{mode}"))
             for size, count in (("small", args.messages), ("32k", max(5000, args.messages // 10))):
-                for mode in ("raw", "bbcs"):
+                for mode in MODES if size == "small" else ("raw", "bbcs"):
                     thr.setdefault((mode, size), []).append(
                         throughput_run(port, mode, size, count, f"t{rnd}{size}{mode}"))
+            for mode in SECURE_MODES if secure_dir else ():
+                lat.setdefault((mode, "small"), []).extend(
+                    latency_run(secure_port, mode, "small", args.pings, f"l{rnd}{mode}"))
+                thr.setdefault((mode, "small"), []).append(
+                    throughput_run(secure_port, mode, "small", args.messages, f"t{rnd}{mode}"))
     finally:
         procs.stop_all()
+        if secure_dir is not None:
+            secure_dir.cleanup()
 
     rows = []
-    print(f"{'payload':8} {'mode':5} {'p50 µs':>9} {'p99 µs':>9} {'msgs/s':>11}")
+    print(f"{'payload':8} {'mode':12} {'p50 µs':>9} {'p99 µs':>9} {'msgs/s':>11}")
     for size in SIZES:
-        for mode in ("raw", "bbcs"):
+        for mode in (*MODES, *(SECURE_MODES if args.secure else ())) if size == "small" else ("raw", "bbcs"):
             s = lat[(mode, size)]
             rate = statistics.median(thr[(mode, size)]) if (mode, size) in thr else None
             rows.append({"payload": size, "mode": mode, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
                          "samples": len(s), "msgs_per_s": rate})
-            print(f"{size:8} {mode:5} {pct(s, 50):9.1f} {pct(s, 99):9.1f} "
-                  f"{'' if rate is None else f'{rate:11,.0f}'}")
+            print(f"{size:8} {mode:12} {pct(s, 50):9.1f} {pct(s, 99):9.1f} "
+                  f"{'' if rate is None else f'{rate:11,.0f}'}   ({MODE_LABEL[mode]})")
     get = {(r["mode"], r["payload"]): r for r in rows}
     summary = {
         "small_p50_ratio": get[("bbcs", "small")]["p50_us"] / get[("raw", "small")]["p50_us"],
@@ -408,31 +510,49 @@ def main() -> None:
         "throughput_ratio": get[("bbcs", "small")]["msgs_per_s"] / get[("raw", "small")]["msgs_per_s"],
         "scan_p50_ratio": get[("bbcs", "32k")]["p50_us"] / get[("raw", "32k")]["p50_us"],
         "scan_throughput_ratio": get[("bbcs", "32k")]["msgs_per_s"] / get[("raw", "32k")]["msgs_per_s"],
+        # links = "peers": a slot over a direct peer link, against raw zenoh peers (same topology) ...
+        "peer_link_small_p50_ratio": get[("bbcspeer", "small")]["p50_us"] / get[("rawpeer", "small")]["p50_us"],
+        "peer_link_throughput_ratio": (get[("bbcspeer", "small")]["msgs_per_s"]
+                                       / get[("rawpeer", "small")]["msgs_per_s"]),
+        # ... and against the same slot through the router (below 1: the peer links are faster)
+        "peer_link_over_router_p50": get[("bbcspeer", "small")]["p50_us"] / get[("bbcs", "small")]["p50_us"],
     }
+    summary_notes: dict[str, str] = {}
+    if args.secure:  # both under mTLS + the access policy: the router's, or each receiving peer's
+        summary["secure_peer_link_over_router_p50"] = (get[("bbcspeer_tls", "small")]["p50_us"]
+                                                       / get[("bbcs_tls", "small")]["p50_us"])
+        summary["secure_peer_link_throughput_ratio"] = (get[("bbcspeer_tls", "small")]["msgs_per_s"]
+                                                        / get[("bbcs_tls", "small")]["msgs_per_s"])
     if args.peers:
+        # "peer latency over bbcs latency" (above 1: the slot is faster); bbcs = a slot over peer links
+        bbcs_p50 = get[(DEFAULT_LINKS_MODE, "small")]["p50_us"]
+        bbcs_rate = get[(DEFAULT_LINKS_MODE, "small")]["msgs_per_s"]
         floor = lat[("udp", "small")]
         summary["ipc_floor_p50_us"] = pct(floor, 50)
         rows.append({"payload": "small", "mode": "udp", "p50_us": pct(floor, 50), "p99_us": pct(floor, 99),
                      "samples": len(floor), "msgs_per_s": None})
-        print(f"{'small':8} {'udp':5} {pct(floor, 50):9.1f} {pct(floor, 99):9.1f}   (IPC floor)")
-        bbcs_p50 = get[("bbcs", "small")]["p50_us"]
-        if dds_why is None:
-            dds = lat[("cyclonedds", "small")]
-            rate = statistics.median(thr[("cyclonedds", "small")])
-            summary["peer_cyclonedds_p50_ratio"] = pct(dds, 50) / bbcs_p50
-            summary["peer_cyclonedds_throughput_ratio"] = rate / get[("bbcs", "small")]["msgs_per_s"]
-            rows.append({"payload": "small", "mode": "cyclonedds", "p50_us": pct(dds, 50), "p99_us": pct(dds, 99),
-                         "samples": len(dds), "msgs_per_s": rate})
-            print(f"{'small':8} {'dds':5} {pct(dds, 50):9.1f} {pct(dds, 99):9.1f} {rate:11,.0f}   (Cyclone DDS)")
-        else:
-            summary["peer_cyclonedds_p50_ratio"] = None
-            print(f"peer cyclonedds: {dds_why}")
-        print(f"peer dora-rs: {DORA_WHY}")
-        summary["peer_dora_p50_ratio"] = None  # the contract key; why it has no value is in "notes"
-        summary_notes = {"peer_dora": DORA_WHY, **({"peer_cyclonedds": dds_why} if dds_why else {})}
-    else:
-        summary_notes = {}
-    print("\n" + "\n".join(f"{k:22} {'n/a' if v is None else f'{v:.3f}'}" for k, v in summary.items()))
+        print(f"{'small':8} {'udp':12} {pct(floor, 50):9.1f} {pct(floor, 99):9.1f}             (IPC floor)")
+        for peer, why, label in (("cyclonedds", dds_why, "Cyclone DDS Python, reliable, keep-all"),
+                                 ("dora", dora_why, "dora-rs 1.1 Python nodes, loopback-only netns")):
+            if why is not None:
+                summary[f"peer_{peer}_p50_ratio"] = None  # the contract key; why it has no value is in "notes"
+                summary_notes[f"peer_{peer}"] = why
+                print(f"peer {peer}: not measured: {why}")
+                continue
+            s = lat[(peer, "small")]
+            rate = statistics.median(thr[(peer, "small")])
+            summary[f"peer_{peer}_p50_ratio"] = pct(s, 50) / bbcs_p50
+            summary[f"peer_{peer}_throughput_ratio"] = rate / bbcs_rate
+            summary[f"peer_{peer}_over_router_p50_ratio"] = pct(s, 50) / get[("bbcs", "small")]["p50_us"]
+            rows.append({"payload": "small", "mode": peer, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
+                         "samples": len(s), "msgs_per_s": rate})
+            print(f"{'small':8} {peer:12} {pct(s, 50):9.1f} {pct(s, 99):9.1f} {rate:11,.0f}   ({label})")
+        if dora_delivered:
+            summary["peer_dora_delivered_share"] = min(dora_delivered)
+            summary_notes["peer_dora"] = "dora ran in a fresh network namespace with only loopback (unshare -n)"
+        summary_notes["bbcs_baseline"] = (f"peer_*_p50_ratio: peer p50 over a slot's p50 over peer links "
+                                          f"({DEFAULT_LINKS_MODE}); *_over_router_*: over a slot through the router")
+    print("\n" + "\n".join(f"{k:34} {'n/a' if v is None else f'{v:.3f}'}" for k, v in summary.items()))
     write_results("bus", {"summary": summary, "rows": rows, "notes": summary_notes, "rounds": args.rounds,
                           "pings": args.pings,
                           "messages": args.messages, "stamp": time.time()})

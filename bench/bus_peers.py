@@ -39,6 +39,21 @@ def new_domain() -> int:
     return random.randrange(1, 200)
 
 
+try:
+    import msgspec as _msgspec
+
+    class DoraMsg(_msgspec.Struct, frozen=True, kw_only=True):
+        """bench/bus.py's BenchMsg, field for field (the dora nodes do not import the project)."""
+
+        seq: int
+        stamp_ns: int
+        value: float = 12.5
+        tilt: float = -45.0
+        body: bytes = b""
+except ImportError:  # only the dora nodes need it
+    pass
+
+
 def _dds() -> tuple[Any, ...]:
     from cyclonedds.core import Policy, Qos
     from cyclonedds.domain import DomainParticipant
@@ -123,3 +138,177 @@ def _wait_matched(writer: Any, deadline_s: float = 20.0) -> None:
             return
         time.sleep(0.01)
     raise SystemExit("cyclonedds: no reader matched within 20 s")
+
+
+# ------------------------------------------------------------------ dora-rs, confined to a loopback-only netns
+
+DORA_DOC = """dora-rs: its Python nodes run under a dora daemon (``dora run``), whose coordinator, daemon and inter-node
+Zenoh session bind ports of their own choosing, with scouting. So the whole dataflow runs inside a fresh Linux network
+namespace (``unshare -n``, or ``unshare -rn`` as a user) that has nothing but a loopback interface, brought up inside:
+no packet can leave 127.0.0.1 of that namespace, and no port can clash with the machine's. Same message (msgpack,
+~40 B), sent as one Arrow binary value; ping-pong with the reply sent from the echo node's event loop; throughput with
+the reader's input queue sized so that the daemon's drop-oldest policy does not drop."""
+
+NETNS_SHELL = "ip link set lo up && exec \"$@\""
+
+
+def unshare_argv() -> list[str]:
+    return ["unshare", "-n"] if os.geteuid() == 0 else ["unshare", "-rn"]
+
+
+def netns_usable() -> str | None:
+    """None when a fresh network namespace with nothing but a loopback interface can be made here; else why."""
+    import shutil
+    import subprocess
+
+    if shutil.which("unshare") is None or shutil.which("ip") is None:
+        return "unshare(1) or ip(8) missing: cannot make a loopback-only network namespace"
+    probe = subprocess.run([*unshare_argv(), "sh", "-c", NETNS_SHELL + " && ip -o link", "netns"],
+                           capture_output=True, text=True, timeout=20)
+    if probe.returncode != 0:
+        return ("cannot make a loopback-only network namespace here (unshare -n needs root or user namespaces): "
+                + (probe.stderr.strip() or f"exit {probe.returncode}"))
+    links = [line.split(":")[1].strip() for line in probe.stdout.splitlines() if ":" in line]
+    if links != ["lo"]:
+        return f"the new network namespace is not loopback-only (links: {links})"
+    return None
+
+
+def dora_available() -> str | None:
+    """None when a loopback-only namespace can be made and the ``dora`` CLI and Python node API are there; else why."""
+
+    try:
+        import dora  # noqa: F401
+        import pyarrow  # noqa: F401
+    except Exception as exc:
+        return f"dora-rs Python node API not usable: {type(exc).__name__}: {exc} (pip install '.[bench]')"
+    cli = dora_cli()
+    if cli is None:
+        return "the `dora` CLI (pip package dora-rs-cli) is not installed (pip install '.[bench]')"
+    why = netns_usable()
+    return None if why is None else f"dora's daemon cannot be confined to loopback: {why}"
+
+
+def dora_cli() -> str | None:
+    import shutil
+
+    here = os.path.join(os.path.dirname(sys.executable), "dora")
+    return here if os.path.exists(here) else shutil.which("dora")
+
+
+def dora_run(role_pair: tuple[str, str], count: int, body_len: int, timeout_s: float = 240.0) -> Any:
+    """Run a two-node dataflow (``ping``/``echo`` or ``blast``/``sink``) in a loopback-only netns; its JSON result."""
+    import subprocess
+    import tempfile
+
+    script = os.path.abspath(__file__)
+    first, second = role_pair
+    with tempfile.TemporaryDirectory(prefix="cromat-dora-") as tmp:
+        out = os.path.join(tmp, "result.json")
+        common = {"CROMAT_DORA_OUT": out, "CROMAT_DORA_COUNT": str(count), "CROMAT_DORA_BODY": str(body_len)}
+
+        def node(nid: str, inputs: dict[str, Any], outputs: list[str]) -> dict[str, Any]:
+            return {"id": nid, "path": sys.executable, "args": f"{script} dora-node {nid}", "inputs": inputs,
+                    "outputs": outputs, "env": dict(common)}
+
+        if first == "ping":
+            nodes = [node("ping", {"pong": "echo/pong", "tick": "dora/timer/millis/200"}, ["ping"]),
+                     node("echo", {"ping": {"source": "ping/ping", "queue_size": 1000}}, ["pong"])]
+        else:
+            nodes = [node("blast", {"tick": "dora/timer/millis/200"}, ["data"]),
+                     node("sink", {"data": {"source": "blast/data", "queue_size": count + 2000},
+                                   "tick": "dora/timer/millis/200"}, [])]
+        flow = os.path.join(tmp, "dataflow.yml")
+        with open(flow, "w") as f:
+            json.dump({"nodes": nodes}, f)  # JSON is YAML
+        proc = subprocess.run([*unshare_argv(), "sh", "-c", NETNS_SHELL, "netns", dora_cli() or "dora", "run", flow],
+                              cwd=tmp, capture_output=True, text=True, timeout=timeout_s)
+        if not os.path.exists(out):
+            raise RuntimeError(f"dora run left no result (exit {proc.returncode}): {proc.stderr[-800:]}")
+        with open(out) as f:
+            return json.load(f)
+
+
+def dora_node(nid: str) -> None:
+    """One node of the dora dataflow (started by the dora daemon, inside the namespace)."""
+    import msgspec
+    import pyarrow as pa
+    from dora import Node
+
+    count, body = int(os.environ["CROMAT_DORA_COUNT"]), b"x" * int(os.environ["CROMAT_DORA_BODY"])
+    out = os.environ["CROMAT_DORA_OUT"]
+    enc, dec = msgspec.msgpack.Encoder(), msgspec.msgpack.Decoder(DoraMsg)
+
+    def value(seq: int) -> Any:
+        return pa.array([enc.encode(DoraMsg(seq=seq, stamp_ns=time.perf_counter_ns(), body=body))], type=pa.binary())
+
+    node = Node()
+    if nid == "echo":
+        for event in node:
+            if event["type"] != "INPUT":
+                if event["type"] == "STOP":
+                    break
+                continue
+            node.send_output("pong", event["value"])
+            if dec.decode(event["value"][0].as_py()).seq < 0:
+                break
+    elif nid == "ping":
+        samples: list[float] = []
+        expected = 0
+        for event in node:
+            if event["type"] != "INPUT":
+                if event["type"] == "STOP":
+                    break
+                continue
+            if event["id"] == "tick":
+                if expected == 0:  # the echo may not be subscribed yet: ping again until the first pong
+                    node.send_output("ping", value(0))
+                continue
+            msg = dec.decode(event["value"][0].as_py())
+            if msg.seq != expected:
+                continue
+            samples.append((time.perf_counter_ns() - msg.stamp_ns) / 2000.0)
+            expected += 1
+            if len(samples) >= count:
+                break
+            node.send_output("ping", value(expected))
+        node.send_output("ping", value(-1))
+        _write(out, samples)
+    elif nid == "blast":
+        for event in node:
+            if event["type"] == "INPUT" and event["id"] == "tick":
+                break
+        time.sleep(0.5)
+        data = value(0)
+        for _ in range(count):  # exactly count: the sink's count (it stops 3 s after the last) is the delivered share
+            node.send_output("data", data)
+    elif nid == "sink":
+        n, first, last = 0, 0.0, 0.0
+        for event in node:
+            if event["type"] == "STOP":
+                break
+            if event["type"] != "INPUT":
+                continue
+            now = time.perf_counter()
+            if event["id"] == "tick":
+                if n and now - last > 3.0:
+                    break
+                continue
+            n += 1
+            if n == 1:
+                first = now
+            last = now
+            if n >= count:
+                break
+        _write(out, {"n": n, "seconds": last - first, "sent": count})
+
+
+def _write(path: str, obj: Any) -> None:
+    tmp = path + ".part"
+    with open(tmp, "w") as f:
+        json.dump(obj, f)
+    os.replace(tmp, path)
+
+
+if __name__ == "__main__" and len(sys.argv) >= 3 and sys.argv[1] == "dora-node":
+    dora_node(sys.argv[2])

@@ -36,7 +36,7 @@ from bbcs.net import free_port, wait_tcp
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import mesh, route_audit, secure
+from module_manager import links, mesh, route_audit, secure
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
 from module_manager.process import Child, stop_children
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
@@ -157,12 +157,18 @@ class Manager:
         self.connect = connect
         self.runtime_dir: Path | None = None
         self.bus = self.bus_for(MANAGER_MODULE)
+        self._peer_acl = links.peer_access_control(self.m) if self.m.pki is not None else None
+        """The ingress policy of every module's peer session under ``[bus] links = "peers"`` (links.py)."""
 
     def bus_for(self, identity: str) -> SessionConfig:
         """The bus config of the manager or a module: plain client, or mTLS with that identity's certificate."""
         if self.m.pki is None:
             return SessionConfig(mode="client", connect=list(self.connect))
         return secure.client_bus(self.m, self.connect, identity)
+
+    def module_bus_for(self, identity: str) -> SessionConfig:
+        """A module's bus config: ``bus_for`` as a client of the router, or as a peer under ``[bus] links``."""
+        return links.module_bus(self.m, self.bus_for(identity), self._peer_acl)
 
     # ------------------------------------------------------------------------------------------ start-up
 
@@ -345,7 +351,7 @@ class Manager:
 
     def _spawn(self, mod: _Module, action: Spawn) -> None:
         info = mod.info
-        ctx = ModuleContext(robot=self.m.robot, module=info.name, bus=self.bus_for(self.m.identity(info.name)),
+        ctx = ModuleContext(robot=self.m.robot, module=info.name, bus=self.module_bus_for(self.m.identity(info.name)),
                             slot_table=self.m.slot_table,
                             routes=dict(mod.routes), conf=str(self.m.conf),
                             params={k: self.expand(v) for k, v in info.spec.params.items()},

@@ -92,6 +92,9 @@ class BusSection(_Section):
     peers: list[str] = msgspec.field(default_factory=list)
     """Other routers (robots', ground stations') this robot's router connects to: the fleet mesh, routed by Zenoh
     itself (docs/fleet.md). Before anything starts, the launch refuses a robot name already alive there."""
+    links: Literal["router", "peers"] | None = None
+    """How modules reach each other: ``"peers"`` (linked directly, the access policy enforced by each receiver) or
+    ``"router"`` (through the router). Default: ``links.DEFAULT_LINKS`` (router); router with ``zenoh_config``."""
 
 
 class SupervisionSection(_Section):
@@ -369,6 +372,9 @@ class _Checker:
             raise self.fail("bus.zenoh_config", f"Zenoh config file {base / raw.bus.zenoh_config} does not exist")
         if not raw.bus.listen:
             raise self.fail("bus.listen", "the router needs at least one listen endpoint")
+        if raw.bus.links == "peers" and raw.bus.zenoh_config is not None:
+            raise self.fail("bus.links", "links = \"peers\" cannot keep a hand-written router config's access rules "
+                                         "(bus.zenoh_config) between modules: use [bus.tls] or links = \"router\"")
         for i, endpoint in enumerate(raw.bus.peers):
             if not endpoint.startswith("tcp/"):
                 raise self.fail(f"bus.peers.{i}", f"{endpoint!r}: the fleet mesh is built over tcp/ endpoints only "

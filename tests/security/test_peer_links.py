@@ -1,0 +1,172 @@
+"""``[bus] links = "peers"`` under ``[bus.tls]``: a module linked directly to another still cannot write what it does
+not own, because the *receiver* enforces the robot's access policy on its ingress (module_manager/links.py).
+
+The rig is uav1_secure.toml's: the router with the generated config and policy, certificates from ``cromat certs
+--manifest`` made in tmp_path, and module sessions built exactly as the manager builds them (``links.module_bus``).
+The attacker holds a real identity (vision's certificate) and runs a *compromised* peer: no policy of its own, linked
+directly to its victim (checked: the victim is among its peers). Each case is checked by effect: what the victim's
+subscriber received. The legitimate twin (the DSP identity publishing its own telemetry) is delivered, and a victim
+whose session had no policy *does* receive the forgery, which proves that the forgery really travels the direct
+link (the router would have dropped it) and that the receiver's policy is what stops it.
+
+Marker technique: one link keeps its messages in order, so after the attempt the attacker publishes a marker on a
+key it owns; once the victim has the marker, anything the attempt had let through would have arrived before it.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgspec
+import pytest
+import zenoh
+
+from bbcs import keys
+from bbcs.session import open_session
+from bbcs.testing import Processes, free_port, wait_port, wait_until
+from cromat import certs
+from module_manager import links, secure
+from module_manager.manifest import Manifest, load_manifest
+
+ROOT = Path(__file__).resolve().parents[2]
+MANIFEST = ROOT / "bbcs_conf" / "uav1_secure.toml"
+ROBOT = "uav1"
+TELEMETRY = keys.slot_key(ROBOT, "dsp", "telemetry")
+CONTROL = keys.slot_key(ROBOT, "pan_tilt", "control_entrada")
+MARKER = keys.slot_key(ROBOT, "vision", "marker")
+
+
+def secure_manifest(tmp: Path, port: int) -> Path:
+    text = MANIFEST.read_text()
+    for old, new in (('conf = "uav1.conf"', f'conf = "{MANIFEST.parent / "uav1.conf"}"'),
+                     ('pki = "pki"', f'pki = "{tmp / "pki"}"'),
+                     ('listen = ["tls/127.0.0.1:7447"]', f'listen = ["tls/127.0.0.1:{port}"]\nlinks = "peers"')):
+        assert text.count(old) == 1, f"{old!r} changed in uav1_secure.toml"
+        text = text.replace(old, new)
+    path = tmp / "uav1_secure.toml"
+    path.write_text(text)
+    return path
+
+
+@dataclass
+class Rig:
+    manifest: Manifest
+    connect: list[str]
+    procs: Processes
+    sessions: list[zenoh.Session] = field(default_factory=list)
+
+    def module(self, identity: str, *, policy: bool = True) -> zenoh.Session:
+        """A module's session as the manager configures it; ``policy=False``: a compromised one without its ACL."""
+        cfg = links.module_bus(self.manifest, secure.client_bus(self.manifest, self.connect, identity),
+                               links.peer_access_control(self.manifest) if policy else None)
+        assert cfg.mode == "peer" and cfg.listen == ["tls/127.0.0.1:0"]
+        s = open_session(cfg)
+        self.sessions.append(s)
+        return s
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    tmp = tmp_path_factory.mktemp("peer_links")
+    port = free_port()
+    path = secure_manifest(tmp, port)
+    assert certs.main(["--manifest", str(path)]) == 0
+    manifest = load_manifest(path)
+    assert links.links(manifest) == "peers"
+    listen = [f"tls/127.0.0.1:{port}"]
+    config = secure.write_router_config(manifest, listen, tmp)
+    procs = Processes()
+    r = Rig(manifest, [f"tls/127.0.0.1:{port}"], procs)
+    try:
+        procs.start(["-m", "bbcs.router", "--config", str(config), "--listen", listen[0]], stdout=subprocess.DEVNULL)
+        wait_port(port)
+        yield r
+    finally:
+        for s in r.sessions:
+            s.close()
+        procs.stop_all()
+
+
+class Inbox:
+    """What a victim's subscribers received, by key, with a wait for the marker."""
+
+    def __init__(self, session: zenoh.Session, *key_exprs: str) -> None:
+        self.got: list[tuple[str, bytes]] = []
+        self.cond = threading.Condition()
+        self.subs = [session.declare_subscriber(k, self._on) for k in key_exprs]
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        with self.cond:
+            self.got.append((str(sample.key_expr), sample.payload.to_bytes()))
+            self.cond.notify_all()
+
+    def wait_for(self, key: str, payload: bytes, timeout_s: float = 15.0) -> bool:
+        with self.cond:
+            return self.cond.wait_for(lambda: (key, payload) in self.got, timeout_s)
+
+    def values(self, key: str) -> list[bytes]:
+        with self.cond:
+            return [p for k, p in self.got if k == key]
+
+    def close(self) -> None:
+        for sub in self.subs:
+            sub.undeclare()
+
+
+def linked(a: zenoh.Session, b: zenoh.Session) -> bool:
+    return b.zid() in a.info.peers_zid() and a.zid() in b.info.peers_zid()
+
+
+def attempt(victim: zenoh.Session, attacker: zenoh.Session, key: str, forged: bytes, tag: bytes) -> Inbox:
+    """Subscribe the victim, wait for the direct link and the subscriptions, write ``forged`` then the marker."""
+    inbox = Inbox(victim, key, MARKER)
+    wait_until(lambda: linked(victim, attacker), 30, "the attacker never linked directly to the victim")
+    pub = attacker.declare_publisher(key)
+    marker = attacker.declare_publisher(MARKER)
+    wait_until(lambda: marker.matching_status.matching, 30, "the victim's marker subscription never arrived")
+    pub.put(forged)
+    marker.put(tag)
+    assert inbox.wait_for(MARKER, tag), "the attacker's own marker never reached the victim"
+    pub.undeclare()
+    marker.undeclare()
+    return inbox
+
+
+def test_compromised_module_cannot_write_a_slot_it_does_not_own_over_a_direct_link(rig: Rig) -> None:
+    victim = rig.module("pan_tilt")  # reads the DSP's telemetry, owns its CONTROL_ENTRADA (the manager writes it)
+    attacker = rig.module("vision", policy=False)
+    forged = msgspec.msgpack.encode({"lat": 200.0, "mode": "SPOOFED"})
+    inbox = attempt(victim, attacker, TELEMETRY, forged, b"m1")
+    assert inbox.values(TELEMETRY) == []
+    inbox.close()
+    inbox = attempt(victim, attacker, CONTROL, msgspec.msgpack.encode({"datos": 20}), b"m2")
+    assert inbox.values(CONTROL) == []
+    inbox.close()
+
+
+def test_the_owner_is_delivered_over_its_direct_link(rig: Rig) -> None:
+    victim = rig.module("pan_tilt")
+    owner = rig.module("dsp", policy=False)  # its own policy plays no part in what the receiver accepts
+    inbox = Inbox(victim, TELEMETRY)
+    wait_until(lambda: linked(victim, owner), 30, "the DSP never linked directly to pan_tilt")
+    pub = owner.declare_publisher(TELEMETRY)
+    wait_until(lambda: pub.matching_status.matching, 30, "pan_tilt's telemetry subscription")
+    pub.put(b"real telemetry")
+    assert inbox.wait_for(TELEMETRY, b"real telemetry")
+    inbox.close()
+    pub.undeclare()
+
+
+def test_without_the_receivers_policy_the_forgery_would_arrive(rig: Rig) -> None:
+    """The control case: the same attack on a victim whose session enforces nothing is delivered, so the forgery
+    does travel the direct link and the router is not what stopped it above."""
+    victim = rig.module("pan_tilt", policy=False)
+    attacker = rig.module("vision", policy=False)
+    inbox = attempt(victim, attacker, TELEMETRY, b"forged", b"m3")
+    assert inbox.values(TELEMETRY) == [b"forged"]
+    inbox.close()
+
