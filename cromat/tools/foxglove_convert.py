@@ -1,9 +1,12 @@
-"""Robot state → Foxglove's well-known shapes (pure functions): map position, 3D pose, altitude/speed."""
+"""Robot state → Foxglove's well-known shapes (pure functions): map position, 3D pose, altitude/speed, lidar
+points."""
 
 from __future__ import annotations
 
 import math
 from typing import Any
+
+import numpy as np
 
 EARTH_RADIUS_M = 6_371_000.0
 
@@ -49,3 +52,25 @@ KINEMATICS_SCHEMA: dict[str, Any] = {
                    "climb_rate_mps": {"type": ["number", "null"]}, "heading_deg": {"type": ["number", "null"]}},
     "required": ["altitude_m"],
 }
+
+
+def zyx_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of the rotation Rz(yaw) · Ry(pitch) · Rx(roll), degrees (a lidar mounting in the body frame)."""
+    r, p, y = math.radians(roll_deg) / 2, math.radians(pitch_deg) / 2, math.radians(yaw_deg) / 2
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy)
+
+
+POINT_FIELDS = (("x", 0), ("y", 4), ("z", 8), ("layer", 12))
+"""Float32 fields of one point in :func:`point_cloud_data`, with their byte offsets."""
+POINT_STRIDE = 16
+
+
+def point_cloud_data(xyz: np.ndarray, layer: np.ndarray) -> bytes:
+    """Interleaved little-endian float32 x, y, z, layer per point: the ``data`` of a Foxglove PointCloud (the
+    layer as a number the 3D panel can colour by)."""
+    out = np.empty(len(xyz), dtype=[(name, "<f4") for name, _ in POINT_FIELDS])
+    out["x"], out["y"], out["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    out["layer"] = layer
+    return out.tobytes()
