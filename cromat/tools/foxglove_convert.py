@@ -34,12 +34,12 @@ def enu_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> tuple[f
 
 
 def kinematics(state: dict[str, Any]) -> dict[str, Any] | None:
-    """Altitude, ground speed, climb rate and heading of a RobotTelemetry or GriState (as builtins)."""
+    """Altitude, ground speed, climb rate, heading and battery of a RobotTelemetry or GriState (as builtins)."""
     pos, vel = state.get("position"), state.get("velocity")
     if not pos:
         return None
     out: dict[str, Any] = {"altitude_m": pos["alt"], "ground_speed_mps": None, "climb_rate_mps": None,
-                           "heading_deg": state.get("heading_deg")}
+                           "heading_deg": state.get("heading_deg"), "battery_v": state.get("battery_v")}
     if vel:
         out["ground_speed_mps"] = math.hypot(vel["vn"], vel["ve"])
         out["climb_rate_mps"] = -vel["vd"]
@@ -49,7 +49,8 @@ def kinematics(state: dict[str, Any]) -> dict[str, Any] | None:
 KINEMATICS_SCHEMA: dict[str, Any] = {
     "title": "cromat.Kinematics", "type": "object",
     "properties": {"altitude_m": {"type": "number"}, "ground_speed_mps": {"type": ["number", "null"]},
-                   "climb_rate_mps": {"type": ["number", "null"]}, "heading_deg": {"type": ["number", "null"]}},
+                   "climb_rate_mps": {"type": ["number", "null"]}, "heading_deg": {"type": ["number", "null"]},
+                   "battery_v": {"type": ["number", "null"]}},
     "required": ["altitude_m"],
 }
 
