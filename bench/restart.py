@@ -35,7 +35,7 @@ from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 
 sys.path.insert(0, str(ROOT / "tests" / "module_manager"))
-from launch_support import Launch, write_manifest  # noqa: E402
+from launch_support import Launch, standbys, write_manifest  # noqa: E402
 
 ROBOT, MODULE = "r1", "sink"
 PERIOD_S = 0.3
@@ -91,6 +91,15 @@ def first_datum_after_start(path: Path, offset: int, deadline_s: float = 30.0) -
     raise SystemExit("the sink handled no datum after its start")
 
 
+def wait_warm(manager_pid: int, deadline_s: float = 60.0) -> None:
+    """Until the manager's standby of the sink is warm: imports done, blocked reading its context."""
+    end = time.monotonic() + deadline_s
+    while not any(standbys(manager_pid, "mm_sink").values()):
+        if time.monotonic() > end:
+            raise SystemExit("no warm standby of the sink")
+        time.sleep(0.02)
+
+
 def sink_status(session) -> mri.ModuleStatus:
     reply = mri.call(session, ROBOT, "modules", mri.ListModules(), 20.0)
     assert isinstance(reply.data, mri.ModuleList)
@@ -111,9 +120,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=50)
     ap.add_argument("--colds", type=int, default=10)
+    ap.add_argument("--no-standby", action="store_true",
+                    help="restart without a warm standby (the same path as a cold start; for comparison)")
     args = ap.parse_args(argv)
     tmp = Path(tempfile.mkdtemp(prefix="cromat-bench-restart-"))
-    manifest = write_manifest(tmp, edit=lambda t: t.replace("period_s = 30.0", f"period_s = {PERIOD_S}"))
+    standby = "false" if args.no_standby else "true"
+    manifest = write_manifest(tmp, edit=lambda t: t.replace(
+        "period_s = 30.0", f"period_s = {PERIOD_S}\nstandby = {standby}"))
     record = tmp / "sink.jsonl"
     la = Launch(manifest, tmp)
     events = Events()
@@ -130,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
         cold_every = max(1, args.kills // max(1, args.colds))
         for i in range(args.kills):
             time.sleep(PERIOD_S + 0.05)  # past the intensity window: a first failure, restarted at once
+            if not args.no_standby:
+                wait_warm(la.proc.pid)  # the steady state of a running robot: its standby is ready
             offset = record.stat().st_size
             t0 = time.time()
             os.kill(pid, signal.SIGKILL)
