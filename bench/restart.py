@@ -1,16 +1,19 @@
 """Restart of a SIGKILLed module against a cold start of the same module, in the same run.
 
 The probe robot of the module-manager tests runs under ``cromat launch`` (two sources publishing every 5 ms, a
-sink routed to one of them). Each kill SIGKILLs the sink and times, from the kill: its liveliness back (alive),
-its RouteAck from the new run (routes restored), and the first datum it handled (the ``t`` the sink stamps on its
-record). A cold start stops the sink through the MRI, then starts it again and times the same first datum from the
-start request. The intensity window is set short (``period_s``) and kills are spaced past it, so each kill is a
-first failure, restarted with no backoff (see docs/manifest.md).
+sink routed to one of them) with ``standby = true``: the manager keeps a warm standby of each module (its imports
+done, module_manager/standby.py) that becomes the module at a restart. Each kill SIGKILLs the sink once its
+standby is warm (the steady state of a running robot) and times, from the kill: its liveliness back (alive), its
+RouteAck from the new run (routes restored), and the first datum it handled (the ``t`` the sink stamps on its
+record). A cold start stops the sink through the MRI (a stopped module has no standby), then starts it again and
+times the same first datum from the start request. The intensity window is set short (``period_s``) and kills
+are spaced past it, so each kill is a first failure, restarted with no backoff (see docs/manifest.md).
+``--no-standby`` measures restarts without a standby (the cold-start path, the figure before standbys).
 
-    python bench/restart.py [--kills 50] [--colds 10]
+    python bench/restart.py [--kills 50] [--colds 10] [--no-standby]
 
 Writes bench/results/restart.json with summary keys ``restart_p50_ms``, ``restart_p99_ms``, ``cold_p50_ms`` and
-``restart_ratio`` (restart p50 over cold start p50; target ≤ 1).
+``restart_ratio`` (restart p50 over cold start p50; target ≤ 1), and ``standby``.
 """
 
 from __future__ import annotations
@@ -186,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         "restart_routes_ms": restart["routes"], "restart_datum_ms": restart["datum"], "cold_datum_ms": cold,
         "summary": {"restart_p50_ms": round(r50, 1), "restart_p99_ms": round(r99, 1), "cold_p50_ms": round(c50, 1),
                     "cold_p99_ms": round(pct(cold, 99), 1),
-                    "restart_ratio": round(ratio, 3)}})
+                    "restart_ratio": round(ratio, 3), "standby": not args.no_standby}})
     return 0
 
 

@@ -406,7 +406,8 @@ class Manager:
             elif mod.sup.state in ("stopped", "failed"):
                 self._drop_standby(mod)
             return
-        if (mod.info.policy.standby and mod.sup.phase is Phase.UP and self.all_up_at is not None
+        policy = mod.info.policy
+        if (policy.standby and policy.restart != "never" and mod.sup.phase is Phase.UP and self.all_up_at is not None
                 and mod.standby_failures < 3 and not self.stop_event.is_set()):
             try:
                 mod.standby = Child(f"{mod.info.name}", standby_argv(sys.executable, mod.info.spec.entry),
