@@ -601,10 +601,9 @@ class Manager:
                 standby.send_and_close_stdin(b"")
             except OSError:
                 pass
-        children += standbys
         if children:
             self.out(f"stopping {len(children)} modules")
-        stop_children(children, self.m.stop_grace_s)
+        stop_children(children + standbys, self.m.stop_grace_s)
         with self.lock:
             for mod in self.modules.values():
                 if mod.child is not None:
