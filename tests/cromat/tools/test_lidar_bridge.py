@@ -1,6 +1,6 @@
 """Lidar scans from a launched LD-MRS + MTi-G simulator through the lidar logger's ``scan`` slot: a WebSocket
 client of ``cromat foxglove`` receives them as ``foxglove.PointCloud`` messages whose points are the scan's, and
-``cromat record`` records them."""
+``cromat record`` records them and ``cromat replay`` gives them back byte for byte."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ from websockets.sync.client import connect as ws_connect
 from bbcs import keys
 from bbcs.contracts.lidar import LidarScan
 from bbcs.session import local_client, open_session
+from bbcs.testing import Processes, start_router, wait_until
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -177,8 +178,25 @@ def test_record_holds_the_scans(lidar_robot, tmp_path):
     with open(out, "rb") as f:
         messages = [(schema, channel, message) for schema, channel, message in make_reader(f).iter_messages()]
     assert len(messages) == summary["channels"][SCAN_KEY]["messages"]
+    recorded = []
     for schema, channel, message in messages:
         assert channel.topic == SCAN_KEY and schema.name == "bbcs.contracts.lidar:LidarScan"
         # JSON as recorded; bytes fields base64: converting back validates the scan (counts, lengths, ranges)
         scan = msgspec.json.decode(message.data, type=LidarScan)
         assert scan.points > 0 and scan.pose_valid
+        recorded.append(scan)
+    # replayed onto another router, the scans come back as they were on the bus, points byte for byte
+    procs = Processes()
+    try:
+        port = start_router(procs)
+        session, replayed, lock = bus_scans(port)
+        try:
+            rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", str(out), "--fast")
+            assert rep.returncode == 0, rep.stderr
+            wait_until(lambda: len(replayed) >= len(recorded), 30, "every recorded scan replayed")
+            with lock:
+                assert replayed == recorded
+        finally:
+            session.close()
+    finally:
+        procs.stop_all()
