@@ -86,6 +86,11 @@ def test_a_killed_module_becomes_its_standby_with_the_current_routes(robot, clie
     robot.wait_line("killed by signal 9; restart in 0.2 s")
     wait_until(lambda: (m := sink(s)).state == "up" and m.pid == second, 30, "the second standby as the sink")
     assert sink(s).restarts == 2
+    # a SIGKILLed manager takes its standbys with it (parent-death signal, as for modules)
+    warm(robot)
+    robot.proc.kill()
+    robot.proc.wait(30)
+    wait_until(lambda: group_members(robot.pgid) == [], 30, "modules and standbys gone with the manager")
 
 
 def test_a_stopped_module_has_no_standby_and_starts_cold(robot, clients):
