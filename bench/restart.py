@@ -1,16 +1,19 @@
 """Restart of a SIGKILLed module against a cold start of the same module, in the same run.
 
 The probe robot of the module-manager tests runs under ``cromat launch`` (two sources publishing every 5 ms, a
-sink routed to one of them). Each kill SIGKILLs the sink and times, from the kill: its liveliness back (alive),
-its RouteAck from the new run (routes restored), and the first datum it handled (the ``t`` the sink stamps on its
-record). A cold start stops the sink through the MRI, then starts it again and times the same first datum from the
-start request. The intensity window is set short (``period_s``) and kills are spaced past it, so each kill is a
-first failure, restarted with no backoff (see docs/manifest.md).
+sink routed to one of them) with ``standby = true``: the manager keeps a warm standby of each module (its imports
+done, module_manager/standby.py) that becomes the module at a restart. Each kill SIGKILLs the sink once its
+standby is warm (the steady state of a running robot) and times, from the kill: its liveliness back (alive), its
+RouteAck from the new run (routes restored), and the first datum it handled (the ``t`` the sink stamps on its
+record). A cold start stops the sink through the MRI (a stopped module has no standby), then starts it again and
+times the same first datum from the start request. The intensity window is set short (``period_s``) and kills
+are spaced past it, so each kill is a first failure, restarted with no backoff (see docs/manifest.md).
+``--no-standby`` measures restarts without a standby (the cold-start path, the figure before standbys).
 
-    python bench/restart.py [--kills 50] [--colds 10]
+    python bench/restart.py [--kills 50] [--colds 10] [--no-standby]
 
 Writes bench/results/restart.json with summary keys ``restart_p50_ms``, ``restart_p99_ms``, ``cold_p50_ms`` and
-``restart_ratio`` (restart p50 over cold start p50; target ≤ 1).
+``restart_ratio`` (restart p50 over cold start p50; target ≤ 1), and ``standby``.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 
 sys.path.insert(0, str(ROOT / "tests" / "module_manager"))
-from launch_support import Launch, write_manifest  # noqa: E402
+from launch_support import Launch, standbys, write_manifest  # noqa: E402
 
 ROBOT, MODULE = "r1", "sink"
 PERIOD_S = 0.3
@@ -91,6 +94,15 @@ def first_datum_after_start(path: Path, offset: int, deadline_s: float = 30.0) -
     raise SystemExit("the sink handled no datum after its start")
 
 
+def wait_warm(manager_pid: int, deadline_s: float = 60.0) -> None:
+    """Until the manager's standby of the sink is warm: imports done, blocked reading its context."""
+    end = time.monotonic() + deadline_s
+    while not any(standbys(manager_pid, "mm_sink").values()):
+        if time.monotonic() > end:
+            raise SystemExit("no warm standby of the sink")
+        time.sleep(0.02)
+
+
 def sink_status(session) -> mri.ModuleStatus:
     reply = mri.call(session, ROBOT, "modules", mri.ListModules(), 20.0)
     assert isinstance(reply.data, mri.ModuleList)
@@ -111,9 +123,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=50)
     ap.add_argument("--colds", type=int, default=10)
+    ap.add_argument("--no-standby", action="store_true",
+                    help="restart without a warm standby (the same path as a cold start; for comparison)")
     args = ap.parse_args(argv)
     tmp = Path(tempfile.mkdtemp(prefix="cromat-bench-restart-"))
-    manifest = write_manifest(tmp, edit=lambda t: t.replace("period_s = 30.0", f"period_s = {PERIOD_S}"))
+    standby = "false" if args.no_standby else "true"
+    manifest = write_manifest(tmp, edit=lambda t: t.replace(
+        "period_s = 30.0", f"period_s = {PERIOD_S}\nstandby = {standby}"))
     record = tmp / "sink.jsonl"
     la = Launch(manifest, tmp)
     events = Events()
@@ -130,6 +146,8 @@ def main(argv: list[str] | None = None) -> int:
         cold_every = max(1, args.kills // max(1, args.colds))
         for i in range(args.kills):
             time.sleep(PERIOD_S + 0.05)  # past the intensity window: a first failure, restarted at once
+            if not args.no_standby:
+                wait_warm(la.proc.pid)  # the steady state of a running robot: its standby is ready
             offset = record.stat().st_size
             t0 = time.time()
             os.kill(pid, signal.SIGKILL)
@@ -171,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         "restart_routes_ms": restart["routes"], "restart_datum_ms": restart["datum"], "cold_datum_ms": cold,
         "summary": {"restart_p50_ms": round(r50, 1), "restart_p99_ms": round(r99, 1), "cold_p50_ms": round(c50, 1),
                     "cold_p99_ms": round(pct(cold, 99), 1),
-                    "restart_ratio": round(ratio, 3)}})
+                    "restart_ratio": round(ratio, 3), "standby": not args.no_standby}})
     return 0
 
 

@@ -39,6 +39,7 @@ from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import links, mesh, route_audit, secure
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
 from module_manager.process import Child, stop_children
+from module_manager.standby import context_line, standby_argv
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
 from module_manager.tasks import Changes, TaskBook
 
@@ -88,6 +89,10 @@ class _Module:
         self.last_error: int | None = None
         self.kill_deadline: float | None = None
         self.shown = ""
+        self.standby: Child | None = None
+        """A warm process that becomes this module at its next restart (policy ``standby``: standby.py)."""
+        self.standby_failures = 0
+        self.warm_starts = 0
 
 
 def tcp_endpoint(endpoint: str) -> tuple[str, int] | None:
@@ -356,12 +361,15 @@ class Manager:
                             routes=dict(mod.routes), conf=str(self.m.conf),
                             params={k: self.expand(v) for k, v in info.spec.params.items()},
                             restart_count=action.restart_count)
-        env = self.child_env(info.spec.env)
-        env[CONTEXT_ENV] = encode_context(ctx)
         now = self.clock()
         mod.run_count = action.restart_count + 1
         mod.last_ack = None
         mod.kill_deadline = None
+        if self._take_standby(mod, encode_context(ctx)):
+            mod.sup.spawned(now)
+            return
+        env = self.child_env(info.spec.env)
+        env[CONTEXT_ENV] = encode_context(ctx)
         try:
             mod.child = Child(info.name, [sys.executable, "-m", info.spec.entry], env, cwd=str(self.m.dir),
                               log_dir=self.log_dir)
@@ -372,6 +380,56 @@ class Manager:
         mod.sup.spawned(now)
         if self.all_up_at is None:
             self.out(f"  {info.name:<11} starting, pid {mod.child.pid}")
+
+    def _take_standby(self, mod: _Module, context: str) -> bool:
+        """Hand the context to the module's warm standby, which becomes the module; False if there is none alive."""
+        standby, mod.standby = mod.standby, None
+        if standby is None:
+            return False
+        if standby.poll() is None:
+            try:
+                standby.send_and_close_stdin(context_line(context))
+                mod.child = standby
+                mod.warm_starts += 1
+                return True
+            except OSError:  # it died between the poll and the write: reaped below, cold start instead
+                pass
+        standby.signal(signal.SIGKILL)
+        standby.proc.wait()
+        standby.close()
+        return False
+
+    def _keep_standby(self, mod: _Module) -> None:
+        """Main thread: once the launch is up, keep one warm standby per up module whose policy asks for it; drop
+        it when the module is stopped or failed. A standby that dies unused three times is not made again."""
+        standby = mod.standby
+        if standby is not None:
+            if standby.poll() is not None:
+                standby.close()
+                mod.standby = None
+                mod.standby_failures += 1
+                self.out(f"manager: the standby of {mod.info.name} exited ({standby.poll()}) before it was needed")
+            elif mod.sup.state in ("stopped", "failed"):
+                self._drop_standby(mod)
+            return
+        policy = mod.info.policy
+        if (policy.standby and policy.restart != "never" and mod.sup.phase is Phase.UP and self.all_up_at is not None
+                and mod.standby_failures < 3 and not self.stop_event.is_set()):
+            try:
+                mod.standby = Child(f"{mod.info.name}", standby_argv(sys.executable, mod.info.spec.entry),
+                                    self.child_env(mod.info.spec.env), cwd=str(self.m.dir), log_dir=self.log_dir,
+                                    stdin_pipe=True)
+            except OSError as exc:
+                mod.standby_failures += 1
+                self.out(f"manager: cannot start a standby of {mod.info.name}: {exc}")
+
+    def _drop_standby(self, mod: _Module) -> None:
+        """An unused standby has nothing to clean up: killed and reaped at once (the main loop does not wait)."""
+        standby, mod.standby = mod.standby, None
+        if standby is not None:
+            standby.signal(signal.SIGKILL)
+            standby.proc.wait()
+            standby.close()
 
     def _perform(self, mod: _Module, actions: list[Spawn | Kill]) -> None:
         for action in actions:
@@ -423,6 +481,7 @@ class Manager:
                 if actions:
                     self._perform(mod, actions)
                     self._touch()
+                self._keep_standby(mod)
             self._report_changes()
             if self.all_up_at is None and all(m.sup.phase is Phase.UP for m in self.modules.values()):
                 self.all_up_at = now
@@ -540,9 +599,17 @@ class Manager:
             for mod in self.modules.values():
                 mod.sup.stop(self.clock(), "manager shutting down")
             children = [m.child for m in reversed(list(self.modules.values())) if m.child is not None]
+            standbys = [m.standby for m in self.modules.values() if m.standby is not None]
+            for mod in self.modules.values():
+                mod.standby = None
+        for standby in standbys:  # end of input: an unused standby exits 0
+            try:
+                standby.send_and_close_stdin(b"")
+            except OSError:
+                pass
         if children:
             self.out(f"stopping {len(children)} modules")
-        stop_children(children, self.m.stop_grace_s)
+        stop_children(children + standbys, self.m.stop_grace_s)
         with self.lock:
             for mod in self.modules.values():
                 if mod.child is not None:

@@ -107,6 +107,7 @@ class SupervisionSection(_Section):
     stop_grace_s: Positive = 5.0
     watchdog_s: NonNeg = 10.0
     unreachable_debounce_s: NonNeg = 1.0
+    standby: bool = False
 
 
 class SlotDef(_Section):
@@ -138,6 +139,8 @@ class ModuleDef(_Section):
     period_s: Positive | None = None
     start_timeout_s: Positive | None = None
     watchdog_s: NonNeg | None = None
+    standby: bool | None = None
+    """Keep a warm standby process for fast restarts (default: ``[supervision] standby``)."""
 
 
 class ReadyDef(_Section):
@@ -566,7 +569,8 @@ class _Checker:
             intensity=s.intensity if spec.intensity is None else spec.intensity,
             period_s=spec.period_s or s.period_s, start_timeout_s=spec.start_timeout_s or s.start_timeout_s,
             watchdog_s=s.watchdog_s if spec.watchdog_s is None else spec.watchdog_s,
-            unreachable_debounce_s=s.unreachable_debounce_s)
+            unreachable_debounce_s=s.unreachable_debounce_s,
+            standby=s.standby if spec.standby is None else spec.standby)
         return ModuleInfo(name=name, spec=spec, policy=policy,
                           control_type=control.type if control is not None else None,
                           control_slot=control.slot if control is not None else "control_entrada",

@@ -38,7 +38,7 @@ class Child:
     """One started process, its output handling and how it ended."""
 
     def __init__(self, name: str, argv: list[str], env: dict[str, str], cwd: str | None = None,
-                 log_dir: Path | None = None, watch_stdout: bool = False) -> None:
+                 log_dir: Path | None = None, watch_stdout: bool = False, stdin_pipe: bool = False) -> None:
         self.name = name
         self.argv = argv
         self._log: IO[bytes] | None = None
@@ -50,7 +50,8 @@ class Child:
         parent = os.getpid()
         self.first_lines: list[str] = []
         self._line_seen = threading.Condition()
-        self.proc = subprocess.Popen(argv, env=env, cwd=cwd, stdin=subprocess.DEVNULL,
+        stdin = subprocess.PIPE if stdin_pipe else subprocess.DEVNULL
+        self.proc = subprocess.Popen(argv, env=env, cwd=cwd, stdin=stdin,
                                      stdout=subprocess.PIPE if watch_stdout else out,
                                      stderr=out, preexec_fn=lambda: _child_setup(parent))
         self.pid = self.proc.pid
@@ -96,6 +97,19 @@ class Child:
     def poll(self) -> int | None:
         return self.proc.poll()
 
+    def send_and_close_stdin(self, data: bytes) -> None:
+        """Write ``data`` to the child's stdin pipe (``stdin_pipe``) and close it; OSError if the child is gone."""
+        assert self.proc.stdin is not None
+        try:
+            if data:
+                self.proc.stdin.write(data)
+                self.proc.stdin.flush()
+        finally:
+            try:
+                self.proc.stdin.close()
+            except OSError:
+                pass
+
     def signal(self, sig: int) -> None:
         if self.proc.poll() is None:
             try:
@@ -104,6 +118,11 @@ class Child:
                 pass
 
     def close(self) -> None:
+        if self.proc.stdin is not None and not self.proc.stdin.closed:
+            try:
+                self.proc.stdin.close()
+            except OSError:
+                pass
         if self.pidfd is not None:
             os.close(self.pidfd)
             self.pidfd = None

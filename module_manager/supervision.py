@@ -57,6 +57,9 @@ class Policy:
     """Kill an up module whose heartbeat is older than this (0: no watchdog)."""
     unreachable_debounce_s: float = 1.0
     """A liveliness DELETE is reported as "unreachable" only if no PUT follows within this time."""
+    standby: bool = False
+    """Keep a warm standby process of the module while it runs, so a restart skips interpreter start and imports
+    (module_manager/standby.py); costs one idle interpreter per module."""
 
 
 @dataclass(frozen=True)

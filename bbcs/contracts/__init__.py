@@ -14,4 +14,5 @@ Every struct that crosses a process boundary and is shared by more than one pack
 | :mod:`bbcs.contracts.gri` | the GRI: what ground stations and the RAL exchange |
 | :mod:`bbcs.contracts.mri` | the MRI: requests to a robot's Module Manager and its robot state |
 | :mod:`bbcs.contracts.trajectory` | requests to the trajectory generator and its answers |
+| :mod:`bbcs.contracts.lidar` | ``LidarScan``: one lidar scan on the bus, points as packed buffers |
 """

@@ -7,6 +7,8 @@ and the RAL serves it to ground stations. Nothing here is UAV-specific: a field 
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import msgspec
 
 from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED
@@ -33,3 +35,5 @@ class RobotTelemetry(msgspec.Struct, frozen=True, kw_only=True):
     pan_tilt_mode: int | None = None
     error_code: int | None = None
     """Error code the low-level controller reports (0 none)."""
+    battery_v: Annotated[float, msgspec.Meta(ge=0.0, le=100.0)] | None = None
+    """Battery voltage (V) as the robot measures it (the UAV: the DSP's ``Engine.battery_v``)."""

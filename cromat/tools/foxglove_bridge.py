@@ -9,9 +9,10 @@ telemetry (any ``bbcs.contracts.robot:RobotTelemetry`` slot, else the GRI state)
 | ``/<robot>/tf``         | ``foxglove.FrameTransform``, ``world`` → ``<robot>/base_link`` (ENU) | 3D |
 | ``/<robot>/kinematics`` | JSON: altitude, ground speed, climb rate, heading | Plot |
 | ``/<robot>/log``        | ``foxglove.Log``: errors (with names) from the GRI state, GRI events | Log |
+| ``/<robot>/lidar``      | ``foxglove.PointCloud`` in ``<robot>/lidar``: each ``bbcs.contracts.lidar:LidarScan`` | 3D |
 
-Lidar scans as a point cloud are not bridged: no slot on the bus carries scans yet (the lidar logger writes them
-to its own files).
+With each scan the ``tf`` channel also gets the scanner's mounting, ``<robot>/base_link`` → ``<robot>/lidar``, so
+the points sit under the vehicle in the 3D panel.
 """
 
 from __future__ import annotations
@@ -34,27 +35,48 @@ from cromat.tools.extras import require
 if (_missing := require("foxglove")) is not None:
     raise SystemExit(_missing)
 import foxglove  # noqa: E402
-from foxglove.channels import FrameTransformChannel, LocationFixChannel, LogChannel  # noqa: E402
+from foxglove.channels import (  # noqa: E402
+    FrameTransformChannel,
+    LocationFixChannel,
+    LogChannel,
+    PointCloudChannel,
+)
 from foxglove.messages import (  # noqa: E402
     FrameTransform,
     LocationFix,
     Log,
     LogLevel,
+    PackedElementField,
+    PackedElementFieldNumericType,
+    PointCloud,
+    Pose,
     Quaternion,
     Timestamp,
     Vector3,
 )
 
+from bbcs.contracts.lidar import LidarScan  # noqa: E402
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, Decoder, discover
 from cromat.tools.connection import ToolError, add_connection_options, connect
 from cromat.tools.error_names import error_name
-from cromat.tools.foxglove_convert import KINEMATICS_SCHEMA, enu_quaternion, kinematics, local_enu
+from cromat.tools.foxglove_convert import (  # noqa: E402
+    KINEMATICS_SCHEMA,
+    POINT_FIELDS,
+    POINT_STRIDE,
+    enu_quaternion,
+    kinematics,
+    local_enu,
+    point_cloud_data,
+    zyx_quaternion,
+)
 from cromat.tools.progress import StatusLine
 
 TELEMETRY_TYPE = "bbcs.contracts.robot:RobotTelemetry"
 GRI_STATE_TYPE = "bbcs.contracts.gri:GriState"
 GRI_EVENT_TYPE = "bbcs.contracts.gri:GriEvent"
+LIDAR_SCAN_TYPE = "bbcs.contracts.lidar:LidarScan"
+_decode_scan = msgspec.msgpack.Decoder(LidarScan).decode
 
 
 def _stamp(ns: int) -> Timestamp:
@@ -73,9 +95,18 @@ class _Robot:
             f"/{name}/kinematics", message_encoding="json", context=ctx,
             schema=foxglove.Schema(name="cromat.Kinematics", encoding="jsonschema",
                                    data=json.dumps(KINEMATICS_SCHEMA).encode()))
+        self._ctx = ctx
+        self._lidar: PointCloudChannel | None = None
         self.origin: tuple[float, float, float] | None = None
         self.has_telemetry = False
         self.errors_seen: set[tuple[str, int, float]] = set()
+
+    @property
+    def lidar(self) -> PointCloudChannel:
+        """Advertised with the first scan, so a robot without a lidar shows no empty 3D topic."""
+        if self._lidar is None:
+            self._lidar = PointCloudChannel(f"/{self.name}/lidar", context=self._ctx)
+        return self._lidar
 
 
 class Bridge:
@@ -128,10 +159,13 @@ class Bridge:
         ch.log(msgspec.json.encode(value), log_time=stamp_ns)
         self.bridged += 1
         tname = dec.type and f"{dec.type.__module__}:{dec.type.__qualname__}"
+        if tname == LIDAR_SCAN_TYPE:
+            self._scan(self._robot(key), _decode_scan(payload), stamp_ns)
+            return
         if tname not in (TELEMETRY_TYPE, GRI_STATE_TYPE, GRI_EVENT_TYPE) or not isinstance(value, dict):
             return
-        name = key.split("/")[1]
-        robot = self.robots.get(name) or self.robots.setdefault(name, _Robot(name, self.ctx))
+        robot = self._robot(key)
+        name = robot.name
         if tname == GRI_EVENT_TYPE:
             detail = f" #{value['task_id']} {value['task_type']}" if value.get("task_id") else ""
             robot.log.log(Log(timestamp=_stamp(stamp_ns), level=LogLevel.Info, name=f"{name}/ral",
@@ -146,6 +180,26 @@ class Bridge:
             if robot.has_telemetry or not value:
                 return
         self._pose(robot, value, stamp_ns)
+
+    def _robot(self, key: str) -> _Robot:
+        name = key.split("/")[1]
+        return self.robots.get(name) or self.robots.setdefault(name, _Robot(name, self.ctx))
+
+    def _scan(self, robot: _Robot, scan: LidarScan, stamp_ns: int) -> None:
+        """The scan as a point cloud in the scanner's frame, and the scanner's mounting under the vehicle."""
+        ts = _stamp(stamp_ns)
+        m = scan.mounting
+        x, y, z, w = zyx_quaternion(m.roll, m.pitch, m.yaw)
+        robot.tf.log(FrameTransform(timestamp=ts, parent_frame_id=f"{robot.name}/base_link",
+                                    child_frame_id=f"{robot.name}/lidar", translation=Vector3(x=m.x, y=m.y, z=m.z),
+                                    rotation=Quaternion(x=x, y=y, z=z, w=w)), log_time=stamp_ns)
+        fields = [PackedElementField(name=n, offset=o, type=PackedElementFieldNumericType.Float32)
+                  for n, o in POINT_FIELDS]
+        robot.lidar.log(PointCloud(timestamp=ts, frame_id=f"{robot.name}/lidar",
+                                   pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0),
+                                             orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+                                   point_stride=POINT_STRIDE, fields=fields,
+                                   data=point_cloud_data(scan.xyz_array(), scan.layer_array())), log_time=stamp_ns)
 
     def _errors(self, robot: _Robot, state: dict[str, Any], stamp_ns: int) -> None:
         for err in state.get("errors") or []:

@@ -256,6 +256,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split-duration", type=float, default=0.0, metavar="S", help="start a new file every S s")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
     p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON")
+    p.add_argument("--verify", action="store_true", help="at the end, check every file written: CRCs, indexes "
+                   "and summary statistics (cromat.tools.mcap_check; the mcap CLI's `doctor` is not available)")
     return p
 
 
@@ -297,6 +299,15 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     print("\n".join(summary.lines()), file=out)
     if args.summary_json:
         Path(args.summary_json).write_text(json.dumps(summary.as_dict(), indent=2))
+    if args.verify:
+        from cromat.tools.mcap_check import McapCheckError, check_mcap
+
+        try:
+            for path in summary.files:
+                print(f"verified {check_mcap(path).line()}", file=out)
+        except McapCheckError as exc:
+            print(f"cromat record: verification failed: {exc}", file=sys.stderr)
+            return 1
     return 0
 
 

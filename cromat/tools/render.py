@@ -8,6 +8,9 @@ from typing import Any
 from bbcs import keys
 from cromat.tools.catalog import Catalog
 
+LONG_TEXT = 200
+"""Longer strings (packed arrays such as a lidar scan's points, base64) are cut in the human-readable echo."""
+
 
 def yamlish(value: Any, indent: int = 0) -> list[str]:
     """A decoded datum as indented ``field: value`` lines, the way ``ros2 topic echo`` shows messages."""
@@ -38,6 +41,8 @@ def scalar(v: Any) -> str:
         return "true" if v else "false"
     if isinstance(v, float):
         return repr(v)
+    if isinstance(v, str) and len(v) > LONG_TEXT:  # a packed array (bytes as base64): as ros2 topic echo does
+        return f"{json.dumps(v[:48])[:-1]}…\" ({len(v)} chars; --json prints it whole)"
     if isinstance(v, str):
         return v if v and v.strip() == v and v[0] not in "-{[\"'" else json.dumps(v)
     if isinstance(v, list | dict):

@@ -109,8 +109,11 @@ def make_run_folder(out_dir: Path, stamp: str) -> Path:
 
 class LidarLogger:
     def __init__(self, settings: LoggerSettings, *, clock: Clock = SYSTEM_CLOCK, out: IO[str] | None = None,
-                 on_pose: Callable[[Pose], None] | None = None) -> None:
+                 on_pose: Callable[[Pose], None] | None = None,
+                 on_scan: Callable[[ScanRecord], None] | None = None) -> None:
         self.s = settings
+        self.on_scan = on_scan
+        """Called on the receiver thread with every scan and its pose (the module publishes it on the bus)."""
         self.clock = clock
         self.out = out if out is not None else sys.stderr
         self.on_pose = on_pose
@@ -227,8 +230,11 @@ class LidarLogger:
         stale = pose.valid == 1 and self._last_event - sample.t > self.s.pose_stale_s
         if stale:
             pose = msgspec.structs.replace(pose, valid=0)
-        if self._buffer.put(ScanRecord(self._index, scan, pose)) and stale:
+        record = ScanRecord(self._index, scan, pose)
+        if self._buffer.put(record) and stale:
             self._stale += 1
+        if self.on_scan is not None:
+            self.on_scan(record)
 
     def _write_one(self, timeout: float) -> bool:
         record = self._buffer.take(timeout)

@@ -4,6 +4,8 @@ Slots (``cromat/<robot>/lidar_logger/...``):
 - ``pose`` — unsafe state, ``mtdata.Pose``: every MTi-G sample (about 50 Hz), ``valid`` per the status byte;
   other modules (vision, the ground station) read the newest one.
 - ``status`` — unsafe state, ``LidarStatus``: what the run is doing, once a second and at the end.
+- ``scan`` — unsafe state, ``bbcs.contracts.lidar.LidarScan``: every scan received, its points in the scanner
+  frame with the mounting and the pose (for ``cromat record`` and ``cromat foxglove``'s 3D panel).
 - ``error`` — safe state, ``bbcs.contracts.errors.ErrorReport``: 100 = the run ended on an error (the log says which).
 
 Settings come from the robot .conf (``LIDAR: logger`` group, ``--conf``) with module params on top
@@ -23,11 +25,14 @@ import msgspec
 
 from bbcs.context import ModuleContext
 from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.lidar import LidarScan
 from bbcs.module import Module
 from bbcs.slots import OutputSlot, Safety
 from modules.lidar_logger.config import LidarConf, load_lidar_conf, merge_lidar_conf
+from modules.lidar_logger.logdata import ScanRecord
 from modules.lidar_logger.logger import LidarLogger
 from modules.lidar_logger.mtdata import Pose
+from modules.lidar_logger.scan_slot import to_lidar_scan
 
 LIDAR_RUN_FAILED = 100
 """ERROR code: the acquisition run stopped on a device, file or configuration error."""
@@ -64,6 +69,7 @@ class LidarLoggerModule(Module):
     slots = (
         OutputSlot("pose", Pose, safety=Safety.UNSAFE),
         OutputSlot("status", LidarStatus, safety=Safety.UNSAFE),
+        OutputSlot("scan", LidarScan, safety=Safety.UNSAFE),
         OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
@@ -73,7 +79,8 @@ class LidarLoggerModule(Module):
         super().__init__(context)
         # configuration errors surface here, before anything starts (Module.main exits 2 with the message)
         settings = conf_from_context(context).to_settings(progress=True)
-        self.logger = LidarLogger(settings, on_pose=self._publish_pose)
+        self._mounting = settings.mounting
+        self.logger = LidarLogger(settings, on_pose=self._publish_pose, on_scan=self._publish_scan)
         self._thread = threading.Thread(target=self._acquire, name="lidar-run", daemon=True)
 
     def on_start(self) -> None:
@@ -89,6 +96,10 @@ class LidarLoggerModule(Module):
     def _publish_pose(self, pose: Pose) -> None:
         if not self.stopping:
             self.publish("pose", pose)
+
+    def _publish_scan(self, record: ScanRecord) -> None:
+        if not self.stopping:
+            self.publish("scan", to_lidar_scan(record, self._mounting))
 
     def _acquire(self) -> None:
         summary = self.logger.run()

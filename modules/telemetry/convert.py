@@ -76,6 +76,11 @@ def to_robot_telemetry(t: p.Telemetry, stamp: float) -> tuple[RobotTelemetry, li
             dropped.append("pan_tilt")
     if t.error_code is not None:
         fields["error_code"] = t.error_code
+    if t.engine is not None:
+        if _finite(t.engine.battery_v) and 0.0 <= t.engine.battery_v <= 100.0:
+            fields["battery_v"] = t.engine.battery_v
+        else:
+            dropped.append("battery")
     out = RobotTelemetry(
         stamp=stamp, position=position, attitude=attitude, velocity=velocity, heading_deg=heading, **fields
     )  # type: ignore[arg-type]

@@ -4,9 +4,8 @@ Every line fits the width given (80 columns by default). Per robot: mode, airbor
 altitude, heading, speed and climb; pan/tilt, battery, vision; tasks; modules not up; the last errors with their
 names. Below the robots, the last events stay on screen instead of being wiped by the next state.
 
-The body's data come from the state's ``telemetry`` (:class:`bbcs.contracts.robot.RobotTelemetry`). Battery:
-RobotTelemetry carries no battery field (the DSP's ``Engine.battery_v`` does not reach it), so the view prints
-``battery n/a`` rather than a guess.
+The body's data come from the state's ``telemetry`` (:class:`bbcs.contracts.robot.RobotTelemetry`); the battery
+is its ``battery_v`` (``battery -`` when the robot reports none).
 """
 
 from __future__ import annotations
@@ -68,7 +67,7 @@ def robot_lines(state: Any, *, vision: Any = None, error_name: ErrorNamer | None
         if conf:
             seen += f" {conf:.2f}"
     lines.append(f"  pan {_num(_get(state, 'pan_deg'), '+.1f', '°')}  tilt {_num(_get(state, 'tilt_deg'), '+.1f', '°')}"
-                 f"  battery n/a  vision {seen}")
+                 f"  battery {_num(_get(state, 'battery_v'), '.1f', ' V')}  vision {seen}")
     tasks = ", ".join(f"{t.task_type}:{t.kind}#{t.id} {t.status}" for t in state.tasks) or "none"
     lines.append(f"  tasks {tasks}")
     mods = list(state.modules)

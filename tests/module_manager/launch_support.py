@@ -100,3 +100,27 @@ class Launch:
                 pass
         if self.proc.stdout is not None:
             self.proc.stdout.close()
+
+
+def standbys(manager_pid: int, entry: str) -> dict[int, bool]:
+    """The manager's standby processes of ``entry`` (module_manager/standby.py): pid → warm (its imports done,
+    blocked reading its context: ``/proc/PID/syscall`` shows ``read`` on fd 0)."""
+    found: dict[int, bool] = {}
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            argv = (proc / "cmdline").read_bytes().split(b"\0")
+            fields = (proc / "stat").read_text().rpartition(")")[2].split()
+            if int(fields[1]) != manager_pid or fields[0] == "Z" or b"module_manager.standby" not in argv \
+                    or entry.encode() not in argv:
+                continue
+            call = (proc / "syscall").read_text().split()
+        except (OSError, ValueError, IndexError):
+            continue
+        found[int(proc.name)] = call[:2] == ["0", "0x0"]
+    return found
+
+
+def cmdline(pid: int) -> list[str]:
+    return [a.decode() for a in (Path("/proc") / str(pid) / "cmdline").read_bytes().split(b"\0") if a]

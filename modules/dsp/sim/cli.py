@@ -68,6 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="take-off point; ALT = ground level, m MSL")
     ap.add_argument("--max-speed", type=float, default=10.0, help="airframe horizontal speed limit, m/s")
     ap.add_argument("--takeoff-height", type=float, default=10.0, help="take-off climbs to this height, m")
+    ap.add_argument("--battery", type=float, default=25.2, help="battery voltage at start, V (drains while the "
+                    "rotor turns)")
     ap.add_argument("--corrupt", type=_rate, default=0.0, help="probability a byte is corrupted")
     ap.add_argument("--drop", type=_rate, default=0.0, help="probability a byte is lost")
     ap.add_argument("--garbage", type=_rate, default=0.0, help="probability a frame is preceded by garbage")
@@ -106,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     sim = DspSimulator(
         endpoint, params=DspParams(home_lat=home_lat, home_lon=home_lon, home_alt=home_alt,
                                    takeoff_height=args.takeoff_height),
-        vehicle_params=VehicleParams(max_speed=args.max_speed), rate_hz=args.rate, time_scale=args.time_scale,
+        vehicle_params=VehicleParams(max_speed=args.max_speed, battery_full=args.battery),
+        rate_hz=args.rate, time_scale=args.time_scale,
         baud=args.baud, tx_faults=faults.get("tx"), rx_faults=faults.get("rx"), record_path=args.record,
         fail_at=args.fail, seed=args.seed,
         bad_telemetry=BadTelemetry(every=args.bad_telemetry) if args.bad_telemetry > 0 else None)

@@ -128,6 +128,8 @@ def test_foxglove_client_receives_decoded_validating_messages(uav):
         assert tel.position is not None and abs(tel.position.lat - 37.4117) < 0.01
         kin = json.loads(received["/uav1/kinematics"][-1])
         assert abs(kin["altitude_m"] - tel.position.alt) < 5.0 and kin["ground_speed_mps"] >= 0.0
+        # the battery, from the DSP simulator's Engine telemetry, on the plot's channel (it drains slowly: 0.1 V)
+        assert tel.battery_v is not None and abs(kin["battery_v"] - tel.battery_v) < 0.1
         assert channels["/uav1/location"]["schemaName"] == "foxglove.LocationFix"
         assert channels["/uav1/location"]["encoding"] == "protobuf"
         assert abs(protobuf_double(received["/uav1/location"][-1], 1) - tel.position.lat) < 1e-3

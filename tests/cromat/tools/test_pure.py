@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import msgspec
+import numpy as np
 
 from bbcs.contracts import gri
 from bbcs.contracts.pan_tilt import DatosPT
@@ -70,3 +71,15 @@ def test_keyexpr_helpers():
 def test_yamlish_shows_nesting_and_lists():
     lines = yamlish({"a": 1.5, "b": {"c": None, "d": "x y"}, "e": [{"f": True}, {"f": False}], "g": []})
     assert lines == ["a: 1.5", "b:", "  c: null", "  d: x y", "e:", "  - f: true", "  - f: false", "g: []"]
+
+
+def test_yamlish_cuts_packed_arrays_but_json_keeps_them():
+    import base64
+
+    from bbcs.contracts.lidar import LidarScan, pack_points
+    points, xyz, layer = pack_points(np.zeros((100, 3)), np.zeros(100))
+    value = msgspec.to_builtins(LidarScan(stamp=1.0, scan_number=7, index=1, points=points, xyz=xyz, layer=layer))
+    lines = yamlish(value)
+    assert "xyz: \"AAAA" in "\n".join(lines) and "(1600 chars; --json prints it whole)" in "\n".join(lines)
+    assert all(len(line) < 220 for line in lines)  # the 100-byte layer (136 chars) is short enough to keep
+    assert base64.b64decode(msgspec.json.decode(msgspec.json.encode(value))["xyz"]) == xyz

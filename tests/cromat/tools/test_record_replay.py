@@ -45,13 +45,15 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
         endpoint = f"tcp/127.0.0.1:{la.port}"
         out = tmp_path / "flight.mcap"
         rec = spawn("record", "--connect", endpoint, "--robot", "uav1", "-o", str(out),
-                    "--duration", str(SECONDS), "--summary-json", str(tmp_path / "summary.json"))
+                    "--duration", str(SECONDS), "--summary-json", str(tmp_path / "summary.json"), "--verify")
         assert rec.stderr.readline().startswith("recording "), "the recorder subscribed"
         with Gcs(session_config([endpoint])) as gcs:
             assert gcs.send("uav1", gri.TakeOff(height=10.0)).accepted
         stdout, stderr = rec.communicate(timeout=60)
         assert rec.returncode == 0, stderr
         assert "dropped: 0 (missed on the bus), 0 (not msgpack)" in stdout
+        # strict check (CRCs, indexes, statistics): the stand-in for the mcap CLI, which cannot be installed here
+        assert f"verified {out}: ok: " in stdout and "summary statistics and indexes agree" in stdout, stdout
 
         channels, data, counts = read_mcap(out)
         summary = json.loads((tmp_path / "summary.json").read_text())
@@ -127,12 +129,13 @@ def test_split_by_duration_and_replay_of_the_parts(tmp_path):
         endpoint = f"tcp/127.0.0.1:{la.port}"
         out = tmp_path / "part.mcap"
         r = cromat("record", "--connect", endpoint, "--robot", "uav1", "--select", "uav1/dsp/telemetry",
-                   "-o", str(out), "--duration", "3.5", "--split-duration", "1")
+                   "-o", str(out), "--duration", "3.5", "--split-duration", "1", "--verify")
         assert r.returncode == 0, r.stderr
         parts = sorted(tmp_path.glob("part_*.mcap"))
         assert len(parts) >= 3, r.stdout
         total = 0
         for part in parts:
+            assert f"verified {part}: ok: " in r.stdout
             channels, _, counts = read_mcap(part)
             assert set(counts) <= {"cromat/uav1/dsp/telemetry"}
             total += sum(counts.values())

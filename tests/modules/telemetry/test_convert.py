@@ -42,6 +42,7 @@ def test_every_field():
         7,
     )
     assert (r.pan_deg, r.tilt_deg, r.pan_tilt_mode, r.error_code) == (10.0, -5.0, 0, 4)
+    assert r.battery_v == 24.0
     # what goes on the bus decodes with the struct's ranges
     assert msgspec.msgpack.decode(msgspec.msgpack.encode(r), type=RobotTelemetry) == r
 
@@ -50,6 +51,7 @@ def test_fields_not_in_the_mask_stay_none():
     r, dropped = to_robot_telemetry(p.Telemetry(time_ms=0, heading=1.0), 0.0)
     assert dropped == [] and r.heading_deg == 1.0
     assert r.position is None and r.mode is None and r.pan_deg is None and r.error_code is None
+    assert r.battery_v is None
 
 
 def test_invalid_fields_dropped_and_named():
@@ -62,3 +64,23 @@ def test_invalid_fields_dropped_and_named():
     r, dropped = to_robot_telemetry(bad, 0.0)
     assert sorted(dropped) == ["attitude", "heading", "position"]
     assert r.position is None and r.heading_deg is None and r.attitude is None and r.velocity is not None
+
+
+def test_a_battery_out_of_range_is_dropped_and_named():
+    for volts in (math.nan, -1.0, 150.0):
+        # the DSP codec's own range check would refuse these frames; the converter must not pass them either
+        engine = msgspec.structs.replace(FULL.engine, battery_v=volts)
+        r, dropped = to_robot_telemetry(msgspec.structs.replace(FULL, engine=engine), 0.0)
+        assert dropped == ["battery"] and r.battery_v is None and r.position is not None
+
+
+def test_robot_telemetry_refuses_a_battery_out_of_range_on_decode():
+    good = msgspec.msgpack.encode(RobotTelemetry(stamp=1.0, battery_v=24.5))
+    assert msgspec.msgpack.decode(good, type=RobotTelemetry).battery_v == 24.5
+    bad = msgspec.msgpack.encode({"stamp": 1.0, "battery_v": 101.0})
+    try:
+        msgspec.msgpack.decode(bad, type=RobotTelemetry)
+    except msgspec.ValidationError as exc:
+        assert "battery_v" in str(exc)
+    else:
+        raise AssertionError("a 101 V battery was accepted")

@@ -15,7 +15,7 @@ def state(robot: str, **kw) -> gri.GriState:
     tel = dict(stamp=NOW - 0.5, position=GeoPoint(lat=37.4117, lon=-6.0025, alt=22.5),
                attitude=Attitude(roll=1.0, pitch=2.0, yaw=93.0), velocity=VelocityNED(vn=3.0, ve=4.0, vd=-1.0),
                heading_deg=93.0, mode=4, mode_name="TAKE_OFF", airborne=True, waypoints_queued=0, pan_deg=12.0,
-               tilt_deg=-30.0)
+               tilt_deg=-30.0, battery_v=24.87)
     tel.update({k: kw.pop(k) for k in list(kw) if k in RobotTelemetry.__struct_fields__})
     base = dict(robot=robot, kind="uav", stamp=NOW - 0.5, telemetry=RobotTelemetry(**tel), link="up", manager_up=True,
                 tasks=[gri.TaskInfo(id=3, kind="take_off", name="take_off", task_type="movement", status="running",
@@ -35,7 +35,7 @@ def test_one_robot_shows_every_field_within_80_columns():
     assert all(len(line) <= 80 for line in lines), [len(line) for line in lines]
     assert lines[0].startswith("uav1 [uav] TAKE_OFF  airborne  link up  manager up  wp 0  0.5s ago")
     assert "pos 37.411700 -6.002500 alt 22.5 m  hdg 93°  spd 5.0 m/s  vz +1.0" in text
-    assert "pan +12.0°  tilt -30.0°  battery n/a  vision found 0.90" in text
+    assert "pan +12.0°  tilt -30.0°  battery 24.9 V  vision found 0.90" in text
     assert "tasks movement:take_off#3 running" in text and "modules 4 up" in text
     assert "pan_tilt 102 REF_PAN_OUT_OF_RANGE: ref_pan 500" in text
     assert "path_follower 1002 DSP_WRONG_MODE" in text
