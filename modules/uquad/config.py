@@ -43,7 +43,8 @@ class UquadConfig(msgspec.Struct, frozen=True, kw_only=True):
     K_PROP_FILE: str
     K_INT_FILE: str
     MAX_POS_ERR: float = 1.5
-    TAKEOFF_HEIGHT: float = 3.0
+    TAKEOFF_HEIGHT_DEFAULT: float = 3.0
+    MAX_HEIGHT: float = 20.0
     WAYPOINT_RADIUS: float = 0.5
     WAYPOINT_SPEED_MAX: float = 0.5
     CRUISE_SPEED: float = 2.0

@@ -56,9 +56,9 @@ class FlightCore:
             AntiWindup(th_dist=np.array(aw.th_dist), th_max=np.array(aw.th_max), accum_high=np.array(aw.th_accum)),
             cfg.lqr, v.MOTOR_MIN, v.MOTOR_MAX, v.MAX_POS_ERR, controller_mode)
         self.planner = Planner(PlannerConfig(
-            takeoff_height=v.TAKEOFF_HEIGHT, waypoint_radius=v.WAYPOINT_RADIUS,
+            takeoff_height=v.TAKEOFF_HEIGHT_DEFAULT, waypoint_radius=v.WAYPOINT_RADIUS,
             waypoint_speed_max=v.WAYPOINT_SPEED_MAX, cruise_speed=v.CRUISE_SPEED, land_speed=v.LAND_SPEED,
-            ground_height=v.GROUND_HEIGHT))
+            ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT))
         self.every = v.CONTROL_EVERY
         self.spinup_s = v.MOTOR_RAMP_S + 0.3
         self.hover_speed = cfg.quad.hover_speed

@@ -6,8 +6,10 @@ command to the driver process, whose acks it checks. Bus handlers only queue the
 for the flight thread, so the bus never delays the control loop; the loop publishes the generic
 RobotTelemetry (10 Hz) and its data slots (raw IMU frames, state, control actions) for the logging processes.
 
-Inputs (routed by CONTROL_ENTRADA): ``modo`` (UquadMode, the manager's mode slot for the running task) and
-``path`` (the RAL's waypoint slot). Params: ``imu`` (tcp://host:port, a serial device, or file://raw-log for
+Inputs (routed by CONTROL_ENTRADA): ``modo`` (UquadMode, the manager's mode slot for the running task),
+``path`` (the RAL's waypoint slot) and ``task`` (the RAL's task slot: the started task's parameters, so the
+take-off height, the goto speed and the manual steps the ground station asked for reach the planner).
+Params: ``imu`` (tcp://host:port, a serial device, or file://raw-log for
 the seed's fake mode), ``gps`` (tcp://…, a device; GPS_MODE in the .conf decides real/fake/none), ``motor``
 (tcp://… of the driver, or ``sim``: actuators simulated, commands only published), ``controller`` (hover |
 setpoint), ``clock`` (wall: Ts from elapsed wall time, as the seed; imu: 10 ms per frame, for replay and
@@ -31,6 +33,7 @@ from bbcs.contracts.error_codes import UquadErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.path_follower import DatosSegCam  # the RAL's path slot type
 from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
+from bbcs.contracts.tasks import TaskData
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.uquad import model
@@ -41,7 +44,7 @@ from modules.uquad.geo import Home
 from modules.uquad.gps import FakeGps, LocalGps, NmeaReader
 from modules.uquad.imu_protocol import ImuParser
 from modules.uquad.motor_client import MotorClient
-from modules.uquad.planner import Mode, heading_deg
+from modules.uquad.planner import Mode, apply_task, heading_deg
 from modules.uquad.structs import ControlEntradaUquad, ImuRaw, MotorCommandLog, UquadMode, UquadState
 from modules.uquad.transport import Stream
 
@@ -57,13 +60,15 @@ class UquadModule(Module):
     slots = (
         InputSlot("modo", UquadMode),
         InputSlot("path", DatosSegCam, kind=Kind.STREAM),
+        InputSlot("task", TaskData, kind=Kind.STREAM),
         OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE),
         OutputSlot("imu_raw", ImuRaw, kind=Kind.STREAM),
         OutputSlot("state", UquadState, safety=Safety.UNSAFE),
         OutputSlot("control", MotorCommandLog, kind=Kind.STREAM),
         OutputSlot("error", ErrorReport),
     )
-    control = Control(ControlEntradaUquad, {"slot_entrada_modo": "modo", "slot_entrada_path": "path"})
+    control = Control(ControlEntradaUquad, {"slot_entrada_modo": "modo", "slot_entrada_path": "path",
+                                            "slot_entrada_task": "task"})
     error_slot = "error"
 
     def __init__(self, context: Any) -> None:
@@ -133,6 +138,9 @@ class UquadModule(Module):
             return
         points = [np.array(self.home.to_local(pt.latitud, pt.longitud, pt.altura)) for pt in d.puntos]
         self._inbox.put(("path", points))
+
+    def on_task(self, d: TaskData) -> None:
+        self._inbox.put(("task", d.params))
 
     # ------------------------------------------------------------ flight thread
 
@@ -235,6 +243,10 @@ class UquadModule(Module):
                     self.log.warning("mode %s ignored after a driver error", value.name)
                     continue
                 self.core.set_mode(value)
+            elif kind == "task":
+                why = apply_task(self.core.planner, value)
+                if why:
+                    self.report_error(UquadErrorCode.TASK_REFUSED, why)
             else:
                 self.core.set_waypoints(value)
 

@@ -2,6 +2,9 @@
 three loggers, the RAL — the real Module Manager) and a ground station on the GCS API: take off, fly a
 4-waypoint square, land. Checked by effect: the simulator's true state (its truth port) follows the square and
 ends on the ground with the motors stopped; the ground station is told each task completed; the loggers wrote.
+The take-off height is the ground station's (not the .conf's default of 3 m), and the seed's manual mode moves
+the hover point from the ground station with every ESC set-point in [MOTOR_MIN, MOTOR_MAX]; a manual step that
+would leave the allowed heights is refused with the reason and moves nothing.
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ from launch_support import ROOT, Launch  # noqa: E402
 ROBOT = "uquad1"
 MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
 SIDE_M = 4.0
-HEIGHT_M = 3.0
+HEIGHT_M = 4.5
+"""Not the .conf's TAKEOFF_HEIGHT_DEFAULT (3 m): the ground station's height must reach the quad."""
 
 
 class Truth:
@@ -123,6 +127,24 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         wait_until(lambda: np.linalg.norm(truth.last["x"][6:9]) < 0.3, 20, "stopped after the abort")
         stopped_at = truth.last["x"][0]
         assert stopped_at < SIDE_M * 3 - 2.0 and not truth.last["on_ground"]
+
+        # the seed's manual mode: steps of the hover point from the ground station
+        before = np.array(truth.last["x"][:3])
+        mark = len(truth.lines)
+        completed_manual = gcs.send(ROBOT, gri.Manual(north=1.5, up=1.0))
+        assert completed_manual.accepted, completed_manual.reason
+        wait_until(lambda: np.linalg.norm(np.array(truth.last["x"][:3]) - before - [0.0, 1.5, 1.0]) < 0.4, 30,
+                   "the quad at the manual step's point")
+        wait_until(lambda: np.linalg.norm(truth.last["x"][6:9]) < 0.3, 20, "settled after the manual step")
+        esc = [w for line in truth.lines[mark:] for w in line["esc"]]
+        assert esc and all(cfg.values.MOTOR_MIN <= w <= cfg.values.MOTOR_MAX for w in esc), (min(esc), max(esc))
+        here = np.array(truth.last["x"][:3])
+        refused = gcs.send(ROBOT, gri.Manual(up=-5.0))  # to 0.5 m: under MIN_CLEARANCE (1 m)
+        assert not refused.accepted and "below" in refused.reason, refused.reason
+        assert states[-1].tasks and all(x.kind == "manual" for x in states[-1].tasks if x.task_type == "movement")
+        mark = len(truth.lines)
+        wait_until(lambda: len(truth.lines) > mark + 40, 10, "two more seconds of truth")
+        assert np.linalg.norm(np.array(truth.last["x"][:3]) - here) < 0.3, "a refused manual step moved the quad"
 
         completed(gcs.send(ROBOT, gri.Land()), "landing completed", 60)
         wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 10,
