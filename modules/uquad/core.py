@@ -24,6 +24,7 @@ from modules.uquad.calibration import (
 )
 from modules.uquad.config import Config, load_matrix
 from modules.uquad.controller import Controller, SetPoint
+from modules.uquad.fir import RawQueue
 from modules.uquad.gps import LocalGps
 from modules.uquad.imu_protocol import ImuFrame
 from modules.uquad.kalman import Kalman
@@ -60,6 +61,8 @@ class FlightCore:
             waypoint_speed_max=v.WAYPOINT_SPEED_MAX, cruise_speed=v.CRUISE_SPEED, land_speed=v.LAND_SPEED,
             ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT))
         self.every = v.CONTROL_EVERY
+        self.raw_queue = RawQueue(v.IMU_QUEUE_LEN, v.IMU_FIR) if v.IMU_FIR else None
+        """The seed's FIR filter on the raw frames (off by default, as the seed flew): IMU_FIR in the .conf."""
         self.spinup_s = v.MOTOR_RAMP_S + 0.3
         self.hover_speed = cfg.quad.hover_speed
         self.stats = CoreStats()
@@ -106,6 +109,9 @@ class FlightCore:
                 self.kalman.init(data.euler, data.altitude_m)
                 self._last_kalman = now
             return None
+        if self.raw_queue is not None:
+            self.raw_queue.push(frame)
+            frame = self.raw_queue.filtered() or frame
         data = convert(frame, self.calib, self.start)
         self.data = data
         self.gyro = data.gyro
