@@ -8,6 +8,7 @@ driver's ramp) the set point is frozen and the integral is held at zero, so noth
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -96,21 +97,34 @@ class FlightCore:
 
     def on_imu(self, frame: ImuFrame, now: float) -> np.ndarray | None:
         """Motor speeds to send now (zeros = stop), or None when this frame brings no control action."""
-        self.stats.frames += 1
-        if self.start is None:
-            try:
-                self.start = self.calibrator.add(frame)
-            except MotionDuringCalibration as exc:
-                self.stats.calibration_refusals += 1
-                self.stats.errors.append(str(exc))
-                return None
-            if self.start is not None:
-                data = convert(frame, self.calib, self.start)
-                self.kalman.init(data.euler, data.altitude_m)
-                self._last_kalman = now
+        return self.on_frames((frame,), now)
+
+    def on_frames(self, frames: Sequence[ImuFrame], now: float) -> np.ndarray | None:
+        """Every frame read in one go (the seed's main: read until the IMU has nothing more, then convert and
+        advance). All of them count for the start calibration, the raw queue (FIR) and the sample count; the
+        estimator and the controller run once, on the newest (or the filtered) frame, with the period measured
+        from ``now``. Motor speeds to send now (zeros = stop), or None when no control action is due."""
+        if not frames:
             return None
+        self.stats.frames += len(frames)
+        if self.start is None:
+            for frame in frames:
+                try:
+                    self.start = self.calibrator.add(frame)
+                except MotionDuringCalibration as exc:
+                    self.stats.calibration_refusals += 1
+                    self.stats.errors.append(str(exc))
+                    continue
+                if self.start is not None:
+                    data = convert(frame, self.calib, self.start)
+                    self.kalman.init(data.euler, data.altitude_m)
+                    self._last_kalman = now
+                    break
+            return None
+        frame = frames[-1]
         if self.raw_queue is not None:
-            self.raw_queue.push(frame)
+            for f in frames:
+                self.raw_queue.push(f)
             frame = self.raw_queue.filtered() or frame
         data = convert(frame, self.calib, self.start)
         self.data = data
@@ -123,7 +137,7 @@ class FlightCore:
         k.update_altitude(data.altitude_m)
         if not self.planner.airborne:
             k.update_still()
-        self._since_control += 1
+        self._since_control += len(frames)
         if self._since_control < self.every:
             return None
         self._since_control = 0

@@ -191,29 +191,36 @@ class UquadModule(Module):
                     continue
                 try:
                     data = imu.read()
+                    while imu.fileno() in select.select([imu.fileno()], [], [], 0)[0]:  # all there is, first
+                        data += imu.read()
                 except EOFError as exc:
                     self.report_error(UquadErrorCode.IMU_LOST, str(exc))
                     break
                 t_read = time.monotonic()
-                if raw_log is not None:
-                    raw_log.write(data)
-                for frame in parser.feed(data):
-                    if self.stopping:
+                batch = parser.feed(data)
+                # on the wall clock, what was read together is one step (the seed's main); on the IMU's clock
+                # (replay of a raw log, faster-than-real-time simulation) every frame is a step of its own
+                groups = [batch] if self.clock_mode == "wall" else [[f] for f in batch]
+                for group in groups:
+                    if not group or self.stopping:
                         break
-                    frames += 1
-                    now = frames * 0.01 if self.clock_mode == "imu" else time.monotonic()
+                    frames += len(group)
+                    now = frames * 0.01 if self.clock_mode == "imu" else t_read
                     refusals = self.core.stats.calibration_refusals
-                    cmd = self.core.on_imu(frame, now)
+                    cmd = self.core.on_frames(group, now)  # the estimator and the law run once, on the newest
+                    if cmd is not None:
+                        self._command(cmd, now, t_read, motor)  # first: nothing else waits in front of it
                     if self.core.stats.calibration_refusals != refusals:
                         self.report_error(UquadErrorCode.CALIBRATION_REFUSED, self.core.stats.errors[-1])
                     if fake_gps is not None and self.core.calibrated and (g := fake_gps.poll(now)) is not None:
                         self.core.on_gps(g)
-                    if cmd is not None:
-                        self._command(cmd, now, t_read, motor)
                     stamp = time.time()
-                    self._send("imu_raw", ImuRaw(stamp=stamp, **frame._asdict()))
-                    if frames % STATE_EVERY == 0 and self.core.calibrated:
+                    for frame in group:
+                        self._send("imu_raw", ImuRaw(stamp=stamp, **frame._asdict()))
+                    if frames // STATE_EVERY != (frames - len(group)) // STATE_EVERY and self.core.calibrated:
                         self._publish_state(stamp)
+                if raw_log is not None:
+                    raw_log.write(data)
                 wall = time.monotonic()
                 if wall >= next_tel:
                     next_tel = wall + TELEMETRY_PERIOD_S
@@ -251,9 +258,14 @@ class UquadModule(Module):
                 self.core.set_waypoints(value)
 
     def _command(self, cmd: np.ndarray, now: float, t_read: float, motor: MotorClient | None) -> None:
+        """Hand the command to the driver link; the latency ends there (the seed's IMU → control action), and only
+        then are the driver's acks read and checked and the action logged."""
         sent = list(cmd)
         if motor is not None:  # the driver link always runs on the wall clock (its acks arrive in real time)
             sent = motor.send(time.monotonic(), cmd)
+        latency = time.monotonic() - t_read
+        self.latencies.append(latency)
+        if motor is not None:
             motor.on_readable(time.monotonic())  # acks already here count, even while a burst of frames is handled
             error = motor.check(time.monotonic())
             if error and not self.driver_error:
@@ -265,8 +277,6 @@ class UquadModule(Module):
                     motor.send(time.monotonic(), [0.0] * 4)
                 else:
                     self.core.set_mode(Mode.LAND)
-        latency = time.monotonic() - t_read
-        self.latencies.append(latency)
         self._send("control", MotorCommandLog(stamp=time.time(), speeds=_vec(sent),
                                                 ts=float(self.core.stats.last_ts), latency_s=latency))
 

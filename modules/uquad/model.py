@@ -99,6 +99,34 @@ def rotation(psi: float, phi: float, theta: float) -> np.ndarray:
     return rz @ ry @ rx
 
 
+def rotation_and_derivatives(psi: float, phi: float, theta: float) -> tuple[np.ndarray, ...]:
+    """R = Rz(θ)·Ry(φ)·Rx(ψ) and its partial derivatives ∂R/∂ψ, ∂R/∂φ, ∂R/∂θ (for the Kalman filter's
+    Jacobian), written out element by element."""
+    cps, sps, cph, sph, cth, sth = (math.cos(psi), math.sin(psi), math.cos(phi), math.sin(phi), math.cos(theta),
+                                    math.sin(theta))
+    r = np.array([
+        [cth * cph, cth * sph * sps - sth * cps, cth * sph * cps + sth * sps],
+        [sth * cph, sth * sph * sps + cth * cps, sth * sph * cps - cth * sps],
+        [-sph, cph * sps, cph * cps],
+    ])
+    d_psi = np.array([
+        [0.0, cth * sph * cps + sth * sps, -cth * sph * sps + sth * cps],
+        [0.0, sth * sph * cps - cth * sps, -sth * sph * sps - cth * cps],
+        [0.0, cph * cps, -cph * sps],
+    ])
+    d_phi = np.array([
+        [-cth * sph, cth * cph * sps, cth * cph * cps],
+        [-sth * sph, sth * cph * sps, sth * cph * cps],
+        [-cph, -sph * sps, -sph * cps],
+    ])
+    d_theta = np.array([
+        [-sth * cph, -sth * sph * sps - cth * cps, -sth * sph * cps + cth * sps],
+        [cth * cph, cth * sph * sps - sth * cps, cth * sph * cps + sth * sps],
+        [0.0, 0.0, 0.0],
+    ])
+    return r, d_psi, d_phi, d_theta
+
+
 @dataclass(frozen=True)
 class Hover:
     x0: np.ndarray

@@ -147,8 +147,12 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         assert np.linalg.norm(np.array(truth.last["x"][:3]) - here) < 0.3, "a refused manual step moved the quad"
 
         completed(gcs.send(ROBOT, gri.Land()), "landing completed", 60)
-        wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 10,
-                   "on the ground, motors stopped")
+        try:
+            wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 10,
+                       "on the ground, motors stopped")
+        except AssertionError:
+            print("TRUTH", truth.last, states[-1])
+            raise
         assert states[-1].kind == "uquad"
         assert truth.last["esc_frames"] > 1000  # the driver commanded the ESCs continuously
     finally:
