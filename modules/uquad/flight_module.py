@@ -19,6 +19,7 @@ fake mode).
 
 from __future__ import annotations
 
+import gc
 import os
 import queue
 import select
@@ -103,6 +104,7 @@ class UquadModule(Module):
 
     def on_start(self) -> None:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        gc.freeze()  # what start-up made (modules, casadi, the session) is never scanned again: short collections
         self._writer = threading.Thread(target=self._write_bus, name="uquad.bus_writer", daemon=True)
         self._writer.start()
         self._thread = threading.Thread(target=self._flight, name="uquad.flight", daemon=True)
