@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from modules.uquad import model
-from modules.uquad.kalman import ACC_BOARD_TO_BODY, B_, E_, N, P_, V_, Kalman, euler_rates
+from modules.uquad.kalman import ACC_BOARD_TO_BODY, B_, E_, P_, V_, Kalman, N, euler_rates
 
 
 class Reference:

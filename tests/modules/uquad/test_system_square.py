@@ -31,6 +31,8 @@ from launch_support import ROOT, Launch  # noqa: E402
 ROBOT = "uquad1"
 MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
 SIDE_M = 4.0
+FAILSAFE_S = 2.0
+"""The link-loss failsafe (land) after this long without the pilot's ground station."""
 HEIGHT_M = 4.5
 """Not the .conf's TAKEOFF_HEIGHT_DEFAULT (3 m): the ground station's height must reach the quad."""
 
@@ -70,6 +72,8 @@ def manifest(tmp_path: Path) -> Path:
     text = text.replace('params = { kind = "imu_raw" }', f'params = {{ kind = "imu_raw", dir = "{tmp_path}" }}')
     text = text.replace('params = { kind = "control" }', f'params = {{ kind = "control", dir = "{tmp_path}" }}')
     text = text.replace('params = { kind = "state" }', f'params = {{ kind = "state", dir = "{tmp_path}" }}')
+    assert 'failsafe_timeout_s = "10"' in text
+    text = text.replace('failsafe_timeout_s = "10"', f'failsafe_timeout_s = "{FAILSAFE_S:g}"')
     path = tmp_path / "uquad1_sim.toml"
     path.write_text(text)
     return path
@@ -78,12 +82,13 @@ def manifest(tmp_path: Path) -> Path:
 @pytest.mark.timeout(300)
 def test_take_off_square_land_from_the_ground_station(tmp_path):
     launch = Launch(manifest(tmp_path), tmp_path)
-    gcs = truth = None
+    gcs = truth = pilot = None
     try:
         launch.wait_line("modules up in", 120)
         sim_log = (tmp_path / "logs" / "uquad_sim.log").read_text()
         truth = Truth(int(re.search(r"truth=tcp://127.0.0.1:(\d+)", sim_log).group(1)))
         gcs = Gcs(session_config([f"tcp/127.0.0.1:{launch.port}"]), timeout_s=10.0)
+        pilot = Gcs(session_config([f"tcp/127.0.0.1:{launch.port}"]), name="pilot", link=[ROBOT])
         events: list[gri.GriEvent] = []
         gcs.events(ROBOT, events.append)
         states: list[gri.GriState] = []
@@ -155,9 +160,22 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
             raise
         assert states[-1].kind == "uquad"
         assert truth.last["esc_frames"] > 1000  # the driver commanded the ESCs continuously
+
+        # the link-loss failsafe of the same RAL lands the quad: the pilot's ground station goes away in flight
+        wait_until(lambda: states[-1].link == "up", 10, "the pilot's link up")
+        completed(gcs.send(ROBOT, gri.TakeOff(height=2.0)), "second take-off completed", 60)
+        assert truth.last["x"][2] > 1.4 and not truth.last["on_ground"]
+        start = len(events)
+        pilot.close()
+        pilot = None
+        wait_until(lambda: any(e.kind == "failsafe" for e in events[start:]), 20, "the failsafe at the ground station")
+        wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 60,
+                   "landed by the failsafe, motors stopped")
     finally:
         if gcs is not None:
             gcs.close()
+        if pilot is not None:
+            pilot.close()
         if truth is not None:
             truth.close()
         launch.stop()
