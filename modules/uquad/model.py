@@ -11,13 +11,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import casadi as ca
 import msgspec
 import numpy as np
 
 from bbcs.conf import load_conf
+
+if TYPE_CHECKING:
+    import casadi as ca
 
 N_STATES = 12
 N_MOTORS = 4
@@ -84,6 +86,8 @@ def rates(x: Any, w: Any, p: QuadParams, lib: Any = np) -> list[Any]:
 
 def casadi_model(p: QuadParams) -> ca.Function:
     """``f(x, u) → ẋ`` as a casadi Function, for :func:`control.linearize.linearize`."""
+    import casadi as ca  # here, not at import: the flight loop starts without casadi (hover gains from files)
+
     x = ca.SX.sym("x", N_STATES)
     u = ca.SX.sym("u", N_MOTORS)
     return ca.Function("uquad", [x, u], [ca.vertcat(*rates(x, u, p, ca))], ["x", "u"], ["xdot"])
