@@ -25,7 +25,7 @@ from modules.uquad.calibration import (
 )
 from modules.uquad.config import Config, load_matrix
 from modules.uquad.controller import Controller, SetPoint
-from modules.uquad.fir import RawQueue
+from modules.uquad.fir import RawQueue, frame_values, values_frame
 from modules.uquad.gps import LocalGps
 from modules.uquad.imu_protocol import ImuFrame
 from modules.uquad.kalman import Kalman
@@ -102,8 +102,10 @@ class FlightCore:
     def on_frames(self, frames: Sequence[ImuFrame], now: float) -> np.ndarray | None:
         """Every frame read in one go (the seed's main: read until the IMU has nothing more, then convert and
         advance). All of them count for the start calibration, the raw queue (FIR) and the sample count; the
-        estimator and the controller run once, on the newest (or the filtered) frame, with the period measured
-        from ``now``. Motor speeds to send now (zeros = stop), or None when no control action is due."""
+        estimator and the controller run once, with the period measured from ``now``, on the batch's mean (the
+        conversion is linear in the raw counts, so the mean rates integrate the whole gap, where the newest
+        sample alone would not) or on the filtered frame when the FIR is on. Motor speeds to send now (zeros =
+        stop), or None when no control action is due."""
         if not frames:
             return None
         self.stats.frames += len(frames)
@@ -121,7 +123,7 @@ class FlightCore:
                     self._last_kalman = now
                     break
             return None
-        frame = frames[-1]
+        frame = frames[-1] if len(frames) == 1 else batch_mean(frames)
         if self.raw_queue is not None:
             for f in frames:
                 self.raw_queue.push(f)
@@ -168,4 +170,9 @@ class FlightCore:
         return self.last_command
 
 
-__all__ = ["FlightCore", "Mode", "model"]
+def batch_mean(frames: Sequence[ImuFrame]) -> ImuFrame:
+    """The mean of several raw frames (counts as floats), the newest one's loop time."""
+    return values_frame(np.mean([frame_values(f) for f in frames], axis=0), frames[-1].loop_us)
+
+
+__all__ = ["FlightCore", "Mode", "batch_mean", "model"]

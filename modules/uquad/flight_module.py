@@ -214,7 +214,7 @@ class UquadModule(Module):
                     frames += len(group)
                     now = frames * 0.01 if self.clock_mode == "imu" else t_read
                     refusals = self.core.stats.calibration_refusals
-                    cmd = self.core.on_frames(group, now)  # the estimator and the law run once, on the newest
+                    cmd = self.core.on_frames(group, now)  # the estimator and the law run once per read
                     if cmd is not None:
                         self._command(cmd, now, t_read, motor)  # first: nothing else waits in front of it
                     if self.core.stats.calibration_refusals != refusals:

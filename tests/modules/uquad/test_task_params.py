@@ -10,6 +10,7 @@ import pytest
 
 from bbcs.contracts import tasks as t
 from modules.uquad.config import load_config
+from modules.uquad.gps import LocalGps
 from modules.uquad.planner import Mode, Planner, PlannerConfig, apply_task
 
 from .closed_loop import ROOT, ClosedLoop
@@ -99,3 +100,36 @@ def test_closed_loop_climbs_to_the_asked_height_and_manual_keeps_the_motors_in_r
     assert loop.sim.x[0] == pytest.approx(1.5, abs=0.4) and loop.sim.x[2] == pytest.approx(7.0, abs=0.4)
     flying = [c for c in commands if any(c)]
     assert flying and all(v.MOTOR_MIN <= w <= v.MOTOR_MAX for c in flying for w in c)
+
+
+def test_closed_loop_with_reads_of_several_frames_still_flies() -> None:
+    """A loaded flight loop reads 1 to 6 frames at a time: one estimator and control step per read (on the mean)
+    still takes off and holds the height."""
+    rng = np.random.default_rng(3)
+    loop = ClosedLoop(seed=9)
+    loop.run(5.5)
+    assert loop.core.calibrated
+    loop.core.set_mode(Mode.TAKE_OFF)
+    pending = []
+    heights = []
+    for tick in range(1600):  # 16 s
+        for _ in range(5):
+            loop.sim.step(0.002)
+        t_now = 5.5 + (tick + 1) * 0.01
+        loop.sim.t = t_now
+        pending.append(loop.sim.imu_frame())
+        if len(pending) >= rng.integers(1, 7):
+            cmd = loop.core.on_frames(pending, t_now)
+            pending = []
+            if cmd is not None:
+                loop.driver.on_command(t_now, tuple(cmd))
+        loop.sim.command(loop.driver.output(t_now))
+        if tick % 20 == 0:
+            f = loop.sim.gps_fix()
+            e, n, u = loop.home.to_local(f.lat, f.lon, f.alt)
+            loop.core.on_gps(LocalGps(e, n, u, f.ve, f.vn))
+        if tick > 1200:
+            heights.append(loop.sim.x[2])
+    assert "take_off" in loop.core.planner.completed
+    assert max(abs(h - 3.0) for h in heights) < 0.5
+    assert np.hypot(loop.sim.x[0], loop.sim.x[1]) < 0.6
