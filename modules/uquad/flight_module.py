@@ -14,7 +14,8 @@ the seed's fake mode), ``gps`` (tcp://…, a device; GPS_MODE in the .conf decid
 (tcp://… of the driver, or ``sim``: actuators simulated, commands only published), ``controller`` (hover |
 setpoint), ``clock`` (wall: Ts from elapsed wall time, as the seed; imu: 10 ms per frame, for replay and
 faster-than-real-time simulation), ``record_raw`` (a file: every IMU byte read is appended, a raw log for the
-fake mode).
+fake mode), ``nice`` (default 0: the process's scheduling niceness, every thread; negative needs the right to
+raise priority, as a flight computer's loop has; refused → a warning and the default).
 """
 
 from __future__ import annotations
@@ -89,6 +90,9 @@ class UquadModule(Module):
         if self.clock_mode not in ("wall", "imu"):
             raise ValueError(f"param clock must be 'wall' or 'imu', not {self.clock_mode!r}")
         self.record_raw = p.get("record_raw", "")
+        self.nice = int(p.get("nice", "0"))
+        if not -20 <= self.nice <= 19:
+            raise ValueError(f"param nice must be in [-20, 19], not {self.nice}")
         self.core = FlightCore(self.cfg, load_calibration(self.cfg.imu_calib_file), p.get("controller", "hover"))
         self.home = Home(self.cfg.home_lat, self.cfg.home_lon, self.cfg.home_alt)
         self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
@@ -105,6 +109,8 @@ class UquadModule(Module):
     def on_start(self) -> None:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         gc.freeze()  # what start-up made (modules, casadi, the session) is never scanned again: short collections
+        if self.nice:
+            renice_process(self.nice, self.log)
         self._writer = threading.Thread(target=self._write_bus, name="uquad.bus_writer", daemon=True)
         self._writer.start()
         self._thread = threading.Thread(target=self._flight, name="uquad.flight", daemon=True)
@@ -316,6 +322,17 @@ class UquadModule(Module):
             airborne=planner.airborne, waypoints_queued=queued,
             error_code=UquadErrorCode.DRIVER_ERROR if self.driver_error else 0,
         ))
+
+
+def renice_process(nice: int, log: Any) -> None:
+    """Every thread of this process (Linux niceness is per thread) to ``nice``; threads made later inherit it.
+    All of them, not only the flight thread: a bus thread holding the interpreter lock at a lower priority would
+    hold the flight thread back (priority inversion)."""
+    try:
+        for tid in os.listdir("/proc/self/task"):
+            os.setpriority(os.PRIO_PROCESS, int(tid), nice)
+    except (PermissionError, FileNotFoundError, ProcessLookupError) as exc:
+        log.warning("cannot set the process's niceness to %d (%s): running at the default", nice, exc)
 
 
 def _vec(values: Any) -> tuple[float, ...]:
