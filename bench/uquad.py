@@ -15,8 +15,8 @@ RAL) and a ground station on the GCS API, twice:
 
 Baseline in the same run: the pure loop-body time per frame (FlightCore, in-process, no transports or bus).
 ``python bench/uquad.py [--minutes 10] [--speed 10] [--side 4] [--nice N]``; writes bench/results/uquad.json.
-``--nice -10``: the flight module at a higher scheduling priority (module param ``nice``), as a flight computer
-runs its control loop; needs the right to raise priority.
+``--nice -10``: the robot's processes (flight module param ``nice``, simulator, driver) at a higher scheduling
+priority in the real-time flight, as a flight computer runs its control loop; needs the right to raise priority.
 """
 
 from __future__ import annotations
@@ -117,6 +117,10 @@ def manifest(tmp: Path, *, speed: float = 1.0, clock: str = "wall", duration_s: 
     text = text.replace('"--truth", "127.0.0.1:{port:truth}"]',
                         f'"--truth", "127.0.0.1:{{port:truth}}", "--speed", "{speed:g}"{extra}]')
     text = text.replace('controller = "hover" }', f'controller = "hover", clock = "{clock}", nice = "{nice}" }}')
+    if nice:  # the simulated physics and the driver too (the simulator cuts the motors after 0.1 s without ESCs)
+        for proc in ("modules.uquad.sim", "modules.uquad.motor_driver"):
+            text = text.replace(f'command = ["{{python}}", "-m", "{proc}"',
+                                f'command = ["nice", "-n", "{nice}", "{{python}}", "-m", "{proc}"')
     for kind in ("imu_raw", "state", "control"):
         text = text.replace(f'params = {{ kind = "{kind}" }}', f'params = {{ kind = "{kind}", dir = "{tmp}" }}')
     path = tmp / f"uquad1_sim_x{speed:g}.toml"
