@@ -16,7 +16,8 @@ RAL) and a ground station on the GCS API, twice:
 Baseline in the same run: the pure loop-body time per frame (FlightCore, in-process, no transports or bus).
 ``python bench/uquad.py [--minutes 10] [--speed 10] [--side 4] [--nice N]``; writes bench/results/uquad.json.
 ``--nice -10``: the robot's processes (flight module param ``nice``, simulator, driver) at a higher scheduling
-priority in the real-time flight, as a flight computer runs its control loop; needs the right to raise priority.
+priority (flight and endurance runs), as a flight computer runs its control loop; needs the right to raise
+priority.
 """
 
 from __future__ import annotations
@@ -194,10 +195,10 @@ def flight(tmp: Path, side: float, nice: int = 0) -> dict:
             "ts_p50_ms": pct(ts, 50) * 1000, "ts_p99_ms": pct(ts, 99) * 1000}
 
 
-def endurance(tmp: Path, minutes: float, speed: float) -> dict:
+def endurance(tmp: Path, minutes: float, speed: float, nice: int = 0) -> dict:
     """The simulator writes ``minutes`` of IMU frames at ×``speed`` then closes the link; the flight loop reads
     to the end (EOF) and logs its counts, so frames still buffered count as received, not lost."""
-    launch = Launch(manifest(tmp, speed=speed, clock="imu", duration_s=minutes * 60), tmp / "logs_fast")
+    launch = Launch(manifest(tmp, speed=speed, clock="imu", duration_s=minutes * 60, nice=nice), tmp / "logs_fast")
     stop_line = re.compile(r"frames=(\d+) bad_frames=(\d+) bytes_discarded=(\d+) control_actions=(\d+)")
     try:
         launch.wait_up()
@@ -255,7 +256,7 @@ def main() -> int:
         base50, base99 = baseline_core_ms()
         fl = flight(tmp, args.side, args.nice)
         load_flight = float(Path("/proc/loadavg").read_text().split()[0])
-        en = endurance(tmp, args.minutes, args.speed)
+        en = endurance(tmp, args.minutes, args.speed, args.nice)
     lat = fl["latencies_ms"]
     rows = [
         ("loop body only (baseline, in-process)", f"p50 {base50:.2f} ms", f"p99 {base99:.2f} ms"),
