@@ -41,8 +41,15 @@ def cross_track_m(p: tuple[float, float], corners: list[tuple[float, float]]) ->
 
 
 def test_gcs_follow_path_with_the_onboard_follower_flies_mode_3(make_robot: Factory) -> None:  # noqa: F811
-    robot = make_robot()
-    up = robot.ensure_airborne()
+    # 2x, not the other system tests' 4x: mode 3 sends SET_REFS every 50 ms of simulated time, acknowledged one by
+    # one; at 4x on the loaded shared machine some missed the DSP's retry budget (error 1100) and failed the task
+    robot = make_robot(time_scale=2.0)
+    start = len(robot.events)
+    took_off = robot.gcs.send(ROBOT, t.TakeOff(height=10.0))
+    assert took_off.accepted, took_off.reason
+    assert ended(robot, took_off.task_id, 90, start).kind == "task_completed"
+    up = robot.wait_state(lambda s: bool(s.airborne) and s.position is not None and s.home is not None
+                          and s.position.alt >= s.home.alt + 8.0, 30, "airborne at the take-off height")
     assert up.position is not None
     path = grid_path(up.position, [(2, 0), (4, 0), (4, 2)])  # north 44 m, then east 18 m: one 90° turn
     seen: list[gri.GriState] = []
