@@ -123,7 +123,7 @@ class Manager:
         self.stop_event = threading.Event()
         self.modules = {name: _Module(info, Supervisor(info.policy, needs_ack=bool(info.inputs)))
                         for name, info in manifest.modules.items()}
-        self.tasks = TaskBook(manifest.tasks)
+        self.tasks = TaskBook(manifest.tasks, frozenset(n for n, m in manifest.modes.items() if not m.restore))
         self.task_uses = task_modules(manifest)
         self.modes: dict[str, dict[str, int] | None] = {
             name: (msgspec.to_builtins(m.initial) if m.initial is not None else None)

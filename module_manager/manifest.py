@@ -169,6 +169,9 @@ class ModeDef(_Section):
     """The module answers every mode on its ``mode_ack`` slot (:class:`bbcs.contracts.mri.ModeAck`): the manager
     waits for that answer before it replies, so a refused mode is reported and data sent after the reply are
     handled under the new mode (docs/bus.md, "Mode and data in order")."""
+    restore: bool = True
+    """Ending a task re-publishes the value this slot had before it started. ``false`` for one-shot movement
+    commands (take off, land, ...): a completed task leaves the module in the state it reached by itself."""
 
 
 class TaskDef(_Section):
@@ -217,6 +220,7 @@ class ModeSlot:
     module: str
     initial: msgspec.Struct | None
     ack: bool = False
+    restore: bool = True
 
 
 @dataclass(frozen=True)
@@ -512,7 +516,8 @@ class _Checker:
                 raise self.fail(f"{key}.type", f"slot {number} ({MANAGER_MODULE}/{m.slot}) is declared as "
                                                f"{table.slots[number].type} in the slot table, not {type_name(cls)}")
             initial = None if m.initial is None else self.convert(m.initial, cls, f"{key}.initial")
-            out[m.slot] = ModeSlot(name=m.slot, type=cls, module=m.module, initial=initial, ack=m.ack)
+            out[m.slot] = ModeSlot(name=m.slot, type=cls, module=m.module, initial=initial, ack=m.ack,
+                                  restore=m.restore)
         return out
 
     def convert(self, value: dict[str, int], cls: type[msgspec.Struct], key: str) -> msgspec.Struct:

@@ -38,8 +38,11 @@ class _Running:
 class TaskBook:
     """The running task of each type, what it replaced, and the recently ended tasks."""
 
-    def __init__(self, tasks: dict[str, TaskDef]) -> None:
+    def __init__(self, tasks: dict[str, TaskDef], no_restore: frozenset[str] = frozenset()) -> None:
+        """``no_restore``: mode slots whose old value is never re-published when a task ends (manifest
+        ``restore = false``: one-shot movement commands)."""
         self.tasks = tasks
+        self.no_restore = no_restore
         self._running: dict[str, _Running] = {}
         self.ended: deque[TaskInfo] = deque(maxlen=MAX_ENDED)
         self.next_id = 1
@@ -66,7 +69,7 @@ class TaskBook:
         base_modes = {**modes, **restore.modes}
         wanted_routes = {_split(target): number for target, number in t.routes.items()}
         saved_routes = {k: base_routes.get(k, -1) for k in wanted_routes}
-        saved_modes = {slot: base_modes.get(slot) for slot in t.modes}
+        saved_modes = {slot: base_modes.get(slot) for slot in t.modes if slot not in self.no_restore}
         self._running[t.type] = _Running(task, saved_routes, saved_modes)
         self.version += 1
         return Changes(routes={**restore.routes, **wanted_routes},

@@ -113,6 +113,7 @@ class Ral(Module):
         OutputSlot("heading", HeadingSegCam),
         OutputSlot("pt_datos", DatosPT),
         OutputSlot("error", ErrorReport),
+        OutputSlot("task", t.TaskData),  # the started task's parameters, for modules whose mode cannot carry them
     )
     error_slot = "error"
     tick_period = 0.05
@@ -607,6 +608,7 @@ class Ral(Module):
         speed goes first and is acknowledged before the path (docs/gcs.md, "Speed before path"). Returns None, or
         why the task's data could not go out."""
         req = plan.params
+        self.publish("task", t.TaskData(task_id=task_id, params=req))
         if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath | t.Survey | t.Orbit):
             assert req.speed is not None, "admission fills in the cruise speed"
             problem = self._send_speed(req.speed)

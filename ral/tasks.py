@@ -24,6 +24,8 @@ from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 EARTH_RADIUS_M = 6_371_000.0
 HEADING_TASK = "follow_path_heading"
 """The manifest task a follow_path with a heading runs (path mode 1, HEADING routed to the RAL)."""
+ONBOARD_TASK = "follow_path_onboard"
+"""The manifest task a follow_path with ``follower = "onboard"`` runs (path mode 3, with or without a heading)."""
 MIN_PROGRESS_M = 0.5
 """Movement smaller than this (towards the target, or in altitude) is not progress."""
 
@@ -101,9 +103,14 @@ def admit(request: t.TaskParams, *, available: dict[str, str], task_names: dict[
     name = task_names.get(kind, kind)
     if isinstance(request, t.FollowPath) and request.heading is not None:
         name = task_names.get(HEADING_TASK, HEADING_TASK)
+    if isinstance(request, t.FollowPath) and request.follower == "onboard":
+        name = task_names.get(ONBOARD_TASK, ONBOARD_TASK)
     if not available:
         return Rejected("the robot's task list is unknown (Module Manager not answering)")
     task_type = available.get(name)
+    if task_type is None and name == task_names.get(ONBOARD_TASK, ONBOARD_TASK):
+        return Rejected(f"follow_path with the onboard follower: this robot has no {ONBOARD_TASK!r} task "
+                        "(path mode 3)")
     if task_type is None and name == task_names.get(HEADING_TASK, HEADING_TASK):
         return Rejected(f"follow_path with a heading: this robot has no {HEADING_TASK!r} task (path mode 1)")
     if task_type is None:
@@ -122,6 +129,12 @@ def admit(request: t.TaskParams, *, available: dict[str, str], task_names: dict[
         if abs(request.height - limits.takeoff_height_m) > cfg.altitude_tolerance_m:
             return Rejected(f"take_off: the DSP climbs to its fixed take-off height {limits.takeoff_height_m:g} m "
                             f"above home; {request.height:g} m cannot be honoured")
+    if isinstance(request, t.TakeOff) and limits.max_height_m is not None and request.height > limits.max_height_m:
+        return Rejected(f"take_off: height {request.height:g} m is above the ceiling {limits.max_height_m:g} m")
+    if isinstance(request, t.Manual):
+        why = _manual_step(request, limits, telemetry, home)
+        if why:
+            return Rejected(f"manual: {why}")
     if isinstance(request, t.Survey | t.Orbit):
         why = _generated_area(request, limits, cfg, telemetry)
         if why:
@@ -141,6 +154,23 @@ def _points(request: t.TaskParams) -> list[tuple[str, float, float, float | None
     if isinstance(request, t.Bridge):
         return [("ref_altura", math.nan, math.nan, request.ref_altura)]
     return []
+
+
+def _manual_step(request: t.Manual, limits: Limits, telemetry: RobotTelemetry | None,
+                 home: GeoPoint | None) -> str:
+    """A manual step needs an airborne robot and must keep it between the ground and the ceiling: why not, or ""."""
+    if telemetry is None or telemetry.position is None or home is None:
+        return "the robot's position or take-off point is not known yet"
+    if not telemetry.airborne:
+        return "the robot is on the ground (take off first)"
+    height = telemetry.position.alt - home.alt + request.up
+    if height < (limits.min_clearance_m or 0.0):
+        return f"the step would take the robot to {height:.1f} m above the take-off point, below its minimum " \
+               f"clearance {limits.min_clearance_m or 0.0:g} m"
+    if limits.max_height_m is not None and height > limits.max_height_m:
+        return f"the step would take the robot to {height:.1f} m above the take-off point, above the ceiling " \
+               f"{limits.max_height_m:g} m"
+    return ""
 
 
 def _generated_area(request: t.Survey | t.Orbit, limits: Limits, cfg: JudgeConfig,
@@ -228,7 +258,8 @@ def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPo
     """Has ``task`` completed, stalled, or is it still running, given ``tel`` at ``now``? ``generated``: the last
     waypoint of the path the trajectory generator planned for a survey/orbit (None until it published it)."""
     req = task.params
-    if req is None or isinstance(req, t.LookAt | t.SetPanTilt | t.Hold | t.Track | t.FollowVisionPath | t.Bridge):
+    if req is None or isinstance(req, t.LookAt | t.SetPanTilt | t.Hold | t.Track | t.FollowVisionPath | t.Bridge
+                                 | t.Manual):
         return Verdict(progress)  # continuous: runs until replaced, cancelled or aborted
     pr = replace(progress, seen_queue=progress.seen_queue or bool(tel.waypoints_queued),
                  seen_airborne=progress.seen_airborne or bool(tel.airborne))

@@ -117,6 +117,8 @@ class UquadErrorCode(IntEnum):
     """The IMU link closed."""
     BAD_PATH = 704
     """A path whose count does not match its points was refused."""
+    TASK_REFUSED = 705
+    """A task's parameters (take-off height, speed, manual step) the planner refused; nothing changed."""
 
 
 MODULE_CODES: dict[str, type[IntEnum]] = {

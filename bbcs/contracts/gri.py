@@ -37,6 +37,7 @@ from bbcs.contracts.tasks import (
     Latitude,
     Longitude,
     LookAt,
+    Manual,
     Orbit,
     SetPanTilt,
     Speed,
@@ -77,13 +78,13 @@ Task = TaskParams
 """Tasks that occupy a task type until completed, replaced, cancelled, aborted or failed."""
 TaskRequest = (
     TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | LookAt | SetPanTilt | Hold | Track
-    | Survey | Orbit | Abort | Cancel | RestartModule
+    | Survey | Orbit | Manual | Abort | Cancel | RestartModule
 )
 __all__ = [
     "MAX_WAYPOINTS", "TASK_KINDS", "AltitudeAMSL", "Bridge", "FollowPath", "FollowVisionPath", "Goto",
     "HeightAboveHome", "Hold", "Land", "Latitude", "LookAt", "Longitude", "Orbit", "SetPanTilt", "Speed", "Survey",
     "TakeOff", "Vertex",
-    "TaskInfo", "TaskStatus", "Track", "Waypoint", "Waypoints", "kind_of", "Abort", "Cancel", "RestartModule",
+    "TaskInfo", "TaskStatus", "Track", "Manual", "Waypoint", "Waypoints", "kind_of", "Abort", "Cancel", "RestartModule",
     "Task", "TaskRequest", "TaskReply", "GriState", "GriEvent", "GcsHeartbeat", "ModuleHealth", "ErrorRecord",
     "LinkState", "EventKind", "state_key", "events_key", "task_key", "gcs_alive_key", "gcs_heartbeat_key",
     "encode", "decode_request", "decode_reply", "decode_state", "decode_event", "decode_heartbeat",

@@ -57,11 +57,14 @@ class Goto(msgspec.Struct, frozen=True, kw_only=True, tag="goto"):
 
 
 class FollowPath(msgspec.Struct, frozen=True, kw_only=True, tag="follow_path"):
-    """Follow the path through ``waypoints``; with ``heading`` (radians) the nose holds it (path mode 1)."""
+    """Follow the path through ``waypoints``; with ``heading`` (radians) the nose holds it (path mode 1).
+    ``follower``: ``dsp`` (the DSP's own follower, modes 0/1) or ``onboard`` (the path follower module flies the
+    whole path itself, mode 3: docs/control.md); a robot without an onboard follower refuses ``onboard``."""
 
     waypoints: Waypoints
     speed: Speed | None = None
     heading: Radians | None = None
+    follower: Literal["dsp", "onboard"] = "dsp"
 
 
 class FollowVisionPath(msgspec.Struct, frozen=True, kw_only=True, tag="follow_vision_path"):
@@ -133,12 +136,27 @@ class Orbit(msgspec.Struct, frozen=True, kw_only=True, tag="orbit"):
     speed: Speed | None = None
 
 
+MANUAL_STEP_M = 5.0
+"""The largest set-point move one manual command may ask for, per axis."""
+ManualStep = Annotated[float, msgspec.Meta(ge=-MANUAL_STEP_M, le=MANUAL_STEP_M)]
+
+
+class Manual(msgspec.Struct, frozen=True, kw_only=True, tag="manual"):
+    """Manual hover (seed 002, "Modo Manual"): move the hover set point by these offsets (metres east, north, up;
+    degrees of yaw, counter-clockwise) and hold it there until the next command or task. Airborne robots only."""
+
+    east: ManualStep = 0.0
+    north: ManualStep = 0.0
+    up: ManualStep = 0.0
+    yaw: Annotated[float, msgspec.Meta(ge=-45.0, le=45.0)] = 0.0
+
+
 TaskParams = (TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | LookAt | SetPanTilt | Hold | Track
-              | Survey | Orbit)
+              | Survey | Orbit | Manual)
 """Every task a ground station can send; each occupies its task type until it ends."""
 TASK_KINDS: tuple[str, ...] = tuple(t.__struct_config__.tag for t in TaskParams.__args__)  # type: ignore[attr-defined]
 MOVEMENT_KINDS = frozenset({"take_off", "land", "goto", "follow_path", "follow_vision_path", "bridge", "hold",
-                            "survey", "orbit"})
+                            "survey", "orbit", "manual"})
 GENERATED_KINDS = frozenset({"survey", "orbit"})
 """Kinds whose path the trajectory generator plans (the RAL sends it a request once the task runs)."""
 """Kinds that move the aircraft: a new one empties both waypoint queues before anything else goes out."""
@@ -168,3 +186,11 @@ class TaskInfo(msgspec.Struct, frozen=True, kw_only=True):
     ended: float | None = None
     detail: str = ""
     origin: Origin = "mri"
+
+
+class TaskData(msgspec.Struct, frozen=True, kw_only=True):
+    """A started task's parameters, as the RAL publishes them (its ``task`` slot) once the Module Manager has
+    started it: for modules whose mode alone cannot carry them (a take-off height, a speed, a manual step)."""
+
+    task_id: int
+    params: TaskParams

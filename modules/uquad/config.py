@@ -43,7 +43,10 @@ class UquadConfig(msgspec.Struct, frozen=True, kw_only=True):
     K_PROP_FILE: str
     K_INT_FILE: str
     MAX_POS_ERR: float = 1.5
-    TAKEOFF_HEIGHT: float = 3.0
+    IMU_FIR: list[float] = msgspec.field(default_factory=list)
+    IMU_QUEUE_LEN: int = 16
+    TAKEOFF_HEIGHT_DEFAULT: float = 3.0
+    MAX_HEIGHT: float = 20.0
     WAYPOINT_RADIUS: float = 0.5
     WAYPOINT_SPEED_MAX: float = 0.5
     CRUISE_SPEED: float = 2.0
@@ -82,6 +85,10 @@ class Config:
             entry = doc.entries.get("MOTOR_MIN")
             raise ConfError("MOTOR_MIN must be > 0 and below MOTOR_MAX", path=str(path),
                             line=entry.line if entry else None)
+        if v.IMU_FIR and v.IMU_QUEUE_LEN <= len(v.IMU_FIR):
+            entry = doc.entries.get("IMU_QUEUE_LEN") or doc.entries["IMU_FIR"]
+            raise ConfError(f"IMU_QUEUE_LEN ({v.IMU_QUEUE_LEN}) must be longer than the IMU_FIR filter "
+                            f"({len(v.IMU_FIR)} coefficients)", path=str(path), line=entry.line)
         if v.CONTROL_EVERY < 1:
             raise ConfError("CONTROL_EVERY must be ≥ 1", path=str(path), line=doc.entries["CONTROL_EVERY"].line)
 

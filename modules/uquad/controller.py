@@ -44,6 +44,8 @@ class Controller:
             raise ValueError(f"K_prop must be 4×12 and K_int 4×4, got {k_prop.shape} and {k_int.shape}")
         if mode not in ("hover", "setpoint"):
             raise ValueError(f"controller mode must be 'hover' or 'setpoint', not {mode!r}")
+        if mode == "setpoint":  # casadi and scipy now, at start, not in the flight loop at the first new target
+            import control.linearize  # noqa: F401
         self.params = params
         self.k_prop_hover = k_prop
         self.k_int_hover = k_int

@@ -8,6 +8,7 @@ driver's ramp) the set point is frozen and the integral is held at zero, so noth
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,7 @@ from modules.uquad.calibration import (
 )
 from modules.uquad.config import Config, load_matrix
 from modules.uquad.controller import Controller, SetPoint
+from modules.uquad.fir import RawQueue, frame_values, values_frame
 from modules.uquad.gps import LocalGps
 from modules.uquad.imu_protocol import ImuFrame
 from modules.uquad.kalman import Kalman
@@ -56,10 +58,12 @@ class FlightCore:
             AntiWindup(th_dist=np.array(aw.th_dist), th_max=np.array(aw.th_max), accum_high=np.array(aw.th_accum)),
             cfg.lqr, v.MOTOR_MIN, v.MOTOR_MAX, v.MAX_POS_ERR, controller_mode)
         self.planner = Planner(PlannerConfig(
-            takeoff_height=v.TAKEOFF_HEIGHT, waypoint_radius=v.WAYPOINT_RADIUS,
+            takeoff_height=v.TAKEOFF_HEIGHT_DEFAULT, waypoint_radius=v.WAYPOINT_RADIUS,
             waypoint_speed_max=v.WAYPOINT_SPEED_MAX, cruise_speed=v.CRUISE_SPEED, land_speed=v.LAND_SPEED,
-            ground_height=v.GROUND_HEIGHT))
+            ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT))
         self.every = v.CONTROL_EVERY
+        self.raw_queue = RawQueue(v.IMU_QUEUE_LEN, v.IMU_FIR) if v.IMU_FIR else None
+        """The seed's FIR filter on the raw frames (off by default, as the seed flew): IMU_FIR in the .conf."""
         self.spinup_s = v.MOTOR_RAMP_S + 0.3
         self.hover_speed = cfg.quad.hover_speed
         self.stats = CoreStats()
@@ -93,19 +97,37 @@ class FlightCore:
 
     def on_imu(self, frame: ImuFrame, now: float) -> np.ndarray | None:
         """Motor speeds to send now (zeros = stop), or None when this frame brings no control action."""
-        self.stats.frames += 1
-        if self.start is None:
-            try:
-                self.start = self.calibrator.add(frame)
-            except MotionDuringCalibration as exc:
-                self.stats.calibration_refusals += 1
-                self.stats.errors.append(str(exc))
-                return None
-            if self.start is not None:
-                data = convert(frame, self.calib, self.start)
-                self.kalman.init(data.euler, data.altitude_m)
-                self._last_kalman = now
+        return self.on_frames((frame,), now)
+
+    def on_frames(self, frames: Sequence[ImuFrame], now: float) -> np.ndarray | None:
+        """Every frame read in one go (the seed's main: read until the IMU has nothing more, then convert and
+        advance). All of them count for the start calibration, the raw queue (FIR) and the sample count; the
+        estimator and the controller run once, with the period measured from ``now``, on the batch's mean (the
+        conversion is linear in the raw counts, so the mean rates integrate the whole gap, where the newest
+        sample alone would not) or on the filtered frame when the FIR is on. Motor speeds to send now (zeros =
+        stop), or None when no control action is due."""
+        if not frames:
             return None
+        self.stats.frames += len(frames)
+        if self.start is None:
+            for frame in frames:
+                try:
+                    self.start = self.calibrator.add(frame)
+                except MotionDuringCalibration as exc:
+                    self.stats.calibration_refusals += 1
+                    self.stats.errors.append(str(exc))
+                    continue
+                if self.start is not None:
+                    data = convert(frame, self.calib, self.start)
+                    self.kalman.init(data.euler, data.altitude_m)
+                    self._last_kalman = now
+                    break
+            return None
+        frame = frames[-1] if len(frames) == 1 else batch_mean(frames)
+        if self.raw_queue is not None:
+            for f in frames:
+                self.raw_queue.push(f)
+            frame = self.raw_queue.filtered() or frame
         data = convert(frame, self.calib, self.start)
         self.data = data
         self.gyro = data.gyro
@@ -117,7 +139,7 @@ class FlightCore:
         k.update_altitude(data.altitude_m)
         if not self.planner.airborne:
             k.update_still()
-        self._since_control += 1
+        self._since_control += len(frames)
         if self._since_control < self.every:
             return None
         self._since_control = 0
@@ -148,4 +170,9 @@ class FlightCore:
         return self.last_command
 
 
-__all__ = ["FlightCore", "Mode", "model"]
+def batch_mean(frames: Sequence[ImuFrame]) -> ImuFrame:
+    """The mean of several raw frames (counts as floats), the newest one's loop time."""
+    return values_frame(np.mean([frame_values(f) for f in frames], axis=0), frames[-1].loop_us)
+
+
+__all__ = ["FlightCore", "Mode", "batch_mean", "model"]

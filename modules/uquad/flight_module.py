@@ -6,20 +6,25 @@ command to the driver process, whose acks it checks. Bus handlers only queue the
 for the flight thread, so the bus never delays the control loop; the loop publishes the generic
 RobotTelemetry (10 Hz) and its data slots (raw IMU frames, state, control actions) for the logging processes.
 
-Inputs (routed by CONTROL_ENTRADA): ``modo`` (UquadMode, the manager's mode slot for the running task) and
-``path`` (the RAL's waypoint slot). Params: ``imu`` (tcp://host:port, a serial device, or file://raw-log for
+Inputs (routed by CONTROL_ENTRADA): ``modo`` (UquadMode, the manager's mode slot for the running task),
+``path`` (the RAL's waypoint slot) and ``task`` (the RAL's task slot: the started task's parameters, so the
+take-off height, the goto speed and the manual steps the ground station asked for reach the planner).
+Params: ``imu`` (tcp://host:port, a serial device, or file://raw-log for
 the seed's fake mode), ``gps`` (tcp://…, a device; GPS_MODE in the .conf decides real/fake/none), ``motor``
 (tcp://… of the driver, or ``sim``: actuators simulated, commands only published), ``controller`` (hover |
 setpoint), ``clock`` (wall: Ts from elapsed wall time, as the seed; imu: 10 ms per frame, for replay and
 faster-than-real-time simulation), ``record_raw`` (a file: every IMU byte read is appended, a raw log for the
-fake mode).
+fake mode), ``nice`` (default 0: the process's scheduling niceness, every thread; negative needs the right to
+raise priority, as a flight computer's loop has; refused → a warning and the default).
 """
 
 from __future__ import annotations
 
+import gc
 import os
 import queue
 import select
+import sys
 import threading
 import time
 from typing import Any, ClassVar
@@ -31,6 +36,7 @@ from bbcs.contracts.error_codes import UquadErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.path_follower import DatosSegCam  # the RAL's path slot type
 from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
+from bbcs.contracts.tasks import TaskData
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.uquad import model
@@ -41,12 +47,15 @@ from modules.uquad.geo import Home
 from modules.uquad.gps import FakeGps, LocalGps, NmeaReader
 from modules.uquad.imu_protocol import ImuParser
 from modules.uquad.motor_client import MotorClient
-from modules.uquad.planner import Mode, heading_deg
+from modules.uquad.planner import Mode, apply_task, heading_deg
 from modules.uquad.structs import ControlEntradaUquad, ImuRaw, MotorCommandLog, UquadMode, UquadState
 from modules.uquad.transport import Stream
 
 TELEMETRY_PERIOD_S = 0.1
 STATE_EVERY = 2  # state published every this many IMU frames (50 Hz)
+SWITCH_INTERVAL_S = 0.0005
+"""The interpreter's thread switch interval in this process (default 5 ms): the flight thread, woken by the
+IMU, gets the interpreter from the bus threads within this, not within 5 ms (the seed's budget is 10 ms)."""
 OUTBOX_SIZE = 2000
 """Data waiting for the bus writer thread; when full (a logger or the bus is slower than the IMU), the newest
 datum is dropped and counted: the control loop never waits for the bus (seed 002 §1.2.1)."""
@@ -57,13 +66,15 @@ class UquadModule(Module):
     slots = (
         InputSlot("modo", UquadMode),
         InputSlot("path", DatosSegCam, kind=Kind.STREAM),
+        InputSlot("task", TaskData, kind=Kind.STREAM),
         OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE),
         OutputSlot("imu_raw", ImuRaw, kind=Kind.STREAM),
         OutputSlot("state", UquadState, safety=Safety.UNSAFE),
         OutputSlot("control", MotorCommandLog, kind=Kind.STREAM),
         OutputSlot("error", ErrorReport),
     )
-    control = Control(ControlEntradaUquad, {"slot_entrada_modo": "modo", "slot_entrada_path": "path"})
+    control = Control(ControlEntradaUquad, {"slot_entrada_modo": "modo", "slot_entrada_path": "path",
+                                            "slot_entrada_task": "task"})
     error_slot = "error"
 
     def __init__(self, context: Any) -> None:
@@ -79,6 +90,9 @@ class UquadModule(Module):
         if self.clock_mode not in ("wall", "imu"):
             raise ValueError(f"param clock must be 'wall' or 'imu', not {self.clock_mode!r}")
         self.record_raw = p.get("record_raw", "")
+        self.nice = int(p.get("nice", "0"))
+        if not -20 <= self.nice <= 19:
+            raise ValueError(f"param nice must be in [-20, 19], not {self.nice}")
         self.core = FlightCore(self.cfg, load_calibration(self.cfg.imu_calib_file), p.get("controller", "hover"))
         self.home = Home(self.cfg.home_lat, self.cfg.home_lon, self.cfg.home_alt)
         self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
@@ -93,6 +107,10 @@ class UquadModule(Module):
     # ------------------------------------------------------------ bus side
 
     def on_start(self) -> None:
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        gc.freeze()  # what start-up made (modules, casadi, the session) is never scanned again: short collections
+        if self.nice:
+            renice_process(self.nice, self.log)
         self._writer = threading.Thread(target=self._write_bus, name="uquad.bus_writer", daemon=True)
         self._writer.start()
         self._thread = threading.Thread(target=self._flight, name="uquad.flight", daemon=True)
@@ -133,6 +151,9 @@ class UquadModule(Module):
             return
         points = [np.array(self.home.to_local(pt.latitud, pt.longitud, pt.altura)) for pt in d.puntos]
         self._inbox.put(("path", points))
+
+    def on_task(self, d: TaskData) -> None:
+        self._inbox.put(("task", d.params))
 
     # ------------------------------------------------------------ flight thread
 
@@ -183,29 +204,36 @@ class UquadModule(Module):
                     continue
                 try:
                     data = imu.read()
+                    while imu.fileno() in select.select([imu.fileno()], [], [], 0)[0]:  # all there is, first
+                        data += imu.read()
                 except EOFError as exc:
                     self.report_error(UquadErrorCode.IMU_LOST, str(exc))
                     break
                 t_read = time.monotonic()
-                if raw_log is not None:
-                    raw_log.write(data)
-                for frame in parser.feed(data):
-                    if self.stopping:
+                batch = parser.feed(data)
+                # on the wall clock, what was read together is one step (the seed's main); on the IMU's clock
+                # (replay of a raw log, faster-than-real-time simulation) every frame is a step of its own
+                groups = [batch] if self.clock_mode == "wall" else [[f] for f in batch]
+                for group in groups:
+                    if not group or self.stopping:
                         break
-                    frames += 1
-                    now = frames * 0.01 if self.clock_mode == "imu" else time.monotonic()
+                    frames += len(group)
+                    now = frames * 0.01 if self.clock_mode == "imu" else t_read
                     refusals = self.core.stats.calibration_refusals
-                    cmd = self.core.on_imu(frame, now)
+                    cmd = self.core.on_frames(group, now)  # the estimator and the law run once per read
+                    if cmd is not None:
+                        self._command(cmd, now, t_read, motor)  # first: nothing else waits in front of it
                     if self.core.stats.calibration_refusals != refusals:
                         self.report_error(UquadErrorCode.CALIBRATION_REFUSED, self.core.stats.errors[-1])
                     if fake_gps is not None and self.core.calibrated and (g := fake_gps.poll(now)) is not None:
                         self.core.on_gps(g)
-                    if cmd is not None:
-                        self._command(cmd, now, t_read, motor)
                     stamp = time.time()
-                    self._send("imu_raw", ImuRaw(stamp=stamp, **frame._asdict()))
-                    if frames % STATE_EVERY == 0 and self.core.calibrated:
+                    for frame in group:
+                        self._send("imu_raw", ImuRaw(stamp=stamp, **frame._asdict()))
+                    if frames // STATE_EVERY != (frames - len(group)) // STATE_EVERY and self.core.calibrated:
                         self._publish_state(stamp)
+                if raw_log is not None:
+                    raw_log.write(data)
                 wall = time.monotonic()
                 if wall >= next_tel:
                     next_tel = wall + TELEMETRY_PERIOD_S
@@ -235,13 +263,22 @@ class UquadModule(Module):
                     self.log.warning("mode %s ignored after a driver error", value.name)
                     continue
                 self.core.set_mode(value)
+            elif kind == "task":
+                why = apply_task(self.core.planner, value)
+                if why:
+                    self.report_error(UquadErrorCode.TASK_REFUSED, why)
             else:
                 self.core.set_waypoints(value)
 
     def _command(self, cmd: np.ndarray, now: float, t_read: float, motor: MotorClient | None) -> None:
+        """Hand the command to the driver link; the latency ends there (the seed's IMU → control action), and only
+        then are the driver's acks read and checked and the action logged."""
         sent = list(cmd)
         if motor is not None:  # the driver link always runs on the wall clock (its acks arrive in real time)
             sent = motor.send(time.monotonic(), cmd)
+        latency = time.monotonic() - t_read
+        self.latencies.append(latency)
+        if motor is not None:
             motor.on_readable(time.monotonic())  # acks already here count, even while a burst of frames is handled
             error = motor.check(time.monotonic())
             if error and not self.driver_error:
@@ -253,8 +290,6 @@ class UquadModule(Module):
                     motor.send(time.monotonic(), [0.0] * 4)
                 else:
                     self.core.set_mode(Mode.LAND)
-        latency = time.monotonic() - t_read
-        self.latencies.append(latency)
         self._send("control", MotorCommandLog(stamp=time.time(), speeds=_vec(sent),
                                                 ts=float(self.core.stats.last_ts), latency_s=latency))
 
@@ -287,6 +322,17 @@ class UquadModule(Module):
             airborne=planner.airborne, waypoints_queued=queued,
             error_code=UquadErrorCode.DRIVER_ERROR if self.driver_error else 0,
         ))
+
+
+def renice_process(nice: int, log: Any) -> None:
+    """Every thread of this process (Linux niceness is per thread) to ``nice``; threads made later inherit it.
+    All of them, not only the flight thread: a bus thread holding the interpreter lock at a lower priority would
+    hold the flight thread back (priority inversion)."""
+    try:
+        for tid in os.listdir("/proc/self/task"):
+            os.setpriority(os.PRIO_PROCESS, int(tid), nice)
+    except (PermissionError, FileNotFoundError, ProcessLookupError) as exc:
+        log.warning("cannot set the process's niceness to %d (%s): running at the default", nice, exc)
 
 
 def _vec(values: Any) -> tuple[float, ...]:

@@ -15,7 +15,6 @@ from functools import lru_cache
 
 import numpy as np
 
-from control.linearize import discretize, linearize
 from control.lqr import dlqr
 from modules.uquad import model
 from modules.uquad.config import LqrConf, load_config
@@ -36,6 +35,8 @@ def _cached(params: model.QuadParams, q: tuple[float, ...], q_int: tuple[float, 
     hover = model.hover_point(params, theta)
     x0 = hover.x0.copy()
     x0[model.IVX:model.IVZ + 1] = velocity
+    from control.linearize import discretize, linearize  # casadi and scipy: only when gains are computed
+
     a, b = linearize(_model(params), x0, hover.u0)
     n, m, k = model.N_STATES, model.N_MOTORS, len(INTEGRATED)
     a_aug = np.zeros((n + k, n + k))

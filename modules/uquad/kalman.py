@@ -17,11 +17,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from modules.uquad.model import rotation
+from modules.uquad.model import rotation, rotation_and_derivatives
 
 N = 12
 P_, V_, E_, B_ = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
 ACC_BOARD_TO_BODY = np.diag([1.0, -1.0, 1.0])
+_BOARD_TO_BODY = np.diag(ACC_BOARD_TO_BODY).copy()
+_DIAG = np.diag_indices(N)
 
 
 def unwrap_theta(theta_meas: float, theta_est: float) -> float:
@@ -61,6 +63,17 @@ class Kalman:
     x: np.ndarray = field(default_factory=lambda: np.zeros(N))
     P: np.ndarray = field(default_factory=lambda: np.diag([1, 1, 1, 0.5, 0.5, 0.5, 0.1, 0.1, 0.3, 0.2, 0.2, 0.2]))
 
+    def __post_init__(self) -> None:
+        self._F = np.eye(N)  # the transition Jacobian, refilled in place each step (its constant part stays)
+        self._eye3 = np.eye(3)
+        n = self.noise
+        self._q_rate = np.zeros(N)  # process noise per second: velocity, attitude, bias
+        self._q_rate[V_] = n.acc ** 2
+        self._q_rate[E_] = n.gyro ** 2
+        self._q_rate[B_] = n.bias ** 2
+        self._q_pos = np.zeros(N)  # position: (σ_acc·dt²)², per dt⁴
+        self._q_pos[P_] = n.acc ** 2
+
     def init(self, euler: tuple[float, float, float], altitude: float = 0.0) -> None:
         self.x[:] = 0.0
         self.x[E_] = euler
@@ -72,42 +85,40 @@ class Kalman:
         return rotation(*x[E_]) @ (acc_body - x[B_]) - np.array([0.0, 0.0, self.g])
 
     def predict(self, acc_board: np.ndarray, gyro: np.ndarray, dt: float) -> None:
+        """One prediction step. The Jacobian of the world acceleration with respect to the Euler angles is
+        analytic (the derivatives of R = Rz·Ry·Rx), so the step costs one rotation, not four."""
         if not dt > 0:
             return
-        acc_body = ACC_BOARD_TO_BODY @ acc_board
         x = self.x
-        a = self._accel_world(x, acc_body)
-        R = rotation(*x[E_])
-        F = np.eye(N)
-        F[P_, V_] = np.eye(3) * dt
+        f = np.array(acc_board, dtype=float) * _BOARD_TO_BODY - x[B_]  # specific force, body axes, bias removed
+        R, dpsi, dphi, dtheta = rotation_and_derivatives(float(x[6]), float(x[7]), float(x[8]))
+        a = R @ f
+        a[2] -= self.g
+        F = self._F
+        F[P_, V_] = self._eye3 * dt
         F[V_, B_] = -R * dt
-        for i in range(3):  # ∂a/∂euler, by finite differences (three rotations)
-            xe = x.copy()
-            xe[6 + i] += 1e-5
-            F[V_, 6 + i] = (self._accel_world(xe, acc_body) - a) / 1e-5 * dt
+        F[V_, 6] = (dpsi @ f) * dt
+        F[V_, 7] = (dphi @ f) * dt
+        F[V_, 8] = (dtheta @ f) * dt
         x[P_] += x[V_] * dt + 0.5 * a * dt * dt
         x[V_] += a * dt
         x[E_] += euler_rates(x[6], x[7], gyro) * dt
-        n = self.noise
-        Q = np.zeros(N)
-        Q[P_] = (n.acc * dt * dt) ** 2
-        Q[V_] = n.acc ** 2 * dt
-        Q[E_] = n.gyro ** 2 * dt
-        Q[B_] = n.bias ** 2 * dt
-        self.P = F @ self.P @ F.T + np.diag(Q)
+        P = F @ self.P @ F.T
+        P[_DIAG] += self._q_rate * dt + self._q_pos * (dt ** 4)
+        self.P = P
 
     # ------------------------------------------------------------ corrections
 
     def _update(self, idx: slice | list[int], z: np.ndarray, r_diag: np.ndarray) -> None:
-        H = np.zeros((len(z), N))
-        cols = range(N)[idx] if isinstance(idx, slice) else idx
-        for row, col in enumerate(cols):
-            H[row, col] = 1.0
-        y = z - H @ self.x
-        S = H @ self.P @ H.T + np.diag(r_diag)
-        K = self.P @ H.T @ np.linalg.inv(S)
-        self.x += K @ y
-        self.P = (np.eye(N) - K @ H) @ self.P
+        """Correction with a selection H (the measured states ``idx``): S = P[idx, idx] + R, K = P[:, idx] S⁻¹,
+        written with indexing instead of H products (the same numbers, a fraction of the work)."""
+        cols = list(range(N)[idx]) if isinstance(idx, slice) else list(idx)
+        P = self.P
+        PHt = P[:, cols]
+        S = PHt[cols, :] + np.diag(r_diag)
+        K = PHt @ np.linalg.inv(S) if len(cols) > 1 else PHt / S[0, 0]
+        self.x += K @ (z - self.x[cols])
+        self.P = P - K @ P[cols, :]
 
     def update_attitude(self, euler: tuple[float, float, float], acc_norm_dev: float, mag_norm_dev: float,
                         flying: bool = False) -> None:

@@ -11,13 +11,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import casadi as ca
 import msgspec
 import numpy as np
 
 from bbcs.conf import load_conf
+
+if TYPE_CHECKING:
+    import casadi as ca
 
 N_STATES = 12
 N_MOTORS = 4
@@ -84,6 +86,8 @@ def rates(x: Any, w: Any, p: QuadParams, lib: Any = np) -> list[Any]:
 
 def casadi_model(p: QuadParams) -> ca.Function:
     """``f(x, u) → ẋ`` as a casadi Function, for :func:`control.linearize.linearize`."""
+    import casadi as ca  # here, not at import: the flight loop starts without casadi (hover gains from files)
+
     x = ca.SX.sym("x", N_STATES)
     u = ca.SX.sym("u", N_MOTORS)
     return ca.Function("uquad", [x, u], [ca.vertcat(*rates(x, u, p, ca))], ["x", "u"], ["xdot"])
@@ -97,6 +101,34 @@ def rotation(psi: float, phi: float, theta: float) -> np.ndarray:
     ry = np.array([[cph, 0, sph], [0, 1, 0], [-sph, 0, cph]])
     rx = np.array([[1, 0, 0], [0, cps, -sps], [0, sps, cps]])
     return rz @ ry @ rx
+
+
+def rotation_and_derivatives(psi: float, phi: float, theta: float) -> tuple[np.ndarray, ...]:
+    """R = Rz(θ)·Ry(φ)·Rx(ψ) and its partial derivatives ∂R/∂ψ, ∂R/∂φ, ∂R/∂θ (for the Kalman filter's
+    Jacobian), written out element by element."""
+    cps, sps, cph, sph, cth, sth = (math.cos(psi), math.sin(psi), math.cos(phi), math.sin(phi), math.cos(theta),
+                                    math.sin(theta))
+    r = np.array([
+        [cth * cph, cth * sph * sps - sth * cps, cth * sph * cps + sth * sps],
+        [sth * cph, sth * sph * sps + cth * cps, sth * sph * cps - cth * sps],
+        [-sph, cph * sps, cph * cps],
+    ])
+    d_psi = np.array([
+        [0.0, cth * sph * cps + sth * sps, -cth * sph * sps + sth * cps],
+        [0.0, sth * sph * cps - cth * sps, -sth * sph * sps - cth * cps],
+        [0.0, cph * cps, -cph * sps],
+    ])
+    d_phi = np.array([
+        [-cth * sph, cth * cph * sps, cth * cph * cps],
+        [-sth * sph, sth * cph * sps, sth * cph * cps],
+        [-cph, -sph * sps, -sph * cps],
+    ])
+    d_theta = np.array([
+        [-sth * cph, -sth * sph * sps - cth * cps, -sth * sph * cps + cth * sps],
+        [cth * cph, cth * sph * sps - sth * cps, cth * sph * cps + sth * sps],
+        [0.0, 0.0, 0.0],
+    ])
+    return r, d_psi, d_phi, d_theta
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,14 @@
 
 Pure state machine, injected time. Task modes (the manifest's ``uquad_mode`` slot): IDLE (on the ground, motors
 off), HOLD (stay where the set point is), GOTO (fly the waypoints the RAL put on the path slot), TAKE_OFF
-(climb TAKEOFF_HEIGHT above the take-off point), LAND (descend at LAND_SPEED, motors off once on the ground),
-ABORT (stop where the quadrotor is now: the set point jumps to the estimated position, zero velocity).
+(climb the task's height, else TAKEOFF_HEIGHT_DEFAULT, above the take-off point), LAND (descend at LAND_SPEED,
+motors off once on the ground),
+ABORT (stop where the quadrotor is now: the set point jumps to the estimated position, zero velocity), MANUAL
+(the seed's manual mode: hover, each manual command moves the hover target by an offset; :meth:`Planner.manual`).
+
+A task's parameters (the RAL's task slot) arrive apart from its mode: the take-off height and the goto speed
+are kept (:meth:`Planner.set_takeoff_height`, :meth:`Planner.set_speed`) and used from then on, whichever of
+the two arrived first; without them the .conf's TAKEOFF_HEIGHT_DEFAULT and CRUISE_SPEED apply.
 
 Completion (the seed's flag to the controller): a waypoint is reached when the estimate is within
 WAYPOINT_RADIUS of it and slower than WAYPOINT_SPEED_MAX; then the next one becomes the target and
@@ -21,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bbcs.contracts.tasks import FollowPath, Goto, Manual, TakeOff, TaskParams
 from modules.uquad import model
 
 
@@ -31,6 +38,7 @@ class Mode(enum.IntEnum):
     LAND = 3
     ABORT = 4
     IDLE = 5
+    MANUAL = 6
 
 
 @dataclass(frozen=True)
@@ -43,6 +51,8 @@ class PlannerConfig:
     land_speed: float = 0.5
     ground_height: float = 0.15
     still_s: float = 0.5
+    max_height: float = 20.0
+    """Metres above the take-off point that no take-off or manual target may exceed."""
 
 
 @dataclass
@@ -62,6 +72,11 @@ class Planner:
     sp: np.ndarray = field(default_factory=lambda: np.zeros(3))
     yaw: float = 0.0
     waypoints: deque[np.ndarray] = field(default_factory=deque)
+    takeoff_height: float | None = None
+    """The running take-off task's height above the take-off point (None: the .conf's default)."""
+    speed: float | None = None
+    """The running goto's speed (None: the .conf's cruise speed)."""
+    manual_target: np.ndarray | None = None
     _still_since: float | None = None
     _flag: bool = False
     completed: list[str] = field(default_factory=list)
@@ -77,7 +92,7 @@ class Planner:
             self.mode = Mode.IDLE
             return
         if self.mode is Mode.IDLE:  # leaving the ground: everything relative to here
-            if mode in (Mode.LAND, Mode.HOLD, Mode.ABORT):
+            if mode in (Mode.LAND, Mode.HOLD, Mode.ABORT, Mode.MANUAL):
                 return  # nothing to land or hold on the ground
             self.ground_z = float(position[2])
             self.sp = np.array(position, dtype=float)
@@ -87,9 +102,43 @@ class Planner:
             self.waypoints.clear()
         if mode is not Mode.GOTO:
             self.waypoints.clear()
+        if mode is Mode.MANUAL and self.mode is not Mode.MANUAL:
+            self.manual_target = self.sp.copy()  # hover where the set point is until the first command
         self.mode = mode
         self._still_since = None
         self._flag = True
+
+    def set_takeoff_height(self, height: float) -> str:
+        """The take-off task's height; returns why it is refused ("" when taken)."""
+        if not 0.0 < height <= self.cfg.max_height:
+            return f"take-off height {height:g} m outside (0, {self.cfg.max_height:g}] m"
+        self.takeoff_height = float(height)
+        return ""
+
+    def set_speed(self, speed: float) -> str:
+        if not 0.0 < speed:
+            return f"speed {speed:g} m/s must be positive"
+        self.speed = float(speed)
+        return ""
+
+    def manual(self, east: float, north: float, up: float, yaw_deg: float) -> str:
+        """A manual command: move the hover target (and the yaw) by these offsets. Refused (nothing changes, the
+        reason returned) when not flying or when the target would leave [GROUND_HEIGHT, max_height] above the
+        take-off point."""
+        if self.mode is Mode.IDLE:
+            return "manual command on the ground: take off first"
+        base = self.manual_target if self.mode is Mode.MANUAL and self.manual_target is not None else self.sp
+        target = base + np.array([east, north, up], dtype=float)
+        height = float(target[2]) - self.ground_z
+        if not self.cfg.ground_height < height <= self.cfg.max_height:
+            return (f"manual target {height:.2f} m above the take-off point is outside "
+                    f"({self.cfg.ground_height:g}, {self.cfg.max_height:g}] m")
+        self.mode = Mode.MANUAL
+        self.waypoints.clear()
+        self.manual_target = target
+        self.yaw = math.remainder(self.yaw + math.radians(yaw_deg), math.tau)
+        self._flag = True
+        return ""
 
     def set_waypoints(self, points: list[np.ndarray]) -> None:
         self.waypoints = deque(np.array(p, dtype=float) for p in points)
@@ -98,14 +147,18 @@ class Planner:
     def step(self, now: float, dt: float, position: np.ndarray, velocity: np.ndarray) -> PlanOutput:
         c = self.cfg
         target: np.ndarray | None = None
-        speed = c.cruise_speed
+        speed = self.speed or c.cruise_speed
         if self.mode is Mode.TAKE_OFF:
-            target = np.array([self.sp[0], self.sp[1], self.ground_z + c.takeoff_height])
+            height = self.takeoff_height if self.takeoff_height is not None else c.takeoff_height
+            target = np.array([self.sp[0], self.sp[1], self.ground_z + height])
             speed = c.climb_speed
             if self._reached(target, position, velocity):
                 self.completed.append("take_off")
                 self.mode = Mode.HOLD
                 self._flag = True
+        elif self.mode is Mode.MANUAL:
+            target = self.manual_target
+            speed = c.cruise_speed
         elif self.mode is Mode.GOTO:
             if self.waypoints:
                 target = self.waypoints[0]
@@ -152,6 +205,17 @@ class Planner:
         s[model.IVX:model.IVZ + 1] = out.velocity
         s[model.ITHETA] = out.yaw
         return s
+
+
+def apply_task(planner: Planner, params: TaskParams) -> str:
+    """A started task's parameters into the planner: why they were refused, or "" (other kinds carry none)."""
+    if isinstance(params, TakeOff):
+        return planner.set_takeoff_height(params.height)
+    if isinstance(params, Goto | FollowPath) and params.speed is not None:
+        return planner.set_speed(params.speed)
+    if isinstance(params, Manual):
+        return planner.manual(params.east, params.north, params.up, params.yaw)
+    return ""
 
 
 def heading_deg(theta: float) -> float:

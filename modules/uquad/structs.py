@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 import msgspec
 
@@ -15,13 +15,15 @@ class ControlEntradaUquad(msgspec.Struct, frozen=True, kw_only=True):
 
     slot_entrada_modo: SlotNumber = -1
     slot_entrada_path: SlotNumber = -1
+    slot_entrada_task: SlotNumber = -1
 
 
 class UquadMode(msgspec.Struct, frozen=True, kw_only=True):
     """The task mode (modules/uquad/planner.Mode): 0 hold, 1 goto (waypoints from the path input), 2 take-off,
-    3 land, 4 abort (stop where it is now)."""
+    3 land, 4 abort (stop where it is now), 6 manual (hover on the manual commands of the task input). 5 (on the
+    ground, motors off) is the planner's own and never commanded."""
 
-    modo: Annotated[int, msgspec.Meta(ge=0, le=4)]
+    modo: Literal[0, 1, 2, 3, 4, 6]
 
 
 class ImuRaw(msgspec.Struct, frozen=True, kw_only=True):

@@ -63,6 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
     kinds.add_parser("land")
     kinds.add_parser("hold", help="stop here: both waypoint queues emptied")
     kinds.add_parser("track", help="pan & tilt follows the perception module's target")
+    k = kinds.add_parser("manual", help="move the hover set point by these offsets and hold there (airborne)")
+    for axis in ("east", "north", "up"):
+        k.add_argument(f"--{axis}", type=float, default=0.0, help="metres (default 0)")
+    k.add_argument("--yaw", type=float, default=0.0, help="degrees, counter-clockwise (default 0)")
     for name in ("goto", "follow_path"):
         k = kinds.add_parser(name, help="waypoints from a CSV (lat,lon,alt above sea level) or GeoJSON file")
         k.add_argument("file")
@@ -70,6 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "follow_path":
             k.add_argument("--heading", type=float, metavar="DEG",
                            help="hold this heading (degrees, path mode 1 with the HEADING slot)")
+            k.add_argument("--follower", choices=("dsp", "onboard"), default="dsp",
+                           help="dsp: the DSP's own follower (default); onboard: the path follower module flies "
+                                "the whole path (mode 3)")
     k = kinds.add_parser("survey", help="lawnmower over a GeoJSON polygon, planned by the trajectory generator")
     k.add_argument("polygon", metavar="POLYGON.geojson")
     k.add_argument("--height", type=float, required=True, help="metres above the take-off point")
@@ -136,6 +143,8 @@ def task_request(args: argparse.Namespace) -> gri.TaskRequest:
         }
         if kind == "follow_path" and args.heading is not None:
             raw["heading"] = _heading_rad(args.heading)
+        if kind == "follow_path":
+            raw["follower"] = args.follower
     elif kind == "survey":
         raw = {"type": kind, "polygon": [msgspec.to_builtins(v) for v in load_polygon(args.polygon)],
                "height": args.height, "overlap": args.overlap, "speed": args.speed}
@@ -154,6 +163,8 @@ def task_request(args: argparse.Namespace) -> gri.TaskRequest:
         raw = {"type": kind, "lat": args.lat, "lon": args.lon, "alt": args.alt}
     elif kind == "pan_tilt":
         raw = {"type": kind, "pan": args.pan, "tilt": args.tilt}
+    elif kind == "manual":
+        raw = {"type": kind, "east": args.east, "north": args.north, "up": args.up, "yaw": args.yaw}
     elif kind == "cancel":
         raw = {"type": kind, "task_type": args.task_type}
     else:

@@ -61,3 +61,22 @@ def test_tasks_that_use_a_failed_module_fail():
     changes = book.fail_needing({"pt"}, {"track": {"pt"}, "go": {"pf"}}, 2.0, "module pt exited")
     assert len(changes) == 1 and [x.name for x in book.active()] == ["go"]
     assert book.ended[-1].name == "track" and book.ended[-1].status == "failed"
+
+
+def test_a_mode_slot_without_restore_is_left_as_the_module_reached_it():
+    """Movement commands (take off, land) are one-shot: ending one must not re-send the command before it."""
+    tasks = {"take_off": TaskDef(type="movement", modes={"quad": {"modo": 2}}),
+             "land": TaskDef(type="movement", modes={"quad": {"modo": 3}})}
+    book = TaskBook(tasks, no_restore=frozenset({"quad"}))
+    modes: dict = {"quad": None}
+    assert book.start("take_off", t.TakeOff(height=5.0), 1.0, {}, modes).modes == {"quad": {"modo": 2}}
+    modes["quad"] = {"modo": 2}
+    assert book.end("movement", 2.0, "completed").modes == {}, "a completed take-off re-sends nothing"
+    assert book.start("land", t.Land(), 3.0, {}, modes).modes == {"quad": {"modo": 3}}
+    modes["quad"] = {"modo": 3}
+    ch = book.start("take_off", t.TakeOff(height=2.0), 4.0, {}, modes)
+    assert ch.modes == {"quad": {"modo": 2}}, "replacing sends only the new command, not the old one restored"
+    assert book.end("movement", 5.0, "completed").modes == {}
+    restoring = TaskBook(tasks)  # the default: the value before is restored
+    restoring.start("take_off", t.TakeOff(), 1.0, {}, {"quad": {"modo": 3}})
+    assert restoring.end("movement").modes == {"quad": {"modo": 3}}

@@ -167,7 +167,8 @@ class SimServer:
         s = self.sim
         doc = {"t": round(s.t, 4), "x": [round(float(v), 5) for v in s.x], "w": [round(float(v), 2) for v in s.w],
                "on_ground": s.on_ground, "imu_frames": self.stats.imu_frames, "esc_frames": self.stats.esc_frames,
-               "esc_timeouts": self.stats.esc_timeouts, "imu_bytes_lost": self.stats.imu_bytes_lost}
+               "esc_timeouts": self.stats.esc_timeouts, "imu_bytes_lost": self.stats.imu_bytes_lost,
+               "esc": [round(float(v), 2) for v in self.stats.last_esc]}
         return (json.dumps(doc) + "\n").encode()
 
     def run(self, duration_s: float | None = None) -> None:

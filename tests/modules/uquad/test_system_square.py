@@ -2,6 +2,9 @@
 three loggers, the RAL — the real Module Manager) and a ground station on the GCS API: take off, fly a
 4-waypoint square, land. Checked by effect: the simulator's true state (its truth port) follows the square and
 ends on the ground with the motors stopped; the ground station is told each task completed; the loggers wrote.
+The take-off height is the ground station's (not the .conf's default of 3 m), and the seed's manual mode moves
+the hover point from the ground station with every ESC set-point in [MOTOR_MIN, MOTOR_MAX]; a manual step that
+would leave the allowed heights is refused with the reason and moves nothing.
 """
 
 from __future__ import annotations
@@ -28,7 +31,10 @@ from launch_support import ROOT, Launch  # noqa: E402
 ROBOT = "uquad1"
 MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
 SIDE_M = 4.0
-HEIGHT_M = 3.0
+FAILSAFE_S = 2.0
+"""The link-loss failsafe (land) after this long without the pilot's ground station."""
+HEIGHT_M = 4.5
+"""Not the .conf's TAKEOFF_HEIGHT_DEFAULT (3 m): the ground station's height must reach the quad."""
 
 
 class Truth:
@@ -61,11 +67,39 @@ class Truth:
         self.sock.close()
 
 
+def loaded_machine_conf(tmp_path: Path) -> Path:
+    """uquad1.conf with MOTOR_ACK_TIMEOUT and MOTOR_CMD_TIMEOUT at 2 s: on the shared 2-core machine a stall of
+    the flight process longer than the .conf's 0.5 s happens under load and is (rightly) a driver error that lands
+    the quad and fails the running task, or a motor stop; those paths have their own tests
+    (test_motor_driver.py), this one is about the ground station."""
+    conf = MANIFEST.parent / "uquad1.conf"
+    text = conf.read_text()
+    assert "MOTOR_ACK_TIMEOUT: 0.5" in text and "MOTOR_CMD_TIMEOUT: 0.5" in text
+    for name in ("uquad1_imu_calib.conf", "uquad1_K_prop.txt", "uquad1_K_int.txt"):
+        (tmp_path / name).write_text((conf.parent / name).read_text())
+    out = tmp_path / "uquad1.conf"
+    out.write_text(text.replace("MOTOR_ACK_TIMEOUT: 0.5", "MOTOR_ACK_TIMEOUT: 2.0")
+                   .replace("MOTOR_CMD_TIMEOUT: 0.5", "MOTOR_CMD_TIMEOUT: 2.0"))
+    return out
+
+
 def manifest(tmp_path: Path) -> Path:
-    text = MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{MANIFEST.parent / "uquad1.conf"}"')
+    text = MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{loaded_machine_conf(tmp_path)}"')
+    # the robot's processes at a flight computer's priority: under the shared machine's load (20-50) the flight
+    # process was starved for up to 1 s (measured control periods), and no estimator flies through that
+    assert 'controller = "hover" }' in text
+    text = text.replace('controller = "hover" }', 'controller = "hover", nice = "-10" }')
+    # the simulated physics and the motor driver too: the simulator cuts the motors after 0.1 s without ESC
+    # set-points, as ESCs do, and a starved driver process let the quadrotor fall
+    for proc in ("modules.uquad.sim", "modules.uquad.motor_driver"):
+        old = f'command = ["{{python}}", "-m", "{proc}"'
+        assert old in text
+        text = text.replace(old, f'command = ["nice", "-n", "-10", "{{python}}", "-m", "{proc}"')
     text = text.replace('params = { kind = "imu_raw" }', f'params = {{ kind = "imu_raw", dir = "{tmp_path}" }}')
     text = text.replace('params = { kind = "control" }', f'params = {{ kind = "control", dir = "{tmp_path}" }}')
     text = text.replace('params = { kind = "state" }', f'params = {{ kind = "state", dir = "{tmp_path}" }}')
+    assert 'failsafe_timeout_s = "10"' in text
+    text = text.replace('failsafe_timeout_s = "10"', f'failsafe_timeout_s = "{FAILSAFE_S:g}"')
     path = tmp_path / "uquad1_sim.toml"
     path.write_text(text)
     return path
@@ -74,12 +108,13 @@ def manifest(tmp_path: Path) -> Path:
 @pytest.mark.timeout(300)
 def test_take_off_square_land_from_the_ground_station(tmp_path):
     launch = Launch(manifest(tmp_path), tmp_path)
-    gcs = truth = None
+    gcs = truth = pilot = None
     try:
         launch.wait_line("modules up in", 120)
         sim_log = (tmp_path / "logs" / "uquad_sim.log").read_text()
         truth = Truth(int(re.search(r"truth=tcp://127.0.0.1:(\d+)", sim_log).group(1)))
         gcs = Gcs(session_config([f"tcp/127.0.0.1:{launch.port}"]), timeout_s=10.0)
+        pilot = Gcs(session_config([f"tcp/127.0.0.1:{launch.port}"]), name="pilot", link=[ROBOT])
         events: list[gri.GriEvent] = []
         gcs.events(ROBOT, events.append)
         states: list[gri.GriState] = []
@@ -124,14 +159,52 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         stopped_at = truth.last["x"][0]
         assert stopped_at < SIDE_M * 3 - 2.0 and not truth.last["on_ground"]
 
+        # the seed's manual mode: steps of the hover point from the ground station
+        before = np.array(truth.last["x"][:3])
+        mark = len(truth.lines)
+        completed_manual = gcs.send(ROBOT, gri.Manual(north=1.5, up=1.0))
+        assert completed_manual.accepted, completed_manual.reason
+        wait_until(lambda: np.linalg.norm(np.array(truth.last["x"][:3]) - before - [0.0, 1.5, 1.0]) < 0.4, 30,
+                   "the quad at the manual step's point")
+        wait_until(lambda: np.linalg.norm(truth.last["x"][6:9]) < 0.3, 20, "settled after the manual step")
+        esc = [w for line in truth.lines[mark:] for w in line["esc"]]
+        assert esc and all(cfg.values.MOTOR_MIN <= w <= cfg.values.MOTOR_MAX for w in esc), (min(esc), max(esc))
+        target = before + [0.0, 1.5, 1.0]
+        refused = gcs.send(ROBOT, gri.Manual(up=-5.0))  # to 0.5 m: under MIN_CLEARANCE (1 m)
+        assert not refused.accepted and "below" in refused.reason, refused.reason
+        assert states[-1].tasks and all(x.kind == "manual" for x in states[-1].tasks if x.task_type == "movement")
+        mark = len(truth.lines)
+        wait_until(lambda: len(truth.lines) > mark + 40, 10, "two more seconds of truth")
+        # had it been taken, the set point would have gone 2 m down in those 2 s (CRUISE_SPEED): it held, within
+        # the estimator's error (the square's RMS is about 0.4 m)
+        held = np.array(truth.last["x"][:3])
+        assert np.linalg.norm(held - target) < 1.0 and held[2] > target[2] - 0.5, ("a refused step moved it", held)
+
         completed(gcs.send(ROBOT, gri.Land()), "landing completed", 60)
-        wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 10,
-                   "on the ground, motors stopped")
+        try:
+            wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 10,
+                       "on the ground, motors stopped")
+        except AssertionError:
+            print("TRUTH", truth.last, states[-1])
+            raise
         assert states[-1].kind == "uquad"
         assert truth.last["esc_frames"] > 1000  # the driver commanded the ESCs continuously
+
+        # the link-loss failsafe of the same RAL lands the quad: the pilot's ground station goes away in flight
+        wait_until(lambda: states[-1].link == "up", 10, "the pilot's link up")
+        completed(gcs.send(ROBOT, gri.TakeOff(height=2.0)), "second take-off completed", 60)
+        assert truth.last["x"][2] > 1.4 and not truth.last["on_ground"]
+        start = len(events)
+        pilot.close()
+        pilot = None
+        wait_until(lambda: any(e.kind == "failsafe" for e in events[start:]), 20, "the failsafe at the ground station")
+        wait_until(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 60,
+                   "landed by the failsafe, motors stopped")
     finally:
         if gcs is not None:
             gcs.close()
+        if pilot is not None:
+            pilot.close()
         if truth is not None:
             truth.close()
         launch.stop()

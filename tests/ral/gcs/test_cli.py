@@ -143,6 +143,7 @@ def test_every_task_kind_has_a_command(tmp_path: Path) -> None:
         "look_at": ["look_at", "37.41", "-6.0", "12"], "pan_tilt": ["pan_tilt", "10", "-20"],
         "survey": ["survey", str(poly), "--height", "40", "--overlap", "0.3"],
         "orbit": ["orbit", "37.41", "-6.0", "--radius", "50", "--counter-clockwise"],
+        "manual": ["manual", "--up", "1.5", "--yaw", "-10"],
     }
     assert set(argv) == set(t.TASK_KINDS)
     for kind, rest in argv.items():
@@ -150,6 +151,14 @@ def test_every_task_kind_has_a_command(tmp_path: Path) -> None:
         assert t.kind_of(request) == kind
     heading = cli.task_request(cli.build_parser().parse_args(["task", ROBOT, *argv["follow_path"]]))
     assert heading.heading == pytest.approx(math.pi / 2)  # type: ignore[union-attr]
+    assert heading.follower == "dsp"  # type: ignore[union-attr]
+    onboard = cli.task_request(cli.build_parser().parse_args(["task", ROBOT, "follow_path", str(f), "--follower",
+                                                               "onboard"]))
+    assert onboard.follower == "onboard"  # type: ignore[union-attr]
+    manual = cli.task_request(cli.build_parser().parse_args(["task", ROBOT, *argv["manual"]]))
+    assert (manual.up, manual.yaw, manual.east) == (1.5, -10.0, 0.0)  # type: ignore[union-attr]
+    with pytest.raises(cli.WaypointFileError, match="manual"):
+        cli.task_request(cli.build_parser().parse_args(["task", ROBOT, "manual", "--up", "50"]))
     bridge = cli.task_request(cli.build_parser().parse_args(["task", ROBOT, *argv["bridge"]]))
     assert bridge.ref_heading == pytest.approx(-math.pi) and bridge.error_lateral == 2.0  # type: ignore[union-attr]
 
