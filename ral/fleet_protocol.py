@@ -205,7 +205,7 @@ class FleetNode:
                 run.bids[self.robot] = self._bid(run, own, now)
                 self._dirty = True
             if run.decision is None and (self.alive <= set(run.bids) or now - run.started >= self.cfg.bid_window_s):
-                run.decision = decide(run.task, run.bids.values(), run.round)
+                run.decision = msgspec.structs.replace(decide(run.task, run.bids.values(), run.round), decided=now)
                 run.heard = frozenset(run.bids)
                 self.decided_at[(run.task.id, run.round)] = now
                 self._dirty = True
