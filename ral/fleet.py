@@ -134,5 +134,6 @@ def own_state_of(telemetry: Any, speed: float, can_do: frozenset[str], live_task
     pos = telemetry.position if telemetry is not None else None
     busy = BUSY_DEFAULT_S if any(i.task_type == "movement" and i.origin != "fleet" and i.kind not in ("hold", "")
                                  for i in live_tasks) else 0.0
+    flying = any(i.origin == "fleet" and i.status == "running" for i in live_tasks)
     return OwnState(lat=pos.lat if pos else None, lon=pos.lon if pos else None, alt=pos.alt if pos else None,
-                    speed=speed, can_do=can_do, busy_s=busy)
+                    speed=speed, can_do=can_do, busy_s=busy, flying_share=flying)

@@ -44,6 +44,8 @@ class FleetConfig:
     reach_m: float = 10.0
     """A target counts as visited when the robot's horizontal position comes this close to it."""
     reach_alt_m: float = 5.0
+    retry_s: float = 5.0
+    """A share not being flown this long after it was sent (refused, or its task failed) is sent again."""
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,8 @@ class OwnState:
     can_do: frozenset[str]
     battery: float | None = None
     busy_s: float = 0.0
+    flying_share: bool = True
+    """A movement task this protocol started is running (False: refused, failed or ended: send it again)."""
 
 
 @dataclass(frozen=True)
@@ -79,6 +83,7 @@ class _Run:
     """The robots whose word the decision used."""
     done: set[str] = field(default_factory=set)
     executing: tuple[str, ...] = ()
+    sent: float = 0.0
     complete: bool = False
 
 
@@ -215,10 +220,12 @@ class FleetNode:
                 self._dirty = True
                 continue
             mine = self._route(run)
-            if mine and mine != tuple(t for t in run.executing if t not in run.done):
+            changed = mine != tuple(t for t in run.executing if t not in run.done)
+            stalled = not own.flying_share and now - run.sent >= self.cfg.retry_s
+            if mine and (changed or stalled):
                 by_id = {t.id: t for t in run.task.targets}
                 out.append(Execute(task=run.task, round=run.round, targets=tuple(by_id[t] for t in mine)))
-                run.executing = mine
+                run.executing, run.sent = mine, now
         return out
 
     def _route(self, run: _Run) -> tuple[str, ...]:

@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from bbcs.contracts import gri
 from bbcs.session import open_session
 from bbcs.testing import child_env, wait_until
@@ -28,7 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, Launch, group_members  # noqa: E402
 from test_fleet_mesh import fleet_manifest  # noqa: E402
-from test_gcs_mission import N_MODULES  # noqa: E402
+
+N_MODULES = 5
+"""uav1_sim.toml without the vision module (nothing here needs it; three robots on a shared 2-core machine)."""
 
 HOME_ALT = 12.0
 FLY_ALT = HOME_ALT + 10.0
@@ -46,6 +50,20 @@ def grid(lat: float, lon: float, north: int, east: int) -> tuple[float, float]:
 HOMES = {"uav_a": (37.4117, -6.0025), "uav_b": (37.4117, -6.0000), "uav_c": (37.4140, -6.0025)}
 
 
+def drop_sections(text: str, headers: set[str]) -> str:
+    """The manifest without these TOML sections (each up to the next section header)."""
+    out, skip = [], False
+    for line in text.splitlines(keepends=True):
+        s = line.strip()
+        if s in headers:
+            skip = True
+        elif skip and s.startswith("["):
+            skip = False
+        if not skip:
+            out.append(line)
+    return "".join(out)
+
+
 class FleetRobot:
     def __init__(self, tmp: Path, name: str, peers: list[int], can_do: str = "") -> None:
         manifest, self.record = fleet_manifest(tmp, name, peers)
@@ -56,7 +74,7 @@ class FleetRobot:
         text = text.replace(old, f'{old} "--home", "{lat},{lon},{HOME_ALT}",', 1)
         if can_do:
             text = text.replace('params = { kind = "uav",', f'params = {{ kind = "uav", fleet_can_do = "{can_do}",', 1)
-        manifest.write_text(text)
+        manifest.write_text(drop_sections(text, {"[modules.vision]", "[tasks.track]", "[tasks.follow_vision_path]"}))
         self.name = name
         self.launch = Launch(manifest, tmp / name)
 
@@ -81,14 +99,25 @@ def cli_post(port: int, task: str, targets: list[str], timeout_s: float = 40.0) 
 
 
 def take_off_all(gcs: Gcs, names: list[str]) -> None:
+    def up(n: str) -> bool:
+        s = _state(gcs, n)
+        return s is not None and bool(s.airborne) and s.position is not None and s.position.alt >= FLY_ALT - 2.0
+
     for n in names:
         wait_until(lambda n=n: _state(gcs, n) is not None and _state(gcs, n).position is not None, 40,
                    f"{n}: telemetry in its GRI state")
-        reply = gcs.send(n, gri.TakeOff(height=10.0))
-        assert reply.accepted, (n, reply.reason)
-    for n in names:
-        wait_until(lambda n=n: (s := _state(gcs, n)) is not None and bool(s.airborne) and s.position is not None
-                   and s.position.alt >= FLY_ALT - 2.0, 40, f"{n}: airborne at the take-off height")
+    for attempt in range(3):  # on a loaded machine the DSP may miss an ack: the take-off fails, it is sent again
+        for n in names:
+            if not up(n) and not any(t.kind == "take_off" for t in _state(gcs, n).tasks):
+                reply = gcs.send(n, gri.TakeOff(height=10.0))
+                assert reply.accepted, (n, reply.reason)
+        try:
+            for n in names:
+                wait_until(lambda n=n: up(n), 30, f"{n}: airborne at the take-off height")
+            return
+        except AssertionError:
+            if attempt == 2:
+                raise
 
 
 def _state(gcs: Gcs, robot: str) -> gri.GriState | None:
@@ -98,6 +127,7 @@ def _state(gcs: Gcs, robot: str) -> gri.GriState | None:
         return None
 
 
+@pytest.mark.timeout(480)
 def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_robots_targets(tmp_path: Path) -> None:
     robots: dict[str, FleetRobot] = {}
     gcs = view = session = None
