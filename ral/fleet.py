@@ -128,12 +128,13 @@ def goto_of(job: Execute) -> gri.TaskRequest:
     return t.Goto(waypoints=[t.Waypoint(lat=x.lat, lon=x.lon, alt=x.alt) for x in job.targets], speed=job.task.speed)
 
 
-def own_state_of(telemetry: Any, speed: float, can_do: frozenset[str], live_tasks: list[t.TaskInfo]) -> OwnState:
-    """The robot's bid state from the RAL's view: its position, its speed, and how busy a movement task the
-    fleet did not give it keeps it."""
+def own_state_of(telemetry: Any, speed: float, can_do: frozenset[str], live_tasks: list[t.TaskInfo],
+                 available: bool = True) -> OwnState:
+    """The robot's bid state from the RAL's view: its position, its speed, how busy a movement task the fleet
+    did not give it keeps it, and whether its own failsafe is in force (``available`` False)."""
     pos = telemetry.position if telemetry is not None else None
     busy = BUSY_DEFAULT_S if any(i.task_type == "movement" and i.origin != "fleet" and i.kind not in ("hold", "")
                                  for i in live_tasks) else 0.0
     flying = any(i.origin == "fleet" and i.status == "running" for i in live_tasks)
     return OwnState(lat=pos.lat if pos else None, lon=pos.lon if pos else None, alt=pos.alt if pos else None,
-                    speed=speed, can_do=can_do, busy_s=busy, flying_share=flying)
+                    speed=speed, can_do=can_do, busy_s=busy, flying_share=flying, available=available)

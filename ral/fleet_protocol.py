@@ -61,6 +61,9 @@ class OwnState:
     busy_s: float = 0.0
     flying_share: bool = True
     """A movement task this protocol started is running (False: refused, failed or ended: send it again)."""
+    available: bool = True
+    """False while the robot's own failsafe is in force: it withdraws from every task it holds (they are
+    allocated again without it) and flies none of them, even once its link is back."""
 
 
 @dataclass(frozen=True)
@@ -85,6 +88,7 @@ class _Run:
     executing: tuple[str, ...] = ()
     sent: float = 0.0
     complete: bool = False
+    withdrawn: bool = False
 
 
 def _local(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
@@ -206,6 +210,11 @@ class FleetNode:
         for run in self.runs.values():
             if run.complete:
                 continue
+            if not own.available and not run.withdrawn:
+                run.withdrawn = True
+                mine = run.bids.get(self.robot)
+                if mine is not None and mine.state is not None:
+                    self._new_round(run, run.round + 1, now)  # its word changes: everyone decides again
             if self.robot not in run.bids:
                 run.bids[self.robot] = self._bid(run, own, now)
                 self._dirty = True
@@ -219,7 +228,7 @@ class FleetNode:
                 run.complete = True
                 self._dirty = True
                 continue
-            mine = self._route(run)
+            mine = () if run.withdrawn else self._route(run)
             changed = mine != tuple(t for t in run.executing if t not in run.done)
             stalled = not own.flying_share and now - run.sent >= self.cfg.retry_s
             if mine and (changed or stalled):
@@ -237,7 +246,8 @@ class FleetNode:
     def _bid(self, run: _Run, own: OwnState, now: float) -> FleetBid:
         kinds = {t.kind for t in run.task.targets}
         state = None
-        if own.lat is not None and own.lon is not None and kinds & own.can_do and own.speed > 0:
+        if (own.lat is not None and own.lon is not None and kinds & own.can_do and own.speed > 0
+                and not run.withdrawn):
             state = BidState(lat=own.lat, lon=own.lon, speed=own.speed, battery=own.battery, busy_s=own.busy_s,
                              can_do=sorted(own.can_do & kinds))
         return FleetBid(task=run.task.id, round=run.round, robot=self.robot, stamp=now, state=state,

@@ -726,7 +726,7 @@ class Ral(Module):
             kinds = available_kinds(self.available, self.task_names)
             speed = self.limits.cruise_speed or min(5.0, self.limits.max_speed)
             return own_state_of(self.telemetry, speed, can_do_from(self.cfg.fleet_can_do, kinds),
-                                list(self._live.values()))
+                                list(self._live.values()), available=self.link.state != "failsafe")
 
     def _fleet_fly(self, job: Execute) -> None:
         reply = self.handle(goto_of(job), origin="fleet")

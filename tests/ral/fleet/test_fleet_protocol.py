@@ -4,6 +4,7 @@ go to the others, late joiners and healed partitions converge to one result agai
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 
@@ -39,12 +40,15 @@ class Net:
         self.cut: set[str] = set()
         self.now = 1000.0
         self.flown: dict[str, list[Execute]] = {r: [] for r in positions}
+        self.failsafe: set[str] = set()
 
     def step(self, dt: float = 0.1) -> None:
         self.now += dt
         states = []
         for r, n in self.nodes.items():
             own_state = own(*self.pos[r], can_do=self.kinds.get(r, frozenset({"visit"})))
+            if r in self.failsafe:
+                own_state = dataclasses.replace(own_state, available=False)
             self.flown[r] += n.tick(own_state, self.now)
             states.append(n.state(self.now))
         for st in states:
@@ -165,3 +169,29 @@ def test_a_partition_heals_into_one_allocation() -> None:
     assert dec.bidders == ["a", "b", "c"]
     owners = [t for r in dec.routes.values() for t in r]
     assert sorted(owners) == sorted(set(owners)), "a target held by both sides goes to one robot"
+
+
+def test_a_robot_in_failsafe_withdraws_and_its_targets_go_to_the_others() -> None:
+    net = Net({"a": (0, 0), "b": (0, 300), "c": (250, 150)})
+    net.nodes["a"].post(TASK, net.now)
+    net.run(1.0)
+    first = net.nodes["a"].decision("survey1")
+    assert first is not None and first.routes["c"]
+    flown_before = len(net.flown["c"])
+    net.failsafe = {"c"}  # c's own link-loss failsafe fired: it is alive but must not fly fleet work
+    net.run(1.0)
+    after = net.nodes["a"].decision("survey1")
+    assert after.round >= 1 and after.bidders == ["a", "b"], after
+    assert len(set(net.digests("survey1").values())) == 1
+    assert set(first.routes["c"]) <= {t for r in ("a", "b") for t in after.routes[r]}
+    net.failsafe = set()  # link back: the failsafe stays in force for the tasks it withdrew from
+    net.run(1.0)
+    assert len(net.flown["c"]) == flown_before and net.nodes["a"].decision("survey1").bidders == ["a", "b"]
+
+
+def test_a_share_not_being_flown_is_sent_again_after_retry_s() -> None:
+    node = FleetNode("a", "uav", FleetConfig(retry_s=5.0))
+    node.post(TASK, 0.0)
+    me = dataclasses.replace(own(-500, -500), flying_share=False)
+    sent = [t for t in (0.0, 1.0, 4.0, 5.5, 6.0, 11.0) for _ in node.tick(me, t)]
+    assert sent == [0.0, 5.5, 11.0]
