@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -65,25 +66,31 @@ def drop_sections(text: str, headers: set[str]) -> str:
 
 
 class FleetRobot:
-    def __init__(self, tmp: Path, name: str, peers: list[int], can_do: str = "") -> None:
+    def __init__(self, tmp: Path, name: str, peers: list[int], can_do: str = "",
+                 ral: dict[str, str] | None = None) -> None:
         manifest, self.record = fleet_manifest(tmp, name, peers)
         lat, lon = HOMES[name]
         text = manifest.read_text()
         old = '"--tcp", "127.0.0.1:{port:dsp}",'
         assert old in text
         text = text.replace(old, f'{old} "--home", "{lat},{lon},{HOME_ALT}",', 1)
+        for key, value in (ral or {}).items():
+            text, n = re.subn(rf'(\[modules\.ral\][^\[]*?params = {{[^}}]*\b{key} = )"[^"]*"', rf'\g<1>"{value}"', text)
+            assert n == 1, key
         if can_do:
             text = text.replace('params = { kind = "uav",', f'params = {{ kind = "uav", fleet_can_do = "{can_do}",', 1)
         manifest.write_text(drop_sections(text, {"[modules.vision]", "[tasks.track]", "[tasks.follow_vision_path]"}))
         self.name = name
         self.launch = Launch(manifest, tmp / name)
 
-    def waypoints(self, after: int = 0) -> list[tuple[float, float]]:
+    def commands(self) -> list[dict]:
         if not self.record.exists():
             return []
         text = self.record.read_text()
-        lines = [json.loads(x) for x in text[: text.rfind("\n") + 1].splitlines() if x.strip()]
-        return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in lines[after:]
+        return [json.loads(x) for x in text[: text.rfind("\n") + 1].splitlines() if x.strip()]
+
+    def waypoints(self, after: int = 0) -> list[tuple[float, float]]:
+        return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in self.commands()[after:]
                 if c["name"] == "ADD_WAYPOINT"]
 
     def count(self) -> int:
