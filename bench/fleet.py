@@ -200,12 +200,89 @@ def bus_trial(rng: random.Random, trial: int) -> dict[str, float]:
                 stop_process(proc, 5)
 
 
+def _descendants(root: int) -> list[int]:
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rpartition(")")[2].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, []).append(int(entry.name))
+    out, todo = [], [root]
+    while todo:
+        pid = todo.pop()
+        out.append(pid)
+        todo += children.get(pid, [])
+    return out
+
+
+def _cpu_s(pids: list[int]) -> float:
+    total = 0
+    for pid in pids:
+        try:
+            f = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+            total += int(f[11]) + int(f[12])
+        except (OSError, IndexError, ValueError):
+            continue
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def _io(pid: int) -> tuple[int, int]:
+    fields = dict(line.split(": ") for line in Path(f"/proc/{pid}/io").read_text().splitlines())
+    return int(fields["rchar"]), int(fields["wchar"])
+
+
+def scale_measure(window_s: float) -> dict[str, float]:
+    """cromat fleet bbcs_conf/fleet10_sim.toml with a ground station on the hub watching every robot's GRI state
+    and the fleet states: CPU per robot (all its processes) and the bytes through the hub router (the mesh)."""
+    import tempfile
+
+    from bbcs.contracts import gri
+    from module_manager.fleet import Fleet, load_fleet
+
+    spec = load_fleet(Path(__file__).resolve().parents[1] / "bbcs_conf" / "fleet10_sim.toml")
+    with tempfile.TemporaryDirectory() as run:
+        fleet = Fleet(spec, Path(run), out=lambda _s: None)
+        try:
+            fleet.start()
+            session = open_session(local_client(fleet.hub_port))
+            seen = {"states": 0}
+            subs = [session.declare_subscriber(gri.state_key("*"), lambda _s: seen.__setitem__(
+                "states", seen["states"] + 1))]
+            view = FleetView(session)
+            time.sleep(5.0)  # let the ground station's subscriptions settle before the window
+            assert fleet.hub is not None
+            robots = [_descendants(p.pid) for p in fleet.procs]
+            cpu0, io0, t0 = [_cpu_s(p) for p in robots], _io(fleet.hub.pid), time.monotonic()
+            hub_cpu0 = _cpu_s([fleet.hub.pid])
+            time.sleep(window_s)
+            dt = time.monotonic() - t0
+            cpu = [(_cpu_s(p) - c) / dt for p, c in zip(robots, cpu0, strict=True)]
+            io1 = _io(fleet.hub.pid)
+            hub_cpu = (_cpu_s([fleet.hub.pid]) - hub_cpu0) / dt
+            n = spec.robots
+            view.close()
+            for sub in subs:
+                sub.undeclare()
+            session.close()
+            return {"robots": n, "window_s": round(dt, 1), "cpu_per_robot_mean": statistics.fmean(cpu),
+                    "cpu_per_robot_max": max(cpu), "hub_cpu": hub_cpu,
+                    "hub_in_bytes_per_s_per_robot": (io1[0] - io0[0]) / dt / n,
+                    "hub_out_bytes_per_s_per_robot": (io1[1] - io0[1]) / dt / n,
+                    "gri_states_per_s": seen["states"] / (time.monotonic() - t0 + 5.0)}
+        finally:
+            fleet.stop()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--instances", type=int, default=40, help="random instances per case (default 40)")
     ap.add_argument("--bus-trials", type=int, default=3, help="10-agent trials over the bus (default 3; 0: none)")
     ap.add_argument("--seed", type=int, default=17)
     ap.add_argument("--out", help="results file (default bench/results/fleet.json)")
+    ap.add_argument("--scale", type=float, default=0.0, metavar="S",
+                    help="also launch bbcs_conf/fleet10_sim.toml and measure CPU and mesh bytes over S seconds")
     ap.add_argument("--agent", help=argparse.SUPPRESS)
     ap.add_argument("--port", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--north", type=float, default=0.0, help=argparse.SUPPRESS)
@@ -265,6 +342,13 @@ def main() -> int:
     summary["realloc_s_10"] = round(max(r["realloc_s"] for r in bus_rows), 3) if bus_rows else None
     summary["alloc_bus_ms_10"] = round(max(r["alloc_bus_ms"] for r in bus_rows), 1) if bus_rows else None
     summary["clock_offset_p99_ms"] = None
+    scale = None
+    if args.scale > 0:
+        scale = scale_measure(args.scale)
+        print("scale, 10 robots (cromat fleet) + a ground station on the hub watching all: "
+              + ", ".join(f"{k} {v:.3g}" for k, v in scale.items()))
+        summary["mesh_bytes_per_s_per_robot"] = round(scale["hub_in_bytes_per_s_per_robot"])
+        summary["cpu_per_robot"] = round(scale["cpu_per_robot_mean"], 3)
     notes = {
         "alloc_cost_ratio_10": "mean over random instances of auction cost / linear_sum_assignment optimum, 10 robots "
                                "x 10 targets, one target per robot, same cost matrix",
@@ -276,7 +360,7 @@ def main() -> int:
                            "agents' decision (all agreeing)",
         "clock_offset_p99_ms": "not measured: no time synchronisation between robots is built yet",
     }
-    write_results("fleet", {"summary": summary, "notes": notes, "rows": rows, "bus_trials": bus_rows,
+    write_results("fleet", {"summary": summary, "notes": notes, "rows": rows, "bus_trials": bus_rows, "scale": scale,
                             "instances": args.instances, "seed": args.seed}, args.out)
     return 0
 

@@ -13,7 +13,8 @@ A fleet manifest names one robot manifest and how to multiply it::
     time_scale = 1.0
     record = true                  # each DSP simulator records what it receives (run dir/<name>/dsp_record.jsonl)
 
-Mesh: a star, every robot's router peers the first robot's (``[bus] peers``), Zenoh routing between routers.
+Mesh: a star on a hub router that ``cromat fleet`` starts first (a ground router: ground stations connect to
+it); every robot's router peers it (``[bus] peers``), Zenoh routing between routers.
 What each robot gets is written under ``--run-dir`` (manifest, .conf, logs), checked before anything starts.
 """
 
@@ -31,7 +32,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from bbcs.net import free_port
+from bbcs.net import free_port, wait_tcp
 from module_manager.manifest import ManifestError, load_manifest
 
 
@@ -130,6 +131,8 @@ def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str]) -> 
                       lambda m: m.group(1) + ", " + ", ".join(extra) + "]", text, count=1)
     if k != 1:
         raise FleetError(f"{spec.manifest}: no DSP simulator command (modules.dsp.sim) to give a home")
+    text = re.sub(r'(?m)^(ready = \{ kind = "stdout", pattern = "socket://", timeout_s = )[0-9.]+',
+                  r"\g<1>60.0", text)  # ten simulators starting on one small machine: more time to be ready
     text = drop_sections(text, set(spec.drop))
     path = folder / f"{name}.toml"
     path.write_text(text)
@@ -148,20 +151,26 @@ class Fleet:
         self.run_dir = run_dir
         self.out = out
         self.ports = [free_port() for _ in range(spec.robots)]
-        hub = f"tcp/127.0.0.1:{self.ports[0]}"
+        self.hub_port = free_port()
+        hub = f"tcp/127.0.0.1:{self.hub_port}"
         self.names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
-        self.manifests = [robot_manifest(spec, n, run_dir, [] if n == 1 else [hub])
-                          for n in range(1, spec.robots + 1)]
+        self.manifests = [robot_manifest(spec, n, run_dir, [hub]) for n in range(1, spec.robots + 1)]
+        self.hub: subprocess.Popen | None = None
+        self.batch = 2
         self.procs: list[subprocess.Popen] = []
         self.up: set[str] = set()
         self.cond = threading.Condition()
 
     def start(self, timeout_s: float = 300.0) -> None:
-        self._start_one(0)
-        self._wait({self.names[0]}, timeout_s)
-        for i in range(1, len(self.names)):
-            self._start_one(i)
-        self._wait(set(self.names), timeout_s)
+        self.hub = subprocess.Popen([sys.executable, "-m", "bbcs.router", "--listen",
+                                     f"tcp/127.0.0.1:{self.hub_port}"], stdout=subprocess.DEVNULL)
+        if not wait_tcp("127.0.0.1", self.hub_port, 30):
+            raise FleetError(f"the hub router does not listen on 127.0.0.1:{self.hub_port}")
+        for first in range(0, len(self.names), self.batch):  # a few at a time: a small machine starts them all
+            batch = range(first, min(first + self.batch, len(self.names)))
+            for i in batch:
+                self._start_one(i)
+            self._wait({self.names[i] for i in batch}, timeout_s)
 
     def _start_one(self, i: int) -> None:
         name = self.names[i]
@@ -185,13 +194,17 @@ class Fleet:
         end = time.monotonic() + timeout_s
         with self.cond:
             while not names <= self.up:
-                dead = [p for p in self.procs if p.poll() is not None]
+                dead = [p for p in self.procs if p.poll() is not None] + (
+                    [self.hub] if self.hub is not None and self.hub.poll() is not None else [])
                 if dead or time.monotonic() > end:
                     raise FleetError(f"robots not up: {sorted(names - self.up)}"
                                      + (" (a launch exited)" if dead else ""))
                 self.cond.wait(0.5)
 
     def stop(self) -> None:
+        if self.hub is not None:
+            self.procs.insert(0, self.hub)
+            self.hub = None
         for p in reversed(self.procs):
             if p.poll() is None:
                 p.send_signal(signal.SIGTERM)
@@ -223,7 +236,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
         fleet.start()
-        print(f"fleet: all {spec.robots} robots up, meshed on tcp/127.0.0.1:{fleet.ports[0]} "
+        print(f"fleet: all {spec.robots} robots up, meshed on tcp/127.0.0.1:{fleet.hub_port} "
               f"({' '.join(f'{n}={p}' for n, p in zip(fleet.names, fleet.ports, strict=True))})", flush=True)
         while not stop.is_set() and all(p.poll() is None for p in fleet.procs):
             stop.wait(0.5)
