@@ -48,7 +48,7 @@ from scipy.sparse.csgraph import minimum_spanning_tree
 
 from bbcs import keys
 from bbcs.contracts.fleet import FleetTarget, FleetTask
-from bbcs.net import free_port
+from bbcs.net import free_port, wait_tcp
 from bbcs.session import local_client, open_session
 from bbcs.testing import child_env, stop_process, wait_port
 from ral.allocation import Bid, Target, allocate, cost_matrix, reallocate
@@ -93,6 +93,9 @@ def timed(fn):  # type: ignore[no-untyped-def]
 
 def agent(name: str, port: int, north_m: float, east_m: float, speed: float) -> int:
     """One robot's fleet side: the RAL's FleetLink on its own router, flying a point robot toward its share."""
+    if not wait_tcp("127.0.0.1", port, 30):
+        print(f"no router on 127.0.0.1:{port}", flush=True)
+        return 1
     session = open_session(local_client(port))
     token = session.liveliness().declare_token(keys.alive_key(name, "ral"))
     pos = [LAT0 + north_m * M_LAT, LON0 + east_m * M_LAT / math.cos(math.radians(LAT0))]
