@@ -50,6 +50,9 @@ class FleetSpec:
     drop: tuple[str, ...] = ()
     time_scale: float = 1.0
     record: bool = True
+    conf: tuple[tuple[str, str], ...] = ()
+    """.conf lines set in every robot's renamed .conf (e.g. a longer DSP_ACK_TIMEOUT when ten simulators share
+    a small machine)."""
 
 
 def load_fleet(path: Path) -> FleetSpec:
@@ -60,7 +63,7 @@ def load_fleet(path: Path) -> FleetSpec:
     f = raw.get("fleet")
     if not isinstance(f, dict):
         raise FleetError(f"{path}: no [fleet] table")
-    unknown = set(f) - {"manifest", "robots", "name", "home", "spacing_m", "drop", "time_scale", "record"}
+    unknown = set(f) - {"manifest", "robots", "name", "home", "spacing_m", "drop", "time_scale", "record", "conf"}
     if unknown:
         raise FleetError(f"{path}: unknown key(s) in [fleet]: {sorted(unknown)}")
     try:
@@ -68,7 +71,8 @@ def load_fleet(path: Path) -> FleetSpec:
                          name=str(f.get("name", "uav{n:02d}")), home=tuple(float(x) for x in f.get(
                              "home", FleetSpec.home)),  # type: ignore[arg-type]
                          spacing_m=float(f.get("spacing_m", 60.0)), drop=tuple(f.get("drop", ())),
-                         time_scale=float(f.get("time_scale", 1.0)), record=bool(f.get("record", True)))
+                         time_scale=float(f.get("time_scale", 1.0)), record=bool(f.get("record", True)),
+                         conf=tuple((str(k), str(v)) for k, v in dict(f.get("conf", {})).items()))
     except (KeyError, TypeError, ValueError) as exc:
         raise FleetError(f"{path}: [fleet] {exc}") from exc
     if not 1 <= spec.robots <= 100:
@@ -115,6 +119,12 @@ def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str]) -> 
         conf_text, k = re.subn(r"(?m)^ROBOT:.*$", f"ROBOT: {name}", conf_text, count=1)
         if k != 1:
             raise FleetError(f"{conf_src}: no ROBOT line to rename")
+        for key, value in spec.conf:
+            if not re.fullmatch(r"[A-Z][A-Z0-9_]*", key):
+                raise FleetError(f"[fleet] conf: {key!r} is not a .conf key")
+            conf_text, k = re.subn(rf"(?m)^{key}:.*$", f"{key}: {value}", conf_text, count=1)
+            if k == 0:
+                conf_text += f"\n{key}: {value}\n"
         conf = folder / f"{name}.conf"
         conf.write_text(conf_text)
         text = re.sub(r'(\[robot\][^\[]*?\nconf = )"[^"]*"', rf'\g<1>"{conf}"', text, count=1)

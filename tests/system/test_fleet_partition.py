@@ -120,7 +120,8 @@ def agent(procs: list[subprocess.Popen], name: str, port: int, north: float, eas
            "--east", str(east), "--speed", "1"]
     if netns_link is not None:
         router = [sys.executable, "-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{port}", "--connect", netns_link]
-        shell = ("ip link set lo up || exit 97; " + " ".join(map(_q, router)) + " & exec " + " ".join(map(_q, cmd)))
+        shell = ("ip link set lo up || exit 97; " + " ".join(map(_q, router)) + " >/dev/null & exec "
+                 + " ".join(map(_q, cmd)))
         proc = subprocess.Popen(["unshare", "-n", "sh", "-c", shell], cwd=str(ROOT), env=child_env(),
                                 stdout=subprocess.PIPE, text=True, start_new_session=True)
     else:
@@ -152,7 +153,7 @@ def test_a_robot_cut_off_in_its_own_network_namespace_heals_into_one_allocation(
                            f"tcp/127.0.0.1:{hub}"], stdout=subprocess.DEVNULL)
         sock = tmp_path / "c_link.sock"
         relay = Relay(sock, hub)
-        agent(procs, "a", ports["a"], 0, 0)
+        agent(procs, "a", ports["a"], -300, -300)
         agent(procs, "b", ports["b"], 0, 2000)
         c_port = free_port()  # a port inside c's namespace: the same number means nothing outside it
         agent(procs, "c", c_port, 2000, 1000, netns_link=f"unixsock-stream/{sock}")
@@ -168,9 +169,9 @@ def test_a_robot_cut_off_in_its_own_network_namespace_heals_into_one_allocation(
 
         wait_until(lambda: alive() == everyone, 30, "c's token seen through the relay from its namespace")
         # c's namespace has no route to the hub's TCP port: the relay is its only way out
-        probe = subprocess.run(["unshare", "-n", sys.executable, "-c",
-                                f"import socket; socket.create_connection(('127.0.0.1', {hub}), 1)"],
-                               capture_output=True, text=True)
+        probe = subprocess.run(["unshare", "-n", "sh", "-c", "ip link set lo up && exec " + " ".join(map(_q, [
+            sys.executable, "-c", f"import socket; socket.create_connection(('127.0.0.1', {hub}), 1)"]))],
+            capture_output=True, text=True)
         assert probe.returncode != 0 and "refused" in probe.stderr.lower(), probe.stderr
 
         m = 1 / 111_320
