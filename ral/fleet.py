@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -50,8 +51,6 @@ class FleetLink:
 
     def __init__(self, robot: str, kind: str, own: Callable[[], OwnState], fly: Callable[[Execute], None],
                  cfg: FleetConfig | None = None, clock: Callable[[], float] | None = None) -> None:
-        import time
-
         self.node = FleetNode(robot, kind, cfg)
         self.robot = robot
         self.own = own
