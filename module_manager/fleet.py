@@ -166,7 +166,7 @@ class Fleet:
         self.names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
         self.manifests = [robot_manifest(spec, n, run_dir, [hub]) for n in range(1, spec.robots + 1)]
         self.hub: subprocess.Popen | None = None
-        self.batch = 2
+        self.batch = 5
         self.procs: list[subprocess.Popen] = []
         self.up: set[str] = set()
         self.cond = threading.Condition()

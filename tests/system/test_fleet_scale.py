@@ -40,7 +40,7 @@ def records(run: Path, name: str) -> list[tuple[float, float]]:
     return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in lines if c["name"] == "ADD_WAYPOINT"]
 
 
-@pytest.mark.timeout(600)
+@pytest.mark.timeout(900)
 def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path) -> None:
     spec = load_fleet(FLEET)
     names = [spec.name.format(n=n) for n in range(1, spec.robots + 1)]
@@ -62,7 +62,7 @@ def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path
     gcs = view = session = None
     try:
         wait_until(lambda: any(x.startswith("fleet: all 10 robots up") for x in lines) or proc.poll() is not None,
-                   400, "the ten robots up")
+                   600, "the ten robots up: " + " | ".join(x for x in lines if "modules up" in x or "not up" in x))
         up = next((x for x in lines if x.startswith("fleet: all 10 robots up")), None)
         assert up is not None, "\n".join(lines[-40:])
         hub = int(re.search(r"meshed on tcp/127\.0\.0\.1:(\d+)", up).group(1))
