@@ -166,7 +166,12 @@ class Fleet:
         self.names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
         self.manifests = [robot_manifest(spec, n, run_dir, [hub]) for n in range(1, spec.robots + 1)]
         self.hub: subprocess.Popen | None = None
-        self.batch = 5
+        self.batch = 3
+        self.by_index: dict[int, subprocess.Popen] = {}
+        self.attempts: dict[int, int] = {}
+        self.max_attempts = 3
+        """A launch that exits before its robot is up (a loaded machine: its router or simulator not ready in
+        time) is started again, up to this many times in all."""
         self.procs: list[subprocess.Popen] = []
         self.up: set[str] = set()
         self.cond = threading.Condition()
@@ -189,6 +194,8 @@ class Fleet:
              f"tcp/127.0.0.1:{self.ports[i]}", "--log-dir", str(self.run_dir / name / "logs")],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # in the fleet's process group
         self.procs.append(proc)
+        self.by_index[i] = proc
+        self.attempts[i] = self.attempts.get(i, 0) + 1
         threading.Thread(target=self._read, args=(name, proc), daemon=True).start()
 
     def _read(self, name: str, proc: subprocess.Popen) -> None:
@@ -204,6 +211,11 @@ class Fleet:
         end = time.monotonic() + timeout_s
         with self.cond:
             while not names <= self.up:
+                for i, p in list(self.by_index.items()):
+                    if p.poll() is not None and self.names[i] not in self.up and self.attempts[i] < self.max_attempts:
+                        self.procs.remove(p)
+                        self.out(f"[{self.names[i]}] launch exited before the robot was up: starting it again")
+                        self._start_one(i)
                 dead = [p for p in self.procs if p.poll() is not None] + (
                     [self.hub] if self.hub is not None and self.hub.poll() is not None else [])
                 if dead or time.monotonic() > end:
