@@ -61,8 +61,11 @@ def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path
     threading.Thread(target=read, daemon=True).start()
     gcs = view = session = None
     try:
-        wait_until(lambda: any(x.startswith("fleet: all 10 robots up") for x in lines) or proc.poll() is not None,
-                   600, "the ten robots up: " + " | ".join(x for x in lines if "modules up" in x or "not up" in x))
+        try:
+            wait_until(lambda: any(x.startswith("fleet: all 10 robots up") for x in lines) or proc.poll() is not None,
+                       600, "the ten robots up")
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}; up so far: {[x for x in lines if 'modules up' in x]}") from None
         up = next((x for x in lines if x.startswith("fleet: all 10 robots up")), None)
         assert up is not None, "\n".join(lines[-40:])
         hub = int(re.search(r"meshed on tcp/127\.0\.0\.1:(\d+)", up).group(1))
