@@ -166,7 +166,7 @@ class Fleet:
         self.names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
         self.manifests = [robot_manifest(spec, n, run_dir, [hub]) for n in range(1, spec.robots + 1)]
         self.hub: subprocess.Popen | None = None
-        self.batch = 3
+        self.batch = 5
         self.by_index: dict[int, subprocess.Popen] = {}
         self.attempts: dict[int, int] = {}
         self.max_attempts = 3
