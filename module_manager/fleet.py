@@ -216,7 +216,8 @@ class Fleet:
                         self.procs.remove(p)
                         self.out(f"[{self.names[i]}] launch exited before the robot was up: starting it again")
                         self._start_one(i)
-                dead = [p for p in self.procs if p.poll() is not None] + (
+                dead = [p for i, p in self.by_index.items() if p.poll() is not None and self.names[i] not in self.up
+                        and self.attempts[i] >= self.max_attempts] + (
                     [self.hub] if self.hub is not None and self.hub.poll() is not None else [])
                 if dead or time.monotonic() > end:
                     raise FleetError(f"robots not up: {sorted(names - self.up)}"
