@@ -181,3 +181,16 @@ def parse_alive_key(key: str) -> tuple[str, str]:
 def schema_key_of(prefix: str) -> str:
     """``<prefix>/@schema``: where a service (``manager_key(robot)``, ``ral_key(robot)``) answers its schemas."""
     return f"{prefix}/@schema"
+
+
+# ---------------------------------------------------------------- fleet (issue 17: allocation over the bus)
+
+
+def fleet_task_key(task: str) -> str:
+    """``cromat/@fleet/task/<task>``: a fleet task posted by a ground station (``*``: every task)."""
+    return f"{ROOT}/@fleet/task/{_chunk_or_wildcard(task, 'fleet task id')}"
+
+
+def fleet_state_key(robot: str) -> str:
+    """``cromat/<robot>/@ral/fleet``: a RAL's fleet state (bids, decisions, tasks known) (``*``: every robot)."""
+    return ral_key(robot, "fleet")

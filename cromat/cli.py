@@ -9,6 +9,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "launch": ("module_manager.cli", "start a robot from a manifest (router, manager, modules), supervise it"),
     "router": ("bbcs.router", "run a robot's Zenoh router"),
     "conf": ("cromat.conf", "check a robot .conf: every error with file:line (conf check FILE)"),
+    "fleet": ("module_manager.fleet", "launch N simulated robots from a fleet manifest, their routers meshed"),
     "gcs": ("ral.gcs.cli", "ground control station: robots, watch, task, abort, modules, route, errors"),
     "certs": ("cromat.certs", "create a CA and certificates for a robot router, a GCS and modules"),
     "dsp-sim": ("modules.dsp.sim.cli", "run the DSP simulator on a pty or a TCP port"),

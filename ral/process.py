@@ -49,6 +49,8 @@ from bbcs.contracts.trajectory import OrbitRequest, SurveyRequest, TrajectoryReq
 from bbcs.module import Module
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
+from ral.fleet import FleetLink, can_do_from, goto_of, own_state_of
+from ral.fleet_protocol import Execute, FleetConfig, OwnState
 from ral.tasks import JudgeConfig, Limits, Plan, Progress, Rejected, admit, available_kinds, judge, load_limits
 
 MAX_ERRORS = 20
@@ -83,6 +85,10 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     speed and path reach one consumer in order and nothing is waited for (the manifest says which)."""
     kind: str = ""
     """Robot kind shown in the GRI state when the manager's state has none."""
+    fleet_can_do: str = ""
+    """Fleet target kinds this robot bids on, comma-separated (``none``: never); empty: ``visit`` if it has goto."""
+    fleet_bid_window_s: float = 2.0
+    """Longest wait for every live RAL's bid before a fleet round is decided without it (ral/fleet.py)."""
 
     @classmethod
     def from_params(cls, params: dict[str, str]) -> tuple[RalConfig, dict[str, str]]:
@@ -173,6 +179,7 @@ class Ral(Module):
         self._generated: dict[int, t.Waypoint] = {}
         """Task id → last waypoint of the path the generator planned for it (what completes a survey/orbit)."""
         self._speed_acked = threading.Condition()
+        self._fleet: FleetLink | None = None
 
     # ------------------------------------------------------------ bus
 
@@ -224,8 +231,11 @@ class Ral(Module):
         self._worker = threading.Thread(target=self._work, name="ral.tasks", daemon=True)
         self._worker.start()
         self._jobs.put("refresh_tasks")
+        self._fleet_start(s)
 
     def on_stop(self) -> None:
+        if self._fleet is not None:
+            self._fleet.stop()
         self._jobs.put(None)
         if self._worker is not None:
             self._worker.join(5.0)
@@ -447,6 +457,8 @@ class Ral(Module):
         if now >= self._next_state:
             self._next_state = now + self.cfg.state_period_s
             self._publish_state(now)
+        if self._fleet is not None:
+            self._fleet.tick()
 
     def _fold_telemetry(self, tel: RobotTelemetry, now: float) -> None:
         """Judge every running task against new telemetry; a verdict goes to the manager as an EndTask."""
@@ -518,6 +530,8 @@ class Ral(Module):
                     self._run_failsafe(job)
                 elif isinstance(job, mri.EndTask):
                     self._end(job)
+                elif callable(job):  # a fleet share to fly (ral/fleet.py)
+                    job()
                 else:
                     self._answer(job)
             except Exception:
@@ -698,6 +712,28 @@ class Ral(Module):
                 return t.Goto(waypoints=[t.Waypoint(lat=home.lat, lon=home.lon, alt=alt)])
             self.emit("failsafe", detail="return: take-off point unknown, holding instead")
         return t.Hold()
+
+    # ------------------------------------------------------------ fleet allocation (issue 17, ral/fleet.py)
+
+    def _fleet_start(self, session: zenoh.Session) -> None:
+        cfg = FleetConfig(bid_window_s=self.cfg.fleet_bid_window_s,
+                          reach_m=max(self.cfg.position_tolerance_m, 10.0),
+                          reach_alt_m=max(self.cfg.altitude_tolerance_m, 5.0))
+        self._fleet = FleetLink(self.robot, self.cfg.kind, self._fleet_own,
+                                lambda job: self._jobs.put(lambda: self._fleet_fly(job)), cfg, clock=self.clock)
+        self._fleet.start(session)
+
+    def _fleet_own(self) -> OwnState:
+        with self.lock:
+            kinds = available_kinds(self.available, self.task_names)
+            speed = self.limits.cruise_speed or min(5.0, self.limits.max_speed)
+            return own_state_of(self.telemetry, speed, can_do_from(self.cfg.fleet_can_do, kinds),
+                                list(self._live.values()), available=self.link.state != "failsafe")
+
+    def _fleet_fly(self, job: Execute) -> None:
+        reply = self.handle(goto_of(job), origin="fleet")
+        self.log.info("fleet task %s round %d: %s %s", job.task.id, job.round, [x.id for x in job.targets],
+                      "accepted" if reply.accepted else f"refused: {reply.reason}")
 
 
 END_EVENTS = {

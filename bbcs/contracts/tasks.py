@@ -168,7 +168,7 @@ def kind_of(task: msgspec.Struct) -> str:
 
 
 TaskStatus = Literal["running", "completed", "cancelled", "replaced", "aborted", "failed"]
-Origin = Literal["gcs", "failsafe", "mri"]
+Origin = Literal["gcs", "failsafe", "mri", "fleet"]
 
 
 class TaskInfo(msgspec.Struct, frozen=True, kw_only=True):

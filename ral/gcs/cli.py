@@ -22,6 +22,7 @@ import msgspec
 
 from bbcs.contracts import gri
 from bbcs.contracts.error_codes import error_name
+from ral import fleet_gcs
 from ral.gcs import watch_view
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
 from ral.gcs.waypoints import WaypointFileError, load_polygon, load_waypoints
@@ -118,6 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("slot", type=int)
     e = sub.add_parser("errors", help="a robot's most recent errors: module, code, name, detail")
     e.add_argument("robot")
+    fleet_gcs.add_parser(sub)
     rs = sub.add_parser("restart", help="restart one module (its running tasks fail)")
     rs.add_argument("robot")
     rs.add_argument("module")
@@ -300,6 +302,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             return 0
         if args.command == "restart":
             return _print_reply(gcs.restart(args.robot, args.module), out)
+        if args.command == "fleet":
+            return fleet_gcs.run(gcs.session, args, out)
     return 2
 
 

@@ -1,0 +1,276 @@
+"""``cromat fleet FLEET.toml``: launch N simulated robots on this machine, each a ``cromat launch`` of its own
+(its router, its Module Manager, its modules, its DSP simulator at its own home), their routers meshed by Zenoh.
+
+A fleet manifest names one robot manifest and how to multiply it::
+
+    [fleet]
+    manifest = "uav1_sim.toml"     # every robot is this manifest, renamed (its .conf's ROBOT line too)
+    robots = 10
+    name = "uav{n:02d}"            # n = 1..robots
+    home = [37.4117, -6.0025, 12.0]
+    spacing_m = 60.0               # DSP simulator homes on a line eastwards
+    drop = ["modules.vision", "tasks.track", "tasks.follow_vision_path"]   # sections left out
+    time_scale = 1.0
+    record = true                  # each DSP simulator records what it receives (run dir/<name>/dsp_record.jsonl)
+
+Mesh: a star on a hub router that ``cromat fleet`` starts first (a ground router: ground stations connect to
+it); every robot's router peers it (``[bus] peers``), Zenoh routing between routers.
+What each robot gets is written under ``--run-dir`` (manifest, .conf, logs), checked before anything starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from bbcs.net import free_port, wait_tcp
+from module_manager.manifest import ManifestError, load_manifest
+
+
+class FleetError(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class FleetSpec:
+    manifest: Path
+    robots: int
+    name: str = "uav{n:02d}"
+    home: tuple[float, float, float] = (37.4117, -6.0025, 12.0)
+    spacing_m: float = 60.0
+    drop: tuple[str, ...] = ()
+    time_scale: float = 1.0
+    record: bool = True
+    conf: tuple[tuple[str, str], ...] = ()
+    """.conf lines set in every robot's renamed .conf (e.g. a longer DSP_ACK_TIMEOUT when ten simulators share
+    a small machine)."""
+
+
+def load_fleet(path: Path) -> FleetSpec:
+    try:
+        raw = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise FleetError(f"{path}: {exc}") from exc
+    f = raw.get("fleet")
+    if not isinstance(f, dict):
+        raise FleetError(f"{path}: no [fleet] table")
+    unknown = set(f) - {"manifest", "robots", "name", "home", "spacing_m", "drop", "time_scale", "record", "conf"}
+    if unknown:
+        raise FleetError(f"{path}: unknown key(s) in [fleet]: {sorted(unknown)}")
+    try:
+        spec = FleetSpec(manifest=(path.parent / str(f["manifest"])).resolve(), robots=int(f["robots"]),
+                         name=str(f.get("name", "uav{n:02d}")), home=tuple(float(x) for x in f.get(
+                             "home", FleetSpec.home)),  # type: ignore[arg-type]
+                         spacing_m=float(f.get("spacing_m", 60.0)), drop=tuple(f.get("drop", ())),
+                         time_scale=float(f.get("time_scale", 1.0)), record=bool(f.get("record", True)),
+                         conf=tuple((str(k), str(v)) for k, v in dict(f.get("conf", {})).items()))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FleetError(f"{path}: [fleet] {exc}") from exc
+    if not 1 <= spec.robots <= 100:
+        raise FleetError(f"{path}: [fleet] robots = {spec.robots}: 1..100 on one machine")
+    if len(spec.home) != 3:
+        raise FleetError(f"{path}: [fleet] home must be [lat, lon, alt]")
+    names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
+    if len(set(names)) != len(names):
+        raise FleetError(f"{path}: [fleet] name = {spec.name!r} gives one name to two robots")
+    return spec
+
+
+def robot_name(spec: FleetSpec, n: int) -> str:
+    return spec.name.format(n=n)
+
+
+def drop_sections(text: str, headers: set[str]) -> str:
+    """The manifest without these TOML tables (each up to the next table header)."""
+    out, skip = [], False
+    for line in text.splitlines(keepends=True):
+        s = line.strip()
+        if s.startswith("[") and not s.startswith("[["):
+            skip = s.strip("[]") in headers
+        elif s.startswith("[["):
+            skip = False
+        if not skip:
+            out.append(line)
+    return "".join(out)
+
+
+def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str]) -> Path:
+    """Write robot ``n``'s manifest (and its renamed .conf) under ``run_dir/<name>``; returns the manifest."""
+    name = robot_name(spec, n)
+    folder = run_dir / name
+    folder.mkdir(parents=True, exist_ok=True)
+    text = spec.manifest.read_text()
+    base = load_manifest(spec.manifest)
+    conf_src: Path | None = base.conf
+    text, k = re.subn(r'(\[robot\][^\[]*?\nname = )"[^"]*"', rf'\g<1>"{name}"', text, count=1)
+    if k != 1:
+        raise FleetError(f"{spec.manifest}: no [robot] name to rename")
+    if conf_src is not None:
+        conf_text = conf_src.read_text()
+        conf_text, k = re.subn(r"(?m)^ROBOT:.*$", f"ROBOT: {name}", conf_text, count=1)
+        if k != 1:
+            raise FleetError(f"{conf_src}: no ROBOT line to rename")
+        for key, value in spec.conf:
+            if not re.fullmatch(r"[A-Z][A-Z0-9_]*", key):
+                raise FleetError(f"[fleet] conf: {key!r} is not a .conf key")
+            conf_text, k = re.subn(rf"(?m)^{key}:.*$", f"{key}: {value}", conf_text, count=1)
+            if k == 0:
+                conf_text += f"\n{key}: {value}\n"
+        conf = folder / f"{name}.conf"
+        conf.write_text(conf_text)
+        text = re.sub(r'(\[robot\][^\[]*?\nconf = )"[^"]*"', rf'\g<1>"{conf}"', text, count=1)
+    endpoints = ", ".join(f'"{p}"' for p in peers)
+    text = re.sub(r"(?m)^peers = .*\n", "", text)
+    text = text.replace("[bus]\n", f"[bus]\npeers = [{endpoints}]\n", 1)
+    east = (n - 1) * spec.spacing_m
+    lat, lon, alt = spec.home
+    lon += east / (111_320.0 * math.cos(math.radians(lat)))
+    extra = [f'"--home", "{lat:.6f},{lon:.6f},{alt:g}"', f'"--time-scale", "{spec.time_scale:g}"']
+    if spec.record:
+        extra.append(f'"--record", "{folder / "dsp_record.jsonl"}"')
+    text, k = re.subn(r'(?m)^(command = \[[^\n]*"modules\.dsp\.sim"[^\n]*?)\]\s*$',
+                      lambda m: m.group(1) + ", " + ", ".join(extra) + "]", text, count=1)
+    if k != 1:
+        raise FleetError(f"{spec.manifest}: no DSP simulator command (modules.dsp.sim) to give a home")
+    text = re.sub(r'(?m)^(ready = \{ kind = "stdout", pattern = "socket://", timeout_s = )[0-9.]+',
+                  r"\g<1>60.0", text)  # ten simulators starting on one small machine: more time to be ready
+    text = drop_sections(text, set(spec.drop))
+    path = folder / f"{name}.toml"
+    path.write_text(text)
+    try:
+        load_manifest(path)
+    except ManifestError as exc:
+        raise FleetError(f"robot {name}: {exc}") from exc
+    return path
+
+
+class Fleet:
+    """The running fleet: one ``cromat launch`` child per robot, its output prefixed with the robot's name."""
+
+    def __init__(self, spec: FleetSpec, run_dir: Path, out=print) -> None:  # type: ignore[no-untyped-def]
+        self.spec = spec
+        self.run_dir = run_dir
+        self.out = out
+        self.ports = [free_port() for _ in range(spec.robots)]
+        self.hub_port = free_port()
+        hub = f"tcp/127.0.0.1:{self.hub_port}"
+        self.names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
+        self.manifests = [robot_manifest(spec, n, run_dir, [hub]) for n in range(1, spec.robots + 1)]
+        self.hub: subprocess.Popen | None = None
+        self.batch = 5
+        self.by_index: dict[int, subprocess.Popen] = {}
+        self.attempts: dict[int, int] = {}
+        self.max_attempts = 3
+        """A launch that exits before its robot is up (a loaded machine: its router or simulator not ready in
+        time) is started again, up to this many times in all."""
+        self.procs: list[subprocess.Popen] = []
+        self.up: set[str] = set()
+        self.cond = threading.Condition()
+
+    def start(self, timeout_s: float = 300.0) -> None:
+        self.hub = subprocess.Popen([sys.executable, "-m", "bbcs.router", "--listen",
+                                     f"tcp/127.0.0.1:{self.hub_port}"], stdout=subprocess.DEVNULL)
+        if not wait_tcp("127.0.0.1", self.hub_port, 30):
+            raise FleetError(f"the hub router does not listen on 127.0.0.1:{self.hub_port}")
+        for first in range(0, len(self.names), self.batch):  # a few at a time: a small machine starts them all
+            batch = range(first, min(first + self.batch, len(self.names)))
+            for i in batch:
+                self._start_one(i)
+            self._wait({self.names[i] for i in batch}, timeout_s)
+
+    def _start_one(self, i: int) -> None:
+        name = self.names[i]
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "module_manager.cli", str(self.manifests[i]), "--listen",
+             f"tcp/127.0.0.1:{self.ports[i]}", "--log-dir", str(self.run_dir / name / "logs")],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # in the fleet's process group
+        self.procs.append(proc)
+        self.by_index[i] = proc
+        self.attempts[i] = self.attempts.get(i, 0) + 1
+        threading.Thread(target=self._read, args=(name, proc), daemon=True).start()
+
+    def _read(self, name: str, proc: subprocess.Popen) -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            self.out(f"[{name}] {line.rstrip()}")
+            if line.startswith("all ") and " modules up" in line:
+                with self.cond:
+                    self.up.add(name)
+                    self.cond.notify_all()
+
+    def _wait(self, names: set[str], timeout_s: float) -> None:
+        end = time.monotonic() + timeout_s
+        with self.cond:
+            while not names <= self.up:
+                for i, p in list(self.by_index.items()):
+                    if p.poll() is not None and self.names[i] not in self.up and self.attempts[i] < self.max_attempts:
+                        self.procs.remove(p)
+                        self.out(f"[{self.names[i]}] launch exited before the robot was up: starting it again")
+                        self._start_one(i)
+                dead = [p for i, p in self.by_index.items() if p.poll() is not None and self.names[i] not in self.up
+                        and self.attempts[i] >= self.max_attempts] + (
+                    [self.hub] if self.hub is not None and self.hub.poll() is not None else [])
+                if dead or time.monotonic() > end:
+                    raise FleetError(f"robots not up: {sorted(names - self.up)}"
+                                     + (" (a launch exited)" if dead else ""))
+                self.cond.wait(0.5)
+
+    def stop(self) -> None:
+        if self.hub is not None:
+            self.procs.insert(0, self.hub)
+            self.hub = None
+        for p in reversed(self.procs):
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in reversed(self.procs):
+            try:
+                p.wait(30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(5)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="cromat fleet", description=__doc__.splitlines()[0])
+    ap.add_argument("fleet", help="fleet manifest (.toml), e.g. bbcs_conf/fleet10_sim.toml")
+    ap.add_argument("--run-dir", default="run/fleet", help="where each robot's manifest, .conf and logs go")
+    ap.add_argument("--check", action="store_true", help="write and check every robot's manifest, start nothing")
+    args = ap.parse_args(argv)
+    try:
+        spec = load_fleet(Path(args.fleet))
+        fleet = Fleet(spec, Path(args.run_dir).resolve(), out=lambda s: print(s, flush=True))
+    except (FleetError, ManifestError) as exc:
+        print(f"cromat fleet: {exc}", file=sys.stderr)
+        return 1
+    if args.check:
+        print(f"{args.fleet}: ok ({spec.robots} robots: {', '.join(fleet.names)})")
+        return 0
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    try:
+        fleet.start()
+        print(f"fleet: all {spec.robots} robots up, meshed on tcp/127.0.0.1:{fleet.hub_port} "
+              f"({' '.join(f'{n}={p}' for n, p in zip(fleet.names, fleet.ports, strict=True))})", flush=True)
+        while not stop.is_set() and all(p.poll() is None for p in fleet.procs):
+            stop.wait(0.5)
+        return 0
+    except FleetError as exc:
+        print(f"cromat fleet: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        fleet.stop()
+        print("fleet stopped", flush=True)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,139 @@
+"""The RAL's bus side of fleet allocation: feeds :class:`~ral.fleet_protocol.FleetNode` from Zenoh and flies its
+share through the RAL's ordinary task path.
+
+- ``cromat/@fleet/task/*``: tasks put by ground stations; ``cromat/*/@ral/fleet``: every RAL's
+  :class:`FleetState` (a safe state: history for late joiners, recovery of lost samples), republished every
+  period so a robot cut off and healed catches up; liveliness of ``cromat/*/@alive/ral``: who is in the fleet
+  (a RAL whose token goes away, by a kill or a lost link, drops out and its targets are allocated again).
+- The callbacks only hand samples to the node under a lock; the RAL's main-loop tick runs the protocol and
+  queues what to fly as a job of the RAL's worker, which sends it through :meth:`Ral.handle` like a ground
+  station's ``goto`` (admitted against the robot's own limits and geofence, then to the Module Manager).
+- Losing the mesh changes nothing in the robot: its task, its failsafe and its link to its own modules go through
+  its own router; only its view of the others goes stale.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import msgspec
+import zenoh
+import zenoh.ext
+
+from bbcs import keys
+from bbcs.contracts import gri
+from bbcs.contracts import tasks as t
+from bbcs.contracts.fleet import FleetState, FleetTask
+from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
+from ral.fleet_protocol import Execute, FleetConfig, FleetNode, OwnState
+
+log = logging.getLogger("ral.fleet")
+DEFAULT_SPEED = 5.0
+BUSY_DEFAULT_S = 30.0
+"""Time left on a movement task the fleet did not start, when the RAL cannot tell (it ends when it ends)."""
+
+
+def can_do_from(param: str, kinds: list[str]) -> frozenset[str]:
+    """What target kinds this robot bids on: the RAL parameter ``fleet_can_do`` (comma-separated; ``none``: it
+    never bids), else ``visit`` if it can fly a ``goto``."""
+    if param.strip():
+        return frozenset() if param.strip() == "none" else frozenset(k.strip() for k in param.split(",") if k.strip())
+    return frozenset({"visit"}) if "goto" in kinds else frozenset()
+
+
+class FleetLink:
+    """One RAL's fleet membership. ``own`` gives the robot's state at each tick; ``fly`` queues an Execute on the
+    RAL's worker."""
+
+    def __init__(self, robot: str, kind: str, own: Callable[[], OwnState], fly: Callable[[Execute], None],
+                 cfg: FleetConfig | None = None, clock: Callable[[], float] | None = None) -> None:
+        self.node = FleetNode(robot, kind, cfg)
+        self.robot = robot
+        self.own = own
+        self.fly = fly
+        self.clock = clock or time.time
+        self.lock = threading.Lock()
+        self.entities: list[Any] = []
+        self.pub: Publisher[FleetState] | None = None
+
+    def start(self, session: zenoh.Session) -> None:
+        self.pub = Publisher(session, keys.fleet_state_key(self.robot),
+                             SlotSpec("fleet", FleetState, Direction.OUT, Kind.STATE, Safety.SAFE))
+        self.entities = [
+            session.declare_subscriber(keys.fleet_task_key("*"), self._on_task),
+            zenoh.ext.declare_advanced_subscriber(
+                session, keys.fleet_state_key("*"), self._on_state,
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+                recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+                subscriber_detection=True),
+            session.liveliness().declare_subscriber(keys.alive_pattern("*", "ral"), self._on_alive, history=True),
+        ]
+
+    def stop(self) -> None:
+        for entity in reversed(self.entities):
+            entity.undeclare()
+        self.entities.clear()
+        if self.pub is not None:
+            self.pub.close()
+
+    def _on_task(self, sample: zenoh.Sample) -> None:
+        try:
+            task = msgspec.msgpack.decode(sample.payload.to_bytes(), type=FleetTask)
+        except msgspec.MsgspecError as exc:
+            log.warning("unreadable fleet task dropped: %s", exc)
+            return
+        with self.lock:
+            self.node.post(task, self.clock())
+
+    def _on_state(self, sample: zenoh.Sample) -> None:
+        try:
+            state = msgspec.msgpack.decode(sample.payload.to_bytes(), type=FleetState)
+        except msgspec.MsgspecError as exc:
+            log.warning("unreadable fleet state dropped: %s", exc)
+            return
+        with self.lock:
+            self.node.on_state(state, self.clock())
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        try:
+            robot, _ = keys.parse_alive_key(str(sample.key_expr))
+        except ValueError:
+            return
+        with self.lock:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self.node.on_lost(robot, self.clock())
+            else:
+                self.node.on_alive(robot)
+
+    def tick(self) -> None:
+        """Run the protocol once: bid, decide, mark visited targets, publish, queue what to fly."""
+        own = self.own()
+        with self.lock:
+            now = self.clock()
+            todo = self.node.tick(own, now)
+            state = self.node.state(now) if self.node.publish_due(now) else None
+        if state is not None and self.pub is not None:
+            self.pub.publish(state)
+        for job in todo:
+            self.fly(job)
+
+
+def goto_of(job: Execute) -> gri.TaskRequest:
+    """The ordinary task that flies a share: a goto through its targets in order."""
+    return t.Goto(waypoints=[t.Waypoint(lat=x.lat, lon=x.lon, alt=x.alt) for x in job.targets], speed=job.task.speed)
+
+
+def own_state_of(telemetry: Any, speed: float, can_do: frozenset[str], live_tasks: list[t.TaskInfo],
+                 available: bool = True) -> OwnState:
+    """The robot's bid state from the RAL's view: its position, its speed, how busy a movement task the fleet
+    did not give it keeps it, and whether its own failsafe is in force (``available`` False)."""
+    pos = telemetry.position if telemetry is not None else None
+    busy = BUSY_DEFAULT_S if any(i.task_type == "movement" and i.origin != "fleet" and i.kind not in ("hold", "")
+                                 for i in live_tasks) else 0.0
+    flying = any(i.origin == "fleet" and i.status == "running" for i in live_tasks)
+    return OwnState(lat=pos.lat if pos else None, lon=pos.lon if pos else None, alt=pos.alt if pos else None,
+                    speed=speed, can_do=can_do, busy_s=busy, flying_share=flying, available=available)

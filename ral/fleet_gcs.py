@@ -1,0 +1,166 @@
+"""The ground station's side of fleet allocation: post a fleet task, watch what every RAL decided.
+
+``cromat gcs fleet post --target ID,LAT,LON,ALT[,KIND[,DEADLINE_S]] ...`` puts a :class:`FleetTask` on
+``cromat/@fleet/task/<id>`` through any router of the mesh, then waits until every robot that answered shows the
+same decision (equal digests) and prints who flies what. ``cromat gcs fleet status [TASK]`` prints the fleet
+states as they are now. The station allocates nothing: it only reads what the robots decided.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from typing import Any, TextIO
+
+import msgspec
+import zenoh
+import zenoh.ext
+
+from bbcs import keys
+from bbcs.contracts.fleet import FleetDecision, FleetState, FleetTarget, FleetTask
+
+
+class FleetView:
+    """Every RAL's latest :class:`FleetState` (history: what they published before the view existed too)."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self.lock = threading.Condition()
+        self.states: dict[str, FleetState] = {}
+        self._sub = zenoh.ext.declare_advanced_subscriber(
+            session, keys.fleet_state_key("*"), self._on_state,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True))
+
+    def _on_state(self, sample: zenoh.Sample) -> None:
+        try:
+            st = msgspec.msgpack.decode(sample.payload.to_bytes(), type=FleetState)
+        except msgspec.MsgspecError:
+            return
+        with self.lock:
+            self.states[st.robot] = st
+            self.lock.notify_all()
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+    def post(self, task: FleetTask) -> None:
+        self.session.put(keys.fleet_task_key(task.id), msgspec.msgpack.encode(task))
+
+    def decisions(self, task: str) -> dict[str, FleetDecision]:
+        """Robot → its latest decision for ``task``."""
+        with self.lock:
+            return {r: d for r, st in self.states.items() for d in st.decisions if d.task == task}
+
+    def answered(self, task: str) -> set[str]:
+        """Robots that know ``task`` (bid, abstained, or finished it)."""
+        with self.lock:
+            return {r for r, st in self.states.items() if any(b.task == task for b in st.bids)}
+
+    def agreed(self, task: str, robots: set[str] | None = None) -> FleetDecision | None:
+        """The decision every answering robot (or every robot of ``robots``) holds, if they all hold the same."""
+        decs = self.decisions(task)
+        who = robots if robots is not None else self.answered(task)
+        if not who or not who <= set(decs):
+            return None
+        digests = {decs[r].digest for r in who}
+        rounds = {decs[r].round for r in who}
+        return decs[min(who)] if len(digests) == 1 and len(rounds) == 1 else None
+
+    def wait(self, pred: Any, timeout_s: float) -> Any:
+        end = time.monotonic() + timeout_s
+        with self.lock:
+            while True:
+                got = pred()
+                if got:
+                    return got
+                left = end - time.monotonic()
+                if left <= 0:
+                    return got
+                self.lock.wait(min(left, 0.2))
+
+    def visited(self, task: str) -> set[str]:
+        prefix = f"{task}/"
+        with self.lock:
+            return {d.removeprefix(prefix) for st in self.states.values() for d in st.done if d.startswith(prefix)}
+
+
+def parse_target(text: str, index: int, now: float) -> FleetTarget:
+    """``ID,LAT,LON,ALT[,KIND[,DEADLINE_S]]``; the deadline is seconds from now."""
+    parts = [p.strip() for p in text.split(",")]
+    if not 4 <= len(parts) <= 6:
+        raise ValueError(f"--target {index + 1} {text!r}: expected ID,LAT,LON,ALT[,KIND[,DEADLINE_S]]")
+    try:
+        fields: dict[str, Any] = {"id": parts[0], "lat": float(parts[1]), "lon": float(parts[2]),
+                                  "alt": float(parts[3])}
+        if len(parts) > 4 and parts[4]:
+            fields["kind"] = parts[4]
+        if len(parts) > 5:
+            fields["deadline"] = now + float(parts[5])
+        return msgspec.convert(fields, FleetTarget)
+    except (ValueError, msgspec.ValidationError) as exc:
+        raise ValueError(f"--target {index + 1} {text!r}: {exc}") from exc
+
+
+def add_parser(sub: Any) -> None:
+    """``cromat gcs fleet ...`` (registered by ral/gcs/cli.py)."""
+    f = sub.add_parser("fleet", help="fleet tasks allocated by the robots among themselves")
+    fs = f.add_subparsers(dest="fleet_command", required=True)
+    p = fs.add_parser("post", help="post a fleet task and print the allocation the robots agree on")
+    p.add_argument("--id", required=True, help="task id (one key chunk)")
+    p.add_argument("--target", action="append", required=True, metavar="ID,LAT,LON,ALT[,KIND[,DEADLINE_S]]")
+    p.add_argument("--one-per-robot", action="store_true", help="at most one target per robot")
+    p.add_argument("--speed", type=float, help="flight speed of the robots' paths, m/s")
+    p.add_argument("--wait", type=float, default=15.0, help="seconds to wait for the robots to agree (15)")
+    s = fs.add_parser("status", help="what every robot decided and visited")
+    s.add_argument("task", nargs="?", help="one task (default: every task)")
+
+
+def format_decision(dec: FleetDecision, visited: set[str]) -> list[str]:
+    lines = [f"task {dec.task} round {dec.round} digest {dec.digest} cost {dec.cost:.1f} "
+             f"bidders {','.join(dec.bidders) or '-'}"]
+    for robot, route in dec.routes.items():
+        shown = [f"{x}{'*' if x in visited else ''}" for x in route]
+        lines.append(f"  {robot:<12} {' '.join(shown) or '-'}")
+    if dec.unassigned:
+        lines.append(f"  unassigned   {' '.join(dec.unassigned)}")
+    return lines
+
+
+def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
+    """Exit codes as ``cromat gcs``: 0 agreed, 2 bad target, 3 no agreement within ``--wait``."""
+    view = FleetView(session)
+    try:
+        if args.fleet_command == "post":
+            now = time.time()
+            try:
+                targets = [parse_target(x, i, now) for i, x in enumerate(args.target)]
+                task = msgspec.convert({"id": args.id, "targets": [msgspec.to_builtins(x) for x in targets],
+                                        "one_per_robot": args.one_per_robot, "speed": args.speed,
+                                        "posted_by": "cromat gcs"}, FleetTask)
+            except (ValueError, msgspec.ValidationError) as exc:
+                print(f"cromat gcs fleet: {exc}", file=out)
+                return 2
+            view.post(task)
+            dec = view.wait(lambda: view.agreed(task.id), args.wait)
+            if dec is None:
+                decs = view.decisions(task.id)
+                print(f"no agreement within {args.wait:g} s: answered {sorted(view.answered(task.id))}, "
+                      f"digests { {r: d.digest for r, d in decs.items()} }", file=out)
+                return 3
+            print("\n".join(format_decision(dec, view.visited(task.id))), file=out)
+            print(f"agreed by {len(view.answered(task.id))} robots", file=out)
+            return 0
+        view.wait(lambda: bool(view.states), 2.0)
+        tasks = sorted({d.task for st in view.states.values() for d in st.decisions})
+        for tid in [args.task] if args.task else tasks:
+            decs = view.decisions(tid)
+            for robot, dec in sorted(decs.items()):
+                print(f"{robot}: round {dec.round} digest {dec.digest}", file=out)
+            agreed = view.agreed(tid)
+            if agreed is not None:
+                print("\n".join(format_decision(agreed, view.visited(tid))), file=out)
+        return 0
+    finally:
+        view.close()

@@ -1,0 +1,220 @@
+"""Issue 17, partitions: robot c in a network namespace of its own, made by the test (``unshare -n``: only its own
+loopback, so c's RAL and router cannot reach any port of the others); its router's only link to the mesh is a
+Unix socket, relayed by the test to the hub router's TCP port. Cutting that relay partitions c from the mesh;
+reopening it heals.
+
+The robots are the bench's fleet agents (``bench/fleet.py --agent``): the RAL's own FleetLink and protocol on real
+Zenoh routers, flying point robots (no DSP stack). What is checked:
+
+- cut: each side decides without the other (a and b agree on a new round without c; c alone takes everything),
+  so no target is left without a robot on either side;
+- heal: c's router reconnects by itself, and all three agree again on one allocation over everyone's bids, each
+  target held by one robot;
+- the safe state slot crossing the mesh (each RAL's fleet state, the one the protocol depends on) comes back:
+  after the heal the ground router's view holds c's current state again (a state slot's guarantee is the latest
+  value, not every intermediate one).
+
+Safe *streams* (e.g. GRI events) published during a cut are not replayed after the heal: they use a reliable
+publisher without a cache; this test does not claim otherwise (docs/fleet.md).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from bbcs.contracts.fleet import FleetTarget, FleetTask
+from bbcs.net import free_port
+from bbcs.session import local_client, open_session
+from bbcs.testing import Processes, child_env, start_router, wait_until
+from ral.fleet_gcs import FleetView
+
+ROOT = Path(__file__).resolve().parents[2]
+BENCH = ROOT / "bench" / "fleet.py"
+LAT0, LON0, ALT = 37.4117, -6.0025, 22.0
+
+
+def namespaces_allowed() -> str | None:
+    if shutil.which("unshare") is None or shutil.which("ip") is None:
+        return "unshare or ip not installed"
+    probe = subprocess.run(["unshare", "-n", "ip", "link", "set", "lo", "up"], capture_output=True, text=True)
+    return None if probe.returncode == 0 else f"network namespaces not allowed here: {probe.stderr.strip()}"
+
+
+class Relay:
+    """A Unix socket in front of a TCP port on 127.0.0.1; ``cut`` closes every connection and refuses new ones."""
+
+    def __init__(self, path: Path, port: int) -> None:
+        self.path, self.port = path, port
+        self.server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.server.bind(str(path))
+        self.server.listen(8)
+        self.lock = threading.Lock()
+        self.open = True
+        self.conns: list[socket.socket] = []
+        self.accepted = 0
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.server.accept()
+            except OSError:
+                return
+            with self.lock:
+                if not self.open:
+                    client.close()
+                    continue
+                upstream = socket.create_connection(("127.0.0.1", self.port))
+                self.conns += [client, upstream]
+                self.accepted += 1
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
+
+    @staticmethod
+    def _pump(src: socket.socket, dst: socket.socket) -> None:
+        try:
+            while data := src.recv(65536):
+                dst.sendall(data)
+        except OSError:
+            pass
+        for s in (src, dst):
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    def cut(self) -> None:
+        with self.lock:
+            self.open = False
+            for c in self.conns:
+                try:
+                    c.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+                c.close()
+            self.conns.clear()
+
+    def heal(self) -> None:
+        with self.lock:
+            self.open = True
+
+    def close(self) -> None:
+        self.cut()
+        self.server.close()
+
+
+def agent(procs: list[subprocess.Popen], name: str, port: int, north: float, east: float,
+          netns_link: str | None = None) -> subprocess.Popen:
+    """An agent on its router. With ``netns_link``: router and agent in a new network namespace, the router
+    linked to the mesh only through that endpoint."""
+    cmd = [sys.executable, str(BENCH), "--agent", name, "--port", str(port), "--north", str(north),
+           "--east", str(east), "--speed", "1"]
+    if netns_link is not None:
+        router = [sys.executable, "-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{port}", "--connect", netns_link]
+        shell = ("ip link set lo up || exit 97; " + " ".join(map(_q, router)) + " >/dev/null & exec "
+                 + " ".join(map(_q, cmd)))
+        proc = subprocess.Popen(["unshare", "-n", "sh", "-c", shell], cwd=str(ROOT), env=child_env(),
+                                stdout=subprocess.PIPE, text=True, start_new_session=True)
+    else:
+        proc = subprocess.Popen(cmd, cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, text=True,
+                                start_new_session=True)
+    procs.append(proc)
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "ready", f"agent {name} did not start"
+    return proc
+
+
+def _q(arg: str) -> str:
+    return "'" + arg.replace("'", "'\\''") + "'"
+
+
+@pytest.mark.timeout(240)
+def test_a_robot_cut_off_in_its_own_network_namespace_heals_into_one_allocation(tmp_path: Path) -> None:
+    why = namespaces_allowed()
+    if why is not None:
+        pytest.skip(why)
+    routers = Processes()
+    procs: list[subprocess.Popen] = []
+    relay = view = session = None
+    try:
+        hub = start_router(routers)
+        ports = {}
+        for name in ("a", "b"):
+            ports[name] = free_port()
+            routers.start(["-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{ports[name]}", "--connect",
+                           f"tcp/127.0.0.1:{hub}"], stdout=subprocess.DEVNULL)
+        sock = tmp_path / "c_link.sock"
+        relay = Relay(sock, hub)
+        agent(procs, "a", ports["a"], -300, -300)
+        agent(procs, "b", ports["b"], 0, 2000)
+        c_port = free_port()  # a port inside c's namespace: the same number means nothing outside it
+        agent(procs, "c", c_port, 2000, 1000, netns_link=f"unixsock-stream/{sock}")
+        session = open_session(local_client(hub))
+        view = FleetView(session)
+        everyone = {"a", "b", "c"}
+
+        def alive() -> set[str]:
+            from bbcs import keys
+
+            return {str(r.ok.key_expr).split("/")[1] for r in session.liveliness().get(
+                keys.alive_pattern("*", "ral"), timeout=2.0) if r.ok is not None}
+
+        wait_until(lambda: alive() == everyone, 30, "c's token seen through the relay from its namespace")
+        # c's namespace has no route to the hub's TCP port: the relay is its only way out
+        probe = subprocess.run(["unshare", "-n", "sh", "-c", "ip link set lo up && exec " + " ".join(map(_q, [
+            sys.executable, "-c", f"import socket; socket.create_connection(('127.0.0.1', {hub}), 1)"]))],
+            capture_output=True, text=True)
+        assert probe.returncode != 0 and "refused" in probe.stderr.lower(), probe.stderr
+
+        m = 1 / 111_320
+        targets = [FleetTarget(id=f"t{i}", lat=LAT0 + (i % 3) * 900 * m, lon=LON0 + (i // 3) * 900 * m, alt=ALT)
+                   for i in range(9)]
+        view.post(FleetTask(id="area", targets=targets))
+        first = view.wait(lambda: view.agreed("area", everyone), 20)
+        assert first is not None and first.bidders == ["a", "b", "c"], view.decisions("area")
+        assert first.routes["c"], first.routes
+
+        relay.cut()
+        wait_until(lambda: alive() == {"a", "b"}, 30, "c gone from the mesh's view")
+        ab = view.wait(lambda: (d := view.agreed("area", {"a", "b"})) is not None and d.round > first.round and d, 20)
+        assert ab and ab.bidders == ["a", "b"], view.decisions("area")
+        assert sorted(t for r in ab.routes.values() for t in r) == sorted(t.id for t in targets)
+        with view.lock:
+            c_before = view.states["c"].stamp
+
+        relay.heal()
+        wait_until(lambda: alive() == everyone, 60, "c's router reconnected by itself")
+        healed = view.wait(lambda: (d := view.agreed("area", everyone)) is not None and d.round > ab.round and d, 30)
+        assert healed, view.decisions("area")
+        assert healed.bidders == ["a", "b", "c"]
+        owners = [t for r in healed.routes.values() for t in r]
+        assert sorted(owners) == sorted(t.id for t in targets), healed.routes
+        c_side = view.decisions("area")["c"]
+        assert c_side.round == healed.round and c_side.digest == healed.digest
+        with view.lock:
+            assert view.states["c"].stamp > c_before, "c's fleet state after the heal reached the ground router"
+        assert relay.accepted >= 2, "the heal went through a new relayed connection"
+    finally:
+        if view is not None:
+            view.close()
+        if session is not None:
+            session.close()
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGTERM)
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(5)
+        if relay is not None:
+            relay.close()
+        routers.stop_all()

@@ -1,0 +1,113 @@
+"""Issue 17, scale: ``cromat fleet bbcs_conf/fleet10_sim.toml`` runs ten simulated UAVs on this machine (each its
+router, Module Manager, modules and DSP simulator), meshed in a star; a ground station on the hub router sees
+all ten, takes them off and posts twenty targets; the ten RALs agree on one allocation and every target is
+flown by the robot that won it (its DSP simulator's record), and by no other.
+
+Heavy (about 60 processes): run it on its own or with ``-n 2``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from bbcs.session import open_session
+from bbcs.testing import child_env, wait_until
+from module_manager.fleet import load_fleet
+from ral.fleet_gcs import FleetView
+from ral.gcs.api import Gcs, session_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
+from launch_support import ROOT, group_members  # noqa: E402
+from test_fleet_alloc import cli_post, take_off_all  # noqa: E402
+
+FLEET = ROOT / "bbcs_conf" / "fleet10_sim.toml"
+
+
+def records(run: Path, name: str) -> list[tuple[float, float]]:
+    path = run / name / "dsp_record.jsonl"
+    text = path.read_text() if path.exists() else ""
+    lines = [json.loads(x) for x in text[: text.rfind("\n") + 1].splitlines() if x.strip()]
+    return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in lines if c["name"] == "ADD_WAYPOINT"]
+
+
+@pytest.mark.timeout(900)
+def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path) -> None:
+    spec = load_fleet(FLEET)
+    names = [spec.name.format(n=n) for n in range(1, spec.robots + 1)]
+    run = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "module_manager.fleet", str(FLEET), "--run-dir", str(run)],
+                            cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+    lines: list[str] = []
+    cond = threading.Condition()
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            with cond:
+                lines.append(line.rstrip())
+                cond.notify_all()
+
+    threading.Thread(target=read, daemon=True).start()
+    gcs = view = session = None
+    try:
+        try:
+            wait_until(lambda: any(x.startswith("fleet: all 10 robots up") for x in lines) or proc.poll() is not None,
+                       600, "the ten robots up")
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}; up so far: {[x for x in lines if 'modules up' in x]}") from None
+        up = next((x for x in lines if x.startswith("fleet: all 10 robots up")), None)
+        assert up is not None, "\n".join(lines[-40:])
+        hub = int(re.search(r"meshed on tcp/127\.0\.0\.1:(\d+)", up).group(1))
+        gcs = Gcs(session_config([f"tcp/127.0.0.1:{hub}"]), name="ground", link=names, timeout_s=10.0)
+        wait_until(lambda: gcs.robots(1.0) == names, 60, "all ten robots seen from the hub")
+        take_off_all(gcs, names)
+        session = open_session(session_config([f"tcp/127.0.0.1:{hub}"]))
+        view = FleetView(session)
+
+        # twenty targets on the grid, two by each robot's home (north and south of it, ~45 m away)
+        targets, where = [], {}
+        for name in names:
+            st = gcs.state(name)
+            assert st.home is not None
+            for k, dn in enumerate((4, -4)):
+                lat, lon = round(st.home.lat + dn * 1e-4, 4), round(st.home.lon, 4)
+                tid = f"{name}_{k}"
+                targets.append(f"{tid},{lat},{lon},{st.home.alt + 10.0}")
+                where[tid] = (lat, lon)
+        done = cli_post(hub, "sweep", targets, timeout_s=60.0)
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert "agreed by 10 robots" in done.stdout, done.stdout
+        dec = view.wait(lambda: view.agreed("sweep", set(names)), 20)
+        assert dec is not None and dec.bidders == names, view.decisions("sweep")
+        assert sorted(t for r in dec.routes.values() for t in r) == sorted(where)
+        wait_until(lambda: view.visited("sweep") == set(where), 240, "all twenty targets visited")
+        for name in names:
+            got = set(records(run, name))
+            mine = {where[t] for t in dec.routes[name]}
+            theirs = {where[t] for r, ts in dec.routes.items() if r != name for t in ts} - mine
+            assert mine <= got and not theirs & got, (name, dec.routes[name], got)
+    finally:
+        if view is not None:
+            view.close()
+        if session is not None:
+            session.close()
+        if gcs is not None:
+            gcs.close()
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(120)
+        finally:
+            for pid in group_members(proc.pid):
+                os.kill(pid, signal.SIGKILL)
