@@ -15,8 +15,11 @@ Default deny; then:
     its CONTROL_ENTRADA, which an explicit **deny** keeps for the manager; a DSP sender also its own command key
     ``cromat/<robot>/dsp/commands_<name>`` (bbcs.contracts.dsp: one key per sender, so the router can tell
     senders apart, and the DSP checks the command classes that key's sender owns);
-  - the manager: its mode slots ``cromat/<robot>/manager/*``, every module's CONTROL_ENTRADA and ``@manager/**``;
-  - the RAL: its slots and the GRI keys ``@ral/**``;
+  - the manager: its mode slots ``cromat/<robot>/manager/*``, every module's CONTROL_ENTRADA, ``@manager/**``
+    and ``@manager/@schema``;
+  - the RAL: its slots, the GRI keys ``@ral/**`` and ``@ral/@schema``, and the requests it makes of modules on
+    their own keys (:data:`RAL_REQUESTS`: the trajectory generator's ``request``, the path follower's ``refs``),
+    which the key's module may also write and no one else;
   - a ground station: only ``cromat/@gcs/**`` (its link tokens and heartbeats); it may query ``@ral/task``
     (tasks) and ``@manager/route`` (route swaps), which no other identity may.
 """
@@ -67,6 +70,7 @@ def _read_keys(r: str = "*") -> list[str]:
         keys.manager_pattern(r),
         keys.ral_pattern(r),
         keys.gcs_pattern(),
+        *(keys.schema_key_of(k(r)) for k in (keys.ral_key, keys.manager_key)),
     ]
 
 
@@ -75,8 +79,18 @@ def _adv_keys(r: str = "*") -> list[str]:
                  keys.manager_child_pattern(r), keys.ral_child_pattern(r)])
 
 
-READ_QUERIES = [keys.schema_pattern("*"), *(keys.manager_key("*", q) for q in ("modules", "routes", "tasks"))]
+SERVICE_SCHEMAS = [keys.schema_key_of(keys.ral_key("*")), keys.schema_key_of(keys.manager_key("*"))]
+"""``cromat/*/@ral/@schema`` and ``cromat/*/@manager/@schema``: named apart, because neither ``*`` nor ``**``
+matches a verbatim ``@`` chunk (``@ral/**`` does not cover ``@ral/@schema``)."""
+
+READ_QUERIES = [keys.schema_pattern("*"), *SERVICE_SCHEMAS,
+                *(keys.manager_key("*", q) for q in ("modules", "routes", "tasks"))]
 """Read-only queries every identity may make, on every robot: schemas and the MRI's lists."""
+
+RAL_REQUESTS = [("trajectory", "request"), ("path_follower", "refs")]
+"""(module, slot): inputs read on the module's own key that the RAL writes (survey/orbit requests to the
+trajectory generator, a bridge task's references to the path follower). Besides the module itself, only the RAL
+may write them."""
 
 
 def _own(robot: str, name: str) -> list[str]:
@@ -130,12 +144,16 @@ def router_config(
         _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
         _rule("gcs-command", ["query"], [keys.ral_key(r, "task"), keys.manager_key(r, "route")]),
         _rule("gcs-link", ["put", "delete", "liveliness_token"], [keys.gcs_pattern()]),
-        _rule("ral-write", WRITE + SERVE, [*_own(r, ral), keys.ral_pattern(r), *_adv([keys.ral_child_pattern(r)])]),
+        _rule("ral-write", WRITE + SERVE, [*_own(r, ral), keys.ral_pattern(r), *_adv([keys.ral_child_pattern(r)]),
+                                           keys.schema_key_of(keys.ral_key(r))]),
+        _rule("ral-requests", WRITE + SERVE, [k for m, slot in RAL_REQUESTS
+                                              for k in (keys.slot_pattern(r, m, slot),
+                                                        *_adv([keys.slot_pattern(r, m, slot)]))]),
         _rule("ral-token", ["liveliness_token"], [keys.alive_pattern(r, ral)]),
         _rule("ral-mri", ["query"], [keys.manager_pattern(r)]),
         _rule("manager-write", WRITE + SERVE, [
             *_own(r, manager), *control_keys, *_adv(control_keys), keys.manager_pattern(r),
-            *_adv([keys.manager_child_pattern(r)])]),
+            *_adv([keys.manager_child_pattern(r)]), keys.schema_key_of(keys.manager_key(r))]),
         _rule("manager-token", ["liveliness_token"], [keys.alive_pattern(r)]),
     ]
     subjects: list[dict[str, Any]] = [
@@ -145,7 +163,7 @@ def router_config(
     ]
     policies: list[dict[str, Any]] = [
         {"id": "gcs", "subjects": ["gcs"], "rules": ["gcs-command", "gcs-link"]},
-        {"id": "ral", "subjects": ["ral"], "rules": ["ral-write", "ral-token", "ral-mri"]},
+        {"id": "ral", "subjects": ["ral"], "rules": ["ral-write", "ral-token", "ral-mri", "ral-requests"]},
         {"id": "manager", "subjects": ["manager"], "rules": ["manager-write", "manager-token"]},
     ]
     for name in modules:
