@@ -59,6 +59,11 @@ def _adv(keys_: list[str]) -> list[str]:
     return [keys.adv_pattern(k) for k in keys_]
 
 
+def _adv_sub(adv_keys: list[str]) -> list[str]:
+    """``…/@adv/sub/**`` of each ``…/@adv/**``: where an advanced subscriber declares its presence token."""
+    return [k.removesuffix("/**") + "/sub/**" for k in adv_keys]
+
+
 def _read_keys(r: str = "*") -> list[str]:
     """Keys anyone authenticated may observe, for every robot (a GCS lists robots with ``cromat/*/...``)."""
     return [
@@ -139,7 +144,9 @@ def router_config(
     control_keys = [keys.slot_pattern(r, m, slot) for m, slot in control.items()]
     rules: list[dict[str, Any]] = [
         _rule("observe", OBSERVE[:3], _read_keys() + _adv_keys()),
-        _rule("history", ["query", "liveliness_token"], _adv_keys()),  # ask history; an advanced subscriber's token
+        _rule("history", ["query"], _adv_keys()),  # ask late-joiner history
+        # an advanced subscriber's presence token (``…/@adv/sub/…``); a publisher's (``…/@adv/pub/…``) is the owner's
+        _rule("history-sub", ["liveliness_token"], _adv_sub(_adv_keys())),
         _rule("read-queries", ["query"], READ_QUERIES),
         _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
         _rule("gcs-command", ["query"], [keys.ral_key(r, "task"), keys.manager_key(r, "route")]),
@@ -176,14 +183,17 @@ def router_config(
             _rule(f"m-{name}-write", WRITE + SERVE, own),
             _rule(f"m-{name}-token", ["liveliness_token"], [keys.alive_pattern(r, name)]),
             # its own CONTROL_ENTRADA is the manager's to write: a deny wins over the allow on cromat/r/name/*
-            _rule(f"m-{name}-no-control", WRITE + SERVE, [ctl, *_adv([ctl])], permission="deny"),
+            _rule(f"m-{name}-no-control", [*WRITE, "declare_queryable"], [ctl, *_adv([ctl])], permission="deny"),
+            # ... and presence as its publisher; its advanced subscriber's token (``@adv/sub``) stays allowed
+            _rule(f"m-{name}-no-control-pub", ["liveliness_token"], [ctl, f"{ctl}/@adv/pub/**"], permission="deny"),
         ]
         subjects.append({"id": f"m-{name}", "cert_common_names": [cn.get(name, name)]})
         policies.append({"id": f"m-{name}", "subjects": [f"m-{name}"],
-                         "rules": [f"m-{name}-write", f"m-{name}-token", f"m-{name}-no-control"]})
+                         "rules": [f"m-{name}-write", f"m-{name}-token", f"m-{name}-no-control",
+                                   f"m-{name}-no-control-pub"]})
     everyone = [s["id"] for s in subjects]
     policies.append({"id": "everyone", "subjects": everyone,
-                     "rules": ["observe", "history", "read-queries", "deliver"]})
+                     "rules": ["observe", "history", "history-sub", "read-queries", "deliver"]})
     return {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
