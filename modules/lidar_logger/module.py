@@ -73,7 +73,7 @@ class LidarLoggerModule(Module):
         super().__init__(context)
         # configuration errors surface here, before anything starts (Module.main exits 2 with the message)
         settings = conf_from_context(context).to_settings(progress=True)
-        self.logger = LidarLogger(settings, on_pose=self._publish_pose)
+        self.logger = LidarLogger(settings, on_pose=self._publish_pose, on_refused=self._report_refused)
         self._thread = threading.Thread(target=self._acquire, name="lidar-run", daemon=True)
 
     def on_start(self) -> None:
@@ -89,6 +89,11 @@ class LidarLoggerModule(Module):
     def _publish_pose(self, pose: Pose) -> None:
         if not self.stopping:
             self.publish("pose", pose)
+
+    def _report_refused(self, code: int, reason: str) -> None:
+        """A scan or pose the driver refused: dropped (never logged nor published), reported on ERROR."""
+        if not self.stopping:
+            self.report_error(code, reason)
 
     def _acquire(self) -> None:
         summary = self.logger.run()
