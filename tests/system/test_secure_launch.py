@@ -226,6 +226,60 @@ def test_gcs_identity_reads_the_service_schemas(robot: Robot, service: str) -> N
     assert expected in docs[0], sorted(docs[0])
 
 
+def test_history_injection_on_the_live_robot_changes_nothing(robot: Robot) -> None:
+    """Finding 1 on the launched robot: the vision identity declares advanced publishers (cache, publisher
+    detection) on the path follower's mode slot with an Abort command and on the pan & tilt's CONTROL_ENTRADA
+    with DATOS from slot 20. The modules' advanced subscribers ask late publishers for history, so before the
+    policy the path follower sent ABORT to the DSP and pan & tilt read slot 20. Now: no ABORT reaches the DSP
+    simulator, no RouteAck shows slot 20, the manager sees no drift; then a GCS hold does send ABORT."""
+    import zenoh
+    import zenoh.ext
+
+    from bbcs.contracts.pan_tilt import ControlEntradaPT
+    from bbcs.contracts.path_follower import ControlModoSegCam
+    from bbcs.routing import RouteAck
+
+    acks: list[RouteAck] = []
+    marks: list[bytes] = []
+    marker = f"cromat/{ROBOT}/vision/marker"
+    with robot.client("gcs", name="gcs", timeout_s=10.0) as gcs:
+        subs = [gcs.session.declare_subscriber(keys.route_ack_key(ROBOT, "pan_tilt"), lambda x: acks.append(
+                    msgspec.msgpack.decode(x.payload.to_bytes(), type=RouteAck))),
+                gcs.session.declare_subscriber(marker, lambda x: marks.append(x.payload.to_bytes()))]
+        mark = len(robot.commands())
+        try:
+            with robot.client("vision", name="intruder", timeout_s=5.0) as attacker:
+                forged = {
+                    keys.slot_key(ROBOT, "manager", "path_follower_mode"):
+                        ControlModoSegCam(modo_o_comando=1, numero_de_comando=0),
+                    keys.slot_key(ROBOT, "pan_tilt", "control_entrada"):
+                        ControlEntradaPT(slot_entrada_control_modos=5, slot_entrada_datos=20),
+                }
+                pubs = [zenoh.ext.declare_advanced_publisher(
+                    attacker.session, key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True,
+                    sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=0.5)) for key in forged]
+                try:
+                    for pub, value in zip(pubs, forged.values(), strict=True):
+                        pub.put(msgspec.msgpack.encode(value))
+                    attacker.session.put(marker, b"after the forged publishers")
+                    wait_until(lambda: marks, 20, "the attacker's marker")
+                    # a late publisher is detected by its token and asked at once; give an admitted one time
+                    threading.Event().wait(3.0)
+                finally:
+                    for pub in pubs:
+                        pub.undeclare()
+            assert "ABORT" not in [c["name"] for c in robot.commands()[mark:]], "the forged Abort reached the DSP"
+            assert not [a for a in acks if a.routes.get("datos") == 20], "pan & tilt read the forged route"
+            assert not [line for line in robot.launch.lines if "route drift" in line]
+            # the legitimate twin: the GCS's hold makes the manager send the same command, which reaches the DSP
+            reply = gcs.send(ROBOT, gri.Hold())
+            assert reply.accepted, reply.reason
+            wait_until(lambda: "ABORT" in [c["name"] for c in robot.commands()[mark:]], 30, "the hold's ABORT")
+        finally:
+            for sub in subs:
+                sub.undeclare()
+
+
 FORGED_ID = 2**31 - 1
 
 
