@@ -159,6 +159,8 @@ WRITES = [
     (f"{R}/trajectory/request", "gcs", "ral"),
     (f"{R}/trajectory/request", "path_follower", "trajectory"),  # ... which the module itself may also write
     (f"{R}/path_follower/refs", "pan_tilt", "ral"),  # a bridge task's references
+    (f"{R}/pan_tilt/@route", "vision", "pan_tilt"),  # a forged RouteAck
+    (f"{R}/@ral/@schema", "vision", "ral"),  # a forged GRI schema
 ]
 
 
@@ -191,6 +193,9 @@ HISTORY = [
     (f"{R}/@ral/state", "vision", "ral"),  # GRI state (the fake "pos 0 0 999 m mode SPOOFED")
     (f"{R}/dsp/commands_path_follower", "pan_tilt", "path_follower"),  # a DSP command key
     (f"{R}/trajectory/request", "vision", "ral"),  # a request the RAL makes on a module's key
+    (f"{R}/manager/pan_tilt_mode", "gcs", "manager"),  # the "GCS changed the pan & tilt mode"
+    (f"{R}/manager/path_follower_mode", "pan_tilt", "manager"),  # ... "pan_tilt made the follower Abort"
+    (f"{R}/pan_tilt/@route", "vision", "pan_tilt"),  # a RouteAck: what the manager's drift audit believes
 ]
 
 
