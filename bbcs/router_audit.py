@@ -21,6 +21,7 @@ commissioning and for investigating a refusal.
 
 from __future__ import annotations
 
+import atexit
 import os
 import re
 import threading
@@ -42,6 +43,8 @@ _ZID_CN = re.compile(r"access_control: (?:Using cached result: )?(?P<zid>[0-9a-f
                      r"\S*CertCommonName\((?P<cn>[^)]*)\)")
 _CACHED = re.compile(r"Using cached result: (?P<zid>[0-9a-f]+) is unauthorized to (?P<what>.+?) \((?P<flow>\w+)\) "
                      r"on (?P<key>\S+)")
+_ALLOWED = b" is authorized to "
+_CACHED_HIT = b"Using cached result"
 TABLE_LINES = 9
 """Message kinds in one permission table (Zenoh 1.x ACL: query, reply, put, delete, 3 declarations, 2 liveliness)."""
 _LINK = re.compile(r"zenoh_link_tls\S*: (?P<why>[^.]*(?:certificate|handshake failed|alert)[^.]*)", re.IGNORECASE)
@@ -137,17 +140,29 @@ def install(out: TextIO, log: RefusalLog | None = None) -> RefusalLog:
     os.close(write_fd)
 
     def pump() -> None:
-        with os.fdopen(read_fd, "r", errors="replace") as pipe:
-            for line in pipe:
+        with os.fdopen(read_fd, "rb", buffering=1 << 16) as pipe:
+            for raw in pipe:
+                if _ALLOWED in raw and _CACHED_HIT in raw:  # the bulk: an allowed message, nothing to parse
+                    continue
+                line = raw.decode(errors="replace")
                 refusal = reader.feed(line.rstrip("\n"))
                 lines = log.note(refusal) if refusal is not None else ([] if _is_zenoh_log(line) else [line.rstrip()])
-                for text in lines:
-                    out.write(text + "\n")
-                out.flush()
+                if lines:
+                    out.write("".join(text + "\n" for text in lines))
+                    out.flush()
 
     threading.Thread(target=pump, name="router-refusals", daemon=True).start()
+    # at exit the reader thread dies first; Zenoh's last trace lines would then fill the pipe and block the exit
+    atexit.register(_detach_stdout)
     zenoh.init_log_from_env_or(LOG_FILTER)
     return log
+
+
+def _detach_stdout() -> None:
+    """Point fd 1 at /dev/null: nothing may still write into a pipe nobody reads."""
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)
+    os.close(null)
 
 
 def _is_zenoh_log(line: str) -> bool:
