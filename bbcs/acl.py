@@ -15,8 +15,11 @@ Default deny; then:
     its CONTROL_ENTRADA, which an explicit **deny** keeps for the manager; a DSP sender also its own command key
     ``cromat/<robot>/dsp/commands_<name>`` (bbcs.contracts.dsp: one key per sender, so the router can tell
     senders apart, and the DSP checks the command classes that key's sender owns);
-  - the manager: its mode slots ``cromat/<robot>/manager/*``, every module's CONTROL_ENTRADA and ``@manager/**``;
-  - the RAL: its slots and the GRI keys ``@ral/**``;
+  - the manager: its mode slots ``cromat/<robot>/manager/*``, every module's CONTROL_ENTRADA, ``@manager/**``
+    and ``@manager/@schema``;
+  - the RAL: its slots, the GRI keys ``@ral/**`` and ``@ral/@schema``, and the requests it makes of modules on
+    their own keys (:data:`RAL_REQUESTS`: the trajectory generator's ``request``, the path follower's ``refs``),
+    which the key's module may also write and no one else;
   - a ground station: only ``cromat/@gcs/**`` (its link tokens and heartbeats); it may query ``@ral/task``
     (tasks) and ``@manager/route`` (route swaps), which no other identity may.
 """
@@ -56,6 +59,11 @@ def _adv(keys_: list[str]) -> list[str]:
     return [keys.adv_pattern(k) for k in keys_]
 
 
+def _adv_sub(adv_keys: list[str]) -> list[str]:
+    """``…/@adv/sub/**`` of each ``…/@adv/**``: where an advanced subscriber declares its presence token."""
+    return [k.removesuffix("/**") + "/sub/**" for k in adv_keys]
+
+
 def _read_keys(r: str = "*") -> list[str]:
     """Keys anyone authenticated may observe, for every robot (a GCS lists robots with ``cromat/*/...``)."""
     return [
@@ -67,6 +75,7 @@ def _read_keys(r: str = "*") -> list[str]:
         keys.manager_pattern(r),
         keys.ral_pattern(r),
         keys.gcs_pattern(),
+        *(keys.schema_key_of(k(r)) for k in (keys.ral_key, keys.manager_key)),
     ]
 
 
@@ -75,8 +84,18 @@ def _adv_keys(r: str = "*") -> list[str]:
                  keys.manager_child_pattern(r), keys.ral_child_pattern(r)])
 
 
-READ_QUERIES = [keys.schema_pattern("*"), *(keys.manager_key("*", q) for q in ("modules", "routes", "tasks"))]
+SERVICE_SCHEMAS = [keys.schema_key_of(keys.ral_key("*")), keys.schema_key_of(keys.manager_key("*"))]
+"""``cromat/*/@ral/@schema`` and ``cromat/*/@manager/@schema``: named apart, because neither ``*`` nor ``**``
+matches a verbatim ``@`` chunk (``@ral/**`` does not cover ``@ral/@schema``)."""
+
+READ_QUERIES = [keys.schema_pattern("*"), *SERVICE_SCHEMAS,
+                *(keys.manager_key("*", q) for q in ("modules", "routes", "tasks"))]
 """Read-only queries every identity may make, on every robot: schemas and the MRI's lists."""
+
+RAL_REQUESTS = [("trajectory", "request"), ("path_follower", "refs")]
+"""(module, slot): inputs read on the module's own key that the RAL writes (survey/orbit requests to the
+trajectory generator, a bridge task's references to the path follower). Besides the module itself, only the RAL
+may write them."""
 
 
 def _own(robot: str, name: str) -> list[str]:
@@ -125,17 +144,23 @@ def router_config(
     control_keys = [keys.slot_pattern(r, m, slot) for m, slot in control.items()]
     rules: list[dict[str, Any]] = [
         _rule("observe", OBSERVE[:3], _read_keys() + _adv_keys()),
-        _rule("history", ["query", "liveliness_token"], _adv_keys()),  # ask history; an advanced subscriber's token
+        _rule("history", ["query"], _adv_keys()),  # ask late-joiner history
+        # an advanced subscriber's presence token (``…/@adv/sub/…``); a publisher's (``…/@adv/pub/…``) is the owner's
+        _rule("history-sub", ["liveliness_token"], _adv_sub(_adv_keys())),
         _rule("read-queries", ["query"], READ_QUERIES),
         _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
         _rule("gcs-command", ["query"], [keys.ral_key(r, "task"), keys.manager_key(r, "route")]),
         _rule("gcs-link", ["put", "delete", "liveliness_token"], [keys.gcs_pattern()]),
-        _rule("ral-write", WRITE + SERVE, [*_own(r, ral), keys.ral_pattern(r), *_adv([keys.ral_child_pattern(r)])]),
+        _rule("ral-write", WRITE + SERVE, [*_own(r, ral), keys.ral_pattern(r), *_adv([keys.ral_child_pattern(r)]),
+                                           keys.schema_key_of(keys.ral_key(r))]),
+        _rule("ral-requests", WRITE + SERVE, [k for m, slot in RAL_REQUESTS
+                                              for k in (keys.slot_pattern(r, m, slot),
+                                                        *_adv([keys.slot_pattern(r, m, slot)]))]),
         _rule("ral-token", ["liveliness_token"], [keys.alive_pattern(r, ral)]),
         _rule("ral-mri", ["query"], [keys.manager_pattern(r)]),
         _rule("manager-write", WRITE + SERVE, [
             *_own(r, manager), *control_keys, *_adv(control_keys), keys.manager_pattern(r),
-            *_adv([keys.manager_child_pattern(r)])]),
+            *_adv([keys.manager_child_pattern(r)]), keys.schema_key_of(keys.manager_key(r))]),
         _rule("manager-token", ["liveliness_token"], [keys.alive_pattern(r)]),
     ]
     subjects: list[dict[str, Any]] = [
@@ -145,7 +170,7 @@ def router_config(
     ]
     policies: list[dict[str, Any]] = [
         {"id": "gcs", "subjects": ["gcs"], "rules": ["gcs-command", "gcs-link"]},
-        {"id": "ral", "subjects": ["ral"], "rules": ["ral-write", "ral-token", "ral-mri"]},
+        {"id": "ral", "subjects": ["ral"], "rules": ["ral-write", "ral-token", "ral-mri", "ral-requests"]},
         {"id": "manager", "subjects": ["manager"], "rules": ["manager-write", "manager-token"]},
     ]
     for name in modules:
@@ -158,14 +183,17 @@ def router_config(
             _rule(f"m-{name}-write", WRITE + SERVE, own),
             _rule(f"m-{name}-token", ["liveliness_token"], [keys.alive_pattern(r, name)]),
             # its own CONTROL_ENTRADA is the manager's to write: a deny wins over the allow on cromat/r/name/*
-            _rule(f"m-{name}-no-control", WRITE + SERVE, [ctl, *_adv([ctl])], permission="deny"),
+            _rule(f"m-{name}-no-control", [*WRITE, "declare_queryable"], [ctl, *_adv([ctl])], permission="deny"),
+            # ... and presence as its publisher; its advanced subscriber's token (``@adv/sub``) stays allowed
+            _rule(f"m-{name}-no-control-pub", ["liveliness_token"], [ctl, f"{ctl}/@adv/pub/**"], permission="deny"),
         ]
         subjects.append({"id": f"m-{name}", "cert_common_names": [cn.get(name, name)]})
         policies.append({"id": f"m-{name}", "subjects": [f"m-{name}"],
-                         "rules": [f"m-{name}-write", f"m-{name}-token", f"m-{name}-no-control"]})
+                         "rules": [f"m-{name}-write", f"m-{name}-token", f"m-{name}-no-control",
+                                   f"m-{name}-no-control-pub"]})
     everyone = [s["id"] for s in subjects]
     policies.append({"id": "everyone", "subjects": everyone,
-                     "rules": ["observe", "history", "read-queries", "deliver"]})
+                     "rules": ["observe", "history", "history-sub", "read-queries", "deliver"]})
     return {
         "mode": "router",
         "listen": {"endpoints": list(listen)},

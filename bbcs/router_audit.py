@@ -8,6 +8,12 @@ certificates", "invalid peer certificate: …"). That log goes to the process's 
 refusal, counts them by kind, and prints at most ``burst`` of them per ``period_s`` (then one line saying how
 many were left out), passing every other line through unchanged.
 
+Not every "unauthorized" line is a refusal. When a client declares a key expression (a publisher, subscriber,
+token or queryable), the ACL fills a permission table for it: a line "caching permissions for `<key>` ..." and
+then one line per message kind (9 of them), denied kinds included, although nothing was refused. A denial of a
+real message is a line of its own, or "Using cached result: <zid> is unauthorized to …" (zid only: the CN is
+learnt from the identity's earlier lines). :class:`LogReader` skips the tables and names identities by CN.
+
 Cost: Zenoh has no level for denials alone; at TRACE the ACL target writes a line for every message it checks,
 allowed ones included, which this reader parses and drops. So the option is off by default; it is meant for
 commissioning and for investigating a refusal.
@@ -15,6 +21,7 @@ commissioning and for investigating a refusal.
 
 from __future__ import annotations
 
+import atexit
 import os
 import re
 import threading
@@ -30,6 +37,16 @@ _DENIED = re.compile(r"CertCommonName\((?P<cn>[^)]*)\).* is unauthorized to (?P<
                      r"(?P<key>\S+)")
 _DENIED_NO_CN = re.compile(r"access_control: (?P<zid>\w+) .* is unauthorized to (?P<what>.+?) \((?P<flow>\w+)\) on "
                            r"(?P<key>\S+)")
+_TABLE = re.compile(r"ThreadId\((?P<thread>\d+)\).*caching permissions for `(?P<key>[^`]*)`")
+_THREAD = re.compile(r"ThreadId\((?P<thread>\d+)\)")
+_ZID_CN = re.compile(r"access_control: (?:Using cached result: )?(?P<zid>[0-9a-f]+) on "
+                     r"\S*CertCommonName\((?P<cn>[^)]*)\)")
+_CACHED = re.compile(r"Using cached result: (?P<zid>[0-9a-f]+) is unauthorized to (?P<what>.+?) \((?P<flow>\w+)\) "
+                     r"on (?P<key>\S+)")
+_ALLOWED = b" is authorized to "
+_CACHED_HIT = b"Using cached result"
+TABLE_LINES = 9
+"""Message kinds in one permission table (Zenoh 1.x ACL: query, reply, put, delete, 3 declarations, 2 liveliness)."""
 _LINK = re.compile(r"zenoh_link_tls\S*: (?P<why>[^.]*(?:certificate|handshake failed|alert)[^.]*)", re.IGNORECASE)
 
 
@@ -50,6 +67,32 @@ def parse(line: str) -> Refusal | None:
     if m and "eof" not in m["why"]:
         return Refusal("link refused", m["why"].strip())
     return None
+
+
+class LogReader:
+    """Turns Zenoh log lines into refusals, line by line, skipping the ACL's permission tables (see above)."""
+
+    def __init__(self) -> None:
+        self.names: dict[str, str] = {}
+        self._table: dict[str, tuple[str, int]] = {}  # thread → (key, permission lines still to skip)
+
+    def feed(self, line: str) -> Refusal | None:
+        line = _ANSI.sub("", line)
+        if "access_control" in line:
+            if m := _ZID_CN.search(line):
+                self.names[m["zid"]] = m["cn"]
+            if m := _TABLE.search(line):
+                self._table[m["thread"]] = (m["key"], TABLE_LINES)
+                return None
+            thread = m["thread"] if (m := _THREAD.search(line)) else ""
+            key, left = self._table.get(thread, ("", 0))
+            if left and "Using cached result" not in line and "authorized to" in line and line.endswith(f" on {key}"):
+                self._table[thread] = (key, left - 1)
+                return None
+            if m := _CACHED.search(line):
+                who = self.names.get(m["zid"], m["zid"])
+                return Refusal("denied", f"{who} may not {m['what'].lower()} on {m['key']} ({m['flow']})")
+        return parse(line)
 
 
 class RefusalLog:
@@ -91,22 +134,35 @@ def install(out: TextIO, log: RefusalLog | None = None) -> RefusalLog:
     import zenoh
 
     log = log or RefusalLog()
+    reader = LogReader()
     read_fd, write_fd = os.pipe()
     os.dup2(write_fd, 1)
     os.close(write_fd)
 
     def pump() -> None:
-        with os.fdopen(read_fd, "r", errors="replace") as pipe:
-            for line in pipe:
-                refusal = parse(line)
+        with os.fdopen(read_fd, "rb", buffering=1 << 16) as pipe:
+            for raw in pipe:
+                if _ALLOWED in raw and _CACHED_HIT in raw:  # the bulk: an allowed message, nothing to parse
+                    continue
+                line = raw.decode(errors="replace")
+                refusal = reader.feed(line.rstrip("\n"))
                 lines = log.note(refusal) if refusal is not None else ([] if _is_zenoh_log(line) else [line.rstrip()])
-                for text in lines:
-                    out.write(text + "\n")
-                out.flush()
+                if lines:
+                    out.write("".join(text + "\n" for text in lines))
+                    out.flush()
 
     threading.Thread(target=pump, name="router-refusals", daemon=True).start()
+    # at exit the reader thread dies first; Zenoh's last trace lines would then fill the pipe and block the exit
+    atexit.register(_detach_stdout)
     zenoh.init_log_from_env_or(LOG_FILTER)
     return log
+
+
+def _detach_stdout() -> None:
+    """Point fd 1 at /dev/null: nothing may still write into a pipe nobody reads."""
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)
+    os.close(null)
 
 
 def _is_zenoh_log(line: str) -> bool:

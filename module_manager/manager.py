@@ -197,6 +197,8 @@ class Manager:
             argv += ["--config", str(secure.write_router_config(self.m, self.listen, self.runtime_dir))]
         if self.m.raw.bus.admin_space:
             argv.append("--admin-space")
+        if self.m.pki is not None and self.m.raw.bus.tls is not None and self.m.raw.bus.tls.acl:
+            argv.append("--log-refusals")  # a secure robot's refusals go to the router's log (docs/security.md)
         for peer in self.m.raw.bus.peers:
             argv += ["--connect", self.expand(peer)]
         t = self.clock()

@@ -121,6 +121,17 @@ class UquadErrorCode(IntEnum):
     """A task's parameters (take-off height, speed, manual step) the planner refused; nothing changed."""
 
 
+class LidarLoggerError(IntEnum):
+    """Codes on the lidar logger's ERROR slot. The refused datum is dropped, counted and never logged or published."""
+
+    RUN_FAILED = 100
+    """The acquisition run stopped on a device, file or configuration error."""
+    SCAN_REFUSED = 101
+    """An LD-MRS scan was corrupt or outside the scanner's ranges (ticks per rotation, angles, layer, echo)."""
+    POSE_REFUSED = 102
+    """An MTi-G MTData message was corrupt or a value was outside the Pose ranges (or not finite)."""
+
+
 MODULE_CODES: dict[str, type[IntEnum]] = {
     "pan_tilt": PanTiltError,
     "path_follower": FollowerError,
@@ -128,6 +139,7 @@ MODULE_CODES: dict[str, type[IntEnum]] = {
     "dsp": LinkErrorCode,
     "ral": RalErrorCode,
     "uquad": UquadErrorCode,
+    "lidar_logger": LidarLoggerError,
 }
 """Module name → the enum of its own codes (100-999)."""
 

@@ -129,6 +129,8 @@ class LdmrsClient:
         self.connect_timeout = connect_timeout
         self.reply_timeout = reply_timeout
         self.on_scan: Callable[[Scan], None] | None = None
+        self.on_refused: Callable[[str], None] | None = None
+        """Called (receiver thread) with the reason of every scan refused by ``decode_scan``."""
         self.parser = MessageParser()
         self.scans = 0
         self.scans_ignored = 0
@@ -191,6 +193,8 @@ class LdmrsClient:
             except LdmrsProtocolError as exc:
                 self.bad_scans += 1
                 log.warning("dropped a scan: %s", exc)
+                if self.on_refused is not None:
+                    self.on_refused(f"LD-MRS scan dropped ({self.bad_scans} so far): {exc}")
                 return
             self.scans += 1
             handler = self.on_scan

@@ -21,6 +21,7 @@ from typing import IO
 import msgspec
 import serial
 
+from bbcs.contracts.error_codes import LidarLoggerError
 from modules.lidar_logger.binlog import BinaryLogWriter
 from modules.lidar_logger.buffer import TwoSlotBuffer
 from modules.lidar_logger.clock import SYSTEM_CLOCK, Clock
@@ -110,13 +111,16 @@ def make_run_folder(out_dir: Path, stamp: str) -> Path:
 class LidarLogger:
     def __init__(self, settings: LoggerSettings, *, clock: Clock = SYSTEM_CLOCK, out: IO[str] | None = None,
                  on_pose: Callable[[Pose], None] | None = None,
-                 on_scan: Callable[[ScanRecord], None] | None = None) -> None:
+                 on_scan: Callable[[ScanRecord], None] | None = None,
+                 on_refused: Callable[[int, str], None] | None = None) -> None:
         self.s = settings
         self.on_scan = on_scan
         """Called on the receiver thread with every scan and its pose (the module publishes it on the bus)."""
         self.clock = clock
         self.out = out if out is not None else sys.stderr
         self.on_pose = on_pose
+        self.on_refused = on_refused
+        """``(LidarLoggerError code, reason)`` for every scan or pose a driver refused."""
         self.summary = RunSummary()
         self._stop = threading.Event()
         self._stop_reason: str | None = None
@@ -164,7 +168,8 @@ class LidarLogger:
         try:
             mtig = MTiG(s.mtig_port, baudrate=s.mtig_baud)
             mtig.configure(s.lever_arm)
-            self._source = PoseSource(mtig, period=s.pose_period_s, clock=self.clock, on_pose=self.on_pose)
+            self._source = PoseSource(mtig, period=s.pose_period_s, clock=self.clock, on_pose=self.on_pose,
+                                      on_refused=self._refused(LidarLoggerError.POSE_REFUSED))
             self._source.start()
             self.state = "waiting_pose"
             self._say(f"MTi-G configured on {mtig.port_name}; waiting for a valid pose (status 7)")
@@ -178,6 +183,7 @@ class LidarLogger:
             self.state = "configuring"
             self._say("valid pose; configuring the LD-MRS")
             scanner = LdmrsClient(s.ldmrs_host, s.ldmrs_port)
+            scanner.on_refused = self._refused(LidarLoggerError.SCAN_REFUSED)
             scanner.connect()
             status = scanner.get_status()
             if s.sync_scanner_clock:
@@ -212,6 +218,10 @@ class LidarLogger:
         finally:
             self._finish(mtig, scanner, config_file)
         return summ
+
+    def _refused(self, code: int) -> Callable[[str], None] | None:
+        on_refused = self.on_refused
+        return None if on_refused is None else (lambda reason: on_refused(code, reason))
 
     def _utc_now(self) -> float:
         """Current UTC estimated from the newest MTi-G sample and the time since it arrived."""

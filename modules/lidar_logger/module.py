@@ -80,7 +80,8 @@ class LidarLoggerModule(Module):
         # configuration errors surface here, before anything starts (Module.main exits 2 with the message)
         settings = conf_from_context(context).to_settings(progress=True)
         self._mounting = settings.mounting
-        self.logger = LidarLogger(settings, on_pose=self._publish_pose, on_scan=self._publish_scan)
+        self.logger = LidarLogger(settings, on_pose=self._publish_pose, on_scan=self._publish_scan,
+                                  on_refused=self._report_refused)
         self._thread = threading.Thread(target=self._acquire, name="lidar-run", daemon=True)
 
     def on_start(self) -> None:
@@ -100,6 +101,11 @@ class LidarLoggerModule(Module):
     def _publish_scan(self, record: ScanRecord) -> None:
         if not self.stopping:
             self.publish("scan", to_lidar_scan(record, self._mounting))
+
+    def _report_refused(self, code: int, reason: str) -> None:
+        """A scan or pose the driver refused: dropped (never logged nor published), reported on ERROR."""
+        if not self.stopping:
+            self.report_error(code, reason)
 
     def _acquire(self) -> None:
         summary = self.logger.run()

@@ -178,12 +178,16 @@ class PoseSource:
     """
 
     def __init__(self, device: MTiG, *, period: float = 0.02, clock: Clock = SYSTEM_CLOCK,
-                 max_failures: int = 25, on_pose: Callable[[Pose], None] | None = None) -> None:
+                 max_failures: int = 25, on_pose: Callable[[Pose], None] | None = None,
+                 on_refused: Callable[[str], None] | None = None) -> None:
         self.device = device
         self.period = period
         self.clock = clock
         self.max_failures = max_failures
         self.on_pose = on_pose
+        self.on_refused = on_refused
+        """Called with the reason of every MTData refused by ``decode_pose`` (corrupt or out of range)."""
+        self.refused = 0
         self._latest: PoseSample | None = None
         self._cond = threading.Condition()
         self._stop = threading.Event()
@@ -226,6 +230,10 @@ class PoseSource:
             except (MTiGError, MTDataError, serial.SerialException, OSError) as exc:
                 consecutive += 1
                 self.failures += 1
+                if isinstance(exc, MTDataError):
+                    self.refused += 1
+                    if self.on_refused is not None:
+                        self.on_refused(f"MTi-G sample dropped ({self.refused} so far): {exc}")
                 if consecutive >= self.max_failures:
                     with self._cond:
                         self.failed = f"MTi-G stopped answering: {exc}"

@@ -56,7 +56,8 @@ def test_only_gcs_may_submit_tasks_and_modules_write_their_own_slots() -> None:
         if "query" in rules[rid]["messages"] and "cromat/r1/@ral/task" in rules[rid]["key_exprs"]
     }
     assert granting_task == {"gcs"}
-    assert policies["m-vision"]["rules"] == ["m-vision-write", "m-vision-token", "m-vision-no-control"]
+    assert policies["m-vision"]["rules"] == ["m-vision-write", "m-vision-token", "m-vision-no-control",
+                                            "m-vision-no-control-pub"]
     assert all(k.startswith("cromat/r1/vision/") for k in rules["m-vision-write"]["key_exprs"])
     assert rules["m-vision-no-control"]["permission"] == "deny"
     assert "cromat/r1/vision/control_entrada" in rules["m-vision-no-control"]["key_exprs"]

@@ -27,7 +27,8 @@ def manifest_with(tmp_path: Path, old: str = "", new: str = "") -> Path:
 def test_identity_key_maps_the_module_subject_to_that_certificate(tmp_path: Path) -> None:
     path = manifest_with(tmp_path, 'entry = "modules.vision"', 'entry = "modules.vision"\nidentity = "cam1"')
     m = load_manifest(path, check_pki=False)
-    assert secure.identities(m) == ["manager", "gcs", "dsp", "telemetry", "pan_tilt", "path_follower", "cam1", "ral"]
+    assert secure.identities(m) == ["manager", "gcs", "dsp", "telemetry", "pan_tilt", "path_follower", "cam1",
+                                    "trajectory", "ral"]
     cfg = secure.router_config(m, ["tls/127.0.0.1:7447"])
     subjects = {s["id"]: s["cert_common_names"] for s in cfg["access_control"]["subjects"]}
     assert subjects["m-vision"] == ["cam1"] and subjects["ral"] == ["ral"] and subjects["gcs"] == ["gcs"]

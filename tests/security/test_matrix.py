@@ -29,7 +29,7 @@ from bbcs.testing import Processes, free_port, wait_port, wait_until
 from cromat import certs
 
 ROBOT = "uav1"
-MODULES = ["dsp", "pan_tilt", "path_follower", "vision"]
+MODULES = ["dsp", "pan_tilt", "path_follower", "vision", "trajectory"]
 R = f"cromat/{ROBOT}"
 
 
@@ -155,12 +155,23 @@ WRITES = [
     (f"{R}/dsp/commands_path_follower", "vision", "path_follower"),  # another sender's DSP command key
     (f"{R}/dsp/commands_path_follower", "pan_tilt", "path_follower"),
     (f"{R}/dsp/commands_pan_tilt", "gcs", "pan_tilt"),
+    (f"{R}/trajectory/request", "vision", "ral"),  # a request the RAL makes of a module, on the module's key
+    (f"{R}/trajectory/request", "gcs", "ral"),
+    (f"{R}/trajectory/request", "path_follower", "trajectory"),  # ... which the module itself may also write
+    (f"{R}/path_follower/refs", "pan_tilt", "ral"),  # a bridge task's references
+    (f"{R}/pan_tilt/@route", "vision", "pan_tilt"),  # a forged RouteAck
+    (f"{R}/@ral/@schema", "vision", "ral"),  # a forged GRI schema
 ]
+
+
+def observer_for(attacker: str, owner: str | None) -> str:
+    """A legitimate reader that is neither side (a session's own puts reach its own subscribers locally)."""
+    return next(n for n in ("ral", "gcs", "dsp") if n not in (attacker, owner))
 
 
 @pytest.mark.parametrize(("key", "attacker", "owner"), WRITES, ids=[f"{a}->{k.split('/', 2)[2]}" for k, a, _ in WRITES])
 def test_only_the_owner_writes(who: Sessions, key: str, attacker: str, owner: str | None) -> None:
-    observer = Observer(who("ral" if attacker != "ral" else "gcs"), key, f"{R}/*/@heartbeat", "cromat/@gcs/**")
+    observer = Observer(who(observer_for(attacker, owner)), key, f"{R}/*/@heartbeat", "cromat/@gcs/**")
     try:
         attempt_then_marker(who, attacker, key, observer)
         assert observer.values(key) == [], f"{attacker}'s put on {key} got through"
@@ -181,6 +192,10 @@ HISTORY = [
     (f"{R}/manager/pan_tilt_mode", "pan_tilt", "manager"),  # mode slot
     (f"{R}/@ral/state", "vision", "ral"),  # GRI state (the fake "pos 0 0 999 m mode SPOOFED")
     (f"{R}/dsp/commands_path_follower", "pan_tilt", "path_follower"),  # a DSP command key
+    (f"{R}/trajectory/request", "vision", "ral"),  # a request the RAL makes on a module's key
+    (f"{R}/manager/pan_tilt_mode", "gcs", "manager"),  # the issue's "GCS changed the pan & tilt mode"
+    (f"{R}/manager/path_follower_mode", "pan_tilt", "manager"),  # ... "pan_tilt made the follower Abort"
+    (f"{R}/pan_tilt/@route", "vision", "pan_tilt"),  # a RouteAck: what the manager's drift audit believes
 ]
 
 
@@ -216,7 +231,7 @@ def advanced_publisher(session: zenoh.Session, key: str) -> object:
                          ids=[f"{a}->{k.split('/', 2)[2]}" for k, a, _ in HISTORY])
 def test_history_injection_is_refused_and_owner_history_served(who: Sessions, key: str, attacker: str,
                                                               owner: str) -> None:
-    reader = "ral" if attacker != "ral" and owner != "ral" else "gcs"
+    reader = observer_for(attacker, owner)
     forged = advanced_publisher(who(attacker), key)
     try:
         forged.put(b"forged")  # type: ignore[attr-defined]
@@ -254,19 +269,49 @@ def test_module_identity_cannot_command_the_gcs_tasks(who: Sessions, key: str, s
         q.undeclare()
 
 
-def test_a_forged_answer_from_a_non_owner_is_dropped(who: Sessions) -> None:
-    """A module that declares a queryable on a GRI key (or a slot it does not own) never answers anyone."""
-    key = f"{R}/@ral/state"
+ANSWERS = [
+    (f"{R}/@ral/state", "vision", "ral"),  # a GRI key (published, never queried: the owner's twin is pub/sub)
+    (f"{R}/@ral/@schema", "vision", "ral"),  # the GRI's schemas (``*`` never matched the ``@ral`` chunk)
+    (f"{R}/@manager/@schema", "pan_tilt", "manager"),  # the MRI's schemas
+    (f"{R}/@ral/@schema", "gcs", "ral"),
+]
+
+
+@pytest.mark.parametrize(("key", "attacker", "owner"), ANSWERS,
+                         ids=[f"{a}->{k.split('/', 2)[2]}" for k, a, _ in ANSWERS])
+def test_only_the_owner_answers_a_get_and_the_gcs_reads_it(who: Sessions, key: str, attacker: str,
+                                                            owner: str) -> None:
+    """A module that declares a queryable on a GRI/MRI key (schemas included) never answers anyone; the
+    owner's queryable answers the GCS identity and a module identity (schemas are read-only, for everyone)."""
     asked: list[str] = []
 
-    def on_query(query: zenoh.Query) -> None:
-        asked.append(str(query.selector))
-        query.reply(query.key_expr, b"SPOOFED")
+    def serve(answer: bytes):  # noqa: ANN202
+        def on_query(query: zenoh.Query) -> None:
+            asked.append(answer.decode())
+            query.reply(query.key_expr, answer)
+        return on_query
 
-    q = who("vision").declare_queryable(key, on_query)
+    readers = [n for n in ("gcs", "dsp") if n != attacker]  # never the attacker: its own queryable is local
+    q = who(attacker).declare_queryable(key, serve(b"SPOOFED"))
     try:
-        replies = list(who("gcs").get(key, timeout=2.0))
-        assert [r.ok.payload.to_bytes() for r in replies if r.ok is not None] == []
+        for reader in readers:
+            replies = list(who(reader).get(key, timeout=2.0))
+            assert [r.ok.payload.to_bytes() for r in replies if r.ok is not None] == []
+        assert asked == []  # the forged queryable was never even asked
+    finally:
+        q.undeclare()
+    if not key.endswith("/@schema"):
+        return
+    q = who(owner).declare_queryable(key, serve(b"legit"))
+    try:
+        for reader in readers:
+            got: list[bytes] = []
+
+            def fetch(reader: str = reader, got: list[bytes] = got) -> bool:
+                got[:] = [r.ok.payload.to_bytes() for r in who(reader).get(key, timeout=5.0) if r.ok is not None]
+                return bool(got)
+            wait_until(fetch, 30, f"{reader} reads {key} from its owner")
+            assert got == [b"legit"]
     finally:
         q.undeclare()
 

@@ -7,7 +7,7 @@ import threading
 from pathlib import Path
 
 from bbcs.errors import SessionError
-from bbcs.router_audit import Refusal, RefusalLog, parse
+from bbcs.router_audit import LogReader, Refusal, RefusalLog, parse
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_until
 from cromat import certs
@@ -23,6 +23,28 @@ def test_zenoh_log_lines_become_refusals() -> None:
     assert parse(NO_CERT) == Refusal("link refused", "peer sent no certificates")
     assert parse("2026-11-23T17:12:15Z WARN zenoh_link_tls::unicast: tls handshake eof. Hint") is None
     assert parse(DENIED.replace("unauthorized", "authorized")) is None
+
+
+ACL = "2026-11-23T19:14:14.54Z TRACE  rx-0 ThreadId(9) zenoh::net::routing::interceptor::access_control: "
+WHO = "2215 on Interface(lo)+CertCommonName(vision)+Transport(Tls)+2215"
+KINDS = ["Query", "Reply", "Put", "Delete", "Declare/Undeclare Subscriber", "Declare/Undeclare Queryable",
+         "Declare/Undeclare Liveliness Token", "Liveliness Query", "Declare Liveliness Subscriber"]
+
+
+def test_permission_tables_are_not_refusals_and_cached_denials_are_named_by_cn() -> None:
+    """A declared key expression fills a table of 9 permission lines (denied kinds included): nothing was refused.
+    A real denial after it, in the same thread and on the same key, is one; a cached one names the CN."""
+    key = "cromat/uav1/manager/pan_tilt_mode"
+    table = [ACL + f"ACL (ingress): caching permissions for `{key}` ..."] + [
+        ACL + f"{WHO} is {'authorized' if k == 'Declare/Undeclare Subscriber' else 'unauthorized'} to {k} "
+              f"(ingress) on {key}" for k in KINDS]
+    real = ACL + f"{WHO} is unauthorized to Put (ingress) on {key}"
+    cached = ACL + f"Using cached result: 2215 is unauthorized to Put (ingress) on {key}"
+    reader = LogReader()
+    assert [reader.feed(line) for line in table] == [None] * 10
+    assert reader.feed(real) == Refusal("denied", f"vision may not put on {key} (ingress)")
+    assert reader.feed(cached) == Refusal("denied", f"vision may not put on {key} (ingress)")
+    assert reader.feed(cached.replace("unauthorized", "authorized")) is None
 
 
 def test_counted_and_rate_limited_with_a_summary() -> None:
@@ -81,5 +103,7 @@ def test_a_real_router_logs_what_it_refused(tmp_path: Path) -> None:
         denied = [line for line in lines if " denied: " in line]
         assert 1 <= len(denied) <= 5  # 20 denied puts, at most `burst` lines
         assert not any("TRACE" in line for line in lines)  # Zenoh's own trace lines are not passed through
+        router.terminate()  # and it stops at once (Zenoh's last trace lines must not block on the pipe)
+        assert router.wait(30) == 0
     finally:
         procs.stop_all()

@@ -10,6 +10,7 @@ the state.
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -18,9 +19,14 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
 import pytest
 
-from bbcs.contracts import gri
+from bbcs import keys
+from bbcs.contracts import gri, mri
+from bbcs.contracts import tasks as t
+from bbcs.contracts.path_follower import DatosSegCam
+from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.testing import child_env, free_port, wait_until
 from cromat import certs
 from module_manager.manifest import ManifestError, load_manifest
@@ -31,7 +37,8 @@ from launch_support import ROOT, Launch  # noqa: E402
 
 ROBOT = "uav1"
 MANIFEST = ROOT / "bbcs_conf" / "uav1_secure.toml"
-MODULES = {"dsp", "telemetry", "pan_tilt", "path_follower", "vision", "ral"}
+MODULES = {"dsp", "telemetry", "pan_tilt", "path_follower", "vision", "trajectory", "ral"}
+TIME_SCALE = 4.0
 
 
 def secure_manifest(tmp_path: Path, port: int) -> tuple[Path, Path]:
@@ -42,6 +49,9 @@ def secure_manifest(tmp_path: Path, port: int) -> tuple[Path, Path]:
         ('conf = "uav1.conf"', f'conf = "{MANIFEST.parent / "uav1.conf"}"'),
         ('pki = "pki"', f'pki = "{pki}"'),
         ('listen = ["tls/127.0.0.1:7447"]', f'listen = ["tls/127.0.0.1:{port}"]'),
+        ('"--tcp", "127.0.0.1:{port:dsp}"]',
+         f'"--tcp", "127.0.0.1:{{port:dsp}}", "--time-scale", "{TIME_SCALE:g}", '
+         f'"--record", "{tmp_path / "dsp.jsonl"}"]'),
     ):
         assert text.count(old) == 1, f"{old!r} changed in uav1_secure.toml"
         text = text.replace(old, new)
@@ -70,6 +80,17 @@ class SecureLaunch(Launch):
 class Robot:
     launch: SecureLaunch
     pki: Path
+    folder: Path
+
+    def commands(self) -> list[dict]:
+        """Every command frame the DSP simulator received so far (its record; a half-written line waits)."""
+        record = self.folder / "dsp.jsonl"
+        text = record.read_text() if record.exists() else ""
+        return [json.loads(line) for line in text[: text.rfind("\n") + 1].splitlines() if line.strip()]
+
+    def router_log(self) -> str:
+        path = self.folder / "logs" / "router.log"
+        return path.read_text(errors="replace") if path.exists() else ""
 
     def client(self, identity: str | None, connect_timeout_s: float = 10.0, **kw: object) -> Gcs:
         """A TLS ground station; the generous connect deadline is for a loaded machine (a refused one: short)."""
@@ -90,7 +111,7 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     la = SecureLaunch(manifest, tmp, port)
     try:
         la.wait_line(f"all {len(MODULES)} modules up", 90)
-        yield Robot(la, pki)
+        yield Robot(la, pki, tmp)
     finally:
         try:
             la.stop()
@@ -114,9 +135,17 @@ def test_gcs_identity_sees_the_robot_and_gets_a_task_done(robot: Robot) -> None:
         reply = gcs.send(ROBOT, gri.SetPanTilt(pan=30.0, tilt=-20.0))
         assert reply.accepted and reply.task_type == "pan_tilt", reply.reason
         # the angles travel GCS → RAL slot → pan & tilt → DSP mailbox → simulator → telemetry → state
-        wait_until(lambda: (p := gcs.state(ROBOT).pan_deg) is not None and abs(p - 30.0) < 2.0, 30,
+        wait_until(lambda: (p := gcs.state(ROBOT).pan_deg) is not None and abs(p - 30.0) < 2.0, 90,
                    "pan at 30 degrees")
         assert any(t.kind == "pan_tilt" for t in gcs.state(ROBOT).tasks)
+
+
+def test_the_legitimate_robot_is_never_denied(robot: Robot) -> None:
+    """After the launch and a GCS task, before any attack: the router's log (--log-refusals, on by default on a
+    secure launch) holds no denial, so the policy lets every module, the manager, the RAL and the GCS do their
+    work (a module's advanced subscriber on its own CONTROL_ENTRADA included)."""
+    assert "cromat router: listening on" in robot.router_log()
+    assert [line for line in robot.router_log().splitlines() if " denied: " in line] == []
 
 
 def test_module_identity_is_denied_tasks_and_route_swaps_and_robot_unaffected(robot: Robot) -> None:
@@ -165,3 +194,152 @@ def test_missing_module_certificate_is_a_manifest_error_naming_the_file(robot: R
     proc = subprocess.run([sys.executable, "-m", "module_manager.cli", str(manifest)], cwd=str(ROOT), env=child_env(),
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "vision.key" in proc.stderr and "router" not in proc.stdout
+
+
+# --- issue 12's remaining gaps on the launched secure robot ------------------------------------------------
+
+def test_a_denied_put_shows_in_the_router_log_naming_identity_and_key(robot: Robot) -> None:
+    """A secure launch runs its router with --log-refusals: an attacker's denied put is in logs/router.log."""
+    key = f"cromat/{ROBOT}/manager/pan_tilt_mode"
+    with robot.client("vision", name="intruder", timeout_s=5.0) as attacker:
+        attacker.session.put(key, b"forged")
+        wait_until(lambda: f"denied: vision may not put on {key}" in robot.router_log(), 30,
+                   "the denied put in the router's log")
+    with robot.client("gcs", name="gcs", timeout_s=10.0) as gcs:  # and nothing of it reached the robot
+        assert gcs.state(ROBOT).manager_up
+
+
+@pytest.mark.parametrize("service", ["@ral", "@manager"])
+def test_gcs_identity_reads_the_service_schemas(robot: Robot, service: str) -> None:
+    """``cromat/uav1/@ral/@schema`` and ``@manager/@schema``, answered by the real RAL and manager."""
+    key = f"cromat/{ROBOT}/{service}/@schema"
+    with robot.client("gcs", name="gcs", timeout_s=10.0) as gcs:
+        docs: list[dict] = []
+
+        def fetch() -> bool:
+            docs[:] = [json.loads(r.ok.payload.to_bytes()) for r in gcs.session.get(key, timeout=5.0)
+                       if r.ok is not None]
+            return bool(docs)
+        wait_until(fetch, 30, f"an answer on {key}")
+    assert len(docs) == 1
+    expected = gri.state_key(ROBOT) if service == "@ral" else mri.mri_key(ROBOT, mri.STATE)
+    assert expected in docs[0], sorted(docs[0])
+
+
+def test_history_injection_on_the_live_robot_changes_nothing(robot: Robot) -> None:
+    """Finding 1 on the launched robot: the vision identity declares advanced publishers (cache, publisher
+    detection) on the path follower's mode slot with an Abort command and on the pan & tilt's CONTROL_ENTRADA
+    with DATOS from slot 20. The modules' advanced subscribers ask late publishers for history, so before the
+    policy the path follower sent ABORT to the DSP and pan & tilt read slot 20. Now: no ABORT reaches the DSP
+    simulator, no RouteAck shows slot 20, the manager sees no drift; then a GCS hold does send ABORT."""
+    import zenoh
+    import zenoh.ext
+
+    from bbcs.contracts.pan_tilt import ControlEntradaPT
+    from bbcs.contracts.path_follower import ControlModoSegCam
+    from bbcs.routing import RouteAck
+
+    acks: list[RouteAck] = []
+    marks: list[bytes] = []
+    marker = f"cromat/{ROBOT}/vision/marker"
+    with robot.client("gcs", name="gcs", timeout_s=10.0) as gcs:
+        subs = [gcs.session.declare_subscriber(keys.route_ack_key(ROBOT, "pan_tilt"), lambda x: acks.append(
+                    msgspec.msgpack.decode(x.payload.to_bytes(), type=RouteAck))),
+                gcs.session.declare_subscriber(marker, lambda x: marks.append(x.payload.to_bytes()))]
+        mark = len(robot.commands())
+        try:
+            with robot.client("vision", name="intruder", timeout_s=5.0) as attacker:
+                forged = {
+                    keys.slot_key(ROBOT, "manager", "path_follower_mode"):
+                        ControlModoSegCam(modo_o_comando=1, numero_de_comando=0),
+                    keys.slot_key(ROBOT, "pan_tilt", "control_entrada"):
+                        ControlEntradaPT(slot_entrada_control_modos=5, slot_entrada_datos=20),
+                }
+                pubs = [zenoh.ext.declare_advanced_publisher(
+                    attacker.session, key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True,
+                    sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=0.5)) for key in forged]
+                try:
+                    for pub, value in zip(pubs, forged.values(), strict=True):
+                        pub.put(msgspec.msgpack.encode(value))
+                    attacker.session.put(marker, b"after the forged publishers")
+                    wait_until(lambda: marks, 20, "the attacker's marker")
+                    # a late publisher is detected by its token and asked at once; give an admitted one time
+                    threading.Event().wait(3.0)
+                finally:
+                    for pub in pubs:
+                        pub.undeclare()
+            assert "ABORT" not in [c["name"] for c in robot.commands()[mark:]], "the forged Abort reached the DSP"
+            assert not [a for a in acks if a.routes.get("datos") == 20], "pan & tilt read the forged route"
+            assert not [line for line in robot.launch.lines if "route drift" in line]
+            # the legitimate twin: the GCS's hold makes the manager send the same command, which reaches the DSP
+            reply = gcs.send(ROBOT, gri.Hold())
+            assert reply.accepted, reply.reason
+            wait_until(lambda: "ABORT" in [c["name"] for c in robot.commands()[mark:]], 30, "the hold's ABORT")
+        finally:
+            for sub in subs:
+                sub.undeclare()
+
+
+FORGED_ID = 2**31 - 1
+
+
+@pytest.mark.timeout(420)
+def test_gcs_survey_works_and_a_module_identity_cannot_request_a_trajectory(robot: Robot) -> None:
+    """The RAL's survey request to the trajectory generator goes through the policy (the path reaches the DSP
+    simulator); the vision identity's request on the same key is dropped by the router (never answered,
+    never planned)."""
+    statuses: list[TrajectoryStatus] = []
+    surveys: list[DatosSegCam] = []
+    orbits: list[DatosSegCam] = []
+    marker = f"cromat/{ROBOT}/vision/marker"
+    marks: list[bytes] = []
+    with robot.client("gcs", name="gcs", link=[ROBOT], timeout_s=10.0) as gcs:
+        s = gcs.session
+        subs = [
+            s.declare_subscriber(keys.slot_key(ROBOT, "trajectory", "status"), lambda x: statuses.append(
+                msgspec.msgpack.decode(x.payload.to_bytes(), type=TrajectoryStatus))),
+            s.declare_subscriber(keys.slot_key(ROBOT, "trajectory", "survey"), lambda x: surveys.append(
+                msgspec.msgpack.decode(x.payload.to_bytes(), type=DatosSegCam))),
+            s.declare_subscriber(keys.slot_key(ROBOT, "trajectory", "orbit"), lambda x: orbits.append(
+                msgspec.msgpack.decode(x.payload.to_bytes(), type=DatosSegCam))),
+            s.declare_subscriber(marker, lambda x: marks.append(x.payload.to_bytes())),
+        ]
+        try:
+            state = gcs.state(ROBOT)
+            wait_until(lambda: (st := gcs.state(ROBOT)).position is not None and st.home is not None, 30,
+                       "the robot's position")
+            home = gcs.state(ROBOT).home
+            assert home is not None
+            # the attack: a module identity asks the generator for an orbit, then a marker on its own key
+            with robot.client("vision", name="intruder", timeout_s=5.0) as attacker:
+                forged = TrajectoryRequest(request_id=FORGED_ID, orbit=OrbitRequest(
+                    centre=GeoPoint(lat=home.lat, lon=home.lon), radius=40.0, height=20.0))
+                attacker.session.put(keys.slot_key(ROBOT, "trajectory", "request"), msgspec.msgpack.encode(forged))
+                attacker.session.put(marker, b"after the forged request")
+                wait_until(lambda: marks, 20, "the attacker's marker")
+            # the legitimate path: take off, then a survey from the GCS
+            if not state.airborne:
+                reply = gcs.send(ROBOT, gri.TakeOff(height=10.0))
+                assert reply.accepted, reply.reason
+                wait_until(lambda: bool(gcs.state(ROBOT).airborne), 120, "airborne")
+            lat, lon = home.lat, home.lon
+            polygon = [t.Vertex(lat=lat + a, lon=lon + b) for a, b in
+                       ((0.0003, -0.0003), (0.0003, 0.0004), (0.0011, 0.0004), (0.0011, -0.0003))]
+            mark = len(robot.commands())
+            reply = gcs.send(ROBOT, t.Survey(polygon=polygon, height=25.0, overlap=0.1))
+            assert reply.accepted, reply.reason
+            wait_until(lambda: surveys, 30, "the generated survey path")
+            planned = [(round(p.latitud, 4), round(p.longitud, 4)) for p in surveys[-1].puntos]
+
+            def added() -> list[tuple[float, float]]:
+                return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4))
+                        for c in robot.commands()[mark:] if c["name"] == "ADD_WAYPOINT"]
+            wait_until(lambda: added() == planned, 120, "the survey's waypoints at the DSP simulator")
+            assert [st.request_id for st in statuses if st.accepted and st.kind == "survey"], statuses
+            # the forged request was never answered nor planned (its answer would have come before the RAL's)
+            assert not [st for st in statuses if st.request_id == FORGED_ID]
+            assert orbits == []
+            gcs.send(ROBOT, gri.Hold())
+        finally:
+            for sub in subs:
+                sub.undeclare()
