@@ -1,0 +1,139 @@
+"""Fleet time, pure (ral/sync.py): the four-timestamp offset, the minimum-delay filter, the synchronised start's
+local instant, the formation goal; then on real Zenoh: skewed robots' clocks recovered by the tracker."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+
+from bbcs.contracts.geo import GeoPoint
+from bbcs.testing import wait_until
+from ral import sync
+from ral.sync_bus import ClockService, ClockTracker
+
+
+def exchange(true_offset: float, t1: float, out_s: float, back_s: float, proc_s: float = 0.0001) -> sync.ClockSample:
+    """A probe sent at own-clock ``t1`` that takes ``out_s`` to the peer and ``back_s`` back."""
+    t2 = t1 + out_s + true_offset
+    t3 = t2 + proc_s
+    t4 = t3 - true_offset + back_s
+    return sync.ClockSample(t1=t1, t2=t2, t3=t3, t4=t4)
+
+
+def test_symmetric_exchange_gives_the_exact_offset_and_the_delay() -> None:
+    sample = exchange(2.5, t1=100.0, out_s=0.003, back_s=0.003)
+    assert sample.offset == pytest.approx(2.5, abs=1e-9)
+    assert sample.delay == pytest.approx(0.006, abs=1e-9)
+
+
+def test_asymmetry_errs_by_half_the_difference_and_the_min_delay_sample_wins() -> None:
+    est = sync.OffsetEstimator()
+    rng = random.Random(3)
+    t1 = 1000.0
+    for _ in range(7):  # queued samples: long, asymmetric delays
+        out, back = rng.uniform(0.01, 0.05), rng.uniform(0.0, 0.002)
+        assert est.add("b", exchange(-1.25, t1, out, back))
+        t1 += 0.5
+    assert est.add("b", exchange(-1.25, t1, 0.0004, 0.0006))  # one quick exchange
+    e = est.estimate("b", now=t1 + 0.1)
+    assert e is not None and e.samples == 8
+    assert e.delay_s == pytest.approx(0.001 + 0.0001 - 0.0001, abs=1e-6)
+    assert e.offset_s == pytest.approx(-1.25 + (0.0004 - 0.0006) / 2, abs=1e-9)
+    worst_single = exchange(-1.25, 0.0, 0.05, 0.0).offset
+    assert abs(worst_single + 1.25) > 0.02  # a single queued sample would have been 25 ms off
+
+
+def test_window_slides_old_samples_expire_and_impossible_samples_are_refused() -> None:
+    est = sync.OffsetEstimator(window=3, max_age_s=10.0)
+    for i in range(5):
+        est.add("p", exchange(1.0 + i, float(i), 0.001, 0.001))
+    e = est.estimate("p", now=4.5)
+    assert e is not None and e.samples == 3 and e.offset_s == pytest.approx(4.0, abs=1e-6)  # ties: newest
+    assert est.estimate("p", now=100.0) is None  # all stale
+    assert not est.add("p", sync.ClockSample(t1=10.0, t2=0.0, t3=5.0, t4=9.0))  # negative delay
+    assert not est.add("p", sync.ClockSample(t1=math.nan, t2=0.0, t3=0.0, t4=1.0))
+    assert est.estimate("nobody", 0.0) is None
+    with pytest.raises(ValueError):
+        sync.OffsetEstimator(window=0)
+
+
+def test_skewed_clock_is_off_by_its_offset_plus_drift() -> None:
+    now = [1000.0]
+    clock = sync.SkewedClock(offset_s=-0.7, drift_ppm=100.0, base=lambda: now[0])
+    assert clock() == pytest.approx(999.3)
+    now[0] = 2000.0
+    assert clock() == pytest.approx(2000.0 - 0.7 + 0.1)
+    assert clock.error_at(2000.0) == pytest.approx(-0.6)
+
+
+def est(offset: float, delay: float = 0.002) -> sync.Estimate:
+    return sync.Estimate(offset_s=offset, delay_s=delay, samples=8, taken_at=0.0)
+
+
+def test_sync_start_converts_the_reference_instant_to_the_own_clock() -> None:
+    # the reference's clock is 3 s ahead of ours: its 1005.0 is our 1002.0
+    plan = sync.plan_sync_start(robot="b", reference="a", start_at=1005.0, own_now=1000.0, estimate=est(3.0))
+    assert plan == sync.StartPlan(local_start=1002.0)
+    own = sync.plan_sync_start(robot="a", reference="a", start_at=1005.0, own_now=1004.0, estimate=None)
+    assert own == sync.StartPlan(local_start=1005.0)
+
+
+@pytest.mark.parametrize(("kwargs", "why"), [
+    ({"estimate": None}, "no clock offset to the reference robot 'a'"),
+    ({"estimate": est(0.0, delay=0.2)}, "too uncertain"),
+    ({"start_at": 990.0}, "in the past"),
+    ({"start_at": 1000.1}, "only 0.100 s ahead"),
+    ({"start_at": 1e9}, "more than"),
+    ({"start_at": math.nan}, "not a number"),
+])
+def test_sync_start_refusals_say_why(kwargs: dict, why: str) -> None:
+    args = {"robot": "b", "reference": "a", "start_at": 1005.0, "own_now": 1000.0, "estimate": est(0.0)} | kwargs
+    plan = sync.plan_sync_start(**args)
+    assert isinstance(plan, sync.StartRefused) and why in plan.reason, plan
+
+
+def test_formation_goal_and_resend_rule() -> None:
+    leader = GeoPoint(lat=37.4, lon=-6.0, alt=50.0)
+    goal = sync.formation_goal(leader, north_m=0.0, east_m=20.0, up_m=5.0)
+    assert sync.ground_distance_m(leader.lat, leader.lon, goal[0], goal[1]) == pytest.approx(20.0, abs=0.01)
+    assert goal[2] == 55.0 and goal[0] == pytest.approx(leader.lat)
+    follower = GeoPoint(lat=goal[0], lon=goal[1], alt=goal[2])
+    assert sync.separation_error_m(follower, leader, 0.0, 20.0, 5.0) == pytest.approx(0.0, abs=1e-6)
+    assert sync.separation_error_m(follower, leader, 0.0, 30.0, 5.0) == pytest.approx(10.0, abs=0.01)
+    assert sync.formation_resend(None, goal, None, 0.0)
+    moved = sync.formation_goal(GeoPoint(lat=37.4, lon=-6.0 + 1e-4, alt=50.0), 0.0, 20.0, 5.0)  # ~8.8 m east
+    assert not sync.formation_resend(goal, moved, last_sent_at=10.0, now=10.5)  # too soon
+    assert sync.formation_resend(goal, moved, last_sent_at=10.0, now=11.5)
+    assert not sync.formation_resend(goal, goal, last_sent_at=10.0, now=20.0)  # the leader did not move
+
+
+def test_trackers_on_real_zenoh_recover_injected_skews(router: int, clients) -> None:
+    clocks = {"uav_a": sync.SkewedClock(offset_s=1.5), "uav_b": sync.SkewedClock(offset_s=-0.8),
+              "uav_c": sync.SkewedClock(offset_s=0.0, drift_ppm=200.0)}
+    sessions = {name: clients(router) for name in clocks}
+    services = [ClockService(sessions[n], n, clocks[n]) for n in clocks]
+    trackers = {n: ClockTracker(sessions[n], n, clocks[n], peers=[p for p in clocks if p != n], period_s=0.1)
+                for n in clocks}
+    try:
+        def full() -> bool:
+            return all(trackers[n].estimator.estimate(p, clocks[n]()) is not None
+                       and trackers[n].estimator.estimate(p, clocks[n]()).samples >= 5
+                       for n in clocks for p in clocks if p != n)
+
+        wait_until(full, 30, "five clock samples of every peer at every robot")
+        import time
+        base = time.time()
+        for n in clocks:
+            report = trackers[n].report()
+            assert report.robot == n and sorted(p.peer for p in report.peers) == sorted(set(clocks) - {n})
+            for p in report.peers:
+                truth = clocks[p.peer].error_at(base) - clocks[n].error_at(base)
+                assert p.offset_s == pytest.approx(truth, abs=0.02), (n, p)
+                assert p.offset_s == pytest.approx(truth, abs=p.delay_s / 2 + 0.002), (n, p)
+    finally:
+        for tr in trackers.values():
+            tr.close()
+        for sv in services:
+            sv.close()
