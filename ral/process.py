@@ -83,6 +83,10 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     speed and path reach one consumer in order and nothing is waited for (the manifest says which)."""
     kind: str = ""
     """Robot kind shown in the GRI state when the manager's state has none."""
+    sync_clock_offset_s: float = 0.0
+    """Tests only: this robot's fleet-time clock runs this far from the host's (docs/sync.md)."""
+    sync_clock_drift_ppm: float = 0.0
+    """Tests only: and drifts this much (parts per million)."""
 
     @classmethod
     def from_params(cls, params: dict[str, str]) -> tuple[RalConfig, dict[str, str]]:
@@ -223,8 +227,10 @@ class Ral(Module):
         self._worker = threading.Thread(target=self._work, name="ral.tasks", daemon=True)
         self._worker.start()
         self._jobs.put("refresh_tasks")
+        self._fleet_start()
 
     def on_stop(self) -> None:
+        self._fleet_stop()
         self._jobs.put(None)
         if self._worker is not None:
             self._worker.join(5.0)
@@ -517,6 +523,8 @@ class Ral(Module):
                     self._run_failsafe(job)
                 elif isinstance(job, mri.EndTask):
                     self._end(job)
+                elif isinstance(job, FleetJob):
+                    job.run()
                 else:
                     self._answer(job)
             except Exception:
@@ -571,6 +579,10 @@ class Ral(Module):
             return self._cancel(request.task_type)
         if isinstance(request, gri.RestartModule):
             return self._restart(request.module)
+        why = self._fleet_refusal(request)
+        if why is not None:
+            self.emit("task_rejected", detail=why)
+            return gri.TaskReply(accepted=False, reason=why)
         if not self.available:
             self._refresh_tasks()
         with self.lock:
@@ -696,6 +708,77 @@ class Ral(Module):
                 return t.Goto(waypoints=[t.Waypoint(lat=home.lat, lon=home.lon, alt=alt)])
             self.emit("failsafe", detail="return: take-off point unknown, holding instead")
         return t.Hold()
+
+    # ------------------------------------------------------------ fleet time and shared world (issue 17)
+    # ral/sync_bus.py (clock offsets, synchronised start, formation) and ral/world_bus.py (the world model)
+
+    def _fleet_start(self) -> None:
+        from ral.sync import SkewedClock
+        from ral.sync_bus import SyncNode
+        from ral.world_bus import WorldNode
+
+        assert self.session is not None
+        self.sync_clock = SkewedClock(self.cfg.sync_clock_offset_s, self.cfg.sync_clock_drift_ppm)
+        self.world = WorldNode(self.session, self.robot, self.sync_clock, start_task=self.fleet_handle,
+                               point_at=self._point_at_target)
+        self.fleet_sync = SyncNode(self.session, self.robot, self.sync_clock, start_task=self.fleet_handle,
+                                   check_task=self._fleet_check)
+
+    def _fleet_stop(self) -> None:
+        for node in (getattr(self, "fleet_sync", None), getattr(self, "world", None)):
+            if node is not None:
+                node.close()
+
+    def fleet_handle(self, task: t.TaskParams, timeout_s: float = 30.0) -> gri.TaskReply:
+        """A task from the fleet side (synchronised start, formation, target tracking), run on the worker thread
+        in turn with the ground stations' tasks."""
+        job = FleetJob(lambda: self.handle(task))
+        self._jobs.put(job)
+        if not job.done.wait(timeout_s) or job.result is None:
+            return gri.TaskReply(accepted=False, reason=f"the RAL did not run the {t.kind_of(task)} in {timeout_s:g} s")
+        return job.result
+
+    def _fleet_refusal(self, request: gri.TaskRequest) -> str | None:
+        """What the shared world model forbids (no-fly zones, geofences), or None."""
+        world = getattr(self, "world", None)
+        if world is None:
+            return None
+        with self.lock:
+            position = self.telemetry.position if self.telemetry else None
+        return world.refusal(request, position)
+
+    def _fleet_check(self, task: t.TaskParams) -> str | None:
+        """Why ``task`` would be refused now (world model, then admission), or None."""
+        why = self._fleet_refusal(task)
+        if why is not None:
+            return why
+        with self.lock:
+            plan = admit(task, available=self.available, task_names=self.task_names, limits=self.limits,
+                         cfg=self.judge_cfg, telemetry=self.telemetry, home=self.home)
+        return plan.reason if isinstance(plan, Rejected) else None
+
+    def _point_at_target(self, target: Any, task_id: int) -> bool:
+        """A tracked world target moved: aim the running look_at task at it (False once that task ended)."""
+        with self.lock:
+            running = task_id in self._live
+        if running:
+            self.publish("pt_datos", DatosPT(latitud=target.lat, longitud=target.lon, altura=target.alt))
+        return running
+
+
+class FleetJob:
+    """A fleet-side task for the RAL's worker thread; ``done`` is set when ``result`` is there."""
+
+    def __init__(self, run: Any) -> None:
+        self._run = run
+        self.result: gri.TaskReply | None = None
+        self.done = threading.Event()
+
+    def run(self) -> None:
+        try:
+            self.result = self._run()
+        finally:
+            self.done.set()
 
 
 END_EVENTS = {
