@@ -185,8 +185,8 @@ class SyncNode:
         self.check_task = check_task
         self.service = ClockService(session, robot, clock)
         self.tracker = ClockTracker(session, robot, clock, period_s=period_s)
-        self.started: list[tuple[str, float, gri.TaskReply]] = []
-        """(group, own-clock instant the task was started, the reply): what the synchronised starts did."""
+        self.started: list[s.SyncStarted] = []
+        """What the synchronised starts did (the last 32)."""
         self._stop = threading.Event()
         self._formation: _Formation | None = None
         self._lock = threading.Lock()
@@ -209,6 +209,8 @@ class SyncNode:
             query.drop()
 
     def handle(self, request: s.SyncRequest) -> s.SyncReply:
+        if isinstance(request, s.SyncStatus):
+            return s.SyncReply(accepted=True, starts=[x for x in list(self.started) if x.group == request.group])
         if isinstance(request, s.StopFormation):
             self._stop_formation()
             return s.SyncReply(accepted=True)
@@ -244,7 +246,9 @@ class SyncNode:
         at = self.clock()
         reply = self.start_task(request.task)
         log.info("sync start %s at %.6f (planned %.6f): %s", request.group, at, local_start, reply)
-        self.started.append((request.group, at, reply))
+        self.started.append(s.SyncStarted(group=request.group, planned=local_start, started=at,
+                                          accepted=reply.accepted, reason=reply.reason, task_id=reply.task_id))
+        del self.started[:-32]
 
     def _stop_formation(self) -> None:
         with self._lock:

@@ -85,7 +85,24 @@ class StopFormation(msgspec.Struct, frozen=True, kw_only=True, tag="stop_formati
     """Stop following the leader (the running movement task is left as it is)."""
 
 
-SyncRequest = SyncStart | FormationKeep | StopFormation
+class SyncStatus(msgspec.Struct, frozen=True, kw_only=True, tag="sync_status"):
+    """What this robot's synchronised starts of ``group`` did (``SyncReply.starts``)."""
+
+    group: str
+
+
+SyncRequest = SyncStart | FormationKeep | StopFormation | SyncStatus
+
+
+class SyncStarted(msgspec.Struct, frozen=True, kw_only=True):
+    group: str
+    planned: float
+    """The agreed instant on this robot's own clock."""
+    started: float
+    """This robot's own clock when its RAL started the task (the task then goes RAL → manager → modules)."""
+    accepted: bool
+    reason: str = ""
+    task_id: int = 0
 
 
 class SyncReply(msgspec.Struct, frozen=True, kw_only=True):
@@ -93,6 +110,8 @@ class SyncReply(msgspec.Struct, frozen=True, kw_only=True):
     reason: str = ""
     local_start: float | None = None
     """For a sync start: the instant on this robot's own clock at which it will start the task."""
+    starts: list[SyncStarted] = msgspec.field(default_factory=list)
+    """For a sync status: the starts of that group so far."""
 
 
 def clock_key(robot: str) -> str:

@@ -22,7 +22,7 @@ import msgspec
 
 from bbcs.contracts import gri
 from bbcs.contracts.error_codes import error_name
-from ral.gcs import watch_view
+from ral.gcs import fleet_cmd, watch_view
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
 from ral.gcs.waypoints import WaypointFileError, load_polygon, load_waypoints
 
@@ -114,6 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     rs = sub.add_parser("restart", help="restart one module (its running tasks fail)")
     rs.add_argument("robot")
     rs.add_argument("module")
+    fleet_cmd.add_parsers(sub)  # world / sync (issue 17)
     return p
 
 
@@ -289,6 +290,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             return 0
         if args.command == "restart":
             return _print_reply(gcs.restart(args.robot, args.module), out)
+        if args.command in fleet_cmd.COMMANDS:
+            return fleet_cmd.run(gcs, args, out)
     return 2
 
 
