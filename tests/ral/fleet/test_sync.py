@@ -137,3 +137,83 @@ def test_trackers_on_real_zenoh_recover_injected_skews(router: int, clients) -> 
             tr.close()
         for sv in services:
             sv.close()
+
+
+def test_sync_node_starts_at_the_agreed_instant_refuses_clearly_and_keeps_formation(router: int, clients) -> None:
+    import time
+
+    import msgspec
+
+    from bbcs.contracts import gri
+    from bbcs.contracts import sync as s
+    from bbcs.contracts import tasks as t
+    from ral.sync_bus import SyncNode
+
+    clocks = {"uav_a": sync.SkewedClock(offset_s=0.7), "uav_b": sync.SkewedClock(offset_s=-0.4)}
+    started: dict[str, list[tuple[float, t.TaskParams]]] = {n: [] for n in clocks}
+
+    def starter(name: str):
+        def start(task: t.TaskParams) -> gri.TaskReply:
+            started[name].append((time.time(), task))
+            return gri.TaskReply(accepted=True, task_id=len(started[name]))
+        return start
+
+    def check(task: t.TaskParams) -> str | None:
+        return "this robot has no task 'land'" if isinstance(task, t.Land) else None
+
+    from bbcs import keys
+
+    sessions = {n: clients(router) for n in clocks}
+    tokens = [sessions[n].liveliness().declare_token(keys.alive_key(n, "ral")) for n in clocks]  # as the RALs hold
+    made = {n: SyncNode(sessions[n], n, clocks[n], starter(n), check, period_s=0.1) for n in clocks}
+    try:
+        gcs = clients(router)
+        early = made["uav_b"].handle(s.SyncStart(group="g0", reference="uav_c", start_at=0.0, task=t.TakeOff()))
+        assert not early.accepted and "no clock offset to the reference robot 'uav_c'" in early.reason
+        wait_until(lambda: made["uav_b"].tracker.estimate("uav_a") is not None
+                   and made["uav_b"].tracker.estimate("uav_a").samples >= 3, 20, "uav_b's offset to uav_a")
+        start_at = clocks["uav_a"]() + 1.0
+        request = s.SyncStart(group="g1", reference="uav_a", start_at=start_at, task=t.TakeOff())
+        replies = {}
+        for n in clocks:
+            for reply in gcs.get(s.sync_key(n), payload=msgspec.msgpack.encode(request), timeout=10.0):
+                replies[n] = msgspec.msgpack.decode(reply.ok.payload.to_bytes(), type=s.SyncReply)
+        assert all(r.accepted for r in replies.values()), replies
+        wait_until(lambda: all(started[n] for n in clocks), 20, "both started")
+        host_instant = start_at - 0.7
+        for n in clocks:
+            at, task = started[n][0]
+            assert task == t.TakeOff() and at >= host_instant - 0.005, (n, at - host_instant)
+        status = made["uav_b"].handle(s.SyncStatus(group="g1")).starts
+        assert len(status) == 1 and status[0].accepted and status[0].task_id == 1
+        assert status[0].started >= status[0].planned
+        refused = made["uav_a"].handle(s.SyncStart(group="g2", reference="uav_a", start_at=clocks["uav_a"]() + 5,
+                                                   task=t.Land()))
+        assert not refused.accepted and refused.reason == "this robot has no task 'land'"
+        past = made["uav_b"].handle(s.SyncStart(group="g3", reference="uav_a", start_at=start_at - 10,
+                                                task=t.TakeOff()))
+        assert not past.accepted and "in the past" in past.reason
+
+        # formation: uav_b follows uav_a's GRI state 20 m east
+        assert not made["uav_a"].handle(s.FormationKeep(leader="uav_a")).accepted
+        assert made["uav_b"].handle(s.FormationKeep(leader="uav_a", east_m=20.0)).accepted
+        lead = GeoPoint(lat=37.41, lon=-6.0, alt=40.0)
+        from bbcs.contracts.robot import RobotTelemetry
+        state = gri.GriState(robot="uav_a", stamp=0.0, telemetry=RobotTelemetry(stamp=0.0, position=lead))
+        before = len(started["uav_b"])
+
+        def goto_sent() -> bool:
+            gcs.put(gri.state_key("uav_a"), gri.encode(state))
+            return any(isinstance(task, t.Goto) for _, task in started["uav_b"][before:])
+
+        wait_until(goto_sent, 20, "the follower's goto")
+        goto = next(task for _, task in started["uav_b"][before:] if isinstance(task, t.Goto))
+        point = goto.waypoints[0]
+        follower = GeoPoint(lat=point.lat, lon=point.lon, alt=point.alt)
+        assert sync.separation_error_m(follower, lead, 0.0, 20.0, 0.0) < 0.01
+        assert made["uav_b"].handle(s.StopFormation()).accepted
+    finally:
+        for node in made.values():
+            node.close()
+        for token in tokens:
+            token.undeclare()
