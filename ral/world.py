@@ -108,7 +108,8 @@ def _zone_name(entry: w.WorldEntry, body: w.NoFlyZone | w.Geofence) -> str:
 
 def refusal(model: WorldModel, task: t.TaskParams, position: GeoPoint | None = None) -> str | None:
     """Why ``task`` must not run in this world (None: nothing in the model forbids it). A movement leg from the
-    robot's ``position`` to the first waypoint counts too."""
+    robot's ``position`` to the first waypoint counts too, unless the robot is inside that zone already (it may
+    leave; it may not go deeper to a waypoint inside)."""
     points, area = _places(task)
     if not points and area is None:
         return None
@@ -126,8 +127,9 @@ def refusal(model: WorldModel, task: t.TaskParams, position: GeoPoint | None = N
         labels = [f"the leg from waypoint {i} to waypoint {i + 1}" for i in range(len(legs))]
         if position is not None and xy:
             here = g.project([(position.lat, position.lon)], lat0, lon0)[0]
-            legs.insert(0, (here, xy[0]))
-            labels.insert(0, "the leg from the robot's position to waypoint 0")
+            if not g.inside(here, zone):  # a robot caught inside a new zone may still leave it
+                legs.insert(0, (here, xy[0]))
+                labels.insert(0, "the leg from the robot's position to waypoint 0")
         for label, (a, b) in zip(labels, legs, strict=True):
             if g.leg_enters(a, b, zone):
                 return f"{kind}: {label} crosses no-fly zone {_zone_name(entry, body)}"

@@ -74,6 +74,9 @@ def test_waypoints_inside_or_legs_across_a_no_fly_zone_are_refused_with_the_zone
     assert world.refusal(m, first_leg) is None
     why = world.refusal(m, first_leg, position=GeoPoint(lat=LAT - 3 * D, lon=LON, alt=20.0))
     assert why is not None and "from the robot's position" in why
+    caught_inside = GeoPoint(lat=LAT, lon=LON, alt=20.0)  # a zone added around a flying robot: it may leave
+    assert world.refusal(m, first_leg, position=caught_inside) is None
+    assert world.refusal(m, t.Goto(waypoints=[wp(LAT, LON + 0.5 * D)]), position=caught_inside) is not None
     clear = t.Goto(waypoints=[wp(LAT + 3 * D, LON + 3 * D), wp(LAT - 3 * D, LON + 3 * D)])
     assert world.refusal(m, clear, position=GeoPoint(lat=LAT, lon=LON + 5 * D, alt=20.0)) is None
     assert world.refusal(m, t.TakeOff()) is None and world.refusal(m, t.LookAt(lat=LAT, lon=LON, alt=1.0)) is None
