@@ -7,10 +7,10 @@ receives. Their RALs' fleet clocks are skewed on purpose (uav_a +1.2 s, uav_b âˆ
    their SET_MODE take-off are compared (the achieved skew) and checked against the agreed instant.
 2. World: a no-fly zone added through uav_a reaches uav_b; a goto into it is refused by both with the zone named,
    and nothing reaches either DSP; removed, the same goto flies.
-3. A target seen by uav_a becomes a world entry; uav_b, asked to track it, points its pan & tilt at it (its DSP
-   receives the target point) and follows it when uav_a sees it move. uav_a's vision is stood in for at its
-   bus slot (``cromat/uav_a/vision/target``, what the vision module publishes), its simulated target moved out of
-   sight so the real module never writes there.
+3. uav_a's vision module (simulated camera, a target standing 30 m east) geolocates the target once its camera
+   is turned there; the target becomes a world entry at uav_b; uav_b, asked to track it, points its pan & tilt
+   at it: its DSP receives the target point. (Following a moving target is tested on the bus:
+   tests/ral/fleet/test_world_bus.py.)
 4. Formation: uav_b keeps 40 m east of uav_a; uav_a is sent north; uav_b's DSP receives a waypoint 40 m east of
    uav_a's, and the achieved separation error is measured once both hold.
 """
@@ -28,13 +28,14 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from bbcs import keys, wire
+from bbcs import keys
 from bbcs.contracts import gri
 from bbcs.contracts import sync as s
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
-from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.testing import wait_until
+from modules.vision.geodesy import LocalFrame
+from modules.vision.process import VisionStatus
 from ral import sync
 from ral.gcs import fleet_cmd
 from ral.gcs.api import Gcs, session_config
@@ -46,6 +47,7 @@ from test_fleet_mesh import fleet_manifest  # noqa: E402
 from test_gcs_mission import N_MODULES  # noqa: E402
 
 SKEW = {"uav_a": 1.2, "uav_b": -0.9}
+TARGET_EAST, GROUND_ALT = 30.0, 12.0
 M_PER_DEG = 111_195.0
 
 
@@ -79,9 +81,12 @@ def _manifest(tmp: Path, name: str, peers: list[int]) -> tuple[Path, Path]:
     old = 'params = { kind = "uav",'
     assert old in text, "the RAL's params in uav1_sim.toml changed"
     text = text.replace(old, f'params = {{ sync_clock_offset_s = "{SKEW[name]}", kind = "uav",', 1)
-    old = 'target_east = "30"'
+    old = 'target_east = "30", target_north = "0", target_ve = "0.5"'
     assert old in text, "the vision's simulated target in uav1_sim.toml changed"
-    text = text.replace(old, 'target_east = "50000"', 1)  # never in sight: the test writes the target slot
+    # uav_a's camera sees a target standing TARGET_EAST m east of its first position; uav_b's is out of sight
+    scene = f'target_east = "{TARGET_EAST:g}", target_north = "0", target_ve = "0"' if name == "uav_a" else \
+        'target_east = "50000", target_north = "0", target_ve = "0"'
+    text = text.replace(old, scene, 1)
     old = '"--time-scale", "4"'
     assert old in text, "the DSP simulator's time scale in the test manifest changed"
     text = text.replace(old, '"--time-scale", "1"', 1)  # two robots on a shared machine: real time, less CPU
@@ -248,38 +253,53 @@ def test_2_a_no_fly_zone_added_through_one_robot_is_refused_by_both(fleet: Fleet
 
 
 @pytest.mark.timeout(300)
-def test_3_a_target_seen_by_uav_a_is_tracked_by_uav_b(fleet: Fleet) -> None:
-    home = fleet.states["uav_a"].home
-    assert home is not None
-    seen = (round(home.lat - 0.0005, 4), round(home.lon + 0.0007, 4))
-    key = keys.slot_key("uav_a", "vision", "target")
-    enc = wire.encoding_for(DatosPT)
-    put = msgspec.msgpack.encode
+def test_3_a_target_uav_a_s_vision_saw_is_tracked_by_uav_b(fleet: Fleet) -> None:
+    a = fleet.states["uav_a"]
+    assert a.position is not None and a.home is not None
+    # the operator turns uav_a's camera towards the target (as in test_vision_tracking.py); its vision finds it
+    frame = LocalFrame(a.home.lat, a.home.lon, GROUND_ALT)
+    east, _, height = frame.to_enu(a.position.lat, a.position.lon, a.position.alt)
+    pan = (90.0 - (a.heading_deg or 0.0) + 180.0) % 360.0 - 180.0
+    reply = fleet.gcs.send("uav_a", t.SetPanTilt(pan=pan, tilt=-math.degrees(math.atan2(height, TARGET_EAST - east))))
+    assert reply.accepted, reply.reason
+    wait_until(lambda: fleet.states["uav_a"].pan_deg is not None and abs(fleet.states["uav_a"].pan_deg - pan) < 2.0,
+               30, "uav_a's camera turned towards the target")
+    statuses: list[VisionStatus] = []
+    status_sub = fleet.gcs.session.declare_subscriber(
+        keys.slot_key("uav_a", "vision", "status"),
+        lambda smp: statuses.append(msgspec.msgpack.decode(smp.payload.to_bytes(), type=VisionStatus)))
+    truth = frame.to_lla([TARGET_EAST, 0.0, 0.0])  # (lat, lon, alt) where the simulated target stands
 
-    def vision_sees(lat: float, lon: float) -> None:  # what uav_a's vision module publishes on its target slot
-        fleet.gcs.session.put(key, put(DatosPT(latitud=lat, longitud=lon, altura=home.alt)), encoding=enc)
+    def entry_at_b() -> w.WorldEntry | None:
+        return next((e for e in fleet_cmd.world_snapshot(fleet.gcs, "uav_b").entries if e.id == "target.uav_a"),
+                    None)
 
-    def target_at_b(lat: float) -> bool:
-        vision_sees(lat, seen[1])
-        entry = next((e for e in fleet_cmd.world_snapshot(fleet.gcs, "uav_b").entries if e.id == "target.uav_a"),
-                     None)
-        return entry is not None and isinstance(entry.body, w.Target) and entry.body.lat == lat
-
-    wait_until(lambda: target_at_b(seen[0]), 20, "uav_a's target in uav_b's world model")
-    entry = next(e for e in fleet_cmd.world_snapshot(fleet.gcs, "uav_b").entries if e.id == "target.uav_a")
-    assert isinstance(entry.body, w.Target) and entry.body.seen_by == "uav_a" and entry.origin == "uav_a"
+    try:
+        wait_until(lambda: entry_at_b() is not None, 60, "uav_a's vision target in uav_b's world model")
+    finally:
+        status_sub.undeclare()
+        print(f"\nuav_a vision: {statuses[-1] if statuses else 'no status'}; pan/tilt "
+              f"{fleet.states['uav_a'].pan_deg}/{fleet.states['uav_a'].tilt_deg}, asked {pan:.1f}")
+    entry = entry_at_b()
+    assert entry is not None and isinstance(entry.body, w.Target)
+    assert entry.body.seen_by == "uav_a" and entry.origin == "uav_a"
+    err_m = math.hypot((entry.body.lat - truth[0]) * M_PER_DEG,
+                       (entry.body.lon - truth[1]) * M_PER_DEG * math.cos(math.radians(truth[0])))
+    assert err_m < 3.0, f"the target entry is {err_m:.1f} m from where the simulated target stands"
 
     mark = len(fleet.b.commands())
     reply = fleet_cmd.world_request(fleet.gcs, "uav_b", w.TrackTarget(target="target.uav_a"))
     assert reply.accepted and reply.task_id > 0, reply.reason
 
-    def pointed_at(lat: float) -> bool:
-        return any(c["name"] == "SET_PT_TARGET" and round(c["fields"]["lat"], 4) == lat
-                   and round(c["fields"]["lon"], 4) == seen[1] for c in fleet.b.commands()[mark:])
+    def pointed() -> list[dict]:
+        return [c for c in fleet.b.commands()[mark:] if c["name"] == "SET_PT_TARGET"]
 
-    wait_until(lambda: pointed_at(seen[0]), 20, "uav_b's DSP pointing at uav_a's target")
-    moved = round(seen[0] - 0.0004, 4)  # ~45 m further south
-    wait_until(lambda: target_at_b(moved) and pointed_at(moved), 20, "uav_b following the target as uav_a sees it")
+    wait_until(lambda: bool(pointed()), 20, "uav_b's DSP pointing at uav_a's target")
+    sent = pointed()[0]["fields"]
+    # the DSP protocol carries lat/lon as 1e-4 degrees: the point sent is the entry's, on that grid
+    assert abs(sent["lat"] - entry.body.lat) <= 1e-4 and abs(sent["lon"] - entry.body.lon) <= 1e-4, sent
+    state_b = fleet.states["uav_b"]
+    assert any(task.kind == "look_at" and task.id == reply.task_id for task in state_b.tasks) or pointed()
     missing = fleet_cmd.world_request(fleet.gcs, "uav_b", w.TrackTarget(target="target.nobody"))
     assert not missing.accepted and "no target 'target.nobody'" in missing.reason
 
