@@ -159,7 +159,7 @@ class ClockTracker:
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(PROBE_TIMEOUT_S + 2.0)
+        self._thread.join(PROBE_TIMEOUT_S + 0.5)  # a daemon: the RAL must stop within its grace
         for entity in self._entities:
             entity.undeclare()
         if self._pub is not None:
@@ -314,7 +314,7 @@ class _Formation:
         with self._wake:
             self._closed = True
             self._wake.notify_all()
-        self._thread.join(5.0)
+        self._thread.join(2.0)
         self._sub.undeclare()
 
 

@@ -281,7 +281,7 @@ class WorldNode:
         self._stop.set()
         with self._wake:
             self._wake.notify_all()
-        self._thread.join(QUERY_TIMEOUT_S + 2.0)
+        self._thread.join(1.0)  # a daemon: a catch-up query still waiting gives up on the closed session
         for entity in reversed(self._entities):
             entity.undeclare()
         self._digest_pub.undeclare()
