@@ -189,6 +189,7 @@ class SyncNode:
         """What the synchronised starts did (the last 32)."""
         self._stop = threading.Event()
         self._formation: _Formation | None = None
+        self._cancelled: set[str] = set()
         self._lock = threading.Lock()
         self._queryable = session.declare_queryable(s.sync_key(robot), self._on_request)
 
@@ -210,7 +211,15 @@ class SyncNode:
 
     def handle(self, request: s.SyncRequest) -> s.SyncReply:
         if isinstance(request, s.SyncStatus):
-            return s.SyncReply(accepted=True, starts=[x for x in list(self.started) if x.group == request.group])
+            with self._lock:
+                starts = [x for x in self.started if x.group == request.group]
+            return s.SyncReply(accepted=True, starts=starts)
+        if isinstance(request, s.SyncCancel):
+            with self._lock:
+                if any(x.group == request.group for x in self.started):
+                    return s.SyncReply(accepted=False, reason=f"{request.group} already started")
+                self._cancelled.add(request.group)
+            return s.SyncReply(accepted=True)
         if isinstance(request, s.StopFormation):
             self._stop_formation()
             return s.SyncReply(accepted=True)
@@ -243,12 +252,21 @@ class SyncNode:
                 time.sleep(left / 2 if left > 0.0005 else 0)
         if self._stop.is_set():
             return
-        at = self.clock()
+        with self._lock:
+            cancelled = request.group in self._cancelled
+            at = self.clock()
+            if cancelled:
+                self.started.append(s.SyncStarted(group=request.group, planned=local_start, started=at,
+                                                  accepted=False, reason="cancelled: another robot refused"))
+                return
+            self.started.append(s.SyncStarted(group=request.group, planned=local_start, started=at, accepted=True,
+                                              reason="starting"))
         reply = self.start_task(request.task)
         log.info("sync start %s at %.6f (planned %.6f): %s", request.group, at, local_start, reply)
-        self.started.append(s.SyncStarted(group=request.group, planned=local_start, started=at,
-                                          accepted=reply.accepted, reason=reply.reason, task_id=reply.task_id))
-        del self.started[:-32]
+        with self._lock:
+            self.started = [x for x in self.started if x.group != request.group][-31:]
+            self.started.append(s.SyncStarted(group=request.group, planned=local_start, started=at,
+                                              accepted=reply.accepted, reason=reply.reason, task_id=reply.task_id))
 
     def _stop_formation(self) -> None:
         with self._lock:

@@ -91,7 +91,13 @@ class SyncStatus(msgspec.Struct, frozen=True, kw_only=True, tag="sync_status"):
     group: str
 
 
-SyncRequest = SyncStart | FormationKeep | StopFormation | SyncStatus
+class SyncCancel(msgspec.Struct, frozen=True, kw_only=True, tag="sync_cancel"):
+    """Do not start ``group`` after all (another robot of the group refused it): nothing half-happens."""
+
+    group: str
+
+
+SyncRequest = SyncStart | FormationKeep | StopFormation | SyncStatus | SyncCancel
 
 
 class SyncStarted(msgspec.Struct, frozen=True, kw_only=True):

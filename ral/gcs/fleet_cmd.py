@@ -103,14 +103,34 @@ def offset_to(gcs: Gcs, robot: str, probes: int = 8) -> sync.Estimate:
     return found
 
 
+def sync_group(start_at: float) -> str:
+    """The group name :func:`sync_start` gives a start at ``start_at`` (unless told another)."""
+    return f"sync-{start_at:.6f}"
+
+
 def sync_start(gcs: Gcs, robots: list[str], task: t.TaskParams, lead_s: float = 3.0,
                group: str = "") -> tuple[str, float, dict[str, s.SyncReply]]:
     """Ask every robot of ``robots`` to start ``task`` at one instant ``lead_s`` from now; returns the
-    reference robot, the instant on its clock, and each robot's reply."""
+    reference robot, the instant on its clock, and each robot's reply. All or none: a robot that does not answer
+    its clock probe stops it before anything is sent (NoReply); one that refuses cancels it on the others."""
     reference = sorted(robots)[0]
-    start_at = time.time() + offset_to(gcs, reference).offset_s + lead_s
-    request = s.SyncStart(group=group or f"sync-{int(start_at)}", reference=reference, start_at=start_at, task=task)
-    return reference, start_at, {r: sync_request(gcs, r, request) for r in robots}
+    offsets = {r: offset_to(gcs, r) for r in sorted(robots)}  # every robot answers, or nothing is sent
+    start_at = time.time() + offsets[reference].offset_s + lead_s
+    request = s.SyncStart(group=group or sync_group(start_at), reference=reference, start_at=start_at, task=task)
+    replies: dict[str, s.SyncReply] = {}
+    for robot in robots:
+        try:
+            replies[robot] = sync_request(gcs, robot, request)
+        except NoReply as exc:
+            replies[robot] = s.SyncReply(accepted=False, reason=str(exc))
+    if not all(r.accepted for r in replies.values()):  # one refused: the others do not start either
+        for robot, reply in list(replies.items()):
+            if reply.accepted:
+                undo = sync_request(gcs, robot, s.SyncCancel(group=request.group))
+                replies[robot] = s.SyncReply(accepted=False, local_start=reply.local_start,
+                                             reason="cancelled: another robot refused" if undo.accepted
+                                             else f"could not be cancelled: {undo.reason}")
+    return reference, start_at, replies
 
 
 # ---------------------------------------------------------------- command line

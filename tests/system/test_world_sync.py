@@ -166,7 +166,7 @@ def test_1_clock_offsets_are_measured_and_a_synchronised_take_off_starts_both_ds
     assert replies["uav_b"].local_start == pytest.approx(start_at - truth, abs=0.02)
 
     # each RAL started the task at the agreed instant of its own clock: the same host instant for both
-    group = f"sync-{int(start_at)}"
+    group = fleet_cmd.sync_group(start_at)
     ral_at: dict[str, float] = {}
 
     def rals_started() -> bool:

@@ -184,8 +184,10 @@ def test_sync_node_starts_at_the_agreed_instant_refuses_clearly_and_keeps_format
         for n in clocks:
             at, task = started[n][0]
             assert task == t.TakeOff() and at >= host_instant - 0.005, (n, at - host_instant)
+        wait_until(lambda: [x.task_id for x in made["uav_b"].handle(s.SyncStatus(group="g1")).starts] == [1], 10,
+                   "uav_b's start recorded with its task")
         status = made["uav_b"].handle(s.SyncStatus(group="g1")).starts
-        assert len(status) == 1 and status[0].accepted and status[0].task_id == 1
+        assert status[0].accepted
         assert status[0].started >= status[0].planned
         refused = made["uav_a"].handle(s.SyncStart(group="g2", reference="uav_a", start_at=clocks["uav_a"]() + 5,
                                                    task=t.Land()))
@@ -212,6 +214,63 @@ def test_sync_node_starts_at_the_agreed_instant_refuses_clearly_and_keeps_format
         follower = GeoPoint(lat=point.lat, lon=point.lon, alt=point.alt)
         assert sync.separation_error_m(follower, lead, 0.0, 20.0, 0.0) < 0.01
         assert made["uav_b"].handle(s.StopFormation()).accepted
+    finally:
+        for node in made.values():
+            node.close()
+        for token in tokens:
+            token.undeclare()
+
+
+def test_gcs_sync_commands_print_offsets_start_and_refuse(router: int, clients, capsys) -> None:
+    from bbcs import keys
+    from bbcs.contracts import gri
+    from bbcs.contracts import tasks as t
+    from ral.gcs import cli
+    from ral.sync_bus import SyncNode
+
+    clocks = {"uav_a": sync.SkewedClock(offset_s=0.3), "uav_b": sync.SkewedClock(offset_s=-0.2)}
+    started: list[str] = []
+
+    def starter(name: str):
+        def start(task: t.TaskParams) -> gri.TaskReply:
+            started.append(name)
+            return gri.TaskReply(accepted=True, task_id=1)
+        return start
+
+    refuse: dict[str, str] = {}
+
+    def checker(name: str):
+        return lambda task: refuse.get(name)
+
+    sessions = {n: clients(router) for n in clocks}
+    tokens = [sessions[n].liveliness().declare_token(keys.alive_key(n, "ral")) for n in clocks]
+    made = {n: SyncNode(sessions[n], n, clocks[n], starter(n), checker(n), period_s=0.1) for n in clocks}
+    base = ["--connect", f"tcp/127.0.0.1:{router}", "--name", "ground", "--timeout", "10", "sync"]
+    try:
+        wait_until(lambda: made["uav_b"].tracker.estimate("uav_a") is not None
+                   and made["uav_a"].tracker.estimate("uav_b") is not None, 20, "both offsets")
+        assert cli.main([*base, "clocks", "uav_b"]) == 0
+        out = capsys.readouterr().out.splitlines()
+        row = next(line for line in out if line.startswith("uav_a"))
+        assert float(row.split()[1]) == pytest.approx(500.0, abs=20.0)  # uav_a − uav_b = 0.5 s, in ms
+        assert cli.main([*base, "start", "uav_a", "uav_b", "--task", "hold", "--lead", "1"]) == 0
+        shown = capsys.readouterr().out
+        assert "start hold at" in shown and "on uav_a's clock" in shown and shown.count("on its own clock") == 2
+        wait_until(lambda: sorted(started) == ["uav_a", "uav_b"], 20, "both started")
+        first_groups = {x.group for x in made["uav_a"].started}
+        assert cli.main([*base, "start", "uav_a", "uav_c", "--lead", "1"]) == 3  # uav_c is not there
+        assert "uav_c" in capsys.readouterr().err and len(started) == 2  # nothing was sent
+        refuse["uav_b"] = "this robot has no task 'hold'"
+        assert cli.main([*base, "start", "uav_a", "uav_b", "--task", "hold", "--lead", "1"]) == 1
+        shown = capsys.readouterr().out
+        assert "uav_b            REFUSED: this robot has no task 'hold'" in shown, shown
+        assert "uav_a            REFUSED: cancelled: another robot refused" in shown, shown
+        wait_until(lambda: any(x.group not in first_groups and not x.accepted
+                               and x.reason.startswith("cancelled") for x in made["uav_a"].started), 20,
+                   "uav_a's cancelled start at its instant")
+        assert sorted(started) == ["uav_a", "uav_b"]  # the cancelled one never started
+        assert cli.main([*base, "formation", "uav_a", "uav_a"]) == 1
+        assert "cannot keep formation on itself" in capsys.readouterr().out
     finally:
         for node in made.values():
             node.close()
