@@ -227,10 +227,10 @@ class Ral(Module):
         self._worker = threading.Thread(target=self._work, name="ral.tasks", daemon=True)
         self._worker.start()
         self._jobs.put("refresh_tasks")
-        self._fleet_start()
+        self._world_sync_start()
 
     def on_stop(self) -> None:
-        self._fleet_stop()
+        self._world_sync_stop()
         self._jobs.put(None)
         if self._worker is not None:
             self._worker.join(5.0)
@@ -523,7 +523,7 @@ class Ral(Module):
                     self._run_failsafe(job)
                 elif isinstance(job, mri.EndTask):
                     self._end(job)
-                elif isinstance(job, FleetJob):
+                elif isinstance(job, WorldSyncJob):
                     job.run()
                 else:
                     self._answer(job)
@@ -579,7 +579,7 @@ class Ral(Module):
             return self._cancel(request.task_type)
         if isinstance(request, gri.RestartModule):
             return self._restart(request.module)
-        why = self._fleet_refusal(request)
+        why = self._world_refusal(request)
         if why is not None:
             self.emit("task_rejected", detail=why)
             return gri.TaskReply(accepted=False, reason=why)
@@ -712,44 +712,44 @@ class Ral(Module):
     # ------------------------------------------------------------ fleet time and shared world (issue 17)
     # ral/sync_bus.py (clock offsets, synchronised start, formation) and ral/world_bus.py (the world model)
 
-    def _fleet_start(self) -> None:
+    def _world_sync_start(self) -> None:
         from ral.sync import SkewedClock
         from ral.sync_bus import SyncNode
         from ral.world_bus import WorldNode
 
         assert self.session is not None
         self.sync_clock = SkewedClock(self.cfg.sync_clock_offset_s, self.cfg.sync_clock_drift_ppm)
-        self.world = WorldNode(self.session, self.robot, self.sync_clock, start_task=self.fleet_handle,
+        self.world_node = WorldNode(self.session, self.robot, self.sync_clock, start_task=self.world_sync_handle,
                                point_at=self._point_at_target)
-        self.fleet_sync = SyncNode(self.session, self.robot, self.sync_clock, start_task=self.fleet_handle,
-                                   check_task=self._fleet_check)
+        self.sync_node = SyncNode(self.session, self.robot, self.sync_clock, start_task=self.world_sync_handle,
+                                   check_task=self._world_sync_check)
 
-    def _fleet_stop(self) -> None:
-        for node in (getattr(self, "fleet_sync", None), getattr(self, "world", None)):
+    def _world_sync_stop(self) -> None:
+        for node in (getattr(self, "sync_node", None), getattr(self, "world_node", None)):
             if node is not None:
                 node.close()
 
-    def fleet_handle(self, task: t.TaskParams, timeout_s: float = 30.0) -> gri.TaskReply:
+    def world_sync_handle(self, task: t.TaskParams, timeout_s: float = 30.0) -> gri.TaskReply:
         """A task from the fleet side (synchronised start, formation, target tracking), run on the worker thread
         in turn with the ground stations' tasks."""
-        job = FleetJob(lambda: self.handle(task))
+        job = WorldSyncJob(lambda: self.handle(task))
         self._jobs.put(job)
         if not job.done.wait(timeout_s) or job.result is None:
             return gri.TaskReply(accepted=False, reason=f"the RAL did not run the {t.kind_of(task)} in {timeout_s:g} s")
         return job.result
 
-    def _fleet_refusal(self, request: gri.TaskRequest) -> str | None:
+    def _world_refusal(self, request: gri.TaskRequest) -> str | None:
         """What the shared world model forbids (no-fly zones, geofences), or None."""
-        world = getattr(self, "world", None)
+        world = getattr(self, "world_node", None)
         if world is None:
             return None
         with self.lock:
             position = self.telemetry.position if self.telemetry else None
         return world.refusal(request, position)
 
-    def _fleet_check(self, task: t.TaskParams) -> str | None:
+    def _world_sync_check(self, task: t.TaskParams) -> str | None:
         """Why ``task`` would be refused now (world model, then admission), or None."""
-        why = self._fleet_refusal(task)
+        why = self._world_refusal(task)
         if why is not None:
             return why
         with self.lock:
@@ -766,7 +766,7 @@ class Ral(Module):
         return running
 
 
-class FleetJob:
+class WorldSyncJob:
     """A fleet-side task for the RAL's worker thread; ``done`` is set when ``result`` is there."""
 
     def __init__(self, run: Any) -> None:
