@@ -89,6 +89,10 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     """Fleet target kinds this robot bids on, comma-separated (``none``: never); empty: ``visit`` if it has goto."""
     fleet_bid_window_s: float = 2.0
     """Longest wait for every live RAL's bid before a fleet round is decided without it (ral/fleet.py)."""
+    sync_clock_offset_s: float = 0.0
+    """Tests only: this robot's fleet-time clock runs this far from the host's (docs/sync.md)."""
+    sync_clock_drift_ppm: float = 0.0
+    """Tests only: and drifts this much (parts per million)."""
 
     @classmethod
     def from_params(cls, params: dict[str, str]) -> tuple[RalConfig, dict[str, str]]:
@@ -232,8 +236,10 @@ class Ral(Module):
         self._worker.start()
         self._jobs.put("refresh_tasks")
         self._fleet_start(s)
+        self._world_sync_start()
 
     def on_stop(self) -> None:
+        self._world_sync_stop()
         if self._fleet is not None:
             self._fleet.stop()
         self._jobs.put(None)
@@ -530,6 +536,8 @@ class Ral(Module):
                     self._run_failsafe(job)
                 elif isinstance(job, mri.EndTask):
                     self._end(job)
+                elif isinstance(job, WorldSyncJob):
+                    job.run()
                 elif callable(job):  # a fleet share to fly (ral/fleet.py)
                     job()
                 else:
@@ -586,6 +594,10 @@ class Ral(Module):
             return self._cancel(request.task_type)
         if isinstance(request, gri.RestartModule):
             return self._restart(request.module)
+        why = self._world_refusal(request)
+        if why is not None:
+            self.emit("task_rejected", detail=why)
+            return gri.TaskReply(accepted=False, reason=why)
         if not self.available:
             self._refresh_tasks()
         with self.lock:
@@ -734,6 +746,77 @@ class Ral(Module):
         reply = self.handle(goto_of(job), origin="fleet")
         self.log.info("fleet task %s round %d: %s %s", job.task.id, job.round, [x.id for x in job.targets],
                       "accepted" if reply.accepted else f"refused: {reply.reason}")
+
+    # ------------------------------------------------------------ fleet time and shared world (issue 17)
+    # ral/sync_bus.py (clock offsets, synchronised start, formation) and ral/world_bus.py (the world model)
+
+    def _world_sync_start(self) -> None:
+        from ral.sync import SkewedClock
+        from ral.sync_bus import SyncNode
+        from ral.world_bus import WorldNode
+
+        assert self.session is not None
+        self.sync_clock = SkewedClock(self.cfg.sync_clock_offset_s, self.cfg.sync_clock_drift_ppm)
+        self.world_node = WorldNode(self.session, self.robot, self.sync_clock, start_task=self.world_sync_handle,
+                               point_at=self._point_at_target)
+        self.sync_node = SyncNode(self.session, self.robot, self.sync_clock, start_task=self.world_sync_handle,
+                                   check_task=self._world_sync_check)
+
+    def _world_sync_stop(self) -> None:
+        for node in (getattr(self, "sync_node", None), getattr(self, "world_node", None)):
+            if node is not None:
+                node.close()
+
+    def world_sync_handle(self, task: t.TaskParams, timeout_s: float = 30.0) -> gri.TaskReply:
+        """A task from the fleet side (synchronised start, formation, target tracking), run on the worker thread
+        in turn with the ground stations' tasks."""
+        job = WorldSyncJob(lambda: self.handle(task))
+        self._jobs.put(job)
+        if not job.done.wait(timeout_s) or job.result is None:
+            return gri.TaskReply(accepted=False, reason=f"the RAL did not run the {t.kind_of(task)} in {timeout_s:g} s")
+        return job.result
+
+    def _world_refusal(self, request: gri.TaskRequest) -> str | None:
+        """What the shared world model forbids (no-fly zones, geofences), or None."""
+        world = getattr(self, "world_node", None)
+        if world is None:
+            return None
+        with self.lock:
+            position = self.telemetry.position if self.telemetry else None
+        return world.refusal(request, position)
+
+    def _world_sync_check(self, task: t.TaskParams) -> str | None:
+        """Why ``task`` would be refused now (world model, then admission), or None."""
+        why = self._world_refusal(task)
+        if why is not None:
+            return why
+        with self.lock:
+            plan = admit(task, available=self.available, task_names=self.task_names, limits=self.limits,
+                         cfg=self.judge_cfg, telemetry=self.telemetry, home=self.home)
+        return plan.reason if isinstance(plan, Rejected) else None
+
+    def _point_at_target(self, target: Any, task_id: int) -> bool:
+        """A tracked world target moved: aim the running look_at task at it (False once that task ended)."""
+        with self.lock:
+            running = task_id in self._live
+        if running:
+            self.publish("pt_datos", DatosPT(latitud=target.lat, longitud=target.lon, altura=target.alt))
+        return running
+
+
+class WorldSyncJob:
+    """A fleet-side task for the RAL's worker thread; ``done`` is set when ``result`` is there."""
+
+    def __init__(self, run: Any) -> None:
+        self._run = run
+        self.result: gri.TaskReply | None = None
+        self.done = threading.Event()
+
+    def run(self) -> None:
+        try:
+            self.result = self._run()
+        finally:
+            self.done.set()
 
 
 END_EVENTS = {

@@ -23,7 +23,7 @@ import msgspec
 from bbcs.contracts import gri
 from bbcs.contracts.error_codes import error_name
 from ral import fleet_gcs
-from ral.gcs import watch_view
+from ral.gcs import fleet_cmd, watch_view
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
 from ral.gcs.waypoints import WaypointFileError, load_polygon, load_waypoints
 
@@ -123,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     rs = sub.add_parser("restart", help="restart one module (its running tasks fail)")
     rs.add_argument("robot")
     rs.add_argument("module")
+    fleet_cmd.add_parsers(sub)  # world / sync (issue 17)
     return p
 
 
@@ -304,6 +305,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             return _print_reply(gcs.restart(args.robot, args.module), out)
         if args.command == "fleet":
             return fleet_gcs.run(gcs.session, args, out)
+        if args.command in fleet_cmd.COMMANDS:
+            return fleet_cmd.run(gcs, args, out)
     return 2
 
 
