@@ -20,8 +20,9 @@ Default deny; then:
   - the RAL: its slots, the GRI keys ``@ral/**`` and ``@ral/@schema``, and the requests it makes of modules on
     their own keys (:data:`RAL_REQUESTS`: the trajectory generator's ``request``, the path follower's ``refs``),
     which the key's module may also write and no one else;
-  - a ground station: only ``cromat/@gcs/**`` (its link tokens and heartbeats); it may query ``@ral/task``
-    (tasks) and ``@manager/route`` (route swaps), which no other identity may.
+  - a ground station: only ``cromat/@gcs/**`` (its link tokens and heartbeats) and fleet tasks
+    ``cromat/@fleet/task/*``; it may query ``@ral/task`` (tasks), ``@manager/route`` (route swaps),
+    ``@ral/world_request`` (world edits) and ``@ral/sync`` (synchronised starts), which no other identity may.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ from typing import Any
 from bbcs import keys
 from bbcs.contracts.dsp import COMMAND_RIGHTS, commands_slot
 from bbcs.contracts.dsp import MODULE as DSP_MODULE
+from bbcs.contracts.sync import clock_key, sync_key
+from bbcs.contracts.world import world_model_key, world_request_key
 
 ALL_MESSAGES = [
     "put",
@@ -76,6 +79,7 @@ def _read_keys(r: str = "*") -> list[str]:
         keys.ral_pattern(r),
         keys.gcs_pattern(),
         *(keys.schema_key_of(k(r)) for k in (keys.ral_key, keys.manager_key)),
+        keys.fleet_task_key("*"),
     ]
 
 
@@ -89,8 +93,15 @@ SERVICE_SCHEMAS = [keys.schema_key_of(keys.ral_key("*")), keys.schema_key_of(key
 matches a verbatim ``@`` chunk (``@ral/**`` does not cover ``@ral/@schema``)."""
 
 READ_QUERIES = [keys.schema_pattern("*"), *SERVICE_SCHEMAS,
-                *(keys.manager_key("*", q) for q in ("modules", "routes", "tasks"))]
-"""Read-only queries every identity may make, on every robot: schemas and the MRI's lists."""
+                *(keys.manager_key("*", q) for q in ("modules", "routes", "tasks")),
+                clock_key("*"), world_model_key("*")]
+"""Read-only queries every identity may make, on every robot: schemas, the MRI's lists, the RAL's clock probe
+(docs/sync.md) and its copy of the shared world model (docs/world.md)."""
+
+def _gcs_commands(r: str) -> list[str]:
+    """Queries that change a robot, the ground stations' only: tasks, route swaps, world edits, synchronised
+    starts."""
+    return [keys.ral_key(r, "task"), keys.manager_key(r, "route"), world_request_key(r), sync_key(r)]
 
 RAL_REQUESTS = [("trajectory", "request"), ("path_follower", "refs")]
 """(module, slot): inputs read on the module's own key that the RAL writes (survey/orbit requests to the
@@ -149,8 +160,8 @@ def router_config(
         _rule("history-sub", ["liveliness_token"], _adv_sub(_adv_keys())),
         _rule("read-queries", ["query"], READ_QUERIES),
         _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
-        _rule("gcs-command", ["query"], [keys.ral_key(r, "task"), keys.manager_key(r, "route")]),
-        _rule("gcs-link", ["put", "delete", "liveliness_token"], [keys.gcs_pattern()]),
+        _rule("gcs-command", ["query"], _gcs_commands(r)),
+        _rule("gcs-link", ["put", "delete", "liveliness_token"], [keys.gcs_pattern(), keys.fleet_task_key("*")]),
         _rule("ral-write", WRITE + SERVE, [*_own(r, ral), keys.ral_pattern(r), *_adv([keys.ral_child_pattern(r)]),
                                            keys.schema_key_of(keys.ral_key(r))]),
         _rule("ral-requests", WRITE + SERVE, [k for m, slot in RAL_REQUESTS

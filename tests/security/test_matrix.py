@@ -118,7 +118,7 @@ def attempt_then_marker(who: Sessions, attacker: str, key: str, observer: Observ
     """``attacker`` puts b"forged" on ``key``, then a marker on its own heartbeat key; waits for the marker."""
     s = who(attacker)
     s.put(key, b"forged")
-    marker = f"{R}/{attacker}/@heartbeat" if attacker in MODULES else "cromat/@gcs/gcs/marker"
+    marker = f"{R}/{attacker}/@heartbeat" if attacker in (*MODULES, "ral") else "cromat/@gcs/gcs/marker"
     s.put(marker, b"marker")
     wait_until(lambda: observer.values(marker), 20, f"{attacker}'s marker")
 
@@ -161,6 +161,8 @@ WRITES = [
     (f"{R}/path_follower/refs", "pan_tilt", "ral"),  # a bridge task's references
     (f"{R}/pan_tilt/@route", "vision", "pan_tilt"),  # a forged RouteAck
     (f"{R}/@ral/@schema", "vision", "ral"),  # a forged GRI schema
+    ("cromat/@fleet/task/t1", "vision", "gcs"),  # a fleet task (docs/fleet.md): the ground stations' to post
+    ("cromat/@fleet/task/t1", "ral", "gcs"),
 ]
 
 
@@ -248,7 +250,8 @@ def test_history_injection_is_refused_and_owner_history_served(who: Sessions, ke
 
 # --- queries: tasks and route swaps are the GCS's; a query nobody may make never reaches the server ----------
 
-@pytest.mark.parametrize(("key", "server"), [(f"{R}/@ral/task", "ral"), (f"{R}/@manager/route", "manager")])
+@pytest.mark.parametrize(("key", "server"), [(f"{R}/@ral/task", "ral"), (f"{R}/@manager/route", "manager"),
+                                             (f"{R}/@ral/world_request", "ral"), (f"{R}/@ral/sync", "ral")])
 def test_module_identity_cannot_command_the_gcs_tasks(who: Sessions, key: str, server: str) -> None:
     asked: list[str] = []
 
@@ -274,6 +277,8 @@ ANSWERS = [
     (f"{R}/@ral/@schema", "vision", "ral"),  # the GRI's schemas (``*`` never matched the ``@ral`` chunk)
     (f"{R}/@manager/@schema", "pan_tilt", "manager"),  # the MRI's schemas
     (f"{R}/@ral/@schema", "gcs", "ral"),
+    (f"{R}/@ral/clock", "vision", "ral"),  # fleet time: a forged clock would skew every robot's start
+    (f"{R}/@ral/world_model", "pan_tilt", "ral"),  # the shared world a late joiner copies
 ]
 
 
@@ -300,7 +305,7 @@ def test_only_the_owner_answers_a_get_and_the_gcs_reads_it(who: Sessions, key: s
         assert asked == []  # the forged queryable was never even asked
     finally:
         q.undeclare()
-    if not key.endswith("/@schema"):
+    if not key.endswith(("/@schema", "/clock", "/world_model")):
         return
     q = who(owner).declare_queryable(key, serve(b"legit"))
     try:
