@@ -30,7 +30,7 @@ from launch_support import ROOT, Launch, child_env  # noqa: E402
 
 rasterio = pytest.importorskip("rasterio")
 
-TIME_SCALE = 6.0
+TIME_SCALE = 4.0
 """Simulated seconds per wall second (DSP simulator; the lidar simulators follow its clock)."""
 HOME = (37.4117, -6.0025, 12.0)
 """The DSP simulator's default home: the analytic terrain is anchored there (height 0 at home)."""
@@ -107,7 +107,7 @@ def test_launched_survey_gives_the_terrain_model_of_the_polygon(robot: SimRobot,
     runs = sorted((tmp_path / "lidar").glob("Scan_*"))
     assert len(runs) == 1, f"one flight log expected, found {runs}"
     out = tmp_path / "dtm.tif"
-    made = cromat("lidar", "dtm", str(runs[0]), "--cell", f"{CELL:g}", "--polygon", str(area),
+    made = cromat("lidar", "dtm", str(runs[0]), "--cell", f"{CELL:g}", "--polygon", str(area), "--interpolate-poses",
                   "--origin", *map(str, HOME), "--out", str(out), "--hillshade", str(tmp_path / "dtm.png"), "--json")
     assert made.returncode == 0, made.stdout + made.stderr
     report = json.loads(made.stdout)
