@@ -86,6 +86,9 @@ def _parser() -> argparse.ArgumentParser:
     dtm.add_argument("--min-points", type=int, default=3, help="ground points a cell needs for a value")
     dtm.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"),
                      help="ENU origin; default: the first valid pose of the first log")
+    dtm.add_argument("--time-align", choices=("auto", "on", "off"), default="auto",
+                     help="move the IMU to each point's time (needs the scanner clock on UTC; auto: when every scan "
+                          "ends within 1 s of its pose)")
     dtm.add_argument("--interpolate-poses", action="store_true",
                      help="each point's pose interpolated at its time between the logged poses (follows attitude "
                           "changes; needs the scanner clock on UTC)")
@@ -199,7 +202,8 @@ def _dtm(args: argparse.Namespace) -> int:
             left_out += int((~steady).sum())
             select &= steady[log.point_scan]
         result = georeference(log, mounting, lever_arm=lever, position_ref=position_ref, origin_lla=origin,
-                              select=select, interpolate_poses=args.interpolate_poses)
+                              select=select, interpolate_poses=args.interpolate_poses,
+                              time_align={"auto": None, "on": True, "off": False}[args.time_align])
         origin = result.origin_lla
         clouds.append(result.enu)
     assert origin is not None

@@ -107,7 +107,8 @@ def test_launched_survey_gives_the_terrain_model_of_the_polygon(robot: SimRobot,
     runs = sorted((tmp_path / "lidar").glob("Scan_*"))
     assert len(runs) == 1, f"one flight log expected, found {runs}"
     out = tmp_path / "dtm.tif"
-    made = cromat("lidar", "dtm", str(runs[0]), "--cell", f"{CELL:g}", "--polygon", str(area), "--interpolate-poses",
+    made = cromat("lidar", "dtm", str(runs[0]), "--cell", f"{CELL:g}", "--polygon", str(area),
+                  "--time-align", "on", "--interpolate-poses",
                   "--origin", *map(str, HOME), "--out", str(out), "--hillshade", str(tmp_path / "dtm.png"), "--json")
     assert made.returncode == 0, made.stdout + made.stderr
     report = json.loads(made.stdout)

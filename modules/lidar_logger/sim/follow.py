@@ -5,11 +5,12 @@ the DSP simulator's helicopter, so the DSP simulator sends its true state every 
 (``bbcs/contracts/vehicle_truth.py``, ``python -m modules.dsp.sim --truth-udp 127.0.0.1:PORT``) and this
 module turns the stream into what the lidar world needs:
 
-- ``FollowClock``: the world's clock *is* the DSP's simulated time, extrapolated between datagrams at the
-  sender's time scale and held ``lag`` seconds behind the newest datagram, so every pose and beam is
-  interpolated between two real physics steps (extrapolated along the velocity only when datagrams are late,
-  and never more than ``MAX_EXTRAPOLATION_S`` past the newest). It never runs backwards, stands still at 0
-  until the first datagram (the MTi-G reports no fix: status 0) and stops when the DSP simulator stops.
+- ``FollowClock``: the world's clock *is* the DSP's simulated time, ``lag`` seconds behind the newest datagram
+  and advancing at the sender's time scale between datagrams, but never past the newest: every pose and beam
+  is interpolated between two real physics steps, so the MTi-G and the LD-MRS always agree, whenever each asks
+  (a value extrapolated now and interpolated later would not). When datagrams are late (a loaded machine) the
+  clock waits for them. It never runs backwards, stands still at 0 until the first datagram (the MTi-G reports
+  no fix: status 0) and stops when the DSP simulator stops.
 - ``FollowedFlight``: what ``Flight`` gives the world (position, velocity, attitude at clock times), from the
   received states, converted exactly (WGS84) into the terrain frame.
 - ``TruthReceiver``: the UDP socket and its thread; invalid datagrams are counted and dropped.
@@ -33,8 +34,6 @@ import numpy as np
 from bbcs.contracts.vehicle_truth import VehicleTruth, decode_truth
 from modules.lidar_logger.geodesy import ecef_from_enu, ecef_from_nwu, euler_to_matrix, lla_to_ecef
 
-MAX_EXTRAPOLATION_S = 1.0
-"""Simulated seconds the clock may run past the newest datagram (then it waits for the DSP)."""
 DEFAULT_LAG_S = 0.25
 """Simulated seconds the clock stays behind the newest datagram (12 physics steps at 50 Hz)."""
 HISTORY = 6000
@@ -62,8 +61,8 @@ class FollowClock:
         with self._lock:
             if self._newest is None:
                 return self._last
-            ahead = min((time.monotonic() - self._newest_mono) * self.scale, MAX_EXTRAPOLATION_S)
-            self._last = max(self._last, self._newest + ahead - self.lag)
+            ahead = (time.monotonic() - self._newest_mono) * self.scale
+            self._last = max(self._last, min(self._newest, self._newest - self.lag + ahead))
             return self._last
 
     def sleep(self, seconds: float) -> None:
