@@ -6,9 +6,10 @@ the truth link; the lidar logger logging; the trajectory generator; the RAL), ta
 ``cromat gcs task uav1 survey POLYGON.geojson --height H --overlap P`` (the CLI, as a user types it), wait for
 the task's completion (GRI events), stop the launch (the logger closes its files), ``cromat lidar dtm`` of the
 flight's log clipped to the polygon (the CLI again), and the GeoTIFF read back and compared with the analytic
-terrain cell by cell. Asserted: the generated path reached the DSP and was flown (the aircraft passed the
-polygon's far end), the logger logged the flight, the DTM covers the polygon and its error is within the
-tolerance below.
+terrain cell by cell. Asserted: the survey task completed (the GRI's event), the logger wrote one flight log,
+the DTM covers the polygon (no cell of it without data would pass if the helicopter had not flown the lines:
+the lidar simulators see only what the DSP simulator's aircraft flies over) and its error against the analytic
+terrain is within the issue's target.
 """
 
 from __future__ import annotations

@@ -76,6 +76,10 @@ class LdmrsOptions:
     """Send every message in three pieces a little apart, so the driver sees it across several reads."""
 
 
+CATCH_UP_BURST = 4
+"""Scans sent in a row before the command socket is read again."""
+
+
 @functools.lru_cache(maxsize=16)
 def _beam_pattern(s_t: int, e_t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     angles = np.arange(s_t, e_t - 1, -ANGLE_STEP_TICKS, dtype=np.int64)
@@ -325,8 +329,12 @@ class LdmrsSimulator(BackgroundServer):
             try:
                 ready, _, _ = select.select([client], [], [], timeout)
                 now = clock.now()
-                while self.device.due(now):  # scans that ended before the commands below are read
+                burst = 0
+                # scans that ended before the commands below are read; a simulator far behind (a loaded machine)
+                # still reads its commands every few scans, so a StopMeasure is answered while it catches up
+                while self.device.due(now) and burst < CATCH_UP_BURST:
                     scan = self.device.take_scan(send=True)
+                    burst += 1
                     if scan is not None:
                         self._send(client, DataType.SCAN, encode_scan(scan), now)
                 if ready:
