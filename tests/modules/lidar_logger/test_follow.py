@@ -144,3 +144,20 @@ def test_state_is_read_consistently_while_states_arrive() -> None:
         thread.join()
     assert not errors
     assert flight.samples > 0
+
+
+def test_dsp_simulator_process_sends_its_truth_and_refuses_a_remote_address() -> None:
+    import subprocess
+    import sys
+
+    clock, flight = FollowClock(), FollowedFlight()
+    with TruthReceiver(clock, flight) as rx:
+        proc = subprocess.run([sys.executable, "-m", "modules.dsp.sim", "--tcp", "127.0.0.1:0", "--truth-udp",
+                               f"127.0.0.1:{rx.port}", "--time-scale", "4", "--duration", "1.5"],
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        wait_until(lambda: rx.received >= 20, 5.0, "truth datagrams from the simulator process")
+    assert rx.invalid == 0 and flight.origin_lla == HOME
+    bad = subprocess.run([sys.executable, "-m", "modules.dsp.sim", "--tcp", "127.0.0.1:0", "--truth-udp",
+                          "10.1.2.3:5000"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "loopback" in bad.stderr
