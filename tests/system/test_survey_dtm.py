@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bbcs.contracts import gri
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect  # noqa: E402
 
@@ -93,11 +95,15 @@ def robot(tmp_path: Path) -> Iterator[SimRobot]:
         la.cleanup()
 
 
-@pytest.mark.timeout(300)
+@pytest.mark.timeout(480)
 def test_launched_survey_gives_the_terrain_model_of_the_polygon(robot: SimRobot, tmp_path: Path) -> None:
     from modules.lidar_logger.sim.terrain_check import dtm_error
 
-    robot.ensure_airborne()
+    start = len(robot.events)
+    took_off = robot.gcs.send(ROBOT, gri.TakeOff(height=10.0))
+    assert took_off.accepted, took_off.reason
+    robot.wait_event(lambda e: e.task_id == took_off.task_id and e.kind == "task_completed", 120,
+                     "take-off completed", after=start)
     area = write_polygon(tmp_path / "area.geojson")
     start = len(robot.events)
     sent = cromat("gcs", "--connect", f"tcp/127.0.0.1:{robot.launch.port}", "--timeout", "20", "task", ROBOT,
