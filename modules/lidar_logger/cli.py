@@ -208,7 +208,15 @@ def _dtm(args: argparse.Namespace) -> int:
         clouds.append(result.enu)
     assert origin is not None
     enu = np.concatenate(clouds)
-    dtm = build_dtm(enu, args.cell, max_above=args.max_above, min_points=args.min_points)
+    bounds = None
+    if area is not None:  # the grid spans the polygon too: its cells without data count as uncovered
+        poly = polygon_enu(area, origin)
+        lo = np.minimum(enu[:, :2].min(axis=0), poly.min(axis=0)) if len(enu) else poly.min(axis=0)
+        hi = np.maximum(enu[:, :2].max(axis=0), poly.max(axis=0)) if len(enu) else poly.max(axis=0)
+        west, south = np.floor(lo / args.cell) * args.cell
+        east, north = np.ceil(hi / args.cell) * args.cell
+        bounds = (float(west), float(south), float(east), float(north))
+    dtm = build_dtm(enu, args.cell, max_above=args.max_above, min_points=args.min_points, bounds=bounds)
     report = {"points": len(enu), "logs": len(args.logs), "cell_m": args.cell, "rows": dtm.shape[0],
               "cols": dtm.shape[1], **coverage(dtm).as_dict(), "geotiff": str(write_geotiff(args.out, dtm, origin)),
               "origin_lla": [float(v) for v in origin]}

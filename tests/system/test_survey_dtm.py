@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from bbcs.contracts import gri
+from bbcs.testing import wait_until
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect  # noqa: E402
@@ -72,6 +73,15 @@ def write_polygon(path: Path) -> Path:
     return path
 
 
+def caught_up(run: Path) -> bool:
+    """The newest logged scan ended within 0.3 s of the pose the logger attached to it: a loaded simulator
+    that fell behind (it sends every rotation, late) has sent the whole flight so far."""
+    from modules.lidar_logger.logdata import load_log
+
+    log = load_log(run)
+    return log.n_scans > 0 and float(log.end_time[-1] - log.pose_time[-1]) > -0.3
+
+
 def cromat(*args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "cromat.cli", *args], cwd=str(ROOT), env=child_env(),
                           capture_output=True, text=True, timeout=timeout_s)
@@ -113,10 +123,11 @@ def test_launched_survey_gives_the_terrain_model_of_the_polygon(robot: SimRobot,
     done = robot.wait_event(lambda e: e.task_id == task_id and e.kind != "task_accepted", 150,
                             "the survey ended", after=start)
     assert done.kind == "task_completed", done
-    robot.launch.stop()  # Ctrl+C on cromat launch: the logger stops the scanner and closes its files
-
     runs = sorted((tmp_path / "lidar").glob("Scan_*"))
     assert len(runs) == 1, f"one flight log expected, found {runs}"
+    wait_until(lambda: caught_up(runs[0]), 90, "the LD-MRS simulator caught up with the aircraft")
+    robot.launch.stop()  # Ctrl+C on cromat launch: the logger stops the scanner and closes its files
+
     out = tmp_path / "dtm.tif"
     made = cromat("lidar", "dtm", str(runs[0]), "--cell", f"{CELL:g}", "--polygon", str(area),
                   "--time-align", "on", "--interpolate-poses",
