@@ -38,10 +38,10 @@ TIME_SCALE = 3.0
 """Simulated seconds per wall second (DSP simulator; the lidar simulators follow its clock)."""
 HOME = (37.4117, -6.0025, 12.0)
 """The DSP simulator's default home: the analytic terrain is anchored there (height 0 at home)."""
-HEIGHT = 25.0
-OVERLAP = 0.1
+HEIGHT = 30.0
+OVERLAP = 0.3
 CELL = 2.0
-# about 55 m (east) x 67 m (north), north-east of home: two sweep lines 53.6 m apart at 25 m
+# about 55 m (east) x 67 m (north), north-east of home: two sweep lines 50 m apart at 30 m
 POLYGON = [(HOME[0] + dlat, HOME[1] + dlon)
            for dlat, dlon in ((0.0002, 0.0001), (0.0002, 0.0007), (0.0008, 0.0007), (0.0008, 0.0001))]
 COVERAGE_MIN_PCT = 95.0
