@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from bbcs.conf import ConfError
+from modules.lidar_logger.area import AreaError, load_polygon, polygon_enu
 from modules.lidar_logger.clock import SYSTEM_CLOCK, ScaledClock
 from modules.lidar_logger.config import load_lidar_conf, merge_lidar_conf, read_config_file
-from modules.lidar_logger.dtm import build_dtm, coverage, ground_candidates, hillshade
+from modules.lidar_logger.dtm import attitude_rates, build_dtm, coverage, ground_candidates, hillshade, polygon_mask
 from modules.lidar_logger.georef import GeorefError, Mounting, georeference
 from modules.lidar_logger.logdata import LogFormatError, load_log
 from modules.lidar_logger.logger import LidarLogger
@@ -71,6 +72,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="move the IMU along its velocity to each point's time (needs scanner clock on UTC)")
     geo.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"),
                      help="ENU origin; default: the first valid pose")
+    geo.add_argument("--interpolate-poses", action="store_true",
+                     help="each point's pose interpolated at its time between the logged poses (needs time alignment)")
 
     dtm = sub.add_parser("dtm", help="terrain model from one or more flight logs: GeoTIFF, PNG hillshade, LAS")
     dtm.add_argument("logs", nargs="+", help="run folders or log files; all in the first one's ENU frame")
@@ -83,6 +86,17 @@ def _parser() -> argparse.ArgumentParser:
     dtm.add_argument("--min-points", type=int, default=3, help="ground points a cell needs for a value")
     dtm.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"),
                      help="ENU origin; default: the first valid pose of the first log")
+    dtm.add_argument("--time-align", choices=("auto", "on", "off"), default="auto",
+                     help="move the IMU to each point's time (needs the scanner clock on UTC; auto: when every scan "
+                          "ends within 1 s of its pose)")
+    dtm.add_argument("--interpolate-poses", action="store_true",
+                     help="each point's pose interpolated at its time between the logged poses (follows attitude "
+                          "changes; needs the scanner clock on UTC)")
+    dtm.add_argument("--polygon", metavar="AREA.geojson",
+                     help="the surveyed polygon (the survey task's file): coverage and holes counted inside it")
+    dtm.add_argument("--max-turn-rate", type=float, default=None, metavar="DEG_S",
+                     help="leave out scans whose attitude changes faster than this (turns; the log has no angular "
+                          "rates, so attitude within a scan is not compensated); default: keep every scan")
     dtm.add_argument("--json", action="store_true", help="the report as JSON")
     return p
 
@@ -150,7 +164,8 @@ def _georef(args: argparse.Namespace) -> int:
     mounting, lever, position_ref = _mounting_and_lever(path, args)
     align = {"auto": None, "on": True, "off": False}[args.time_align]
     result = georeference(log, mounting, lever_arm=lever, position_ref=position_ref, time_align=align,
-                          origin_lla=np.array(args.origin) if args.origin else None)
+                          origin_lla=np.array(args.origin) if args.origin else None,
+                          interpolate_poses=args.interpolate_poses)
     o = result.origin_lla
     idx = result.point_index
     if Path(args.out).suffix.lower() in (".las", ".laz"):
@@ -171,22 +186,44 @@ def _georef(args: argparse.Namespace) -> int:
 def _dtm(args: argparse.Namespace) -> int:
     if not args.cell > 0:
         raise ValueError(f"--cell must be positive, got {args.cell}")
+    if args.max_turn_rate is not None and not args.max_turn_rate > 0:
+        raise ValueError(f"--max-turn-rate must be positive, got {args.max_turn_rate}")
+    area = load_polygon(args.polygon) if args.polygon else None
     origin = np.array(args.origin) if args.origin else None
     clouds = []
+    left_out = 0
     for item in args.logs:
         path = Path(item)
         log = load_log(path)
         mounting, lever, position_ref = _mounting_and_lever(path, args)
+        select = ground_candidates(log.flags)
+        if args.max_turn_rate is not None:
+            steady = attitude_rates(log.pose_time, log.euler) <= args.max_turn_rate
+            left_out += int((~steady).sum())
+            select &= steady[log.point_scan]
         result = georeference(log, mounting, lever_arm=lever, position_ref=position_ref, origin_lla=origin,
-                              select=ground_candidates(log.flags))
+                              select=select, interpolate_poses=args.interpolate_poses,
+                              time_align={"auto": None, "on": True, "off": False}[args.time_align])
         origin = result.origin_lla
         clouds.append(result.enu)
     assert origin is not None
     enu = np.concatenate(clouds)
-    dtm = build_dtm(enu, args.cell, max_above=args.max_above, min_points=args.min_points)
+    bounds = None
+    if area is not None:  # the grid spans the polygon too: its cells without data count as uncovered
+        poly = polygon_enu(area, origin)
+        lo = np.minimum(enu[:, :2].min(axis=0), poly.min(axis=0)) if len(enu) else poly.min(axis=0)
+        hi = np.maximum(enu[:, :2].max(axis=0), poly.max(axis=0)) if len(enu) else poly.max(axis=0)
+        west, south = np.floor(lo / args.cell) * args.cell
+        east, north = np.ceil(hi / args.cell) * args.cell
+        bounds = (float(west), float(south), float(east), float(north))
+    dtm = build_dtm(enu, args.cell, max_above=args.max_above, min_points=args.min_points, bounds=bounds)
     report = {"points": len(enu), "logs": len(args.logs), "cell_m": args.cell, "rows": dtm.shape[0],
               "cols": dtm.shape[1], **coverage(dtm).as_dict(), "geotiff": str(write_geotiff(args.out, dtm, origin)),
               "origin_lla": [float(v) for v in origin]}
+    if args.max_turn_rate is not None:
+        report["scans_left_out_turning"] = left_out
+    if area is not None:
+        report["polygon"] = coverage(dtm, polygon_mask(dtm, polygon_enu(area, origin))).as_dict()
     if args.hillshade:
         report["hillshade"] = str(write_png(args.hillshade, hillshade(dtm)))
     if args.las:
@@ -197,6 +234,10 @@ def _dtm(args: argparse.Namespace) -> int:
         print(f"{report['points']} ground points from {len(args.logs)} log(s) -> {dtm.shape[0]} x {dtm.shape[1]} "
               f"cells of {args.cell:g} m: {report['cells_with_data']} with data ({report['coverage_pct']:.1f} %), "
               f"{report['holes']} hole(s) of {report['hole_cells']} cell(s) in all -> {args.out}")
+        if area is not None:
+            pc = report["polygon"]
+            print(f"inside the polygon: {pc['cells']} cells, {pc['cells_with_data']} with data "
+                  f"({pc['coverage_pct']:.1f} %), {pc['holes']} hole(s) of {pc['hole_cells']} cell(s)")
     return 0
 
 
@@ -205,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return {"run": _run, "read": _read, "georef": _georef, "dtm": _dtm}[args.cmd](args)
-    except (ConfError, LogFormatError, GeorefError, OSError, MissingExtraError) as exc:
+    except (ConfError, LogFormatError, GeorefError, OSError, MissingExtraError, AreaError) as exc:
         print(f"cromat lidar {args.cmd}: {exc}", file=sys.stderr)
         return 1
     except ValueError as exc:

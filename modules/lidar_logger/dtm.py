@@ -261,3 +261,25 @@ def _slope(z: np.ndarray, cell: float, axis: int) -> np.ndarray:
     count = np.isfinite(both).sum(axis=0)
     total = np.nansum(both, axis=0)
     return np.where(count > 0, total / np.maximum(count, 1), 0.0)
+
+
+def attitude_rates(pose_time: np.ndarray, euler: np.ndarray) -> np.ndarray:
+    """Per scan, the fastest attitude change (deg/s, any axis) around its pose: the larger of the rates to the
+    previous and the next distinct pose of the log. The logger logs no angular rates, so this is what the poses
+    show; a scan whose pose stands alone (or has no valid time) gets +inf."""
+    t = np.asarray(pose_time, dtype=np.float64)
+    e = np.asarray(euler, dtype=np.float64)
+    rates = np.full(len(t), np.inf)
+    ok = np.isfinite(t)
+    if ok.sum() < 2:
+        return rates
+    ts, first = np.unique(t[ok], return_index=True)
+    es = e[ok][first]
+    if len(ts) < 2:
+        return rates
+    d = np.diff(es, axis=0)
+    d[:, 2] = (d[:, 2] + 180.0) % 360.0 - 180.0  # yaw wraps
+    step = np.abs(d).max(axis=1) / np.diff(ts)
+    around = np.maximum(np.concatenate(([step[0]], step)), np.concatenate((step, [step[-1]])))
+    rates[ok] = around[np.searchsorted(ts, t[ok])]
+    return rates

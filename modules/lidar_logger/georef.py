@@ -79,9 +79,14 @@ def clocks_synchronised(log: LidarLog) -> bool:
 def georeference(log: LidarLog, mounting: Mounting = Mounting(), *,
                  lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0), position_ref: str = "imu",
                  time_align: bool | None = None, origin_lla: np.ndarray | None = None,
-                 select: np.ndarray | None = None) -> GeorefResult:
+                 select: np.ndarray | None = None, interpolate_poses: bool = False) -> GeorefResult:
     """Points of scans with a valid pose into ENU; ``select`` (a boolean per point) replaces the default
-    choice of points (``Valid 1``: no flag set), e.g. to keep the points the scanner labelled ground."""
+    choice of points (``Valid 1``: no flag set), e.g. to keep the points the scanner labelled ground.
+
+    ``interpolate_poses`` (needs time alignment): each point takes the pose interpolated at its own time
+    between the two logged poses around it (position linear, Euler angles linear with yaw unwrapped) instead of
+    its scan's pose moved along the velocity, so attitude changes between poses (a helicopter's attitude loop,
+    turns) are followed; across a gap of more than ``MAX_POSE_GAP_S`` the scan's own pose is used."""
     if position_ref not in ("imu", "antenna"):
         raise GeorefError(f"position_ref must be 'imu' or 'antenna', not {position_ref!r}")
     pose_ok = log.valid == 1
@@ -108,16 +113,65 @@ def georeference(log: LidarLog, mounting: Mounting = Mounting(), *,
     r_ecef_enu0 = ecef_from_enu(origin_lla[0], origin_lla[1])
     r_m, t_m = mounting.rotation, mounting.translation
 
+    track = _PoseTrack(log, pose_ok, pos, vel, r_ecef_nwu) if interpolate_poses and aligned else None
     out = np.empty((len(keep), 3))
     for a in range(0, len(keep), CHUNK):
         idx = keep[a:a + CHUNK]
         s = log.point_scan[idx]
         p_body = log.xyz[idx] @ r_m.T + t_m
-        p = pos[s] + np.einsum("nij,nj->ni", r_ecef_body[s], p_body)
-        if aligned:
-            dt = (log.start_time[s] - log.pose_time[s]) + log.offset_us[idx] * 1e-6
-            p += vel[s] * dt[:, None]
+        if track is not None:
+            p_imu, r_body = track.at(log.start_time[s] + log.offset_us[idx] * 1e-6, s)
+            p = p_imu + np.einsum("nij,nj->ni", r_body, p_body)
+        else:
+            p = pos[s] + np.einsum("nij,nj->ni", r_ecef_body[s], p_body)
+            if aligned:
+                dt = (log.start_time[s] - log.pose_time[s]) + log.offset_us[idx] * 1e-6
+                p += vel[s] * dt[:, None]
         out[a:a + len(idx)] = (p - origin) @ r_ecef_enu0
     return GeorefResult(out, origin_lla, keep, aligned,
                         skipped_invalid_points=int((~point_ok & with_pose).sum()),
                         skipped_invalid_pose=int((~with_pose).sum()))
+
+
+MAX_POSE_GAP_S = 0.5
+"""Poses further apart than this are not interpolated between (a dropout): the scan's own pose is used."""
+
+
+class _PoseTrack:
+    """The log's distinct valid poses in time order, interpolated at point times (``interpolate_poses``)."""
+
+    def __init__(self, log: LidarLog, pose_ok: np.ndarray, pos: np.ndarray, vel: np.ndarray,
+                 r_ecef_nwu: np.ndarray) -> None:
+        rows = np.nonzero(pose_ok)[0]
+        self.t, first = np.unique(log.pose_time[rows], return_index=True)
+        src = rows[first]
+        self.pos, self.vel, self.frame = pos[src], vel[src], r_ecef_nwu[src]
+        euler = log.euler[src].copy()
+        euler[:, 2] = np.degrees(np.unwrap(np.radians(euler[:, 2])))
+        self.euler = euler
+        self.log = log
+        self.own_pos, self.own_vel = pos, vel
+        self.own_body = r_ecef_nwu @ euler_to_matrix(log.euler)
+
+    def at(self, tau: np.ndarray, scan: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """IMU position (ECEF) and R_ecef←body at UTC ``tau`` of points of scans ``scan``."""
+        n = len(self.t)
+        if n < 2:
+            dt = tau - self.log.pose_time[scan]
+            return self.own_pos[scan] + self.own_vel[scan] * dt[:, None], self.own_body[scan]
+        k = np.clip(np.searchsorted(self.t, tau, side="right") - 1, 0, n - 2)
+        span = self.t[k + 1] - self.t[k]
+        tc = np.clip(tau, self.t[k], self.t[k + 1])
+        u = ((tc - self.t[k]) / span)[:, None]
+        p = self.pos[k] + (self.pos[k + 1] - self.pos[k]) * u
+        end = np.where(tau > self.t[k + 1], k + 1, k)  # before the first / after the last pose: along its velocity
+        p += self.vel[end] * (tau - tc)[:, None]
+        e = self.euler[k] + (self.euler[k + 1] - self.euler[k]) * u
+        r = self.frame[k] @ euler_to_matrix(e)
+        gap = span > MAX_POSE_GAP_S
+        if gap.any():
+            s = scan[gap]
+            dt = tau[gap] - self.log.pose_time[s]
+            p[gap] = self.own_pos[s] + self.own_vel[s] * dt[:, None]
+            r[gap] = self.own_body[s]
+        return p, r

@@ -63,6 +63,11 @@ def format_ntp(ntp: int) -> str:
 
 def format_scan(record: ScanRecord) -> str:
     """The text block of one scan, including the two blank lines that end it."""
+    return format_scan_bytes(record).decode("ascii")
+
+
+def format_scan_bytes(record: ScanRecord) -> bytes:
+    """``format_scan`` as the bytes the writer puts in the file (no str round trip for the point lines)."""
     scan, pose, utc = record.scan, record.pose, record.pose.utc
     active_ms = ((scan.end_ntp - scan.start_ntp) * 1000) >> 32
     e, p, v = pose.euler, pose.lla, pose.vel
@@ -82,12 +87,12 @@ def format_scan(record: ScanRecord) -> str:
         f"Status {pose.status}\n"
         f"Valid {pose.valid}\n"
         f"{POINT_HEADER}\n"
-    )
+    ).encode("ascii")
     if scan.n_points == 0:
-        return head + "\n\n"
+        return head + b"\n\n"
     body = format_points(scan.cartesian(), scan.echo_width_cm, wire_to_seed(scan.wire_flags), scan.layer,
                          scan.echo, scan.time_offsets_us())
-    return head + body.decode("ascii") + "\n\n"
+    return b"".join((head, body, b"\n\n"))
 
 
 class TextLogWriter:
@@ -95,16 +100,18 @@ class TextLogWriter:
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
-        self._f: IO[str] | None = open(self.path, "x", encoding="ascii", newline="\n")  # noqa: SIM115
+        # unbuffered binary: one write() per scan straight to the file, nothing held in a buffer to flush
+        self._f: IO[bytes] | None = open(self.path, "xb", buffering=0)  # noqa: SIM115
         self.bytes_written = 0
 
     def write(self, record: ScanRecord) -> None:
         if self._f is None:
             raise ValueError(f"{self.path} is closed")
-        text = format_scan(record)
-        self._f.write(text)
-        self._f.flush()
-        self.bytes_written += len(text)
+        data = format_scan_bytes(record)
+        view = memoryview(data)
+        while view:  # a raw write may be partial
+            view = view[self._f.write(view):]
+        self.bytes_written += len(data)
 
     def close(self) -> None:
         """Flush to the medium and close (closed even when the flush fails; the error is raised after)."""

@@ -18,6 +18,7 @@ from modules.dsp.sim.faults import BadTelemetry, FaultInjector
 from modules.dsp.sim.machine import DspParams
 from modules.dsp.sim.server import DspSimulator
 from modules.dsp.sim.transport import PtyEndpoint, TcpEndpoint
+from modules.dsp.sim.truth import TruthSender
 from modules.dsp.sim.vehicle import VehicleParams
 
 
@@ -80,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--bad-telemetry", type=int, default=0, metavar="N",
                     help="every Nth telemetry frame carries an out-of-range value with a good CRC (0: never)")
     ap.add_argument("--seed", type=int, help="random seed for faults")
+    ap.add_argument("--truth-udp", type=_host_port, metavar="HOST:PORT",
+                    help="send the aircraft's true state every physics step to this loopback UDP port, for the "
+                         "lidar simulators (modules.lidar_logger.sim --follow-udp)")
     ap.add_argument("--duration", type=float, default=0.0,
                     help="exit after this many wall seconds (0: never)")
     return ap
@@ -105,6 +109,12 @@ def main(argv: list[str] | None = None) -> int:
                 faults[direction] = FaultInjector(corrupt=args.corrupt, drop=args.drop, garbage=args.garbage,
                                                   seed=seed, false_ids=false_ids)
     home_lat, home_lon, home_alt = args.home
+    try:
+        truth = TruthSender(*args.truth_udp, args.time_scale) if args.truth_udp else None
+    except ValueError as exc:
+        print(f"dsp-sim: --truth-udp: {exc}", file=sys.stderr)
+        endpoint.close()
+        return 2
     sim = DspSimulator(
         endpoint, params=DspParams(home_lat=home_lat, home_lon=home_lon, home_alt=home_alt,
                                    takeoff_height=args.takeoff_height),
@@ -112,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
         rate_hz=args.rate, time_scale=args.time_scale,
         baud=args.baud, tx_faults=faults.get("tx"), rx_faults=faults.get("rx"), record_path=args.record,
         fail_at=args.fail, seed=args.seed,
-        bad_telemetry=BadTelemetry(every=args.bad_telemetry) if args.bad_telemetry > 0 else None)
+        bad_telemetry=BadTelemetry(every=args.bad_telemetry) if args.bad_telemetry > 0 else None, truth=truth)
 
     def on_signal(signum: int, frame: object) -> None:
         sim.stop()

@@ -28,6 +28,7 @@ from modules.dsp.framing import FrameParser, build_frame
 from modules.dsp.sim.faults import BadTelemetry, FaultInjector, garble
 from modules.dsp.sim.machine import DspMachine, DspParams
 from modules.dsp.sim.transport import Endpoint
+from modules.dsp.sim.truth import TruthSender
 from modules.dsp.sim.vehicle import VehicleParams
 
 log = logging.getLogger(__name__)
@@ -90,7 +91,8 @@ class DspSimulator:
                  baud: int = 921_600, tx_faults: FaultInjector | None = None,
                  rx_faults: FaultInjector | None = None, record_path: str | os.PathLike[str] | None = None,
                  fail_at: list[tuple[float, int]] | None = None, seed: int | None = None,
-                 bad_telemetry: BadTelemetry | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+                 bad_telemetry: BadTelemetry | None = None, clock: Callable[[], float] = time.monotonic,
+                 truth: TruthSender | None = None) -> None:
         if rate_hz <= 0 or time_scale <= 0:
             raise ValueError("rate_hz and time_scale must be positive")
         self.endpoint = endpoint
@@ -102,6 +104,7 @@ class DspSimulator:
         self.tx_faults = tx_faults
         self.rx_faults = rx_faults
         self.bad_telemetry = bad_telemetry
+        self.truth = truth  # the aircraft's true state to the lidar simulators (modules/dsp/sim/truth.py)
         self._clock = clock
         self._rng = np.random.default_rng(seed)
         self._parser = FrameParser(PC_TO_DSP_LENGTHS)
@@ -159,6 +162,8 @@ class DspSimulator:
                 pass
         if self._record is not None:
             self._record.close()
+        if self.truth is not None:
+            self.truth.close()
 
     # --- observation ---------------------------------------------------------------------------------------
 
@@ -214,6 +219,8 @@ class DspSimulator:
                 while now >= next_tick and steps < MAX_CATCH_UP_STEPS:
                     with self._lock:
                         out = self.machine.step(dt)
+                        if self.truth is not None:
+                            self.truth.send(self.machine)
                     for msg in out:
                         self._send(msg)
                     next_tick += wall_dt

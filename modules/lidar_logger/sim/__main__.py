@@ -2,6 +2,10 @@
 
     python -m modules.lidar_logger.sim [--time-scale 1] [--port 0] [--xkf-valid-at 2] ...
 
+With ``--follow-udp PORT`` the aircraft is the DSP simulator's (``python -m modules.dsp.sim --truth-udp
+127.0.0.1:PORT``): the clock is the DSP's simulated time, the terrain is anchored at the DSP's home (or
+``--origin``) and ``--time-scale``/``--speed``/``--height`` are not used (sim/follow.py).
+
 Prints one JSON line ``{"mtig_port": "/dev/pts/N", "ldmrs_host": "127.0.0.1", "ldmrs_port": P, ...}`` then
 serves until SIGINT or SIGTERM, and prints what it did as a second JSON line.
 """
@@ -16,6 +20,7 @@ import threading
 from pathlib import Path
 
 from modules.lidar_logger.clock import ScaledClock
+from modules.lidar_logger.sim.follow import FollowClock, FollowedFlight, TruthReceiver
 from modules.lidar_logger.sim.ldmrs_sim import LdmrsOptions, LdmrsSimulator
 from modules.lidar_logger.sim.mtig_sim import MTiGSimulator
 from modules.lidar_logger.sim.world import SEED_UTC_START, Flight, World
@@ -35,12 +40,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--return-fraction", type=float, default=1.0, help="share of beams that return an echo")
     p.add_argument("--silent-after", type=float, help="stop sending scans this many s after StartMeasure")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--follow-udp", type=int, metavar="PORT",
+                   help="fly with the DSP simulator's aircraft: its truth datagrams on 127.0.0.1:PORT (0 = any)")
+    p.add_argument("--origin", type=float, nargs=3, metavar=("LAT", "LON", "ALT"),
+                   help="terrain origin (default: the DSP's home when following, else 37.4261 -6.0032 50)")
     p.add_argument("--pty-link", help="also make this path a symlink to the MTi-G pty (a stable name)")
     args = p.parse_args(argv)
 
-    world = World(clock=ScaledClock(args.time_scale), utc_start=args.utc_start,
-                  flight=Flight(speed=args.speed, height=args.height),
-                  gps_fix_at=args.gps_fix_at, xkf_valid_at=args.xkf_valid_at)
+    origin = tuple(args.origin) if args.origin else None
+    receiver: TruthReceiver | None = None
+    if args.follow_udp is not None:
+        world = World(clock=FollowClock(), utc_start=args.utc_start, gps_fix_at=args.gps_fix_at,
+                      xkf_valid_at=args.xkf_valid_at, **({"origin_lla": origin} if origin else {}))
+        world.flight = FollowedFlight(origin, on_anchor=world.set_origin)
+        receiver = TruthReceiver(world.clock, world.flight, port=args.follow_udp).start()  # type: ignore[arg-type]
+    else:
+        world = World(clock=ScaledClock(args.time_scale), utc_start=args.utc_start,
+                      flight=Flight(speed=args.speed, height=args.height),
+                      gps_fix_at=args.gps_fix_at, xkf_valid_at=args.xkf_valid_at,
+                      **({"origin_lla": origin} if origin else {}))
     options = LdmrsOptions(return_fraction=args.return_fraction, silent_after=args.silent_after,
                            seed=args.seed)
     done = threading.Event()
@@ -52,8 +70,11 @@ def main(argv: list[str] | None = None) -> int:
             link.unlink(missing_ok=True)
             link.symlink_to(imu.port)
         with LdmrsSimulator(world, options, port=args.port) as lidar:
-            print(json.dumps({"mtig_port": imu.port, "ldmrs_host": lidar.host, "ldmrs_port": lidar.port,
-                              "time_scale": args.time_scale}), flush=True)
+            ready = {"mtig_port": imu.port, "ldmrs_host": lidar.host, "ldmrs_port": lidar.port,
+                     "time_scale": args.time_scale}
+            if receiver is not None:
+                ready.update(follow_udp=receiver.port, time_scale="the DSP's")
+            print(json.dumps(ready), flush=True)
             while not done.wait(0.2):
                 pass
             if link is not None:
@@ -61,7 +82,12 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps({"scans_sent": len(lidar.device.sent_scans),
                               "ldmrs_commands": len(lidar.device.commands),
                               "mtig_messages": len(imu.device.received),
-                              "poses_sent": len(imu.device.poses_sent)}), flush=True)
+                              "poses_sent": len(imu.device.poses_sent),
+                              **({} if receiver is None else {"truth_received": receiver.received,
+                                                              "truth_lost": receiver.lost,
+                                                              "truth_invalid": receiver.invalid})}), flush=True)
+    if receiver is not None:
+        receiver.stop()
     return 0
 
 

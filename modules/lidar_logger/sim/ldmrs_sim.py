@@ -13,6 +13,7 @@ messages, messages sent in pieces.
 
 from __future__ import annotations
 
+import functools
 import select
 import socket
 import struct
@@ -73,6 +74,24 @@ class LdmrsOptions:
     """Put 1-40 junk bytes before every k-th message (0 = never)."""
     split_sends: bool = False
     """Send every message in three pieces a little apart, so the driver sees it across several reads."""
+
+
+CATCH_UP_BURST = 4
+"""Scans sent in a row before the command socket is read again."""
+
+
+@functools.lru_cache(maxsize=16)
+def _beam_pattern(s_t: int, e_t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    angles = np.arange(s_t, e_t - 1, -ANGLE_STEP_TICKS, dtype=np.int64)
+    layers_per = np.where(angles > TWO_LAYER_ABOVE_TICKS, 2, 4)
+    angle = np.repeat(angles, layers_per)
+    layer = np.arange(len(angle), dtype=np.int64) - np.repeat(np.cumsum(layers_per) - layers_per, layers_per)
+    h = np.radians(angle / TICKS_PER_DEGREE)
+    el = np.radians(layer_elevation_deg(layer))
+    dirs = np.stack((np.cos(el) * np.cos(h), np.cos(el) * np.sin(h), np.sin(el)), axis=-1)
+    for a in (angle, layer, dirs):
+        a.flags.writeable = False  # shared by every scan of every device
+    return angle, layer, dirs
 
 
 @dataclass
@@ -205,19 +224,18 @@ class LdmrsDevice:
         self.sent_scans.append(scan)
         return scan
 
+    def _beams(self, s_t: int, e_t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every beam of a rotation from ``s_t`` to ``e_t`` ticks: angle, layer, unit direction (scanner frame),
+        computed once per angle setting."""
+        return _beam_pattern(s_t, e_t)
+
     def _build(self, number: int, t_start: float) -> Scan:
         s_t, e_t = self.start_ticks, self.end_ticks
-        angles = np.arange(s_t, e_t - 1, -ANGLE_STEP_TICKS, dtype=np.int64)
-        layers_per = np.where(angles > TWO_LAYER_ABOVE_TICKS, 2, 4)
-        angle = np.repeat(angles, layers_per)
-        layer = np.concatenate([np.arange(k) for k in layers_per]).astype(np.int64)
+        all_angle, all_layer, all_dirs = self._beams(s_t, e_t)
         rng = self._rng
-        returns = rng.random(len(angle)) < self.options.return_fraction
-        angle, layer = angle[returns], layer[returns]
+        returns = rng.random(len(all_angle)) < self.options.return_fraction
+        angle, layer, dirs = all_angle[returns], all_layer[returns], all_dirs[returns]
         t_beam = t_start + self.sweep * (s_t - angle) / (s_t - e_t)
-        h = np.radians(angle / TICKS_PER_DEGREE)
-        el = np.radians(layer_elevation_deg(layer))
-        dirs = np.stack((np.cos(el) * np.cos(h), np.cos(el) * np.sin(h), np.sin(el)), axis=-1)
         origins, world_dirs = self.world.beam_geometry(t_beam, dirs)
         dist = self.world.terrain.ray_cast(origins, world_dirs, self.options.max_range)
         dist_cm = np.rint(np.nan_to_num(dist, nan=0.0) * 100.0)
@@ -311,8 +329,12 @@ class LdmrsSimulator(BackgroundServer):
             try:
                 ready, _, _ = select.select([client], [], [], timeout)
                 now = clock.now()
-                while self.device.due(now):  # scans that ended before the commands below are read
+                burst = 0
+                # scans that ended before the commands below are read; a simulator far behind (a loaded machine)
+                # still reads its commands every few scans, so a StopMeasure is answered while it catches up
+                while self.device.due(now) and burst < CATCH_UP_BURST:
                     scan = self.device.take_scan(send=True)
+                    burst += 1
                     if scan is not None:
                         self._send(client, DataType.SCAN, encode_scan(scan), now)
                 if ready:

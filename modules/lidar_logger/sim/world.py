@@ -33,6 +33,7 @@ from modules.lidar_logger.mtdata import (
     UtcTime,
     utc_from_posix,
 )
+from modules.lidar_logger.sim.follow import FollowedFlight
 
 SEED_UTC_START = 1284103800.0
 """2010-09-10T07:30:00Z, the day of the seed's Figure 44 flights."""
@@ -179,7 +180,8 @@ class World:
     """UTC (POSIX seconds) at clock time 0."""
     origin_lla: tuple[float, float, float] = (37.4261, -6.0032, 50.0)
     terrain: Terrain = field(default_factory=Terrain)
-    flight: Flight = field(default_factory=Flight)
+    flight: Flight | FollowedFlight = field(default_factory=Flight)
+    """Straight legs (``Flight``), or the DSP simulator's aircraft (``FollowedFlight``, sim/follow.py)."""
     mounting: Mounting = field(default_factory=Mounting)
     """Where the simulated scanner really sits on the body."""
     gps_fix_at: float = 1.0
@@ -192,6 +194,11 @@ class World:
     def __post_init__(self) -> None:
         self._origin_ecef = lla_to_ecef(np.array(self.origin_lla))
         self._ecef_from_terrain = ecef_from_enu(self.origin_lla[0], self.origin_lla[1])
+
+    def set_origin(self, origin_lla: tuple[float, float, float]) -> None:
+        """Anchor the terrain frame elsewhere (a followed aircraft's home, ``sim/follow.py``)."""
+        self.origin_lla = (float(origin_lla[0]), float(origin_lla[1]), float(origin_lla[2]))
+        self.__post_init__()
 
     def now(self) -> float:
         return self.clock.now()
