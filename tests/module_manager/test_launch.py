@@ -290,3 +290,33 @@ def test_module_stop_start_restart_through_mri(launch, clients):
     assert reply.ok and reply.data.state == "up" and reply.data.pid != pid
     assert reply.data.restarts == 0, "operator restarts are not failures"
     assert la.stop() == 0
+
+
+def test_sigterm_after_the_reader_of_its_output_went_away_still_stops_everything(tmp_path):
+    """A launch whose stdout reader died (the terminal or the test runner that started it was killed) still stops
+    every module and exits on SIGTERM: a write to the closed pipe must not cut its shutdown short."""
+    import subprocess
+
+    from bbcs.testing import child_env, free_port
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "module_manager.cli", str(write_manifest(tmp_path)), "--listen",
+         f"tcp/127.0.0.1:{free_port()}", "--log-dir", str(tmp_path / "logs"), "--status-interval", "0.2"],
+        cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        start_new_session=True)
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # no reader thread: this test owns the pipe and closes it
+            if UP in line:
+                break
+        assert len(group_members(proc.pid)) >= 5, "manager, router and three modules"
+        proc.stdout.close()  # the reader goes away: the manager's next status line hits a closed pipe
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) in (0, 1)
+        wait_until(lambda: group_members(proc.pid) == [], 30, "every child of the launch gone")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        for pid in group_members(proc.pid):
+            os.kill(pid, signal.SIGKILL)
