@@ -3,7 +3,10 @@ router, Module Manager, modules and DSP simulator), meshed in a star; a ground s
 all ten, takes them off and posts twenty targets; the ten RALs agree on one allocation and every target is
 flown by the robot that won it (its DSP simulator's record), and by no other.
 
-Heavy (about 60 processes): run it on its own or with ``-n 2``.
+Heavy (about 80 processes): on a 2-core machine the ten stacks do not all come up within the test's limits and
+they starve every test that runs beside them, so the suite runs it only when asked:
+``CROMAT_FLEET_SCALE=1 python -m pytest tests/system/test_fleet_scale.py`` (docs/fleet.md says it has not yet
+passed on the project's 2-core machines).
 """
 
 from __future__ import annotations
@@ -40,6 +43,8 @@ def records(run: Path, name: str) -> list[tuple[float, float]]:
     return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in lines if c["name"] == "ADD_WAYPOINT"]
 
 
+@pytest.mark.skipif(os.environ.get("CROMAT_FLEET_SCALE") != "1",
+                    reason="ten robot stacks need more than 2 cores; set CROMAT_FLEET_SCALE=1 to run it")
 @pytest.mark.timeout(900)
 def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path) -> None:
     spec = load_fleet(FLEET)
