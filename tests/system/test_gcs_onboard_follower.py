@@ -14,6 +14,7 @@ from pathlib import Path
 
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
+from bbcs.testing import wait_until
 from ral.tasks import ONBOARD_TASK
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -65,6 +66,10 @@ def test_gcs_follow_path_with_the_onboard_follower_flies_mode_3(make_robot: Fact
         reply = robot.gcs.send(ROBOT, t.FollowPath(waypoints=path, speed=5.0, follower="onboard"))
         assert reply.accepted, reply.reason
         done = ended(robot, reply.task_id, 120, start)
+        # the 1 Hz state lags the completion event: judge where the aircraft ended from two states after it
+        with lock:
+            after = len(seen)
+        wait_until(lambda: len(seen) >= after + 2, 15, "two states after the task ended")
     assert done.kind == "task_completed", done
     running = [e for e in robot.events[start:] if e.task_id == reply.task_id and e.kind == "task_accepted"]
     assert running, "the ground station was told the task started"
