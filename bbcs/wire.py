@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import json
+import threading
 import typing
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -42,6 +43,28 @@ def put(target: Any, value: msgspec.Struct, key: str | None = None) -> None:
 def reply(query: zenoh.Query, key: Any, value: msgspec.Struct) -> None:
     """Reply to ``query`` on ``key`` (the queryable's own key) with ``value`` and its encoding."""
     query.reply(key, encode(value), encoding=encoding_for(type(value)))
+
+
+def answer_in_thread(query: zenoh.Query, key: Any, decoder: msgspec.msgpack.Decoder[Any],
+                     handle: Callable[[Any], msgspec.Struct], invalid: Callable[[str], msgspec.Struct],
+                     name: str) -> None:
+    """Decode ``query``'s payload, ``handle`` it and reply on ``key``, on a thread of its own: for handlers too slow
+    for Zenoh's thread (a slow callback stalls the link's other subscriptions). A payload that does not decode is
+    answered with ``invalid(reason)``."""
+
+    def run() -> None:
+        try:
+            request = decoder.decode(query.payload.to_bytes() if query.payload is not None else b"")
+        except msgspec.MsgspecError as exc:
+            value = invalid(str(exc))
+        else:
+            value = handle(request)
+        try:
+            reply(query, key, value)
+        finally:
+            query.drop()
+
+    threading.Thread(target=run, name=name, daemon=True).start()
 
 
 def describe_type(struct_type: Any) -> dict[str, Any]:

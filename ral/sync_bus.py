@@ -195,19 +195,9 @@ class SyncNode:
 
     def _on_request(self, query: zenoh.Query) -> None:
         """Answered on a thread of its own (checking a task may ask the manager: too slow for Zenoh's thread)."""
-        threading.Thread(target=self._answer, args=(query,), name="ral.sync_request", daemon=True).start()
-
-    def _answer(self, query: zenoh.Query) -> None:
-        try:
-            request = _request_decoder.decode(query.payload.to_bytes() if query.payload is not None else b"")
-        except msgspec.MsgspecError as exc:
-            reply = s.SyncReply(accepted=False, reason=f"invalid sync request: {exc}")
-        else:
-            reply = self.handle(request)
-        try:
-            wire.reply(query, s.sync_key(self.robot), reply)
-        finally:
-            query.drop()
+        wire.answer_in_thread(query, s.sync_key(self.robot), _request_decoder, self.handle,
+                              lambda why: s.SyncReply(accepted=False, reason=f"invalid sync request: {why}"),
+                              "ral.sync_request")
 
     def handle(self, request: s.SyncRequest) -> s.SyncReply:
         if isinstance(request, s.SyncStatus):

@@ -197,19 +197,9 @@ class WorldNode:
 
     def _on_request(self, query: zenoh.Query) -> None:
         """Answered on a thread of its own: a track_target starts a task (MRI round trips), too slow for Zenoh's."""
-        threading.Thread(target=self._answer, args=(query,), name="ral.world_request", daemon=True).start()
-
-    def _answer(self, query: zenoh.Query) -> None:
-        try:
-            request = _request_decoder.decode(query.payload.to_bytes() if query.payload is not None else b"")
-        except msgspec.MsgspecError as exc:
-            reply = w.WorldReply(accepted=False, reason=f"invalid world request: {exc}")
-        else:
-            reply = self.request(request)
-        try:
-            wire.reply(query, w.world_request_key(self.robot), reply)
-        finally:
-            query.drop()
+        wire.answer_in_thread(query, w.world_request_key(self.robot), _request_decoder, self.request,
+                              lambda why: w.WorldReply(accepted=False, reason=f"invalid world request: {why}"),
+                              "ral.world_request")
 
     def _on_vision_target(self, sample: zenoh.Sample) -> None:
         try:
