@@ -175,6 +175,9 @@ class DspModule(Module):
                 flushed = []
                 self._batches.append(batch)
             self._cond.notify_all()
+        if any(isinstance(cmd, p.Abort) for cmd in batch.commands):
+            self.log.info("ABORT from %s (batch %d): %d queued batches flushed", batch.sender, batch.batch_id,
+                          len(flushed))
         for old in flushed:
             self._publish_report(LinkErrorCode.FLUSHED, f"batch flushed by an ABORT from {batch.sender}", old)
 

@@ -9,8 +9,11 @@ subscriber received. The legitimate twin (the DSP identity publishing its own te
 whose session had no policy *does* receive the forgery, which proves that the forgery really travels the direct
 link (the router would have dropped it) and that the receiver's policy is what stops it.
 
-Marker technique: one link keeps its messages in order, so after the attempt the attacker publishes a marker on a
-key it owns; once the victim has the marker, anything the attempt had let through would have arrived before it.
+Witness and marker: a session of the victim's identity that enforces nothing (the witness) subscribes beside the
+victim; the attacker writes the forgery until the witness has it (so it did travel a direct link: the router drops
+it), then a marker on a key it owns, and the victim's inbox is judged once the marker has reached it. Zenoh gives no
+order between the router's path and the direct one, so the witness, not a single write, is what shows the attack was
+really made.
 """
 
 from __future__ import annotations
@@ -121,16 +124,32 @@ def linked(a: zenoh.Session, b: zenoh.Session) -> bool:
     return b.zid() in a.info.peers_zid() and a.zid() in b.info.peers_zid()
 
 
-def attempt(victim: zenoh.Session, attacker: zenoh.Session, key: str, forged: bytes, tag: bytes) -> Inbox:
-    """Subscribe the victim, wait for the direct link and the subscriptions, write ``forged`` then the marker."""
+def attempt(victim: zenoh.Session, attacker: zenoh.Session, key: str, forged: bytes, tag: bytes,
+            witness: zenoh.Session) -> Inbox:
+    """Subscribe the victim and a witness (a session of the same identity that enforces nothing), wait for the
+    direct links and the subscriptions, write ``forged`` until the witness has it, then a marker; returns the
+    victim's inbox once the marker has reached it.
+
+    Why a witness: a peer learns a subscription from two faces, the direct link and the router, and the two paths
+    have no order between them. The witness receiving the forgery shows that the forgery did travel a direct link
+    at that moment (the router drops it), and the marker written after that shows the victim's link has
+    delivered everything written before it."""
     inbox = Inbox(victim, key, MARKER)
-    wait_until(lambda: linked(victim, attacker), 30, "the attacker never linked directly to the victim")
+    seen = Inbox(witness, key)
+    for peer in (victim, witness):
+        wait_until(lambda p=peer: linked(p, attacker), 30, "the attacker never linked directly to the victim")
     pub = attacker.declare_publisher(key)
     marker = attacker.declare_publisher(MARKER)
     wait_until(lambda: marker.matching_status.matching, 30, "the victim's marker subscription never arrived")
-    pub.put(forged)
+    for _ in range(20):
+        pub.put(forged)
+        if seen.wait_for(key, forged, 1.0):
+            break
+    else:
+        raise AssertionError("the forgery never reached the witness over its direct link: the attack was not made")
     marker.put(tag)
     assert inbox.wait_for(MARKER, tag), "the attacker's own marker never reached the victim"
+    seen.close()
     pub.undeclare()
     marker.undeclare()
     return inbox
@@ -138,12 +157,13 @@ def attempt(victim: zenoh.Session, attacker: zenoh.Session, key: str, forged: by
 
 def test_compromised_module_cannot_write_a_slot_it_does_not_own_over_a_direct_link(rig: Rig) -> None:
     victim = rig.module("pan_tilt")  # reads the DSP's telemetry, owns its CONTROL_ENTRADA (the manager writes it)
+    witness = rig.module("pan_tilt", policy=False)
     attacker = rig.module("vision", policy=False)
     forged = msgspec.msgpack.encode({"lat": 200.0, "mode": "SPOOFED"})
-    inbox = attempt(victim, attacker, TELEMETRY, forged, b"m1")
+    inbox = attempt(victim, attacker, TELEMETRY, forged, b"m1", witness)
     assert inbox.values(TELEMETRY) == []
     inbox.close()
-    inbox = attempt(victim, attacker, CONTROL, msgspec.msgpack.encode({"datos": 20}), b"m2")
+    inbox = attempt(victim, attacker, CONTROL, msgspec.msgpack.encode({"datos": 20}), b"m2", witness)
     assert inbox.values(CONTROL) == []
     inbox.close()
 
@@ -166,7 +186,11 @@ def test_without_the_receivers_policy_the_forgery_would_arrive(rig: Rig) -> None
     does travel the direct link and the router is not what stopped it above."""
     victim = rig.module("pan_tilt", policy=False)
     attacker = rig.module("vision", policy=False)
-    inbox = attempt(victim, attacker, TELEMETRY, b"forged", b"m3")
-    assert inbox.values(TELEMETRY) == [b"forged"]
+    inbox = Inbox(victim, TELEMETRY)
+    wait_until(lambda: linked(victim, attacker), 30, "the attacker never linked directly to the victim")
+    pub = attacker.declare_publisher(TELEMETRY)
+    wait_until(lambda: pub.matching_status.matching, 30, "the victim's telemetry subscription never arrived")
+    pub.put(b"forged")
+    assert inbox.wait_for(TELEMETRY, b"forged"), "a forgery on a direct link to a victim without a policy was lost"
     inbox.close()
-
+    pub.undeclare()
