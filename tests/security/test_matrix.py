@@ -27,6 +27,7 @@ from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
 from cromat import certs
+from modules.dsp.sim.record import read_record
 
 ROBOT = "uav1"
 MODULES = ["dsp", "pan_tilt", "path_follower", "vision", "trajectory"]
@@ -342,7 +343,6 @@ def _batch(sender: str, *commands: object) -> bytes:
 
 
 def test_dsp_commands_reach_the_simulator_only_from_their_owner(rig: Rig, who: Sessions, tmp_path: Path) -> None:
-    import json
     import select
 
     from modules.dsp import protocol as p
@@ -362,8 +362,7 @@ def test_dsp_commands_reach_the_simulator_only_from_their_owner(rig: Rig, who: S
             wait_until(lambda: observer.values(f"{R}/dsp/link"), 60, "the DSP process started up")
 
             def names() -> list[str]:
-                text = record.read_text()
-                return [json.loads(line)["name"] for line in text[: text.rfind("\n") + 1].splitlines()]
+                return [c["name"] for c in read_record(record)]
 
             startup = len(names())
             # refused: the vision identity on the path follower's key (router), the shared mailbox (router),

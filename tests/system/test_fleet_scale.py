@@ -11,7 +11,6 @@ passed on the project's 2-core machines).
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import signal
@@ -33,13 +32,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, group_members  # noqa: E402
 from test_fleet_alloc import cli_post, take_off_all  # noqa: E402
 
+from modules.dsp.sim.record import read_record
+
 FLEET = ROOT / "bbcs_conf" / "fleet10_sim.toml"
 
 
 def records(run: Path, name: str) -> list[tuple[float, float]]:
-    path = run / name / "dsp_record.jsonl"
-    text = path.read_text() if path.exists() else ""
-    lines = [json.loads(x) for x in text[: text.rfind("\n") + 1].splitlines() if x.strip()]
+    lines = read_record(run / name / "dsp_record.jsonl")
     return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in lines if c["name"] == "ADD_WAYPOINT"]
 
 

@@ -9,7 +9,6 @@ What the simulated DSP received is read from its ``--record`` file (every comman
 
 from __future__ import annotations
 
-import json
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -23,6 +22,8 @@ from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, Launch  # noqa: E402
+
+from modules.dsp.sim.record import read_record
 
 ROBOT = "uav1"
 MANIFEST = ROOT / "bbcs_conf" / "uav1_sim.toml"
@@ -110,10 +111,7 @@ class SimRobot:
 
     def commands(self) -> list[dict]:
         """Every command frame the simulated DSP received so far (its record file)."""
-        if not self.record.exists():
-            return []
-        text = self.record.read_text()  # a line the simulator is still writing is left for the next read
-        return [json.loads(line) for line in text[: text.rfind("\n") + 1].splitlines() if line.strip()]
+        return read_record(self.record)
 
     def ensure_airborne(self, height: float = 10.0) -> gri.GriState:
         state = self.wait_state(

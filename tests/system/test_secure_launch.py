@@ -35,6 +35,8 @@ from ral.gcs.api import Gcs, NoReply, Unreachable, session_config
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, Launch  # noqa: E402
 
+from modules.dsp.sim.record import read_record
+
 ROBOT = "uav1"
 MANIFEST = ROOT / "bbcs_conf" / "uav1_secure.toml"
 MODULES = {"dsp", "telemetry", "pan_tilt", "path_follower", "vision", "trajectory", "ral"}
@@ -84,9 +86,7 @@ class Robot:
 
     def commands(self) -> list[dict]:
         """Every command frame the DSP simulator received so far (its record; a half-written line waits)."""
-        record = self.folder / "dsp.jsonl"
-        text = record.read_text() if record.exists() else ""
-        return [json.loads(line) for line in text[: text.rfind("\n") + 1].splitlines() if line.strip()]
+        return read_record(self.folder / "dsp.jsonl")
 
     def router_log(self) -> str:
         path = self.folder / "logs" / "router.log"

@@ -16,7 +16,6 @@ handled the first one (``handled``).
 
 from __future__ import annotations
 
-import json
 import select
 import subprocess
 import threading
@@ -47,6 +46,7 @@ from bbcs.testing import Processes, start_router, wait_until
 from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
 from modules.dsp.link import startup_commands
+from modules.dsp.sim.record import read_record
 
 ROOT = Path(__file__).resolve().parents[2]
 CONF = ROOT / "bbcs_conf" / "uav1.conf"
@@ -302,11 +302,7 @@ class Stack:
 
     def all_received(self) -> list[dict[str, Any]]:
         """Every command frame the simulator applied, in order (link retransmissions left out)."""
-        if not self.record.exists():
-            return []
-        text = self.record.read_text()  # a line the simulator is still writing is left for the next read
-        lines = text[: text.rfind("\n") + 1].splitlines()
-        return [r for r in (json.loads(line) for line in lines if line.endswith("}")) if not r["duplicate"]]
+        return read_record(self.record)
 
     def mark(self) -> int:
         return len(self.all_received())

@@ -5,7 +5,6 @@ routes DATOS back to the RAL's slot."""
 
 from __future__ import annotations
 
-import json
 import sys
 import threading
 from pathlib import Path
@@ -18,6 +17,7 @@ from bbcs.contracts import mri
 from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import GeoPoint, SurveyRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.testing import wait_until
+from modules.dsp.sim.record import read_record
 
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "tests" / "module_manager"))
@@ -42,8 +42,7 @@ def manifest(tmp_path: Path) -> Path:
 
 
 def dsp_records(tmp_path: Path) -> list[dict]:
-    f = tmp_path / "dsp.jsonl"
-    return [json.loads(line) for line in f.read_text().splitlines() if line.strip()] if f.exists() else []
+    return read_record(tmp_path / "dsp.jsonl")
 
 
 @pytest.mark.timeout(240)
