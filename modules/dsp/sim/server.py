@@ -33,6 +33,9 @@ from modules.dsp.sim.vehicle import VehicleParams
 
 log = logging.getLogger(__name__)
 MAX_CATCH_UP_STEPS = 50
+"""Steps behind the wall clock beyond which simulated time slips instead of catching up."""
+STEPS_PER_PASS = 5
+"""Steps between two looks at the line while catching up."""
 
 
 @dataclass(frozen=True)
@@ -216,7 +219,9 @@ class DspSimulator:
                     self._check_baud()
                     next_baud_check = now + 0.1
                 steps = 0
-                while now >= next_tick and steps < MAX_CATCH_UP_STEPS:
+                # a few steps per pass, then back to select: a simulator catching up (a loaded machine) still
+                # answers every command within a few steps, as the real DSP's interrupt-driven line does
+                while now >= next_tick and steps < STEPS_PER_PASS:
                     with self._lock:
                         out = self.machine.step(dt)
                         if self.truth is not None:
@@ -225,8 +230,8 @@ class DspSimulator:
                         self._send(msg)
                     next_tick += wall_dt
                     steps += 1
-                if now >= next_tick:  # could not keep up: let simulated time slip instead of spiralling
-                    next_tick = now + wall_dt
+                if now - next_tick > MAX_CATCH_UP_STEPS * wall_dt:
+                    next_tick = now + wall_dt  # could not keep up: let simulated time slip instead of spiralling
         finally:
             self._running = False
             if self._thread is None:
