@@ -179,7 +179,8 @@ def _georef(args: argparse.Namespace) -> int:
                             f"origin lat {o[0]:.9f} lon {o[1]:.9f} h {o[2]:.4f}",
                             f"time_aligned {int(result.time_aligned)}; intensity = echo width (m)"])
     print(f"{len(idx)} points -> {args.out} (skipped {result.skipped_invalid_points} flagged points, "
-          f"{result.skipped_invalid_pose} points without a valid pose; time aligned: {result.time_aligned})")
+          f"{result.skipped_invalid_pose} points without a valid pose, {result.skipped_pose_gap} in gaps of the "
+          f"pose track; time aligned: {result.time_aligned})")
     return 0
 
 
@@ -192,6 +193,7 @@ def _dtm(args: argparse.Namespace) -> int:
     origin = np.array(args.origin) if args.origin else None
     clouds = []
     left_out = 0
+    in_gaps = 0
     for item in args.logs:
         path = Path(item)
         log = load_log(path)
@@ -205,6 +207,7 @@ def _dtm(args: argparse.Namespace) -> int:
                               select=select, interpolate_poses=args.interpolate_poses,
                               time_align={"auto": None, "on": True, "off": False}[args.time_align])
         origin = result.origin_lla
+        in_gaps += result.skipped_pose_gap
         clouds.append(result.enu)
     assert origin is not None
     enu = np.concatenate(clouds)
@@ -219,7 +222,7 @@ def _dtm(args: argparse.Namespace) -> int:
     dtm = build_dtm(enu, args.cell, max_above=args.max_above, min_points=args.min_points, bounds=bounds)
     report = {"points": len(enu), "logs": len(args.logs), "cell_m": args.cell, "rows": dtm.shape[0],
               "cols": dtm.shape[1], **coverage(dtm).as_dict(), "geotiff": str(write_geotiff(args.out, dtm, origin)),
-              "origin_lla": [float(v) for v in origin]}
+              "origin_lla": [float(v) for v in origin], "points_left_out_pose_gaps": in_gaps}
     if args.max_turn_rate is not None:
         report["scans_left_out_turning"] = left_out
     if area is not None:

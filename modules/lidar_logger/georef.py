@@ -65,6 +65,8 @@ class GeorefResult:
     time_aligned: bool
     skipped_invalid_points: int
     skipped_invalid_pose: int
+    skipped_pose_gap: int = 0
+    """Points measured where the pose track has a gap (``interpolate_poses``): left out, not extrapolated."""
 
 
 def clocks_synchronised(log: LidarLog) -> bool:
@@ -86,7 +88,9 @@ def georeference(log: LidarLog, mounting: Mounting = Mounting(), *,
     ``interpolate_poses`` (needs time alignment): each point takes the pose interpolated at its own time
     between the two logged poses around it (position linear, Euler angles linear with yaw unwrapped) instead of
     its scan's pose moved along the velocity, so attitude changes between poses (a helicopter's attitude loop,
-    turns) are followed; across a gap of more than ``MAX_POSE_GAP_S`` the scan's own pose is used."""
+    turns) are followed. A point between two poses more than ``MAX_POSE_GAP_S`` apart, or further than that
+    before the first or after the last, is left out and counted (``skipped_pose_gap``): seconds of motion
+    extrapolated along one velocity put turning ground metres off (a logger starved of CPU loses poses)."""
     if position_ref not in ("imu", "antenna"):
         raise GeorefError(f"position_ref must be 'imu' or 'antenna', not {position_ref!r}")
     pose_ok = log.valid == 1
@@ -115,12 +119,14 @@ def georeference(log: LidarLog, mounting: Mounting = Mounting(), *,
 
     track = _PoseTrack(log, pose_ok, pos, vel, r_ecef_nwu) if interpolate_poses and aligned else None
     out = np.empty((len(keep), 3))
+    covered = np.ones(len(keep), dtype=bool)
     for a in range(0, len(keep), CHUNK):
         idx = keep[a:a + CHUNK]
         s = log.point_scan[idx]
         p_body = log.xyz[idx] @ r_m.T + t_m
         if track is not None:
-            p_imu, r_body = track.at(log.start_time[s] + log.offset_us[idx] * 1e-6, s)
+            p_imu, r_body, ok = track.at(log.start_time[s] + log.offset_us[idx] * 1e-6)
+            covered[a:a + len(idx)] = ok
             p = p_imu + np.einsum("nij,nj->ni", r_body, p_body)
         else:
             p = pos[s] + np.einsum("nij,nj->ni", r_ecef_body[s], p_body)
@@ -128,13 +134,13 @@ def georeference(log: LidarLog, mounting: Mounting = Mounting(), *,
                 dt = (log.start_time[s] - log.pose_time[s]) + log.offset_us[idx] * 1e-6
                 p += vel[s] * dt[:, None]
         out[a:a + len(idx)] = (p - origin) @ r_ecef_enu0
-    return GeorefResult(out, origin_lla, keep, aligned,
+    return GeorefResult(out[covered], origin_lla, keep[covered], aligned,
                         skipped_invalid_points=int((~point_ok & with_pose).sum()),
-                        skipped_invalid_pose=int((~with_pose).sum()))
+                        skipped_invalid_pose=int((~with_pose).sum()), skipped_pose_gap=int((~covered).sum()))
 
 
 MAX_POSE_GAP_S = 0.5
-"""Poses further apart than this are not interpolated between (a dropout): the scan's own pose is used."""
+"""Poses further apart than this are not interpolated between (a dropout): the points there are left out."""
 
 
 class _PoseTrack:
@@ -149,16 +155,15 @@ class _PoseTrack:
         euler = log.euler[src].copy()
         euler[:, 2] = np.degrees(np.unwrap(np.radians(euler[:, 2])))
         self.euler = euler
-        self.log = log
-        self.own_pos, self.own_vel = pos, vel
-        self.own_body = r_ecef_nwu @ euler_to_matrix(log.euler)
 
-    def at(self, tau: np.ndarray, scan: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """IMU position (ECEF) and R_ecef←body at UTC ``tau`` of points of scans ``scan``."""
+    def at(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """IMU position (ECEF), R_ecef←body at UTC ``tau``, and which points the track covers (between two poses
+        at most ``MAX_POSE_GAP_S`` apart, or within that of its ends, moved along the end pose's velocity)."""
         n = len(self.t)
         if n < 2:
-            dt = tau - self.log.pose_time[scan]
-            return self.own_pos[scan] + self.own_vel[scan] * dt[:, None], self.own_body[scan]
+            dt = tau - self.t[0]
+            return (self.pos[0] + self.vel[0] * dt[:, None], np.broadcast_to(self.frame[0] @ euler_to_matrix(
+                self.euler[0]), (len(tau), 3, 3)).copy(), np.abs(dt) <= MAX_POSE_GAP_S)
         k = np.clip(np.searchsorted(self.t, tau, side="right") - 1, 0, n - 2)
         span = self.t[k + 1] - self.t[k]
         tc = np.clip(tau, self.t[k], self.t[k + 1])
@@ -168,10 +173,5 @@ class _PoseTrack:
         p += self.vel[end] * (tau - tc)[:, None]
         e = self.euler[k] + (self.euler[k + 1] - self.euler[k]) * u
         r = self.frame[k] @ euler_to_matrix(e)
-        gap = span > MAX_POSE_GAP_S
-        if gap.any():
-            s = scan[gap]
-            dt = tau[gap] - self.log.pose_time[s]
-            p[gap] = self.own_pos[s] + self.own_vel[s] * dt[:, None]
-            r[gap] = self.own_body[s]
-        return p, r
+        ok = (span <= MAX_POSE_GAP_S) & (np.abs(tau - tc) <= MAX_POSE_GAP_S)
+        return p, r, ok

@@ -78,6 +78,28 @@ def test_interpolated_poses_follow_the_attitude_between_poses(wobbly_log) -> Non
     assert np.abs(interpolated).max() < 0.6 * np.abs(scan_pose).max()
 
 
+def test_points_in_a_gap_of_the_pose_track_are_left_out_and_counted(tmp_path) -> None:
+    """A logger starved of CPU for two seconds attached one old pose to every scan of that time: the points
+    measured then are left out (counted), not put metres off by two seconds of extrapolation, and the rest of
+    the flight keeps its accuracy."""
+    world = wobbling_world()
+    records = []
+    for r in flight_scans(world, LdmrsOptions(return_fraction=0.5, seed=5), t_start=2.0, t_end=14.0):
+        t_end = r.scan.end_time - world.utc_start
+        t_pose = 7.97 if 8.0 <= t_end < 10.0 else math.floor(t_end / 0.06) * 0.06 - 0.03
+        records.append(dataclasses.replace(r, pose=world.true_pose(t_pose)))
+    log = load_log(write_run(tmp_path / "Scan_gap", world, records))
+    g = georeference(log, Mounting(), origin_lla=np.array(HOME), select=ground_candidates(log.flags),
+                     time_align=True, interpolate_poses=True)
+    tau = log.start_time[log.point_scan[g.point_index]] + log.offset_us[g.point_index] * 1e-6
+    t0 = world.utc_start
+    assert g.skipped_pose_gap > 0.1 * len(g.point_index)
+    assert not np.any((tau > t0 + 8.2) & (tau < t0 + 9.8)), "a point inside the gap was georeferenced"
+    err = g.enu[:, 2] - world.terrain.height(g.enu[:, 0], g.enu[:, 1])
+    inside = tau <= np.nanmax(log.pose_time)
+    assert float(np.sqrt(np.mean(err[inside] ** 2))) < 0.1
+
+
 def test_interpolation_on_constant_attitude_changes_nothing_measurable(tmp_path) -> None:
     world = World(gps_fix_at=0.0, xkf_valid_at=0.0)
     records = list(flight_scans(world, LdmrsOptions(return_fraction=0.3, seed=2), t_start=5.0, n_scans=40))
