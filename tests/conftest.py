@@ -57,21 +57,3 @@ def sessions(router: int, clients: Callable[[int], object]) -> Callable[[], obje
     """Factory of client sessions of ``router``; all closed at teardown."""
     return lambda: clients(router)
 
-
-HEAVY_STACKS = frozenset({
-    "tests/system/test_fleet_mesh.py", "tests/system/test_fleet_alloc.py", "tests/system/test_fleet_mesh_loss.py",
-    "tests/system/test_fleet_partition.py", "tests/system/test_fleet_scale.py", "tests/system/test_world_sync.py",
-    "tests/system/test_survey_dtm.py", "tests/system/test_gcs_survey.py", "tests/modules/uquad/test_system_square.py",
-})
-"""Tests that run several robot stacks, or one with the lidar simulators' ray casting, for a minute or more.
-
-Why one xdist group (``--dist loadgroup`` in pyproject.toml): two of them side by side put 30-40 processes on the
-2 cores, and the DSP simulator then answers later than the seed's 4 x 0.25 s acknowledgement window. In one group
-they run one after another on one worker while the other worker runs the rest of the suite."""
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    root = config.rootpath
-    for item in items:
-        if item.path.relative_to(root).as_posix() in HEAVY_STACKS:
-            item.add_marker(pytest.mark.xdist_group("heavy_stacks"))
