@@ -57,3 +57,35 @@ def sessions(router: int, clients: Callable[[int], object]) -> Callable[[], obje
     """Factory of client sessions of ``router``; all closed at teardown."""
     return lambda: clients(router)
 
+
+
+HEAVY_STACKS = frozenset({
+    "tests/system/test_fleet_mesh.py", "tests/system/test_fleet_alloc.py", "tests/system/test_fleet_mesh_loss.py",
+    "tests/system/test_fleet_partition.py", "tests/system/test_fleet_scale.py", "tests/system/test_world_sync.py",
+    "tests/system/test_survey_dtm.py", "tests/system/test_gcs_survey.py", "tests/modules/uquad/test_system_square.py",
+})
+"""Test files that run several robot stacks, or one with the lidar simulators' ray casting, for a minute or more.
+
+Two of them side by side put 30-40 processes on the 2 cores, and simulators then answer later than the seed's
+acknowledgement windows. Under xdist they form one work unit (``pytest_xdist_make_scheduler`` below): one worker
+runs them one after another, from the start of the run, while the other worker runs the rest of the suite."""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Heavy files first (a stable sort: their own order kept), so their one work unit starts at once."""
+    root = config.rootpath
+    items.sort(key=lambda item: item.path.relative_to(root).as_posix() not in HEAVY_STACKS)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """Work units of whole files (a module-scoped robot stack starts once, on one worker, and tests numbered to
+    run in order on it do), all ``HEAVY_STACKS`` files one unit."""
+    from xdist.scheduler import LoadFileScheduling
+
+    class HeavyTogetherScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split("::", 1)[0]
+            return "heavy_stacks" if path in HEAVY_STACKS else path
+
+    return HeavyTogetherScheduling(config, log)
