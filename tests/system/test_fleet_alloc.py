@@ -30,7 +30,7 @@ from ral.gcs.api import Gcs, session_config
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, Launch, group_members  # noqa: E402
-from test_fleet_mesh import fleet_manifest  # noqa: E402
+from test_fleet_mesh import VISION_SECTIONS, drop_sections, fleet_manifest  # noqa: E402
 
 N_MODULES = 5
 """uav1_sim.toml without the vision module (nothing here needs it; three robots on a shared 2-core machine)."""
@@ -51,20 +51,6 @@ def grid(lat: float, lon: float, north: int, east: int) -> tuple[float, float]:
 HOMES = {"uav_a": (37.4117, -6.0025), "uav_b": (37.4117, -6.0000), "uav_c": (37.4140, -6.0025)}
 
 
-def drop_sections(text: str, headers: set[str]) -> str:
-    """The manifest without these TOML sections (each up to the next section header)."""
-    out, skip = [], False
-    for line in text.splitlines(keepends=True):
-        s = line.strip()
-        if s in headers:
-            skip = True
-        elif skip and s.startswith("["):
-            skip = False
-        if not skip:
-            out.append(line)
-    return "".join(out)
-
-
 class FleetRobot:
     def __init__(self, tmp: Path, name: str, peers: list[int], can_do: str = "",
                  ral: dict[str, str] | None = None) -> None:
@@ -79,7 +65,7 @@ class FleetRobot:
             assert n == 1, key
         if can_do:
             text = text.replace('params = { kind = "uav",', f'params = {{ kind = "uav", fleet_can_do = "{can_do}",', 1)
-        manifest.write_text(drop_sections(text, {"[modules.vision]", "[tasks.track]", "[tasks.follow_vision_path]"}))
+        manifest.write_text(drop_sections(text, VISION_SECTIONS))
         self.name = name
         self.launch = Launch(manifest, tmp / name)
 

@@ -20,7 +20,29 @@ from ral.gcs.api import Gcs, session_config
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, Launch, group_members  # noqa: E402
-from test_gcs_mission import N_MODULES, sim_manifest  # noqa: E402
+from test_gcs_mission import sim_manifest  # noqa: E402
+
+N_MODULES = 5
+"""uav1_sim.toml's modules without vision."""
+
+
+VISION_SECTIONS = {"[modules.vision]", "[tasks.track]", "[tasks.follow_vision_path]"}
+"""The vision module and the tasks that need it: left out where a test does not use them (its simulated camera
+takes ~40 % of a core per robot, and several robots share this machine's 2 cores)."""
+
+
+def drop_sections(text: str, headers: set[str]) -> str:
+    """The manifest without these TOML sections (each up to the next section header)."""
+    out, skip = [], False
+    for line in text.splitlines(keepends=True):
+        s = line.strip()
+        if s in headers:
+            skip = True
+        elif skip and s.startswith("["):
+            skip = False
+        if not skip:
+            out.append(line)
+    return "".join(out)
 
 
 def fleet_manifest(tmp_path: Path, name: str, peers: list[int]) -> tuple[Path, Path]:
@@ -43,7 +65,9 @@ def fleet_manifest(tmp_path: Path, name: str, peers: list[int]) -> tuple[Path, P
 
 
 def launch(tmp_path: Path, name: str, peers: list[int]) -> tuple[Launch, Path]:
+    """A robot of this test: no vision (nothing here needs it)."""
     manifest, record = fleet_manifest(tmp_path, name, peers)
+    manifest.write_text(drop_sections(manifest.read_text(), VISION_SECTIONS))
     return Launch(manifest, tmp_path / name), record
 
 
