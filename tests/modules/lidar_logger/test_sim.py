@@ -39,7 +39,7 @@ def test_ray_cast_hits_the_terrain() -> None:
 
 def test_max_slope_bounds_the_gradient() -> None:
     terrain = Terrain()
-    e, n = np.meshgrid(np.linspace(-1000, 1000, 801), np.linspace(-1000, 1000, 801))
+    e, n = np.meshgrid(np.linspace(-1000, 1000, 401), np.linspace(-1000, 1000, 401))
     ge, gn = terrain.gradient(e, n)
     assert np.hypot(ge, gn).max() <= terrain.max_slope
     h = 1e-4
