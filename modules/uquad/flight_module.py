@@ -49,7 +49,7 @@ from modules.uquad.imu_protocol import ImuParser
 from modules.uquad.motor_client import MotorClient
 from modules.uquad.planner import Mode, apply_task, heading_deg
 from modules.uquad.structs import ControlEntradaUquad, ImuRaw, MotorCommandLog, UquadMode, UquadState
-from modules.uquad.transport import Stream
+from modules.uquad.transport import Stream, read_available
 
 TELEMETRY_PERIOD_S = 0.1
 STATE_EVERY = 2  # state published every this many IMU frames (50 Hz)
@@ -202,13 +202,7 @@ class UquadModule(Module):
                         self.core.on_gps(LocalGps(*self.home.to_local(fix.lat, fix.lon, fix.alt), fix.ve, fix.vn))
                 if imu.fileno() not in ready:
                     continue
-                try:
-                    data = imu.read()
-                    while imu.fileno() in select.select([imu.fileno()], [], [], 0)[0]:  # all there is, first
-                        data += imu.read()
-                except EOFError as exc:
-                    self.report_error(UquadErrorCode.IMU_LOST, str(exc))
-                    break
+                data, lost = read_available(imu)  # frames read with the end are handled, then the loop stops
                 t_read = time.monotonic()
                 batch = parser.feed(data)
                 # on the wall clock, what was read together is one step (the seed's main); on the IMU's clock
@@ -238,6 +232,9 @@ class UquadModule(Module):
                 if wall >= next_tel:
                     next_tel = wall + TELEMETRY_PERIOD_S
                     self._publish_telemetry()
+                if lost is not None:
+                    self.report_error(UquadErrorCode.IMU_LOST, str(lost))
+                    break
         finally:
             st = parser.stats
             self.log.info("flight loop stopped: frames=%d bad_frames=%d bytes_discarded=%d control_actions=%d",

@@ -3,6 +3,7 @@ or a recorded raw file (the seed's fake mode). Non-blocking reads; ``fileno()`` 
 
 from __future__ import annotations
 
+import select
 import socket
 import time
 
@@ -65,3 +66,19 @@ class Stream:
         for thing in (self._sock, self._serial, self._file):
             if thing is not None:
                 thing.close()
+
+
+def read_available(stream: Stream) -> tuple[bytes, EOFError | None]:
+    """Everything ``stream`` has now (the flight loop handles it as one read), and the end of the stream if it came.
+
+    Why the pair: the bytes read before the far end closed (the simulator's last frames, the tail of a recorded
+    raw log, which arrives in the same reads as its end) are still frames to handle; raising at the end would lose
+    them."""
+    chunks: list[bytes] = []
+    try:
+        chunks.append(stream.read())
+        while stream.fileno() in select.select([stream.fileno()], [], [], 0)[0]:
+            chunks.append(stream.read())
+    except EOFError as end:
+        return b"".join(chunks), end
+    return b"".join(chunks), None

@@ -84,3 +84,42 @@ def test_recorded_raw_log_replays_through_the_loop(sim, tmp_path):
         core.on_imu(frame, i * 0.01)
     assert core.calibrated and core.stats.calibration_refusals == 0
     assert abs(core.kalman.euler[0]) < 0.05 and abs(core.kalman.euler[1]) < 0.05  # standing level
+
+
+def test_the_frames_that_arrive_with_the_end_of_the_stream_are_read(tmp_path):
+    """The flight loop's read (``read_available``): a recorded raw log arrives with its end in the same read, and so
+    do a simulator's last frames before it closes; all of them come back with the end, none is lost."""
+    import socket
+
+    from modules.uquad.geo import Home
+    from modules.uquad.imu_protocol import encode_binary
+    from modules.uquad.sim.quad import QuadSim
+    from modules.uquad.transport import read_available
+
+    cfg = load_config(CONF)
+    sim = QuadSim(cfg.quad, load_calibration(cfg.imu_calib_file), Home(cfg.home_lat, cfg.home_lon, cfg.home_alt))
+    wire = b"".join(encode_binary(sim.imu_frame()) for _ in range(500))
+    log = tmp_path / "imu_raw.bin"
+    log.write_bytes(wire)
+    replay = Stream(f"file://{log}")
+    try:
+        data, end = read_available(replay)
+    finally:
+        replay.close()
+    assert isinstance(end, EOFError) and data == wire
+    assert len(ImuParser("binary").feed(data)) == 500
+
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        stream = Stream(f"tcp://127.0.0.1:{server.getsockname()[1]}")
+        far, _ = server.accept()
+        far.sendall(wire)
+        far.close()  # the simulator's end: its last frames, then the close
+        got, end = b"", None
+        try:
+            deadline = time.monotonic() + 10
+            while end is None and time.monotonic() < deadline:
+                data, end = read_available(stream)
+                got += data
+        finally:
+            stream.close()
+    assert isinstance(end, EOFError) and got == wire
