@@ -9,8 +9,11 @@ Waiting happens on a Condition with its lock held (the seed's §5.2.1.1 bug is i
 from __future__ import annotations
 
 import errno
+import fcntl
 import logging
 import random
+import struct
+import termios
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -242,7 +245,7 @@ class DspLink:
         last_rx = time.monotonic()
         while not self._closing:
             try:
-                waiting = ser.in_waiting
+                waiting = bytes_waiting(ser)
                 data = ser.read(waiting if waiting > 0 else 1)
             except Exception as exc:  # any failure of the port ends the link, and says why
                 if not self._closing:
@@ -294,6 +297,19 @@ class DspLink:
         except Exception:  # a faulty consumer must not stop the reader
             self._count("callback_errors")
             log.exception("DSP %s callback failed", type(msg).__name__)
+
+
+def bytes_waiting(ser: serial.SerialBase) -> int:
+    """Bytes ready to read on ``ser``.
+
+    Why not ``in_waiting`` alone: on a ``socket://`` port (a simulator's end) pyserial answers 0 or 1 (one select),
+    so the reader took the stream a byte at a time, two system calls and a parser call per byte; on a loaded
+    machine it fell behind the simulator's telemetry and the ACKs queued behind it came after the 4 x 0.25 s window.
+    The socket's own count (FIONREAD) is exact; a serial device's ``in_waiting`` already is."""
+    sock = getattr(ser, "_socket", None)
+    if sock is not None:
+        return struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.FIONREAD, b"\0\0\0\0"))[0]
+    return ser.in_waiting
 
 
 # --- start-up sequence (SPEC §3) ---------------------------------------------------------------------------

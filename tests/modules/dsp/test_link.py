@@ -320,3 +320,25 @@ def test_many_threads_share_one_link(sim: DspSimulator) -> None:
     assert not errors
     assert stats.commands_acked == 100 and stats.stray_acks == 0 and stats.retries == 0
     assert [c.name for c in sim.commands].count("PING") == 100
+
+
+def test_a_simulators_socket_port_is_read_in_whole_chunks_not_byte_by_byte() -> None:
+    """pyserial's ``socket://`` port says 0 or 1 byte waiting whatever is there; the link's reader asks the socket,
+    so 3 KB of telemetry that arrived together come back in one read (byte by byte, a loaded machine's reader
+    fell behind the simulator and ACKs came after their window)."""
+    import serial
+
+    from modules.dsp.link import bytes_waiting
+
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        port = serial.serial_for_url(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.02)
+        far, _ = server.accept()
+        try:
+            far.sendall(bytes(range(256)) * 12)
+            assert port.in_waiting <= 1  # pyserial's answer, the reason for bytes_waiting
+            wait_until(lambda: bytes_waiting(port) == 3072, 5, "3 KB at the port")
+            assert port.read(bytes_waiting(port)) == bytes(range(256)) * 12
+            assert bytes_waiting(port) == 0
+        finally:
+            far.close()
+            port.close()
