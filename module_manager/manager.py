@@ -107,7 +107,6 @@ def tcp_endpoint(endpoint: str) -> tuple[str, int] | None:
     return host, int(port.split("#")[0])
 
 
-
 _stdout_gone = False
 
 
@@ -125,6 +124,7 @@ def _print_line(line: str) -> None:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         except (OSError, ValueError):
             pass
+
 
 class Manager:
     """Launch and supervise one robot from a checked manifest."""

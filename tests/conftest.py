@@ -58,7 +58,6 @@ def sessions(router: int, clients: Callable[[int], object]) -> Callable[[], obje
     return lambda: clients(router)
 
 
-
 HEAVY_STACKS = frozenset({
     "tests/system/test_fleet_mesh.py", "tests/system/test_fleet_alloc.py", "tests/system/test_fleet_mesh_loss.py",
     "tests/system/test_fleet_partition.py", "tests/system/test_fleet_scale.py", "tests/system/test_world_sync.py",
@@ -78,9 +77,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 @pytest.hookimpl(optionalhook=True)
-def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
-    """Work units of whole files (a module-scoped robot stack starts once, on one worker, and tests numbered to
-    run in order on it do), all ``HEAVY_STACKS`` files one unit."""
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+    """For the configured ``--dist loadfile`` (pyproject.toml): work units of whole files (a module-scoped robot
+    stack starts once, on one worker, and tests numbered to run in order on it do), all ``HEAVY_STACKS`` files one
+    unit. Another ``--dist`` given on the command line is left to xdist."""
+    if config.getvalue("dist") != "loadfile":
+        return None
     from xdist.scheduler import LoadFileScheduling
 
     class HeavyTogetherScheduling(LoadFileScheduling):

@@ -24,13 +24,14 @@ import pytest
 from bbcs.contracts import gri
 from bbcs.session import open_session
 from bbcs.testing import child_env, wait_until
+from module_manager.fleet import drop_sections
 from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, Launch, group_members  # noqa: E402
-from test_fleet_mesh import VISION_SECTIONS, drop_sections, fleet_manifest  # noqa: E402
+from test_fleet_mesh import VISION_SECTIONS, fleet_manifest  # noqa: E402
 
 N_MODULES = 5
 """uav1_sim.toml without the vision module (nothing here needs it; three robots on a shared 2-core machine)."""

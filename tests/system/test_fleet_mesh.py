@@ -15,6 +15,7 @@ from pathlib import Path
 
 from bbcs.contracts import gri
 from bbcs.testing import wait_until
+from module_manager.fleet import drop_sections
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -26,23 +27,10 @@ N_MODULES = 5
 """uav1_sim.toml's modules without vision."""
 
 
-VISION_SECTIONS = {"[modules.vision]", "[tasks.track]", "[tasks.follow_vision_path]"}
-"""The vision module and the tasks that need it: left out where a test does not use them (its simulated camera
-takes ~40 % of a core per robot, and several robots share this machine's 2 cores)."""
-
-
-def drop_sections(text: str, headers: set[str]) -> str:
-    """The manifest without these TOML sections (each up to the next section header)."""
-    out, skip = [], False
-    for line in text.splitlines(keepends=True):
-        s = line.strip()
-        if s in headers:
-            skip = True
-        elif skip and s.startswith("["):
-            skip = False
-        if not skip:
-            out.append(line)
-    return "".join(out)
+VISION_SECTIONS = {"modules.vision", "tasks.track", "tasks.follow_vision_path"}
+"""The vision module and the tasks that need it (``drop_sections``, as a fleet manifest's ``drop``): left out where
+a test does not use them (its simulated camera takes ~40 % of a core per robot, and several robots share this
+machine's 2 cores)."""
 
 
 def fleet_manifest(tmp_path: Path, name: str, peers: list[int]) -> tuple[Path, Path]:

@@ -34,6 +34,7 @@ from bbcs.contracts import sync as s
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
 from bbcs.testing import wait_until
+from module_manager.fleet import drop_sections
 from modules.vision.geodesy import LocalFrame
 from modules.vision.process import VisionStatus
 from ral import sync
@@ -43,7 +44,7 @@ from ral.gcs.api import Gcs, session_config
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import Launch  # noqa: E402
-from test_fleet_mesh import VISION_SECTIONS, drop_sections, fleet_manifest  # noqa: E402
+from test_fleet_mesh import VISION_SECTIONS, fleet_manifest  # noqa: E402
 from test_gcs_mission import N_MODULES  # noqa: E402
 
 SKEW = {"uav_a": 1.2, "uav_b": -0.9}

@@ -3,7 +3,6 @@ limits, refusals, ABORT flushing, DSP errors forwarded, and clean failures (miss
 
 from __future__ import annotations
 
-import json
 import os
 import select
 import subprocess
@@ -23,6 +22,7 @@ from bbcs.testing import stop_process, wait_until
 from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
 from modules.dsp.link import startup_commands
+from modules.dsp.sim.record import read_record
 
 from .conftest import UAV1
 
@@ -94,9 +94,8 @@ def rig(processes, router, sessions, tmp_path: Path):
 
 
 def names(record: Path) -> list[str]:
-    """Names of the commands the simulator recorded; a line it is still writing is left for the next read."""
-    text = record.read_text()
-    return [json.loads(line)["name"] for line in text[: text.rfind("\n") + 1].splitlines()]
+    """Names of the commands the simulator applied (``read_record``: whole lines, retransmissions left out)."""
+    return [c["name"] for c in read_record(record)]
 
 
 def batch_reports(view: Bus) -> list[bus.DspErrorReport]:
