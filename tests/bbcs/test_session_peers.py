@@ -55,8 +55,12 @@ def test_safe_slot_over_a_direct_link_loses_nothing(processes, router, tmp_path)
         s.close()
 
 
-def test_reader_joining_a_running_stream_gets_it_without_gaps_or_duplicates(router) -> None:
-    """While the direct link forms (first through the router, then straight), nothing is lost or doubled."""
+def test_reader_subscribing_over_its_direct_link_gets_a_running_stream_without_gap_or_duplicate(router) -> None:
+    """A reader that subscribes once its direct link is up at both ends gets the stream with no gap or duplicate.
+
+    Subscribing *while* the link forms is not covered: with Zenoh 1.10 the router can stop forwarding between two
+    peers before the publisher routes to the new link itself, and the samples sent meanwhile are lost (docs/bus.md,
+    "Joining a running stream")."""
     src = open_session(peer_links_config(router, 0))
     sink: zenoh.Session | None = None
     sub = None
@@ -75,9 +79,10 @@ def test_reader_joining_a_running_stream_gets_it_without_gaps_or_duplicates(rout
     writer.start()
     try:
         wait_until(lambda: sent[0] > 1000, 30, "the stream to run")
-        sink = open_session(peer_links_config(router, 0))
+        sink = linked = open_session(peer_links_config(router, 0))
+        wait_until(lambda: src.zid() in linked.info.peers_zid() and linked.zid() in src.info.peers_zid(), 30,
+                   "the direct link, up at both ends")
         sub = sink.declare_subscriber("test/peers/stream", lambda s: got.append(int(s.payload.to_bytes())))
-        wait_until(lambda: sink.zid() in src.info.peers_zid(), 30, "the direct link")
         mark = sent[0]
         wait_until(lambda: len(got) > 0 and got[-1] > mark + 5000, 60, "5000 data over the direct link")
         stop.set()

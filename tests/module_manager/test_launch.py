@@ -131,7 +131,9 @@ def test_modules_start_in_parallel_and_a_dependent_only_once_its_dependency_is_u
     sink_start = next(r["t"] for r in rows if r.get("event") == "start")
     assert ready["src_b"] < ready["src_a"] - 1.0, "src_b did not wait for the slow src_a: they start in parallel"
     assert sink_start > ready["src_a"], "the sink started only after src_a (its 'after') was up"
-    first = next(r for r in rows if r.get("slot") == "datos")
+    # "all up" is the modules' readiness, not their first datum: wait for the sink to handle one
+    wait_until(lambda: any(r.get("slot") == "datos" for r in sink_records(tmp_path)), 30, "the sink's first datum")
+    first = next(r for r in sink_records(tmp_path) if r.get("slot") == "datos")
     assert first["source"] == "src_a" and first["seq"] >= 1
     assert la.stop() == 0
 
