@@ -50,11 +50,13 @@ class Launch:
 
     def __init__(self, manifest: Path, tmp_path: Path, *extra: str) -> None:
         self.port = free_port()
+        self.log_dir = tmp_path / "logs"
+        """Each child's stdout/stderr, ``<name>.log`` (``cromat launch --log-dir``)."""
         self.lines: list[str] = []
         self.cond = threading.Condition()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "module_manager.cli", str(manifest), "--listen", f"tcp/127.0.0.1:{self.port}",
-             "--log-dir", str(tmp_path / "logs"), *extra],
+             "--log-dir", str(self.log_dir), *extra],
             cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             start_new_session=True)
         self.pgid = self.proc.pid

@@ -58,19 +58,26 @@ def protobuf_double(payload: bytes, field: int) -> float:
     raise AssertionError(f"no double field {field}")
 
 
+def ral_log_tail(la) -> str:
+    """The last lines the RAL process wrote (the launch's log folder), for a failure's message."""
+    log = la.log_dir / "ral.log"
+    lines = log.read_text(errors="replace").splitlines()[-30:] if log.exists() else ["(no ral.log)"]
+    return "\nral.log:\n" + "\n".join(lines)
+
+
 @pytest.fixture
 def uav(tmp_path):
     la = start_uav(tmp_path)
     try:
-        yield la.port
+        yield la
     finally:
         la.stop()
         la.cleanup()
 
 
 def test_foxglove_client_receives_decoded_validating_messages(uav):
-    bridge = spawn("foxglove", "--connect", f"tcp/127.0.0.1:{uav}", "--robot", "uav1", "--port", "0")
-    session = open_session(local_client(uav))
+    bridge = spawn("foxglove", "--connect", f"tcp/127.0.0.1:{uav.port}", "--robot", "uav1", "--port", "0")
+    session = open_session(local_client(uav.port))
     try:
         line = bridge.stdout.readline()
         assert line.startswith("foxglove bridge: ws://127.0.0.1:"), line + bridge.stderr.read()
@@ -116,7 +123,9 @@ def test_foxglove_client_receives_decoded_validating_messages(uav):
             missing = {t: len(received.get(t, [])) for t in WANTED}
             if not any(b"REF_PAN" in p for p in received.get("/uav1/log", [])):
                 missing["/uav1/log"] = 0
-            assert all(missing.values()), f"messages per topic: {missing}; advertised: {sorted(channels)}"
+            # a topic that stays silent: what the launch said (a module or the RAL down?) goes with the failure
+            assert all(missing.values()), (f"messages per topic: {missing}; advertised: {sorted(channels)}; launch "
+                                           "output:\n" + "\n".join(uav.lines[-40:]) + ral_log_tail(uav))
 
         for topic in ("cromat/uav1/telemetry/telemetry", "cromat/uav1/@ral/state", "/uav1/kinematics"):
             ch = channels[topic]
