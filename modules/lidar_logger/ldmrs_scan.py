@@ -68,16 +68,26 @@ def posix_to_ntp(t: float) -> int:
     return ((sec + NTP_UNIX_OFFSET) << 32) | frac
 
 
+_COS_LAYER = np.cos(np.radians(layer_elevation_deg(np.arange(16))))
+_SIN_LAYER = np.sin(np.radians(layer_elevation_deg(np.arange(16))))
+"""cos and sin of the elevation of the 16 layer numbers a 4-bit field can hold."""
+
+
 def cartesian(angle_ticks: np.ndarray, distance_cm: np.ndarray, layer: np.ndarray) -> np.ndarray:
     """(N, 3) points in metres in the scanner frame."""
     h = np.radians(np.asarray(angle_ticks, dtype=np.float64) / TICKS_PER_DEGREE)
-    e = np.radians(layer_elevation_deg(layer))
+    lay = np.asarray(layer)
     d = np.asarray(distance_cm, dtype=np.float64) / 100.0
+    if lay.ndim == 1 and lay.dtype.kind in "ui" and len(lay) and int(lay.min()) >= 0 and int(lay.max()) < 16:
+        cos_e, sin_e = _COS_LAYER[lay], _SIN_LAYER[lay]  # the same values, looked up instead of computed per point
+    else:
+        e = np.radians(layer_elevation_deg(lay))
+        cos_e, sin_e = np.cos(e), np.sin(e)
     out = np.empty((len(d), 3))
-    de = d * np.cos(e)
+    de = d * cos_e
     out[:, 0] = de * np.cos(h)
     out[:, 1] = de * np.sin(h)
-    out[:, 2] = d * np.sin(e)
+    out[:, 2] = d * sin_e
     return out
 
 
@@ -88,6 +98,14 @@ def time_offsets_us(angle_ticks: np.ndarray, start_ticks: np.ndarray | int, end_
     Scan quantities may be scalars or per-point arrays (broadcast); a scan whose start and end angles are
     equal gets offsets of 0.
     """
+    if all(isinstance(q, int) for q in (start_ticks, end_ticks, start_ntp, end_ntp)):  # one scan: scalars
+        span = start_ticks - end_ticks
+        if span == 0:
+            return np.zeros(len(angle_ticks), dtype=np.int64)
+        lag = (end_ntp - start_ntp) & 0xFFFF_FFFF_FFFF_FFFF
+        lag = lag - (1 << 64) if lag >= 1 << 63 else lag  # as the uint64 difference viewed as int64 below
+        frac = (start_ticks - np.asarray(angle_ticks, dtype=np.float64)) / span
+        return np.rint(float(lag) * 1e6 / 4294967296.0 * frac).astype(np.int64)
     diff = (np.asarray(end_ntp, dtype=np.uint64) - np.asarray(start_ntp, dtype=np.uint64)).view(np.int64)
     duration_us = diff.astype(np.float64) * 1e6 / 4294967296.0
     start = np.asarray(start_ticks, dtype=np.int64)

@@ -58,7 +58,9 @@ def format_ntp(ntp: int) -> str:
     us = (frac * 1_000_000) >> 32
     stamp = _NTP_EPOCH + timedelta(seconds=sec)
     ms_of_day = (sec % 86400) * 1000 + ((frac * 1000) >> 32)
-    return f"{stamp:%Y-%m-%dT%H:%M:%S}.{us:06d} ({ms_of_day} ms)"
+    # the fields by hand: strftime took a twentieth of the text writer's time (NTP years are all 4 digits)
+    return (f"{stamp.year:04d}-{stamp.month:02d}-{stamp.day:02d}T{stamp.hour:02d}:{stamp.minute:02d}:"
+            f"{stamp.second:02d}.{us:06d} ({ms_of_day} ms)")
 
 
 def format_scan(record: ScanRecord) -> str:
