@@ -67,6 +67,28 @@ def test_comes_up_and_sigterm_leaves_no_process(launch):
     wait_until(lambda: group_members(la.pgid) == [], 30, "every child of the launch gone")
 
 
+def simulator_never_ready(text: str) -> str:
+    """A simulator whose readiness never comes: the launch gives up after its 1 s before any module starts."""
+    return text + """
+[processes.never_ready]
+command = ["{python}", "-c", "import time; time.sleep(120)"]
+ready = { kind = "stdout", pattern = "never printed", timeout_s = 1.0 }
+"""
+
+
+def test_a_launch_that_fails_before_its_modules_start_leaves_nothing(launch, tmp_path):
+    """The modules' interpreters are started ahead, before the router: a launch that gives up before their start
+    takes them down too, and no module ever ran (no record, no bus)."""
+    la = launch(edit=simulator_never_ready)
+    assert la.proc.wait(60) == 1
+    la.reader.join(5)
+    out = "\n".join(la.lines)
+    assert "process never_ready" in out and "not ready within 1 s" in out, out
+    assert "starting" not in out, "no module was started"
+    assert not (tmp_path / "sink.jsonl").exists(), "the sink never ran"
+    wait_until(lambda: group_members(la.pgid) == [], 30, "every child of the launch gone, standbys included")
+
+
 def test_ctrl_c_to_the_process_group_leaves_no_process(launch):
     la = launch()
     la.wait_line(UP)
