@@ -109,6 +109,10 @@ class _Robot:
         return self._lidar
 
 
+FAILURES_REPORTED = 5
+"""Samples that could not be bridged are counted; the first ones are also printed to stderr, with why."""
+
+
 class Bridge:
     """Takes samples from Zenoh (the callback only enqueues) and logs them to Foxglove from one thread."""
 
@@ -138,8 +142,12 @@ class Bridge:
         while (item := self._queue.get()) is not None:
             try:
                 self.handle(*item)
-            except Exception:  # one bad datum must not stop the bridge; it is counted
+            except Exception as exc:  # one bad datum must not stop the bridge; it is counted, the first few said
                 self.failed += 1
+                if self.failed <= FAILURES_REPORTED:
+                    print(f"cromat foxglove: a sample on {item[0]} was not bridged: {type(exc).__name__}: {exc}"
+                          + (" (further failures only counted)" if self.failed == FAILURES_REPORTED else ""),
+                          file=sys.stderr, flush=True)
 
     def _channel(self, key: str, encoding: str) -> tuple[foxglove.Channel, Decoder]:
         info = self.catalog.info(key, encoding)
