@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import struct
 import sys
 import time
@@ -21,11 +20,9 @@ from bbcs.contracts.robot import RobotTelemetry
 from bbcs.session import local_client, open_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from foxglove_client import PROTOCOLS, FoxgloveClient  # noqa: E402
 from uav_sim import spawn, start_uav  # noqa: E402
 
-UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")
-"""The server's refusal of a subscription to a channel it has advertised but not yet recorded (a foxglove-sdk race:
-``ConnectedClient::advertise_channels`` sends the advertisement, then inserts the channel in the client's map)."""
 WANTED = ["cromat/uav1/telemetry/telemetry", "cromat/uav1/@ral/state", "/uav1/location", "/uav1/kinematics",
           "/uav1/tf", "/uav1/log"]
 
@@ -96,13 +93,10 @@ def test_foxglove_client_receives_decoded_validating_messages(uav):
         line = bridge.stdout.readline()
         assert line.startswith("foxglove bridge: ws://127.0.0.1:"), line + bridge.stderr.read()
         url = line.split()[2]
-        protocols = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
-        with ws_connect(url, subprotocols=protocols, open_timeout=10, max_size=None) as ws:
-            channels: dict[str, dict] = {}
-            subscribed: dict[int, dict] = {}
+        with ws_connect(url, subprotocols=PROTOCOLS, open_timeout=10, max_size=None) as ws:
+            client = FoxgloveClient(ws, WANTED)
+            channels = client.channels
             received: dict[str, list[bytes]] = {}
-            seen_ids: set[int] = set()
-            ops: list[str] = []
             # an out-of-range pan reference: the pan & tilt module refuses it with code 102, which must reach the log;
             # sent once the log is subscribed (the bridge logs each error once), again every 3 s until it arrives
             bad = session.declare_publisher("cromat/uav1/ral/pt_datos")
@@ -116,44 +110,14 @@ def test_foxglove_client_receives_decoded_validating_messages(uav):
                         time.monotonic() - sent_bad > 3.0:
                     bad.put(msgspec.msgpack.encode({"ref_pan": 500.0}))
                     sent_bad = time.monotonic()
-                try:
-                    msg = ws.recv(timeout=1.0)
-                except TimeoutError:
-                    continue
-                if isinstance(msg, str):
-                    doc = json.loads(msg)
-                    refused = UNKNOWN_CHANNEL.match(doc.get("message", "")) if doc.get("op") == "status" else None
-                    if refused and int(refused.group(1)) in seen_ids:
-                        # foxglove-sdk sends an advertisement before it records the channel as advertised to this
-                        # client, so a subscription sent at once can be refused; subscribe again, as an app would
-                        channel = next(c for c in subscribed.values() if c["id"] == int(refused.group(1)))
-                        subscribed[len(subscribed) + 1] = channel
-                        ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-                            {"id": len(subscribed), "channelId": channel["id"]}]}))
-                    if doc.get("op") != "advertise":  # status, unadvertise, …: kept for a failure's message
-                        ops.append(msg[:300])
-                        continue
-                    # as a Foxglove app does: every channel advertised for a wanted topic, by its id (a channel
-                    # advertised again gets a new id)
-                    new = [c for c in doc["channels"] if c["topic"] in WANTED and c["id"] not in seen_ids]
-                    for c in new:
-                        seen_ids.add(c["id"])
-                        channels[c["topic"]] = c
-                        subscribed[len(subscribed) + 1] = c
-                        ops.append(f"advertised {c['topic']} as channel {c['id']}")
-                    if new:
-                        ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-                            {"id": sid, "channelId": c["id"]} for sid, c in subscribed.items() if c in new]}))
-                    continue
-                if msg[0] == 1:  # message data: opcode, subscription id, timestamp, payload
-                    sid, _stamp = struct.unpack_from("<IQ", msg, 1)
-                    received.setdefault(subscribed[sid]["topic"], []).append(bytes(msg[13:]))
+                if (datum := client.poll(1.0)) is not None:
+                    received.setdefault(datum[0], []).append(datum[1])
             bad.undeclare()
             missing = {t: len(received.get(t, [])) for t in WANTED}
             if not any(b"REF_PAN" in p for p in received.get("/uav1/log", [])):
                 missing["/uav1/log"] = 0
             # a topic that stays silent: what the launch said (a module or the RAL down?) goes with the failure
-            assert all(missing.values()), (f"messages per topic: {missing}; the server said: {ops}; launch "
+            assert all(missing.values()), (f"messages per topic: {missing}; the server said: {client.ops}; launch "
                                            "output:\n" + "\n".join(uav.lines[-40:]) + ral_log_tail(uav)
                                            + bridge_stderr(bridge))
 

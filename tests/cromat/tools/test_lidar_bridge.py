@@ -24,6 +24,7 @@ from bbcs.testing import Processes, start_router, wait_until
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from foxglove_client import PROTOCOLS, FoxgloveClient  # noqa: E402
 from protobuf_fields import fields  # noqa: E402
 from uav_sim import ROOT, cromat, spawn  # noqa: E402
 
@@ -103,32 +104,14 @@ def test_foxglove_client_receives_the_simulated_scans_as_point_clouds(lidar_robo
     try:
         line = bridge.stdout.readline()
         assert line.startswith("foxglove bridge: ws://127.0.0.1:"), line + bridge.stderr.read()
-        with ws_connect(line.split()[2], subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
-                        open_timeout=10, max_size=None) as ws:
-            topics: dict[int, str] = {}
-            channels: dict[str, dict] = {}
+        with ws_connect(line.split()[2], subprotocols=PROTOCOLS, open_timeout=10, max_size=None) as ws:
+            client = FoxgloveClient(ws, ("/uav1/lidar", "/uav1/tf"))
+            channels = client.channels
             end = time.monotonic() + 90
             while time.monotonic() < end and (len(clouds) < 5 or not transforms):
-                try:
-                    msg = ws.recv(timeout=1.0)
-                except TimeoutError:
-                    continue
-                if isinstance(msg, str):
-                    doc = json.loads(msg)
-                    if doc.get("op") == "advertise":
-                        new = [c for c in doc["channels"] if c["topic"] in ("/uav1/lidar", "/uav1/tf")
-                               and c["topic"] not in channels]
-                        for c in new:
-                            channels[c["topic"]] = c
-                            topics[len(topics) + 1] = c["topic"]
-                        if new:
-                            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-                                {"id": sid, "channelId": channels[t]["id"]} for sid, t in topics.items()
-                                if channels[t] in new]}))
-                elif msg[0] == 1:
-                    sid = struct.unpack_from("<I", msg, 1)[0]
-                    (clouds if topics[sid] == "/uav1/lidar" else transforms).append(bytes(msg[13:]))
-        assert len(clouds) >= 5, f"{len(clouds)} point clouds in 90 s; advertised {sorted(channels)}"
+                if (datum := client.poll(1.0)) is not None:
+                    (clouds if datum[0] == "/uav1/lidar" else transforms).append(datum[1])
+        assert len(clouds) >= 5, f"{len(clouds)} point clouds in 90 s; the server said {client.ops}"
         assert channels["/uav1/lidar"]["schemaName"] == "foxglove.PointCloud"
         assert channels["/uav1/lidar"]["encoding"] == "protobuf"
     finally:
