@@ -20,6 +20,7 @@ publisher is slowed down, nothing is dropped. The publisher reports it: a ``put`
 
 from __future__ import annotations
 
+import datetime
 import enum
 import logging
 import time
@@ -47,6 +48,11 @@ BACKPRESSURE_S = 0.05
 """A safe ``put`` blocked longer than this is reported as consumer back-pressure."""
 SAFE_STATE_HEARTBEAT_S = 0.5
 """Sporadic heartbeat period of safe state publishers (lets subscribers detect and recover a lost last value)."""
+REPLAY_QUERY_S = 1.0
+"""How often a replaying stream's subscriber (:func:`declare_replaying_subscriber`) asks the publisher's cache for
+what it has not received: after a cut heals, what was published meanwhile arrives within about this time. Periodic
+queries, not the publisher's heartbeats: measured, a sample published at the instant the link came back stalled a
+heartbeat-driven recovery until the next sample (a tail event could wait forever)."""
 
 
 class Direction(enum.StrEnum):
@@ -128,7 +134,12 @@ def OutputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE,  # noqa: N8
 class Publisher(Generic[T]):
     """Publishes one slot's structs with the QoS its kind and safety call for."""
 
-    def __init__(self, session: zenoh.Session, key: str, spec: SlotSpec[T]) -> None:
+    def __init__(self, session: zenoh.Session, key: str, spec: SlotSpec[T], *, replay: int = 0) -> None:
+        """``replay``: for a safe stream, keep its last ``replay`` samples, so that a subscriber with recovery
+        (:func:`declare_replaying_subscriber`) gets what it missed while a link was cut (events that cross the
+        fleet mesh). 0: a plain reliable publisher, nothing kept."""
+        if replay and (spec.kind is not Kind.STREAM or spec.safety is not Safety.SAFE):
+            raise SlotError(f"slot {spec.name!r}: replay is for safe streams (a state slot keeps its last value)")
         self.spec = spec
         self.key = key
         self.published = 0
@@ -146,6 +157,13 @@ class Publisher(Generic[T]):
                 cache=zenoh.ext.CacheConfig(1),
                 sample_miss_detection=zenoh.ext.MissDetectionConfig(
                     heartbeat=None, sporadic_heartbeat=SAFE_STATE_HEARTBEAT_S),
+                publisher_detection=True)
+        elif replay:
+            self._pub = zenoh.ext.declare_advanced_publisher(
+                session, key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                cache=zenoh.ext.CacheConfig(replay),
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=None),
                 publisher_detection=True)
         else:
             self._pub = session.declare_publisher(
@@ -181,6 +199,15 @@ class Publisher(Generic[T]):
         if not self._closed:
             self._closed = True
             self._pub.undeclare()
+
+
+def declare_replaying_subscriber(session: zenoh.Session, key: str, handler: Callable[[zenoh.Sample], None]) -> Any:
+    """A subscriber of a replaying stream (``Publisher(replay=N)``): live samples, plus those it missed while a
+    link was cut, asked from the publisher's cache once a heartbeat or the next sample shows the gap; in order, each
+    once. No history: a subscriber that joins late gets nothing from before it joined."""
+    return zenoh.ext.declare_advanced_subscriber(
+        session, key, handler, subscriber_detection=True,
+        recovery=zenoh.ext.RecoveryConfig(periodic_queries=datetime.timedelta(seconds=REPLAY_QUERY_S)))
 
 
 def declare_reader(session: zenoh.Session, key: str, spec: SlotSpec[Any],

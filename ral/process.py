@@ -115,6 +115,17 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
         return cfg, names
 
 
+EVENTS_REPLAY = 256
+"""GRI events the RAL keeps for a ground station that missed them while its link to the robot was cut: the
+ground station's subscriber (``Gcs.events``) asks for them once the link is back (docs/gcs.md)."""
+
+
+def events_publisher(session: zenoh.Session, robot: str) -> Publisher[gri.GriEvent]:
+    """The robot's GRI event stream: a safe stream whose last ``EVENTS_REPLAY`` events are kept for replay."""
+    return Publisher(session, gri.events_key(robot),
+                     SlotSpec("events", gri.GriEvent, Direction.OUT, Kind.STREAM, Safety.SAFE), replay=EVENTS_REPLAY)
+
+
 class Ral(Module):
     name: ClassVar[str] = "ral"
     slots = (
@@ -195,11 +206,7 @@ class Ral(Module):
             gri.state_key(self.robot),
             SlotSpec("state", gri.GriState, Direction.OUT, Kind.STATE, Safety.SAFE),
         )
-        self._event_pub = Publisher(
-            s,
-            gri.events_key(self.robot),
-            SlotSpec("events", gri.GriEvent, Direction.OUT, Kind.STREAM, Safety.SAFE),
-        )
+        self._event_pub = events_publisher(s, self.robot)
         # REFS is not routed (the seed's CONTROL_ENTRADA has no field for it): written on the follower's own key
         self._traj_pub = Publisher(
             s,

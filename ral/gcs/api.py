@@ -23,6 +23,7 @@ from bbcs import keys, wire
 from bbcs.contracts import gri, mri
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs.slots import declare_replaying_subscriber
 from ral.gcs import diagnose
 
 HEARTBEAT_S = 0.5
@@ -186,13 +187,17 @@ class Gcs:
         return sub
 
     def events(self, robot: str, callback: Callable[[gri.GriEvent], None]) -> Subscription:
+        """Every GRI event of ``robot`` from now on, in order, each once, those published while the link to the
+        robot was cut included (they come when it is back)."""
         def on_sample(sample: zenoh.Sample) -> None:
             try:
                 callback(gri.decode_event(sample.payload.to_bytes()))
             except msgspec.MsgspecError:
                 return
 
-        sub = Subscription(self.session.declare_subscriber(gri.events_key(robot), on_sample))
+        # events published while this station's link to the robot was cut come once it is back (the RAL keeps its
+        # last ral.process.EVENTS_REPLAY); none from before the subscription
+        sub = Subscription(declare_replaying_subscriber(self.session, gri.events_key(robot), on_sample))
         self._subs.append(sub)
         return sub
 

@@ -14,8 +14,8 @@ Zenoh routers, flying point robots (no DSP stack). What is checked:
   after the heal the ground router's view holds c's current state again (a state slot's guarantee is the latest
   value, not every intermediate one).
 
-Safe *streams* (e.g. GRI events) published during a cut are not replayed after the heal: they use a reliable
-publisher without a cache; this test does not claim otherwise (docs/fleet.md).
+Safe *streams* published during a cut are not replayed after the heal, except GRI events
+(tests/ral/gcs/test_events_replay.py); this test does not claim otherwise (docs/fleet.md).
 """
 
 from __future__ import annotations
