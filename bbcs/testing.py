@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -189,3 +191,79 @@ class ModuleDriver:
 
     def __exit__(self, *_: object) -> None:
         self.stop()
+
+
+class CutRelay:
+    """A relay in front of a TCP port on 127.0.0.1 that a test can cut and heal: ``cut()`` closes every connection
+    it carries and refuses new ones until ``heal()``. It listens on a Unix socket (``unix``: reachable from another
+    network namespace through the file system) or on a free TCP port of 127.0.0.1 (``tcp``, its ``port``)."""
+
+    def __init__(self, listener: socket.socket, target_port: int) -> None:
+        self.target_port = target_port
+        self._listener = listener
+        self.port: int | None = listener.getsockname()[1] if listener.family == socket.AF_INET else None
+        self._lock = threading.Lock()
+        self._open = True
+        self._conns: list[socket.socket] = []
+        self.accepted = 0
+        """Connections relayed so far (a reconnection after a heal counts one more)."""
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    @classmethod
+    def unix(cls, path: Path, target_port: int) -> CutRelay:
+        listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        listener.bind(str(path))
+        listener.listen(8)
+        return cls(listener, target_port)
+
+    @classmethod
+    def tcp(cls, target_port: int) -> CutRelay:
+        return cls(socket.create_server(("127.0.0.1", 0)), target_port)
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self._listener.accept()
+            except OSError:
+                return
+            with self._lock:
+                if not self._open:
+                    client.close()
+                    continue
+                upstream = socket.create_connection(("127.0.0.1", self.target_port))
+                self._conns += [client, upstream]
+                self.accepted += 1
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
+
+    @staticmethod
+    def _pump(src: socket.socket, dst: socket.socket) -> None:
+        try:
+            while data := src.recv(65536):
+                dst.sendall(data)
+        except OSError:
+            pass
+        for s in (src, dst):
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    def cut(self) -> None:
+        with self._lock:
+            self._open = False
+            for c in self._conns:
+                try:
+                    c.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+                c.close()
+            self._conns.clear()
+
+    def heal(self) -> None:
+        with self._lock:
+            self._open = True
+
+    def close(self) -> None:
+        self.cut()
+        self._listener.close()

@@ -23,10 +23,8 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
@@ -34,7 +32,7 @@ import pytest
 from bbcs.contracts.fleet import FleetTarget, FleetTask
 from bbcs.net import free_port
 from bbcs.session import local_client, open_session
-from bbcs.testing import Processes, child_env, start_router, wait_until
+from bbcs.testing import CutRelay, Processes, child_env, start_router, wait_until
 from ral.fleet_gcs import FleetView
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -47,69 +45,6 @@ def namespaces_allowed() -> str | None:
         return "unshare or ip not installed"
     probe = subprocess.run(["unshare", "-n", "ip", "link", "set", "lo", "up"], capture_output=True, text=True)
     return None if probe.returncode == 0 else f"network namespaces not allowed here: {probe.stderr.strip()}"
-
-
-class Relay:
-    """A Unix socket in front of a TCP port on 127.0.0.1; ``cut`` closes every connection and refuses new ones."""
-
-    def __init__(self, path: Path, port: int) -> None:
-        self.path, self.port = path, port
-        self.server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self.server.bind(str(path))
-        self.server.listen(8)
-        self.lock = threading.Lock()
-        self.open = True
-        self.conns: list[socket.socket] = []
-        self.accepted = 0
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self) -> None:
-        while True:
-            try:
-                client, _ = self.server.accept()
-            except OSError:
-                return
-            with self.lock:
-                if not self.open:
-                    client.close()
-                    continue
-                upstream = socket.create_connection(("127.0.0.1", self.port))
-                self.conns += [client, upstream]
-                self.accepted += 1
-            for a, b in ((client, upstream), (upstream, client)):
-                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
-
-    @staticmethod
-    def _pump(src: socket.socket, dst: socket.socket) -> None:
-        try:
-            while data := src.recv(65536):
-                dst.sendall(data)
-        except OSError:
-            pass
-        for s in (src, dst):
-            try:
-                s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-
-    def cut(self) -> None:
-        with self.lock:
-            self.open = False
-            for c in self.conns:
-                try:
-                    c.shutdown(socket.SHUT_RDWR)
-                except OSError:
-                    pass
-                c.close()
-            self.conns.clear()
-
-    def heal(self) -> None:
-        with self.lock:
-            self.open = True
-
-    def close(self) -> None:
-        self.cut()
-        self.server.close()
 
 
 def agent(procs: list[subprocess.Popen], name: str, port: int, north: float, east: float,
@@ -152,7 +87,7 @@ def test_a_robot_cut_off_in_its_own_network_namespace_heals_into_one_allocation(
             routers.start(["-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{ports[name]}", "--connect",
                            f"tcp/127.0.0.1:{hub}"], stdout=subprocess.DEVNULL)
         sock = tmp_path / "c_link.sock"
-        relay = Relay(sock, hub)
+        relay = CutRelay.unix(sock, hub)
         agent(procs, "a", ports["a"], -300, -300)
         agent(procs, "b", ports["b"], 0, 2000)
         c_port = free_port()  # a port inside c's namespace: the same number means nothing outside it

@@ -8,8 +8,6 @@ publishes with the RAL's own event publisher (``ral.process.events_publisher``);
 
 from __future__ import annotations
 
-import socket
-import threading
 import time
 
 import pytest
@@ -17,73 +15,11 @@ import pytest
 from bbcs.contracts import gri
 from bbcs.session import local_client, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from bbcs.testing import Processes, free_port, wait_port, wait_until
+from bbcs.testing import CutRelay, Processes, free_port, wait_port, wait_until
 from ral.gcs.api import Gcs
 from ral.process import events_publisher
 
 ROBOT = "uav1"
-
-
-class Relay:
-    """TCP on 127.0.0.1 in front of ``target``: ``cut()`` closes every connection and refuses new ones."""
-
-    def __init__(self, target: int) -> None:
-        self.target = target
-        self._listener = socket.create_server(("127.0.0.1", 0))
-        self.port = self._listener.getsockname()[1]
-        self._open = True
-        self._conns: list[socket.socket] = []
-        self._lock = threading.Lock()
-        self.accepted = 0
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self) -> None:
-        while True:
-            try:
-                down, _ = self._listener.accept()
-            except OSError:
-                return
-            with self._lock:
-                if not self._open:
-                    down.close()
-                    continue
-                up = socket.create_connection(("127.0.0.1", self.target))
-                self._conns += [down, up]
-                self.accepted += 1
-            for a, b in ((down, up), (up, down)):
-                threading.Thread(target=self._pipe, args=(a, b), daemon=True).start()
-
-    @staticmethod
-    def _pipe(a: socket.socket, b: socket.socket) -> None:
-        try:
-            while data := a.recv(65536):
-                b.sendall(data)
-        except OSError:
-            pass
-        for s in (a, b):
-            try:
-                s.close()
-            except OSError:
-                pass
-
-    def cut(self) -> None:
-        with self._lock:
-            self._open = False
-            for s in self._conns:
-                try:
-                    s.shutdown(socket.SHUT_RDWR)
-                    s.close()
-                except OSError:
-                    pass
-            self._conns = []
-
-    def heal(self) -> None:
-        with self._lock:
-            self._open = True
-
-    def close(self) -> None:
-        self.cut()
-        self._listener.close()
 
 
 @pytest.fixture
@@ -93,7 +29,7 @@ def ground():
     robot_port = free_port()
     procs.start(["-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{robot_port}"])
     wait_port(robot_port)
-    relay = Relay(robot_port)
+    relay = CutRelay.tcp(robot_port)
     ground_port = free_port()
     procs.start(["-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{ground_port}",
                  "--connect", f"tcp/127.0.0.1:{relay.port}"])
@@ -125,7 +61,7 @@ def heard(pub: Publisher[gri.GriEvent], got: list[int], n: int) -> None:
             time.sleep(0.01)
 
 
-def through_a_cut(pub: Publisher[gri.GriEvent], station: Gcs, relay: Relay, *, resend_7: bool = False) -> list[int]:
+def through_a_cut(pub: Publisher[gri.GriEvent], station: Gcs, relay: CutRelay, *, resend_7: bool = False) -> list[int]:
     """Events 1–3 before the cut, 4–6 during it, 7 the moment the routers reconnect (sent once; or until the
     station has it, ``resend_7``); the task ids (above 0) the station got once 7 arrived."""
     got: list[int] = []
