@@ -44,6 +44,12 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
     try:
         endpoint = f"tcp/127.0.0.1:{la.port}"
         out = tmp_path / "flight.mcap"
+        # "all modules up" is not "the robot knows where it is": the recording starts once the GRI state has a fix
+        with Gcs(session_config([endpoint])) as gcs:
+            def has_fix() -> bool:
+                tel = gcs.state("uav1", timeout_s=5.0).telemetry
+                return tel is not None and tel.position is not None
+            wait_until(has_fix, 60, "the robot's first position in its GRI state")
         rec = spawn("record", "--connect", endpoint, "--robot", "uav1", "-o", str(out),
                     "--duration", str(SECONDS), "--summary-json", str(tmp_path / "summary.json"), "--verify")
         assert rec.stderr.readline().startswith("recording "), "the recorder subscribed"
