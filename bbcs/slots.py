@@ -203,8 +203,8 @@ class Publisher(Generic[T]):
 
 def declare_replaying_subscriber(session: zenoh.Session, key: str, handler: Callable[[zenoh.Sample], None]) -> Any:
     """A subscriber of a replaying stream (``Publisher(replay=N)``): live samples, plus those it missed while a
-    link was cut, asked from the publisher's cache once a heartbeat or the next sample shows the gap; in order, each
-    once. No history: a subscriber that joins late gets nothing from before it joined."""
+    link was cut, asked from the publisher's cache every ``REPLAY_QUERY_S``; in order, each once. No history: a
+    subscriber that joins late gets nothing from before it joined."""
     return zenoh.ext.declare_advanced_subscriber(
         session, key, handler, subscriber_detection=True,
         recovery=zenoh.ext.RecoveryConfig(periodic_queries=datetime.timedelta(seconds=REPLAY_QUERY_S)))

@@ -88,10 +88,12 @@ def wait_until(predicate: Callable[[], bool], deadline_s: float = 10.0, what: st
     raise AssertionError(f"timed out after {deadline_s} s waiting for {what}")
 
 
-def start_router(processes: Processes, host: str = "127.0.0.1") -> int:
-    """Start ``cromat router`` on a free port of ``host``; returns the port once it accepts connections."""
+def start_router(processes: Processes, host: str = "127.0.0.1", connect: tuple[str, ...] = ()) -> int:
+    """Start ``cromat router`` on a free port of ``host`` (linked to the routers at ``connect``); returns the port
+    once it accepts connections."""
     port = free_port()
-    processes.start(["-m", "bbcs.router", "--listen", f"tcp/{host}:{port}"], stdout=subprocess.DEVNULL)
+    links = [arg for endpoint in connect for arg in ("--connect", endpoint)]
+    processes.start(["-m", "bbcs.router", "--listen", f"tcp/{host}:{port}", *links], stdout=subprocess.DEVNULL)
     wait_port(port)
     return port
 

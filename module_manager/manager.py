@@ -411,11 +411,14 @@ class Manager:
         start."""
         for mod in self.modules.values():
             try:
-                mod.standby = Child(f"{mod.info.name}", standby_argv(sys.executable, mod.info.spec.entry),
-                                    self.child_env(mod.info.spec.env), cwd=str(self.m.dir), log_dir=self.log_dir,
-                                    stdin_pipe=True)
+                mod.standby = self._start_standby(mod)
             except OSError as exc:
                 self.out(f"manager: cannot start {mod.info.name} ahead: {exc}; it will start cold")
+
+    def _start_standby(self, mod: _Module) -> Child:
+        """A warm standby of ``mod`` (module_manager/standby.py): its interpreter and imports, waiting for a context."""
+        return Child(mod.info.name, standby_argv(sys.executable, mod.info.spec.entry),
+                     self.child_env(mod.info.spec.env), cwd=str(self.m.dir), log_dir=self.log_dir, stdin_pipe=True)
 
     def _take_standby(self, mod: _Module, context: str) -> bool:
         """Hand the context to the module's warm standby, which becomes the module; False if there is none alive."""
@@ -452,9 +455,7 @@ class Manager:
         if (policy.standby and policy.restart != "never" and mod.sup.phase is Phase.UP and self.all_up_at is not None
                 and mod.standby_failures < 3 and not self.stop_event.is_set()):
             try:
-                mod.standby = Child(f"{mod.info.name}", standby_argv(sys.executable, mod.info.spec.entry),
-                                    self.child_env(mod.info.spec.env), cwd=str(self.m.dir), log_dir=self.log_dir,
-                                    stdin_pipe=True)
+                mod.standby = self._start_standby(mod)
             except OSError as exc:
                 mod.standby_failures += 1
                 self.out(f"manager: cannot start a standby of {mod.info.name}: {exc}")

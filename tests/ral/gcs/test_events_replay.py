@@ -15,7 +15,7 @@ import pytest
 from bbcs.contracts import gri
 from bbcs.session import local_client, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from bbcs.testing import CutRelay, Processes, free_port, wait_port, wait_until
+from bbcs.testing import CutRelay, Processes, start_router, wait_until
 from ral.gcs.api import Gcs
 from ral.process import events_publisher
 
@@ -26,22 +26,19 @@ ROBOT = "uav1"
 def ground():
     """(robot-side session, a station on the ground router, the relay between the routers)."""
     procs = Processes()
-    robot_port = free_port()
-    procs.start(["-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{robot_port}"])
-    wait_port(robot_port)
-    relay = CutRelay.tcp(robot_port)
-    ground_port = free_port()
-    procs.start(["-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{ground_port}",
-                 "--connect", f"tcp/127.0.0.1:{relay.port}"])
-    wait_port(ground_port)
-    robot = open_session(local_client(robot_port))
-    station = Gcs(local_client(ground_port), name="station", timeout_s=10.0)
     try:
-        yield robot, station, relay
+        robot_port = start_router(procs)
+        relay = CutRelay.tcp(robot_port)
+        ground_port = start_router(procs, connect=(f"tcp/127.0.0.1:{relay.port}",))
+        robot = open_session(local_client(robot_port))
+        station = Gcs(local_client(ground_port), name="station", timeout_s=10.0)
+        try:
+            yield robot, station, relay
+        finally:
+            station.close()
+            robot.close()
+            relay.close()
     finally:
-        station.close()
-        robot.close()
-        relay.close()
         procs.stop_all()
 
 
