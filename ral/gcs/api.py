@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -27,6 +28,7 @@ from bbcs.slots import declare_replaying_subscriber
 from ral.gcs import diagnose
 
 HEARTBEAT_S = 0.5
+LINK_EVENTS_KEPT = 256  # events of a linked robot kept for events() callbacks added after they came
 
 
 class GcsError(RuntimeError):
@@ -90,6 +92,54 @@ class Subscription:
         self.close()
 
 
+class _LinkedEvents:
+    """The events of one robot this station links with, heard from before the link began: the robot's answer to
+    the link (``link_up``) is published as soon as it sees this station, before any ``events()`` call could have
+    subscribed. Each callback gets what came since the link began (the last ``LINK_EVENTS_KEPT``), then the rest."""
+
+    def __init__(self, session: zenoh.Session, robot: str) -> None:
+        self._lock = threading.RLock()  # held while calling back, so that no event slips between backlog and live
+        self._kept: deque[gri.GriEvent] = deque(maxlen=LINK_EVENTS_KEPT)
+        self._callbacks: list[Callable[[gri.GriEvent], None]] = []
+        self._sub = declare_replaying_subscriber(session, gri.events_key(robot), self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            event = gri.decode_event(sample.payload.to_bytes())
+        except msgspec.MsgspecError:
+            return
+        with self._lock:
+            self._kept.append(event)
+            for callback in list(self._callbacks):
+                callback(event)
+
+    def add(self, callback: Callable[[gri.GriEvent], None]) -> _Callback:
+        with self._lock:
+            for event in self._kept:
+                callback(event)
+            self._callbacks.append(callback)
+        return _Callback(self, callback)
+
+    def remove(self, callback: Callable[[gri.GriEvent], None]) -> None:
+        with self._lock:
+            if callback in self._callbacks:
+                self._callbacks.remove(callback)
+
+    def undeclare(self) -> None:
+        self._sub.undeclare()
+
+
+class _Callback:
+    """One ``events()`` callback on a linked robot's feed; undeclaring it leaves the feed running."""
+
+    def __init__(self, feed: _LinkedEvents, callback: Callable[[gri.GriEvent], None]) -> None:
+        self._feed = feed
+        self._callback = callback
+
+    def undeclare(self) -> None:
+        self._feed.remove(self._callback)
+
+
 class Gcs:
     """One ground station's connection to the robots behind one router."""
 
@@ -110,6 +160,7 @@ class Gcs:
         self._token: Any = None
         self._beat: threading.Thread | None = None
         self._subs: list[Subscription] = []
+        self._linked_events: dict[str, _LinkedEvents] = {}
         if isinstance(link, str):
             raise TypeError("link takes a list of robot names")
         self.linked: list[str] = []
@@ -117,8 +168,17 @@ class Gcs:
             self.hold_link(robot)
 
     def hold_link(self, robot: str) -> None:
-        """From now on this station is a ground station of ``robot`` (its failsafe counts it)."""
-        self.linked.append(keys.validate_name(robot, "robot name"))
+        """From now on this station is a ground station of ``robot`` (its failsafe counts it); its events are
+        heard from now on, before the robot can see the link (see :meth:`events`)."""
+        robot = keys.validate_name(robot, "robot name")
+        if robot in self.linked:
+            return
+        # declared before the token and the heartbeat naming the robot: on this one session the subscription
+        # reaches the router first, so the robot's answer to the link cannot pass it by
+        feed = _LinkedEvents(self.session, robot)
+        self._linked_events[robot] = feed
+        self._subs.append(Subscription(feed))
+        self.linked.append(robot)
         if self._token is None:
             self._token = self.session.liveliness().declare_token(gri.gcs_alive_key(self.name))
             self._hb_pub = self.session.declare_publisher(gri.gcs_heartbeat_key(self.name),
@@ -187,8 +247,15 @@ class Gcs:
         return sub
 
     def events(self, robot: str, callback: Callable[[gri.GriEvent], None]) -> Subscription:
-        """Every GRI event of ``robot`` from now on, in order, each once, those published while the link to the
-        robot was cut included (they come when it is back)."""
+        """Every GRI event of ``robot`` in order, each once, those published while the link to the robot was cut
+        included (they come when it is back): from the start of this station's link for a robot it links with
+        (the last ``LINK_EVENTS_KEPT`` of those that came before this call first), from now on for any other."""
+        feed = self._linked_events.get(robot)
+        if feed is not None:
+            sub = Subscription(feed.add(callback))
+            self._subs.append(sub)
+            return sub
+
         def on_sample(sample: zenoh.Sample) -> None:
             try:
                 callback(gri.decode_event(sample.payload.to_bytes()))

@@ -43,6 +43,9 @@ def test_bad_tasks_rejected_with_reason_state_unchanged(tmp_path: Path) -> None:
             "state with position and the task list",
         )
         assert "look_at" not in before.available
+        # the link-up event comes on its own key, with no order against the state that shows the link up: wait
+        # for it (the start-up events come in order before it) so that what follows is only what the tasks caused
+        robot.wait_event(lambda e: e.kind == "link_up", 20, "the link_up event")
         n_cmd = len(robot.commands())
         start = len(robot.events)
         pos = before.position
