@@ -15,7 +15,7 @@ queryable would need all of that written again.
 *The safe queue*: each safe input may have ``queue`` samples (default 1024) waiting for the module's loop. When
 that many wait, the input's Zenoh callback blocks and Zenoh stops reading that link: the reliable, BLOCK
 publisher is slowed down, nothing is dropped. The publisher reports it: a ``put`` that blocks longer than
-``BACKPRESSURE_S`` is logged with the slot's name and counted in :attr:`OutputSlot.backpressure_events`.
+``BACKPRESSURE_S`` is logged with the slot's name and counted in :attr:`Publisher.backpressure_events`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,9 @@ from __future__ import annotations
 import datetime
 import enum
 import logging
+import threading
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
@@ -38,7 +40,6 @@ from bbcs.errors import SlotError
 from bbcs.wire import encoding_for
 
 log = logging.getLogger("bbcs.slots")
-_monotonic = time.monotonic
 
 T = TypeVar("T", bound=msgspec.Struct)
 
@@ -131,6 +132,52 @@ def OutputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE,  # noqa: N8
     return SlotSpec(name, type, Direction.OUT, Kind(kind), Safety(safety), peer=peer)
 
 
+class _BlockWatch:
+    """Notices safe ``put``s blocked longer than ``BACKPRESSURE_S``: one daemon thread per process looks at the
+    publishers every half ``BACKPRESSURE_S``. Cheaper than reading the clock around every put: here a clock read
+    is a system call, and two of them cost more than the rest of ``publish()`` besides encoding and the put."""
+
+    def __init__(self) -> None:
+        self._publishers: weakref.WeakSet[Publisher[Any]] = weakref.WeakSet()
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+
+    def add(self, pub: Publisher[Any]) -> None:
+        with self._lock:
+            self._publishers.add(pub)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="bbcs-backpressure", daemon=True)
+                self._thread.start()
+
+    def discard(self, pub: Publisher[Any]) -> None:
+        with self._lock:
+            self._publishers.discard(pub)
+
+    def _run(self) -> None:
+        # a put seen in progress, the same one (same count of puts done), at three looks in a row has been
+        # blocked at least BACKPRESSURE_S; each blocked put is reported once
+        looks: weakref.WeakKeyDictionary[Publisher[Any], tuple[int, int]] = weakref.WeakKeyDictionary()
+        while True:
+            time.sleep(BACKPRESSURE_S / 2)
+            with self._lock:
+                publishers = list(self._publishers)
+            for pub in publishers:
+                done = pub.published
+                if not pub._putting:
+                    looks.pop(pub, None)
+                    continue
+                prev_done, seen = looks.get(pub, (done, 0))
+                seen = seen + 1 if prev_done == done else 1
+                looks[pub] = (done, seen)
+                if seen == 3:
+                    pub.backpressure_events += 1
+                    log.warning("slot %s: a put blocked over %.0f ms: a consumer's safe queue is full "
+                                "(back-pressure)", pub.key, BACKPRESSURE_S * 1000)
+
+
+_block_watch = _BlockWatch()
+
+
 class Publisher(Generic[T]):
     """Publishes one slot's structs with the QoS its kind and safety call for."""
 
@@ -169,35 +216,33 @@ class Publisher(Generic[T]):
             self._pub = session.declare_publisher(
                 key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE,
                 congestion_control=zenoh.CongestionControl.BLOCK)
-        self._safe = spec.safety is Safety.SAFE
         self._type = spec.type
         self._put = self._pub.put
+        self._putting = False
+        if spec.safety is Safety.SAFE:
+            _block_watch.add(self)
 
     def publish(self, value: T) -> None:
         """Encode and put ``value``. Types are checked where they are cheap: the struct class must match."""
         if type(value) is not self._type:
             raise SlotError(f"slot {self.spec.name!r} carries {self.spec.type.__name__}, "
                             f"not {type(value).__name__}")
-        if self._safe:
-            t0 = _monotonic()
-            self._put(encode(value))
-            blocked = _monotonic() - t0
-            if blocked > BACKPRESSURE_S:
-                self.backpressure_events += 1
-                log.warning("slot %s: put blocked %.0f ms: a consumer's safe queue is full (back-pressure)",
-                            self.key, blocked * 1000)
-        else:
-            self._put(encode(value))
+        self._putting = True  # what the back-pressure watch looks at (a safe put can block)
+        self._put(encode(value))
+        self._putting = False
         self.published += 1
 
     def publish_raw(self, payload: bytes) -> None:
         """Put bytes already encoded (bench and bridging code); no type check."""
+        self._putting = True
         self._pub.put(payload)
+        self._putting = False
         self.published += 1
 
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            _block_watch.discard(self)
             self._pub.undeclare()
 
 
