@@ -97,12 +97,19 @@ def take_off_all(gcs: Gcs, names: list[str]) -> None:
         s = _state(gcs, n)
         return s is not None and bool(s.airborne) and s.position is not None and s.position.alt >= FLY_ALT - 2.0
 
+    def placed(n: str) -> bool:
+        s = _state(gcs, n)  # one state per look: a second ask may time out and find none
+        return s is not None and s.position is not None
+
+    def taking_off(n: str) -> bool:
+        s = _state(gcs, n)
+        return s is not None and any(t.kind == "take_off" for t in s.tasks)
+
     for n in names:
-        wait_until(lambda n=n: _state(gcs, n) is not None and _state(gcs, n).position is not None, 40,
-                   f"{n}: telemetry in its GRI state")
+        wait_until(lambda n=n: placed(n), 40, f"{n}: telemetry in its GRI state")
     for attempt in range(3):  # on a loaded machine the DSP may miss an ack: the take-off fails, it is sent again
         for n in names:
-            if not up(n) and not any(t.kind == "take_off" for t in _state(gcs, n).tasks):
+            if not up(n) and not taking_off(n):
                 reply = gcs.send(n, gri.TakeOff(height=10.0))
                 assert reply.accepted, (n, reply.reason)
         try:
