@@ -140,11 +140,15 @@ def _cheap_insertion(bid: Bid, route: list[Target], target: Target) -> tuple[flo
 
 
 def allocate(targets: Iterable[Target], bids: Iterable[Bid], now: float = 0.0, *,
-             max_per_robot: int | None = None, keep: Mapping[str, Sequence[str]] | None = None) -> Allocation:
+             max_per_robot: int | None = None, keep: Mapping[str, Sequence[str]] | None = None,
+             balance: bool = False) -> Allocation:
     """Allocate ``targets`` among the robots that bid; the same inputs give the same result everywhere.
 
     ``keep``: routes already held (robot → target ids, e.g. after a re-allocation), auctioned first to their
     holders in order; only targets of robots still bidding are kept.
+    ``balance``: each round goes to the lowest time at which a robot would finish its route with the target in
+    it, not the lowest detour: the work is shared so that the last robot finishes sooner (an area to survey),
+    where the least total flight would leave one robot doing everything near it.
     """
     tlist = sorted(targets, key=lambda t: t.id)
     blist = sorted(bids, key=lambda b: b.robot)
@@ -160,6 +164,7 @@ def allocate(targets: Iterable[Target], bids: Iterable[Bid], now: float = 0.0, *
                     routes[robot].append(by_id[tid])
                     open_ids.discard(tid)
     while open_ids:
+        held = {r: route_cost(by_robot[r], rt) if rt else 0.0 for r, rt in routes.items()} if balance else {}
         best: tuple[float, str, str, int] | None = None
         for tid in sorted(open_ids):
             t = by_id[tid]
@@ -171,7 +176,8 @@ def allocate(targets: Iterable[Target], bids: Iterable[Bid], now: float = 0.0, *
                 ins = _best_insertion(b, routes[b.robot], t, now)
                 if ins is None:
                     continue
-                cand = (ins[0], b.robot, tid, ins[1])
+                value = ins[0] + (held[b.robot] if balance else 0.0)
+                cand = (value, b.robot, tid, ins[1])
                 if best is None or cand < best:
                     best = cand
         if best is None:
@@ -211,7 +217,7 @@ def _swap_repair(routes: dict[str, list[Target]], bids: Mapping[str, Bid], now: 
 
 
 def reallocate(previous: Allocation, targets: Iterable[Target], bids: Iterable[Bid], now: float, *,
-               done: Iterable[str] = (), max_per_robot: int | None = None) -> Allocation:
+               done: Iterable[str] = (), max_per_robot: int | None = None, balance: bool = False) -> Allocation:
     """After a robot drops out (it no longer bids): survivors keep their remaining routes, the dropped robots'
     targets (minus those ``done``) are auctioned again among them."""
     finished = set(done)
@@ -219,7 +225,7 @@ def reallocate(previous: Allocation, targets: Iterable[Target], bids: Iterable[B
     live = list(bids)
     alive = {b.robot for b in live}
     keep = {r: [t for t in route if t not in finished] for r, route in previous.routes.items() if r in alive}
-    return allocate(remaining, live, now, max_per_robot=max_per_robot, keep=keep)
+    return allocate(remaining, live, now, max_per_robot=max_per_robot, keep=keep, balance=balance)
 
 
 def cost_matrix(targets: Sequence[Target], bids: Sequence[Bid]) -> list[list[float]]:

@@ -18,7 +18,8 @@ import zenoh
 import zenoh.ext
 
 from bbcs import keys
-from bbcs.contracts.fleet import FleetDecision, FleetState, FleetTarget, FleetTask
+from bbcs.contracts.fleet import MAX_TARGETS, FleetDecision, FleetState, FleetTarget, FleetTask
+from ral.survey_area import parse_area
 
 
 class FleetView:
@@ -109,8 +110,13 @@ def add_parser(sub: Any) -> None:
     fs = f.add_subparsers(dest="fleet_command", required=True)
     p = fs.add_parser("post", help="post a fleet task and print the allocation the robots agree on")
     p.add_argument("--id", required=True, help="task id (one key chunk)")
-    p.add_argument("--target", action="append", required=True, metavar="ID,LAT,LON,ALT[,KIND[,DEADLINE_S]]")
+    p.add_argument("--target", action="append", default=[], metavar="ID,LAT,LON,ALT[,KIND[,DEADLINE_S]]")
+    p.add_argument("--area", action="append", default=[], metavar="ID;ALT;SPACING_M;LAT,LON;LAT,LON;LAT,LON[;...]",
+                   help="an area to survey, split among the robots: the centres of a SPACING_M grid inside the "
+                        "polygon become targets ID.0, ID.1, … at ALT (metres above sea level)")
     p.add_argument("--one-per-robot", action="store_true", help="at most one target per robot")
+    p.add_argument("--balance", action="store_true",
+                   help="share the targets so that the last robot finishes soonest (always on with --area)")
     p.add_argument("--speed", type=float, help="flight speed of the robots' paths, m/s")
     p.add_argument("--wait", type=float, default=15.0, help="seconds to wait for the robots to agree (15)")
     s = fs.add_parser("status", help="what every robot decided and visited")
@@ -136,8 +142,15 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
             now = time.time()
             try:
                 targets = [parse_target(x, i, now) for i, x in enumerate(args.target)]
+                for i, x in enumerate(args.area):
+                    targets += parse_area(x, i)
+                if not targets:
+                    raise ValueError("nothing to do: give --target or --area")
+                if len(targets) > MAX_TARGETS:
+                    raise ValueError(f"{len(targets)} targets in all: a fleet task holds at most {MAX_TARGETS}")
                 task = msgspec.convert({"id": args.id, "targets": [msgspec.to_builtins(x) for x in targets],
                                         "one_per_robot": args.one_per_robot, "speed": args.speed,
+                                        "balance": args.balance or bool(args.area),
                                         "posted_by": "cromat gcs"}, FleetTask)
             except (ValueError, msgspec.ValidationError) as exc:
                 print(f"cromat gcs fleet: {exc}", file=out)

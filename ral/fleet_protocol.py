@@ -119,7 +119,8 @@ def decide(task: FleetTask, bids: Iterable[FleetBid], round_: int) -> FleetDecis
                          can_do=frozenset(s.can_do)))
     keep = {b.robot: [t for t in b.remaining if t not in done] for b in bidding}
     now = max((b.stamp for b in blist), default=0.0)
-    alloc = allocate(targets, abids, now, max_per_robot=1 if task.one_per_robot else None, keep=keep)
+    alloc = allocate(targets, abids, now, max_per_robot=1 if task.one_per_robot else None, keep=keep,
+                     balance=task.balance)
     routes = {r: list(route) for r, route in sorted(alloc.routes.items())}
     bidders = [b.robot for b in bidding]
     body = msgspec.msgpack.encode([task.id, round_, bidders, routes, list(alloc.unassigned)])

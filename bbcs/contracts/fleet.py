@@ -46,6 +46,9 @@ class FleetTask(msgspec.Struct, frozen=True, kw_only=True):
     posted_by: str = ""
     speed: Annotated[float, msgspec.Meta(gt=0, le=30)] | None = None
     """Flight speed for the fleet's paths (None: each robot's cruise speed)."""
+    balance: bool = False
+    """Share the targets so that the last robot finishes soonest, not so that the robots fly the least in all
+    (an area to survey: ``cromat gcs fleet post --area`` sets it)."""
 
 
 class BidState(msgspec.Struct, frozen=True, kw_only=True):

@@ -4,6 +4,7 @@ bid and decide among themselves; each flies its share through its own Module Man
 
 Tested by effect: every robot holds the same decision (digest); the winning robot's DSP simulator received the
 target as an ADD_WAYPOINT and the others' did not; a kind that cannot do a task does not bid and flies nothing;
+an area to survey is split among the robots, each flying the cells it won;
 a robot killed mid-mission (its whole stack, SIGKILL) has its unvisited targets flown by the others, and the
 time from the kill to the survivors' agreed new allocation is measured and bounded.
 """
@@ -27,6 +28,7 @@ from bbcs.testing import child_env, wait_until
 from module_manager.fleet import drop_sections
 from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, session_config
+from ral.survey_area import parse_area
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
@@ -84,11 +86,14 @@ class FleetRobot:
         return len(self.record.read_text().splitlines()) if self.record.exists() else 0
 
 
-def cli_post(port: int, task: str, targets: list[str], timeout_s: float = 40.0) -> subprocess.CompletedProcess:
+def cli_post(port: int, task: str, targets: list[str], timeout_s: float = 40.0,
+             areas: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
     args = [sys.executable, "-m", "ral.gcs.cli", "--connect", f"tcp/127.0.0.1:{port}", "--name", "poster",
             "fleet", "post", "--id", task, "--wait", "30"]
     for x in targets:
         args += ["--target", x]
+    for x in areas:
+        args += ["--area", x]
     return subprocess.run(args, cwd=str(ROOT), env=child_env(), capture_output=True, text=True, timeout=timeout_s)
 
 
@@ -181,7 +186,27 @@ def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_r
         assert ins in robots["uav_c"].waypoints(before["uav_c"])
         assert not robots["uav_a"].waypoints(before["uav_a"]) and not robots["uav_b"].waypoints(before["uav_b"])
 
-        # 3. c killed mid-mission: its unvisited targets go to a and b, within a bounded time
+        # 3. an area between a and b to survey: split among the robots (balanced), each cell flown by its winner
+        corners = [(37.4112, -6.0022), (37.4112, -6.0003), (37.4122, -6.0003), (37.4122, -6.0022)]
+        area = ";".join(["field", str(FLY_ALT), "60"] + [f"{lat},{lon}" for lat, lon in corners])
+        cells = {c.id: (c.lat, c.lon) for c in parse_area(area, 0)}
+        assert len(cells) == 6
+        before = {r: robots[r].count() for r in names}
+        done = cli_post(robots["uav_b"].launch.port, "survey", [], areas=(area,))
+        assert done.returncode == 0, done.stdout + done.stderr
+        dec = view.agreed("survey", set(names))
+        assert dec is not None and sorted(x for r in names for x in dec.routes[r]) == sorted(cells), dec
+        assert len([r for r in names if dec.routes[r]]) >= 2, f"the area was not split: {dec.routes}"
+        wait_until(lambda: view.visited("survey") == set(cells), 90, "every cell of the area visited")
+        def received(r: str, cell: str) -> bool:  # the DSP's waypoints are on its 1e-4 degree grid; cells 60 m apart
+            lat, lon = cells[cell]
+            return any(abs(la - lat) <= GRID and abs(lo - lon) <= GRID for la, lo in robots[r].waypoints(before[r]))
+
+        for r in names:  # each robot's DSP received its cells, and no other robot's
+            assert all(received(r, x) for x in dec.routes[r]), (r, dec.routes[r], robots[r].waypoints(before[r]))
+            assert not [x for x in cells if x not in dec.routes[r] and received(r, x)], (r, dec.routes)
+
+        # 4. c killed mid-mission: its unvisited targets go to a and b, within a bounded time
         far = {r: [grid(*HOMES[r], 6, 0), grid(*HOMES[r], 6, 6), grid(*HOMES[r], 0, 6)] for r in names}
         spec = [f"{r[-1]}f{i},{lat},{lon},{FLY_ALT}" for r in names for i, (lat, lon) in enumerate(far[r])]
         before = {r: robots[r].count() for r in names}

@@ -107,3 +107,22 @@ def test_one_target_per_robot_is_near_the_central_optimum(robots: int) -> None:
         ratios.append(alloc.cost / best)
     assert max(ratios) <= 1.15, ratios
     assert math.isclose(min(ratios), 1.0) or min(ratios) >= 1.0
+
+
+def test_balance_shares_a_block_of_targets_so_the_last_robot_finishes_sooner() -> None:
+    """A 6 × 4 block of cells 50 m apart, three robots around it: the least total flight gives one robot every
+    cell (each next cell is a short detour for it); ``balance`` gives each a share and a shorter longest route."""
+    ts = [Target(f"c{i:02d}", 50.0 * (i % 6), 50.0 * (i // 6)) for i in range(24)]
+    bs = [Bid("west", -60.0, 75.0), Bid("east", 310.0, 75.0), Bid("north", 125.0, 210.0)]
+    least = allocate(ts, bs)
+    shared = allocate(ts, bs, balance=True)
+    assert max(len(r) for r in least.routes.values()) == 24
+    assert all(6 <= len(r) <= 10 for r in shared.routes.values()), shared.routes
+    assert max(shared.costs.values()) < 0.5 * max(least.costs.values())
+    assert sorted(t for r in shared.routes.values() for t in r) == sorted(t.id for t in ts)
+    for seed in range(3):  # and as deterministic as the default
+        rng = random.Random(seed)
+        ts2, bs2 = ts[:], bs[:]
+        rng.shuffle(ts2)
+        rng.shuffle(bs2)
+        assert allocate(ts2, bs2, balance=True).routes == shared.routes
