@@ -88,6 +88,17 @@ def wait_until(predicate: Callable[[], bool], deadline_s: float = 10.0, what: st
     raise AssertionError(f"timed out after {deadline_s} s waiting for {what}")
 
 
+def wait_alive(session: Any, robot: str, module: str, deadline_s: float = 20.0) -> None:
+    """Wait until ``module`` of ``robot`` holds its liveliness token (declared once it is up); fail naming it."""
+    seen = threading.Event()
+    sub = session.liveliness().declare_subscriber(keys.alive_key(robot, module), lambda _s: seen.set(), history=True)
+    try:
+        if not seen.wait(deadline_s):
+            raise AssertionError(f"{module} of {robot} never came up within {deadline_s:g} s")
+    finally:
+        sub.undeclare()
+
+
 def start_router(processes: Processes, host: str = "127.0.0.1", connect: tuple[str, ...] = ()) -> int:
     """Start ``cromat router`` on a free port of ``host`` (linked to the routers at ``connect``); returns the port
     once it accepts connections."""

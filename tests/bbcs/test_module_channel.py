@@ -19,7 +19,7 @@ from bbcs.errors import BusErrorCode
 from bbcs.module import Heartbeat, Module
 from bbcs.session import local_client
 from bbcs.slots import InputSlot, Kind, OutputSlot, Publisher
-from bbcs.testing import wait_until
+from bbcs.testing import wait_alive, wait_until
 
 
 class Item(msgspec.Struct, frozen=True, kw_only=True):
@@ -69,18 +69,10 @@ def slow(router: int) -> Iterator[tuple[Slow, threading.Thread]]:
         loop.join(20)
 
 
-def _wait_alive(session, module: str) -> None:
-    seen = threading.Event()
-    sub = session.liveliness().declare_subscriber(keys.alive_key("r1", module), lambda s: seen.set(), history=True)
-    try:
-        assert seen.wait(20), f"{module} never came up"
-    finally:
-        sub.undeclare()
-
 
 def test_the_stream_input_is_the_loops_channel(slow, sessions) -> None:
     mod, _ = slow
-    _wait_alive(sessions(), "slow")
+    wait_alive(sessions(), "r1", "slow")
     assert mod._channel_reader is not None and mod._channel_reader.spec.name == "items"
     assert mod._channel_reader.chan is not None
 
@@ -88,7 +80,7 @@ def test_the_stream_input_is_the_loops_channel(slow, sessions) -> None:
 def test_every_datum_in_order_under_back_pressure_and_wrong_data_rejected(slow, sessions) -> None:
     mod, loop = slow
     s = sessions()
-    _wait_alive(s, "slow")
+    wait_alive(s, "r1", "slow")
     errors: list[int] = []
     decode_err = msgspec.msgpack.Decoder(Err).decode
     err_sub = s.declare_subscriber(keys.slot_key("r1", "slow", "error"),
@@ -117,7 +109,7 @@ def test_an_idle_loop_ticks_beats_runs_call_soon_and_stops(slow, sessions) -> No
     hb = s.declare_subscriber(keys.heartbeat_key("r1", "slow"),
                               lambda smp: beats.append(msgspec.msgpack.decode(smp.payload.to_bytes(),
                                                                               type=Heartbeat).seq))
-    _wait_alive(s, "slow")
+    wait_alive(s, "r1", "slow")
     wait_until(lambda: mod._blocked_on is not None, 10, "the loop blocked on its channel")
     ticks = mod.ticks
     wait_until(lambda: mod.ticks >= ticks + 10, 10, "ten ticks with no input at all")

@@ -17,7 +17,7 @@ from bbcs.context import ModuleContext
 from bbcs.module import Module
 from bbcs.session import local_client
 from bbcs.slots import InputSlot, Kind, OutputSlot, Publisher
-from bbcs.testing import wait_until
+from bbcs.testing import wait_alive, wait_until
 
 BLOB = 64 * 1024
 
@@ -73,18 +73,10 @@ def _feed(pub: Publisher[Blob], n: int | None = None) -> tuple[threading.Thread,
     return feeder, stop
 
 
-def _alive(session, module: str) -> None:
-    seen = threading.Event()
-    sub = session.liveliness().declare_subscriber(keys.alive_key("r1", module), lambda s: seen.set(), history=True)
-    try:
-        assert seen.wait(20), f"{module} never came up"
-    finally:
-        sub.undeclare()
-
 
 def test_a_stuck_consumer_is_reported_by_the_publisher_and_loses_nothing(held: Held, sessions, caplog) -> None:
     s = sessions()
-    _alive(s, "held")
+    wait_alive(s, "r1", "held")
     pub = Publisher(s, keys.slot_key("r1", "feeder", "blobs"), OutputSlot("blobs", Blob, kind=Kind.STREAM))
     with caplog.at_level(logging.WARNING, logger="bbcs.slots"):
         # until the queue, the router's queues and the sockets' buffers are full (some tens of MB) and a put blocks
@@ -106,7 +98,7 @@ def test_a_stuck_consumer_is_reported_by_the_publisher_and_loses_nothing(held: H
 def test_control_a_consumer_that_keeps_up_causes_no_report(held: Held, sessions) -> None:
     held.go.set()
     s = sessions()
-    _alive(s, "held")
+    wait_alive(s, "r1", "held")
     pub = Publisher(s, keys.slot_key("r1", "feeder", "blobs"), OutputSlot("blobs", Blob, kind=Kind.STREAM))
     feeder, _ = _feed(pub, 40)
     feeder.join(30)

@@ -16,7 +16,7 @@ from bbcs.context import ModuleContext
 from bbcs.module import Heartbeat, Module
 from bbcs.session import local_client
 from bbcs.slots import InputSlot, Kind, OutputSlot
-from bbcs.testing import wait_until
+from bbcs.testing import wait_alive, wait_until
 from bbcs.wire import SCHEMA_ENCODING, declare_service_schemas, encoding_for
 
 
@@ -61,19 +61,11 @@ def running(router: int) -> Iterator[dict[str, Module]]:
             t.join(20)
 
 
-def _alive(session, module: str) -> None:
-    seen = threading.Event()
-    sub = session.liveliness().declare_subscriber(keys.alive_key("r1", module), lambda s: seen.set(), history=True)
-    try:
-        assert seen.wait(20), f"{module} never came up"
-    finally:
-        sub.undeclare()
-
 
 def test_wildcard_schema_query_gets_one_reply_per_module_on_its_own_key(running, sessions) -> None:
     s = sessions()
     for name in running:
-        _alive(s, name)
+        wait_alive(s, "r1", name)
     service = declare_service_schemas(s, keys.manager_key("r1"), lambda: {"cromat/r1/@manager/state": Reading})
     try:
         replies = [r.ok for r in s.get("cromat/r1/*/@schema", timeout=10) if r.ok is not None]
@@ -98,8 +90,8 @@ def test_samples_carry_msgpack_and_the_struct_name(running, sessions) -> None:
     seen: list = []
     sub = s.declare_subscriber(keys.slot_key("r1", "source", "reading"), lambda smp: seen.append(smp.encoding))
     try:
-        _alive(s, "source")
-        _alive(s, "sink")
+        wait_alive(s, "r1", "source")
+        wait_alive(s, "r1", "sink")
         wait_until(lambda: bool(running["source"]._outputs_by_name), what="source's publishers")
         running["source"].publish("reading", Reading(value=1.0))
         wait_until(lambda: bool(seen), what="a sample")
@@ -115,8 +107,8 @@ def test_a_stuck_handler_stops_the_heartbeat(running, sessions) -> None:
     sub = s.declare_subscriber(keys.heartbeat_key("r1", "sink"),
                                lambda smp: beats.append((time.monotonic(), decode(smp.payload.to_bytes()).seq)))
     try:
-        _alive(s, "source")
-        _alive(s, "sink")
+        wait_alive(s, "r1", "source")
+        wait_alive(s, "r1", "sink")
         wait_until(lambda: len(beats) >= 2, what="two heartbeats")
         running["source"].publish("reading", Reading(value=2.0, stall_s=3.0))
         wait_until(lambda: running["sink"].got, deadline_s=20, what="the stuck handler to finish")
