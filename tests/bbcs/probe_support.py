@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import json
 import subprocess
-import threading
 from pathlib import Path
 
 import msgspec
 
-from bbcs import keys
 from bbcs.routing import SlotRef, SlotTable
 from bbcs.testing import child_env
 
@@ -41,14 +39,6 @@ def start_probe(processes, router: int, tmp_path: Path, *extra: str, delay_ms: f
         env=child_env(PYTHONPATH=f"{HERE}:{HERE.parents[1]}"))
     return proc, rec
 
-
-def wait_alive(session, robot: str, module: str) -> None:
-    seen = threading.Event()
-    sub = session.liveliness().declare_subscriber(keys.alive_key(robot, module), lambda s: seen.set(), history=True)
-    try:
-        assert seen.wait(20), f"{module} never became alive"
-    finally:
-        sub.undeclare()
 
 
 def publisher(processes, router: int, key: str, kind: str, count: int, source: str = "x", rate: float = 0,

@@ -13,13 +13,13 @@ from bbcs import keys
 from bbcs.errors import BusErrorCode
 from bbcs.routing import RouteAck
 from bbcs.slots import OutputSlot, Publisher
-from bbcs.testing import stop_process, wait_until
+from bbcs.testing import stop_process, wait_alive, wait_until
 
 HERE = Path(__file__).resolve().parent
 STOP_S = 20.0  # a loaded machine may take seconds to stop a Zenoh process: the exit code is what is checked
 sys.path.insert(0, str(HERE))
 from probe_module import ProbeControl, ProbeError  # noqa: E402
-from probe_support import handled, publisher, records, start_probe, wait_alive  # noqa: E402
+from probe_support import handled, publisher, records, start_probe  # noqa: E402
 
 
 class AckWatcher:

@@ -16,12 +16,12 @@ import zenoh
 from bbcs import keys
 from bbcs.session import open_session, peer_links_config, zenoh_config
 from bbcs.slots import OutputSlot, Publisher
-from bbcs.testing import stop_process, wait_until
+from bbcs.testing import stop_process, wait_alive, wait_until
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from probe_module import ProbeMsg  # noqa: E402
-from probe_support import handled, start_probe, wait_alive  # noqa: E402
+from probe_support import handled, start_probe  # noqa: E402
 
 QOS = {"reliability": zenoh.Reliability.RELIABLE, "congestion_control": zenoh.CongestionControl.BLOCK}
 
