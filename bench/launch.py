@@ -32,7 +32,11 @@ from module_manager.manifest import Manifest, load_manifest
 FLOOR_CHILD = """
 import importlib, sys
 for name in sys.argv[2:]:
-    importlib.import_module(name)
+    if name.startswith("entry:"):  # what a standby preloads: the entry's __main__ top-level imports
+        from module_manager.standby import preload
+        preload(name[6:])
+    else:
+        importlib.import_module(name)
 if sys.argv[1]:
     import zenoh
     conf = zenoh.Config()
@@ -84,13 +88,14 @@ def bare_zenoh(n: int) -> float:
 
 
 def floor_jobs(m: Manifest) -> list[list[str]]:
-    """Per process of the launch, what it imports: each module's class module (what ``python -m entry`` imports
-    before it runs), each ``-m`` process's module, and zenoh for the router."""
+    """Per process of the launch, what it imports: each module's class module and what ``python -m entry``
+    imports before it runs (its ``__main__``'s top-level imports, as a standby preloads them), each ``-m``
+    process's module, and zenoh for the router."""
     jobs = [["zenoh"]]  # the router
     for proc in m.raw.processes.values():
         cmd = proc.command
         jobs.append([cmd[cmd.index("-m") + 1]] if "-m" in cmd else [])
-    jobs += [[info.spec.cls.partition(":")[0]] for info in m.modules.values()]
+    jobs += [[info.spec.cls.partition(":")[0], f"entry:{info.spec.entry}"] for info in m.modules.values()]
     return jobs
 
 

@@ -32,7 +32,7 @@ from bbcs.contracts.path_follower import (
 )
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
-from modules.path_follower import logic, onboard
+from modules.path_follower import logic
 
 MODE_BATCH_MEMORY = 256
 """How many recent mode-change batches are remembered to undo the mode if the DSP refuses one."""
@@ -95,7 +95,12 @@ class PathFollowerModule(Module):
         self.state = logic.FollowerState()
         self._mode_batches: dict[int, int | None] = {}
         self.dsp = dsp_client.DspCommander(self.output("dsp_commands"), self.module)
+        # mode 3's follower (numpy, the LQR) is imported here, not with the class: the Module Manager imports
+        # every module class to check the manifest, and numpy alone is ~0.1 s of its start-up
+        from modules.path_follower import onboard
+
         self.onboard = onboard.OnboardFollower(onboard.OnboardParams(max_speed=self.max_speed))  # mode 3
+        self._onboard_decide = onboard.decide
 
     def _ack_mode(self, msg: msgspec.Struct, decision: logic.Decision) -> None:
         """Answer the mode on MODE_ACK (after applying it): the manager's barrier before data for the new mode."""
@@ -145,7 +150,7 @@ class PathFollowerModule(Module):
 
     def on_dsp_telemetry(self, t: p.Telemetry) -> None:
         self.state = logic.on_telemetry(self.state, t)
-        self._apply(onboard.decide(self.onboard, self.state, t))
+        self._apply(self._onboard_decide(self.onboard, self.state, t))
 
     def on_dsp_errors(self, report: p.DspErrorReport) -> None:
         own_mode_batch = report.sender == self.module and report.batch_id in self._mode_batches

@@ -21,6 +21,7 @@ simulated scene: ``target_east``, ``target_north`` (m from the first telemetry p
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import msgspec
 
@@ -31,13 +32,12 @@ from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.module import Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
-from modules.vision.geodesy import LocalFrame
-from modules.vision.geometry import CameraModel
-from modules.vision.pipeline import VisionConfig, VisionPipeline, VisionResult
-from modules.vision.pose import AircraftPose, Gimbal
-from modules.vision.scene import LinearTarget
-from modules.vision.sim_camera import SimulatedCamera
-from modules.vision.source import CameraSource
+
+if TYPE_CHECKING:  # the vision parts (numpy) are imported where they are used: the Module Manager imports this
+    # class to check the manifest, and numpy is ~0.1 s of its start-up
+    from modules.vision.pipeline import VisionResult
+    from modules.vision.pose import AircraftPose, Gimbal
+    from modules.vision.source import CameraSource
 
 
 class VisionStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -58,6 +58,8 @@ def pose_and_gimbal(t: RobotTelemetry) -> tuple[AircraftPose, Gimbal] | None:
     """The pose and pan & tilt angles a frame needs, or None while telemetry lacks them."""
     if t.position is None or t.pan_deg is None or t.tilt_deg is None:
         return None
+    from modules.vision.pose import AircraftPose, Gimbal
+
     att = t.attitude
     yaw = att.yaw if att is not None else (t.heading_deg or 0.0)
     pose = AircraftPose(t.position.lat, t.position.lon, t.position.alt,
@@ -102,11 +104,15 @@ class Vision(Module):
         self.ground_alt = float(p.get("ground_alt", "0"))
         self.path_period = float(p.get("path_period", "2"))
         self.camera_spec = p.get("camera", "sim")
+        from modules.vision.geometry import CameraModel
+        from modules.vision.pipeline import VisionConfig, VisionPipeline
+
         self.pipeline = VisionPipeline(VisionConfig(camera=CameraModel(), ground_alt=self.ground_alt))
         self.latest: RobotTelemetry | None = None
         self.source: CameraSource | None = None
         self._last_path = 0.0
         self._camera_failed = False
+        self._simulated = False
 
     def _open_source(self, first: RobotTelemetry) -> CameraSource:
         kind, _, arg = self.camera_spec.partition(":")
@@ -119,7 +125,12 @@ class Vision(Module):
         if kind != "sim":
             raise ValueError(f"vision: unknown camera {self.camera_spec!r} (sim | folder:PATH | v4l2:DEVICE)")
         assert first.position is not None
+        from modules.vision.geodesy import LocalFrame
+        from modules.vision.scene import LinearTarget
+        from modules.vision.sim_camera import SimulatedCamera
+
         p = self.context.params
+        self._simulated = True
         world = LocalFrame(first.position.lat, first.position.lon, self.ground_alt)
         target = LinearTarget(start=(float(p.get("target_east", "20")), float(p.get("target_north", "0"))),
                               velocity=(float(p.get("target_ve", "0")), float(p.get("target_vn", "0"))),
@@ -139,8 +150,8 @@ class Vision(Module):
         pose, gimbal = state
         if self.source is None:
             self.source = self._open_source(telemetry)
-        if isinstance(self.source, SimulatedCamera):
-            self.source.set_state(pose, gimbal)
+        if self._simulated:  # a simulated camera renders what the aircraft's pose and gimbal show
+            self.source.set_state(pose, gimbal)  # type: ignore[attr-defined]
         try:
             frame = self.source.read()
         except Exception as exc:
