@@ -194,7 +194,7 @@ def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_r
         before = {r: robots[r].count() for r in names}
         done = cli_post(robots["uav_b"].launch.port, "survey", [], areas=(area,))
         assert done.returncode == 0, done.stdout + done.stderr
-        dec = view.agreed("survey", set(names))
+        dec = view.wait(lambda: view.agreed("survey", set(names)), 10)
         assert dec is not None and sorted(x for r in names for x in dec.routes[r]) == sorted(cells), dec
         assert len([r for r in names if dec.routes[r]]) >= 2, f"the area was not split: {dec.routes}"
         wait_until(lambda: view.visited("survey") == set(cells), 90, "every cell of the area visited")
