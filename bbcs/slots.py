@@ -26,7 +26,7 @@ import logging
 import threading
 import time
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -141,6 +141,7 @@ class _BlockWatch:
         self._publishers: weakref.WeakSet[Publisher[Any]] = weakref.WeakSet()
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
+        self._looks: weakref.WeakKeyDictionary[Publisher[Any], tuple[int, int]] = weakref.WeakKeyDictionary()
 
     def add(self, pub: Publisher[Any]) -> None:
         with self._lock:
@@ -154,25 +155,27 @@ class _BlockWatch:
             self._publishers.discard(pub)
 
     def _run(self) -> None:
-        # a put seen in progress, the same one (same count of puts done), at three looks in a row has been
-        # blocked at least BACKPRESSURE_S; each blocked put is reported once
-        looks: weakref.WeakKeyDictionary[Publisher[Any], tuple[int, int]] = weakref.WeakKeyDictionary()
         while True:
             time.sleep(BACKPRESSURE_S / 2)
             with self._lock:
                 publishers = list(self._publishers)
-            for pub in publishers:
-                done = pub.published
-                if not pub._putting:
-                    looks.pop(pub, None)
-                    continue
-                prev_done, seen = looks.get(pub, (done, 0))
-                seen = seen + 1 if prev_done == done else 1
-                looks[pub] = (done, seen)
-                if seen == 3:
-                    pub.backpressure_events += 1
-                    log.warning("slot %s: a put blocked over %.0f ms: a consumer's safe queue is full "
-                                "(back-pressure)", pub.key, BACKPRESSURE_S * 1000)
+            self.look(publishers)
+
+    def look(self, publishers: Iterable[Publisher[Any]]) -> None:
+        """One look: a put seen in progress, the same one (same count of puts done), at three looks in a row has
+        been blocked at least ``BACKPRESSURE_S``; each blocked put is reported once."""
+        for pub in publishers:
+            done = pub.published
+            if not pub._putting:
+                self._looks.pop(pub, None)
+                continue
+            prev_done, seen = self._looks.get(pub, (done, 0))
+            seen = seen + 1 if prev_done == done else 1
+            self._looks[pub] = (done, seen)
+            if seen == 3:
+                pub.backpressure_events += 1
+                log.warning("slot %s: a put blocked over %.0f ms: a consumer's safe queue is full (back-pressure)",
+                            pub.key, BACKPRESSURE_S * 1000)
 
 
 _block_watch = _BlockWatch()

@@ -105,3 +105,32 @@ def test_control_a_consumer_that_keeps_up_causes_no_report(held: Held, sessions)
     wait_until(lambda: len(held.got) >= 40, 30, "every blob handled")
     assert held.got == list(range(40)) and pub.backpressure_events == 0
     pub.close()
+
+
+class PutState:
+    """What the watcher reads of a publisher: puts done, one in progress, reports."""
+
+    def __init__(self) -> None:
+        self.key = "cromat/r1/feeder/blobs"
+        self.published = 0
+        self._putting = False
+        self.backpressure_events = 0
+
+
+def test_the_watcher_reports_a_put_blocked_three_looks_once_and_a_moving_stream_never() -> None:
+    from bbcs.slots import _BlockWatch
+
+    watch, blocked, moving = _BlockWatch(), PutState(), PutState()
+    blocked._putting = moving._putting = True
+    for _ in range(6):  # six looks, 25 ms apart in the thread: the same put in progress the whole time
+        moving.published += 1  # a put in progress at each look, but each time another one
+        watch.look([blocked, moving])
+    assert blocked.backpressure_events == 1 and moving.backpressure_events == 0
+    blocked.published, blocked._putting = 1, False  # it went through
+    watch.look([blocked])
+    blocked._putting = True  # the next put: two looks only, then it goes through
+    watch.look([blocked])
+    watch.look([blocked])
+    blocked.published, blocked._putting = 2, False
+    watch.look([blocked])
+    assert blocked.backpressure_events == 1
