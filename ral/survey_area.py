@@ -1,7 +1,7 @@
 """An area to survey, as fleet targets: the centres of a square grid laid over the polygon.
 
-The fleet's auction then splits the area among the robots like any set of points; since each bid is the cost of
-inserting a point into the bidder's route, every robot ends up with a compact block near it. Cells are
+The fleet's auction then splits the area among the robots like any set of points; with the task's ``balance`` on
+(as ``cromat gcs fleet post --area`` sets it), each robot ends up with a compact block near it. Cells are
 ``spacing_m`` apart (the ground a robot's sensor covers from the survey altitude); a cell counts when its centre
 is inside the polygon. Pure geometry on the local plane of :mod:`ral.world_geometry`.
 """
@@ -14,17 +14,12 @@ from collections.abc import Sequence
 import msgspec
 
 from bbcs.contracts.fleet import MAX_TARGETS, FleetTarget
-from ral.world_geometry import EARTH_RADIUS_M, LatLon, inside, project, segments_cross
+from bbcs.contracts.tasks import Vertex
+from ral.world_geometry import LatLon, inside, project, segments_cross, unproject
 
 
 class AreaError(ValueError):
     """The area cannot be surveyed as given (too few corners, crossing edges, cells too many or none)."""
-
-
-def _unproject(x: float, y: float, lat0: float, lon0: float) -> LatLon:
-    lat = lat0 + math.degrees(y / EARTH_RADIUS_M)
-    lon = lon0 + math.degrees(x / (EARTH_RADIUS_M * math.cos(math.radians(lat0))))
-    return lat, lon
 
 
 def _check_polygon(xy: list[tuple[float, float]]) -> None:
@@ -75,7 +70,7 @@ def area_targets(area_id: str, polygon: Sequence[LatLon], alt: float, spacing_m:
                         f"use a spacing of about {suggest} m or more")
     targets = []
     for n, (x, y) in enumerate(cells):
-        lat, lon = _unproject(x, y, lat0, lon0)
+        lat, lon = unproject(x, y, lat0, lon0)
         fields = {"id": f"{area_id}.{n}", "lat": lat, "lon": lon, "alt": alt, "kind": kind, "deadline": deadline}
         try:
             targets.append(msgspec.convert(fields, FleetTarget))
@@ -95,9 +90,11 @@ def parse_area(text: str, index: int) -> list[FleetTarget]:
         corners = []
         for k, corner in enumerate(parts[3:]):
             lat, lon = (float(v) for v in corner.split(","))
-            if not (-90 <= lat <= 90 and -180 <= lon <= 180):
-                raise ValueError(f"corner {k + 1} ({corner}) is not a latitude,longitude")
-            corners.append((lat, lon))
+            try:
+                vertex = msgspec.convert({"lat": lat, "lon": lon}, Vertex)  # the contracts' ranges
+            except msgspec.ValidationError as exc:
+                raise ValueError(f"corner {k + 1} ({corner}): {exc}") from None
+            corners.append((vertex.lat, vertex.lon))
         return area_targets(parts[0], corners, alt, spacing)
     except ValueError as exc:  # AreaError included; a corner without its comma lands here too
         raise ValueError(f"{where}: {exc}") from None

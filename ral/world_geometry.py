@@ -21,6 +21,12 @@ def project(points: Sequence[LatLon], lat0: float, lon0: float) -> list[XY]:
             for lat, lon in points]
 
 
+def unproject(x: float, y: float, lat0: float, lon0: float) -> LatLon:
+    """(east, north) metres from (lat0, lon0) → (lat, lon): the inverse of :func:`project`."""
+    return (lat0 + math.degrees(y / EARTH_RADIUS_M),
+            lon0 + math.degrees(x / (EARTH_RADIUS_M * math.cos(math.radians(lat0)))))
+
+
 def inside(p: XY, poly: Sequence[XY]) -> bool:
     """Ray casting; a point on an edge counts as inside (a waypoint on a zone's border is refused)."""
     x, y = p

@@ -28,7 +28,7 @@ def corner(north_m: float, east_m: float) -> tuple[float, float]:
 FIELD = [corner(0, 0), corner(0, 300), corner(200, 300), corner(200, 0)]  # 300 m east-west, 200 m north-south
 
 
-def xy(targets, polygon=FIELD) -> list[tuple[float, float]]:
+def xy(targets) -> list[tuple[float, float]]:
     return project([(t.lat, t.lon) for t in targets], LAT0, LON0)
 
 
