@@ -92,14 +92,15 @@ class Subscription:
         self.close()
 
 
-class _LinkedEvents:
-    """The events of one robot this station links with, heard from before the link began: the robot's answer to
-    the link (``link_up``) is published as soon as it sees this station, before any ``events()`` call could have
-    subscribed. Each callback gets what came since the link began (the last ``LINK_EVENTS_KEPT``), then the rest."""
+class _EventFeed:
+    """One robot's GRI events, decoded once and handed to callbacks in order. A feed of a robot this station links
+    with is declared before the link begins and ``keeps`` what came: the robot's answer to the link (``link_up``)
+    is published as soon as it sees this station, before any ``events()`` call could have subscribed, so each
+    callback first gets what came since the link began (the last ``keeps``), then the rest."""
 
-    def __init__(self, session: zenoh.Session, robot: str) -> None:
+    def __init__(self, session: zenoh.Session, robot: str, keeps: int) -> None:
         self._lock = threading.RLock()  # held while calling back, so that no event slips between backlog and live
-        self._kept: deque[gri.GriEvent] = deque(maxlen=LINK_EVENTS_KEPT)
+        self._kept: deque[gri.GriEvent] = deque(maxlen=keeps)
         self._callbacks: list[Callable[[gri.GriEvent], None]] = []
         self._sub = declare_replaying_subscriber(session, gri.events_key(robot), self._on_sample)
 
@@ -132,7 +133,7 @@ class _LinkedEvents:
 class _Callback:
     """One ``events()`` callback on a linked robot's feed; undeclaring it leaves the feed running."""
 
-    def __init__(self, feed: _LinkedEvents, callback: Callable[[gri.GriEvent], None]) -> None:
+    def __init__(self, feed: _EventFeed, callback: Callable[[gri.GriEvent], None]) -> None:
         self._feed = feed
         self._callback = callback
 
@@ -160,7 +161,7 @@ class Gcs:
         self._token: Any = None
         self._beat: threading.Thread | None = None
         self._subs: list[Subscription] = []
-        self._linked_events: dict[str, _LinkedEvents] = {}
+        self._linked_events: dict[str, _EventFeed] = {}
         if isinstance(link, str):
             raise TypeError("link takes a list of robot names")
         self.linked: list[str] = []
@@ -175,7 +176,7 @@ class Gcs:
             return
         # declared before the token and the heartbeat naming the robot: on this one session the subscription
         # reaches the router first, so the robot's answer to the link cannot pass it by
-        feed = _LinkedEvents(self.session, robot)
+        feed = _EventFeed(self.session, robot, LINK_EVENTS_KEPT)
         self._linked_events[robot] = feed
         self._subs.append(Subscription(feed))
         self.linked.append(robot)
@@ -250,21 +251,15 @@ class Gcs:
         """Every GRI event of ``robot`` in order, each once, those published while the link to the robot was cut
         included (they come when it is back): from the start of this station's link for a robot it links with
         (the last ``LINK_EVENTS_KEPT`` of those that came before this call first), from now on for any other."""
+        # events published while this station's link to the robot was cut come once it is back (the RAL keeps its
+        # last ral.process.EVENTS_REPLAY)
         feed = self._linked_events.get(robot)
         if feed is not None:
             sub = Subscription(feed.add(callback))
-            self._subs.append(sub)
-            return sub
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            try:
-                callback(gri.decode_event(sample.payload.to_bytes()))
-            except msgspec.MsgspecError:
-                return
-
-        # events published while this station's link to the robot was cut come once it is back (the RAL keeps its
-        # last ral.process.EVENTS_REPLAY); none from before the subscription
-        sub = Subscription(declare_replaying_subscriber(self.session, gri.events_key(robot), on_sample))
+        else:  # a feed of its own, keeping nothing: none from before the subscription
+            own = _EventFeed(self.session, robot, 0)
+            own.add(callback)
+            sub = Subscription(own)
         self._subs.append(sub)
         return sub
 
