@@ -6,6 +6,7 @@ learn each other from the router's gossip and link directly (checked with ``info
 
 from __future__ import annotations
 
+import itertools
 import sys
 import threading
 from pathlib import Path
@@ -55,12 +56,18 @@ def test_safe_slot_over_a_direct_link_loses_nothing(processes, router, tmp_path)
         s.close()
 
 
-def test_reader_subscribing_over_its_direct_link_gets_a_running_stream_without_gap_or_duplicate(router) -> None:
-    """A reader that subscribes once its direct link is up at both ends gets the stream with no gap or duplicate.
+JOIN_WINDOW = 1000
+"""Data published after the subscriber's declaration returned within which a joining reader may see a gap: about
+5 ms of this stream. Measured: gaps of 52 to 765 data, all ending at most 42 data after the declaration returned."""
 
-    Subscribing *while* the link forms is not covered: with Zenoh 1.10 the router can stop forwarding between two
-    peers before the publisher routes to the new link itself, and the samples sent meanwhile are lost (docs/bus.md,
-    "Joining a running stream")."""
+
+def test_reader_joining_a_running_stream_over_its_direct_link_misses_nothing_after_the_join(router) -> None:
+    """A reader that subscribes to a running stream over its direct link gets it in order, each datum once, and with
+    nothing missing once the join is over.
+
+    The join itself is not lossless: data published while the subscription spreads can come in part (a few, then a
+    gap), even with the direct link up at both ends (6 joins of 200 under load; docs/bus.md, "Joining a running
+    stream"). So the one gap allowed must end within ``JOIN_WINDOW`` data of the declaration."""
     src = open_session(peer_links_config(router, 0))
     sink: zenoh.Session | None = None
     sub = None
@@ -84,12 +91,16 @@ def test_reader_subscribing_over_its_direct_link_gets_a_running_stream_without_g
                    "the direct link, up at both ends")
         sub = sink.declare_subscriber("test/peers/stream", lambda s: got.append(int(s.payload.to_bytes())))
         mark = sent[0]
-        wait_until(lambda: len(got) > 0 and got[-1] > mark + 5000, 60, "5000 data over the direct link")
+        wait_until(lambda: len(got) > 0 and got[-1] > mark + JOIN_WINDOW + 5000, 60, "5000 data after the join")
         stop.set()
         writer.join()
         last = sent[0] - 1
         wait_until(lambda: got[-1] == last, 30, "the last datum")
-        assert got == list(range(got[0], last + 1)), "consecutive from the first datum received to the last sent"
+        assert all(a < b for a, b in itertools.pairwise(got)), "in order, each datum once"
+        gaps = [(a, b) for a, b in itertools.pairwise(got) if b != a + 1]
+        assert len(gaps) <= 1, f"one gap at most, at the join: {gaps}"
+        assert got[0] <= mark + JOIN_WINDOW and all(b <= mark + JOIN_WINDOW for _, b in gaps), (
+            f"nothing missing after the join (declared at datum {mark}): first {got[0]}, gaps {gaps}")
     finally:
         stop.set()
         writer.join()
