@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bbcs.net import free_port, wait_tcp
+from module_manager.lines import print_line
 from module_manager.manifest import ManifestError, load_manifest
 
 
@@ -247,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         spec = load_fleet(Path(args.fleet))
-        fleet = Fleet(spec, Path(args.run_dir).resolve(), out=lambda s: print(s, flush=True))
+        fleet = Fleet(spec, Path(args.run_dir).resolve(), out=print_line)
     except (FleetError, ManifestError) as exc:
         print(f"cromat fleet: {exc}", file=sys.stderr)
         return 1
@@ -259,8 +260,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
         fleet.start()
-        print(f"fleet: all {spec.robots} robots up, meshed on tcp/127.0.0.1:{fleet.hub_port} "
-              f"({' '.join(f'{n}={p}' for n, p in zip(fleet.names, fleet.ports, strict=True))})", flush=True)
+        print_line(f"fleet: all {spec.robots} robots up, meshed on tcp/127.0.0.1:{fleet.hub_port} "
+                   f"({' '.join(f'{n}={p}' for n, p in zip(fleet.names, fleet.ports, strict=True))})")
         while not stop.is_set() and all(p.poll() is None for p in fleet.procs):
             stop.wait(0.5)
         return 0
@@ -269,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     finally:
         fleet.stop()
-        print("fleet stopped", flush=True)
+        print_line("fleet stopped")
 
 
 if __name__ == "__main__":

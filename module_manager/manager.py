@@ -37,6 +37,7 @@ from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import links, mesh, route_audit, secure
+from module_manager.lines import print_line
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
 from module_manager.process import Child, stop_children
 from module_manager.standby import context_line, standby_argv
@@ -107,25 +108,6 @@ def tcp_endpoint(endpoint: str) -> tuple[str, int] | None:
     return host, int(port.split("#")[0])
 
 
-_stdout_gone = False
-
-
-def _print_line(line: str) -> None:
-    """Print a status line; once whoever read our stdout has gone (a closed pipe), stay quiet instead of failing:
-    a shutdown interrupted by a BrokenPipeError would leave modules running and the session open."""
-    global _stdout_gone
-    if _stdout_gone:
-        return
-    try:
-        print(line, flush=True)
-    except (BrokenPipeError, ValueError, OSError):
-        _stdout_gone = True
-        try:  # nothing left to flush into the closed pipe at exit either
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        except (OSError, ValueError):
-            pass
-
-
 class Manager:
     """Launch and supervise one robot from a checked manifest."""
 
@@ -135,7 +117,7 @@ class Manager:
         self.expand = Expander(manifest)
         self.listen = [self.expand(e) for e in (listen or manifest.raw.bus.listen)]
         self.log_dir = log_dir
-        self.out = out or _print_line
+        self.out = out or print_line
         self.clock = clock
         self.lock = threading.RLock()
         self.changed = threading.Condition(self.lock)
