@@ -25,11 +25,13 @@ import pytest
 from bbcs import keys
 from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
+from bbcs.contracts.fleet import FleetTarget, FleetTask
 from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.testing import child_env, free_port, wait_until
 from cromat import certs
 from module_manager.manifest import ManifestError, load_manifest
+from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, NoReply, Unreachable, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
@@ -345,3 +347,50 @@ def test_gcs_survey_works_and_a_module_identity_cannot_request_a_trajectory(robo
         finally:
             for sub in subs:
                 sub.undeclare()
+
+
+@pytest.mark.timeout(300)
+def test_a_secure_robot_takes_part_in_fleet_allocation_and_a_module_identity_cannot_post_a_fleet_task(
+        robot: Robot) -> None:
+    """Fleet allocation under the robot's access policy (docs/fleet.md): the ground station's fleet task reaches
+    the RAL, which bids, decides and flies its share (the target reaches the DSP simulator as an ADD_WAYPOINT, and
+    the station sees the decision and the visit); the same task posted by the vision identity is dropped by the
+    router: no robot ever answers it, nothing of it reaches the DSP."""
+    with robot.client("gcs", name="gcs", link=[ROBOT], timeout_s=10.0) as gcs:
+        view = FleetView(gcs.session)
+        marker = f"cromat/{ROBOT}/vision/marker"
+        marks: list[bytes] = []
+        sub = gcs.session.declare_subscriber(marker, lambda x: marks.append(x.payload.to_bytes()))
+        try:
+            wait_until(lambda: (st := gcs.state(ROBOT)).position is not None and st.home is not None, 30,
+                       "the robot's position")
+            home = gcs.state(ROBOT).home
+            assert home is not None
+            if not gcs.state(ROBOT).airborne:
+                reply = gcs.send(ROBOT, gri.TakeOff(height=10.0))
+                assert reply.accepted, reply.reason
+                wait_until(lambda: bool(gcs.state(ROBOT).airborne), 120, "airborne")
+            mark = len(robot.commands())
+            forged_at = (round(home.lat - 0.0004, 4), round(home.lon - 0.0004, 4))
+            with robot.client("vision", name="intruder", timeout_s=5.0) as attacker:
+                FleetView(attacker.session).post(FleetTask(id="forged", targets=[FleetTarget(
+                    id="f0", lat=forged_at[0], lon=forged_at[1], alt=home.alt + 10.0)], posted_by="gcs"))
+                attacker.session.put(marker, b"after the forged fleet task")
+                wait_until(lambda: marks, 20, "the attacker's marker")
+            target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
+            view.post(FleetTask(id="secure_t1", targets=[FleetTarget(id="s0", lat=target[0], lon=target[1],
+                                                                     alt=home.alt + 10.0)], posted_by="gcs"))
+            dec = view.wait(lambda: view.agreed("secure_t1", {ROBOT}), 30)
+            assert dec is not None and dec.bidders == [ROBOT] and dec.routes[ROBOT] == ["s0"], view.decisions(
+                "secure_t1")
+            wait_until(lambda: view.visited("secure_t1") == {"s0"}, 120, "the fleet target visited")
+            added = [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4))
+                     for c in robot.commands()[mark:] if c["name"] == "ADD_WAYPOINT"]
+            assert target in added, added
+            # the forged task was posted before the real one: had it got through, the RAL would have answered it
+            assert view.answered("forged") == set() and view.decisions("forged") == {}
+            assert forged_at not in added, added
+            gcs.send(ROBOT, gri.Hold())
+        finally:
+            sub.undeclare()
+            view.close()
