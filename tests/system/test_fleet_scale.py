@@ -3,7 +3,7 @@ router, Module Manager, modules and DSP simulator), meshed in a star; a ground s
 all ten, takes them off and posts twenty targets; the ten RALs agree on one allocation and every target is
 flown by the robot that won it (its DSP simulator's record), and by no other.
 
-Heavy (about 80 processes): run alone on a 2-core machine it passes in about 130 s with both cores busy, and it
+Heavy (about 80 processes): run alone on a 2-core machine it passes in 107–132 s with both cores busy, and it
 starves every test that runs beside it, so the suite runs it only when asked:
 ``CROMAT_FLEET_SCALE=1 python -m pytest tests/system/test_fleet_scale.py`` (docs/fleet.md, "Ten robots on one
 machine").
