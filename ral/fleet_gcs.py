@@ -19,7 +19,8 @@ import zenoh.ext
 
 from bbcs import keys
 from bbcs.contracts.fleet import MAX_TARGETS, FleetDecision, FleetState, FleetTarget, FleetTask
-from ral.survey_area import parse_area
+from ral.gcs.waypoints import load_polygon
+from ral.survey_area import area_targets, parse_area
 
 
 class FleetView:
@@ -104,6 +105,21 @@ def parse_target(text: str, index: int, now: float) -> FleetTarget:
         raise ValueError(f"--target {index + 1} {text!r}: {exc}") from exc
 
 
+def parse_area_arg(text: str, index: int) -> list[FleetTarget]:
+    """``--area``: ``ID;ALT;SPACING_M;`` then the corners ``LAT,LON;LAT,LON;...`` or one GeoJSON Polygon file
+    (``.geojson``/``.json``, the same files ``cromat gcs survey`` and ``world add-nfz`` read)."""
+    parts = [p.strip() for p in text.split(";")]
+    if len(parts) != 4 or not parts[3].lower().endswith((".geojson", ".json")):
+        return parse_area(text, index)
+    where = f"--area {index + 1} {text!r}"
+    try:
+        alt, spacing = float(parts[1]), float(parts[2])
+        corners = [(v.lat, v.lon) for v in load_polygon(parts[3])]
+        return area_targets(parts[0], corners, alt, spacing)
+    except ValueError as exc:  # a bad number, a file that is not a polygon, an area the grid cannot split
+        raise ValueError(f"{where}: {exc}") from None
+
+
 def add_parser(sub: Any) -> None:
     """``cromat gcs fleet ...`` (registered by ral/gcs/cli.py)."""
     f = sub.add_parser("fleet", help="fleet tasks allocated by the robots among themselves")
@@ -111,9 +127,11 @@ def add_parser(sub: Any) -> None:
     p = fs.add_parser("post", help="post a fleet task and print the allocation the robots agree on")
     p.add_argument("--id", required=True, help="task id (one key chunk)")
     p.add_argument("--target", action="append", default=[], metavar="ID,LAT,LON,ALT[,KIND[,DEADLINE_S]]")
-    p.add_argument("--area", action="append", default=[], metavar="ID;ALT;SPACING_M;LAT,LON;LAT,LON;LAT,LON[;...]",
+    p.add_argument("--area", action="append", default=[],
+                   metavar="ID;ALT;SPACING_M;LAT,LON;LAT,LON;LAT,LON[;...] or ID;ALT;SPACING_M;POLYGON.geojson",
                    help="an area to survey, split among the robots: the centres of a SPACING_M grid inside the "
-                        "polygon become targets ID.0, ID.1, … at ALT (metres above sea level)")
+                        "polygon (its corners, or a GeoJSON Polygon file) become targets ID.0, ID.1, … at ALT "
+                        "(metres above sea level)")
     p.add_argument("--one-per-robot", action="store_true", help="at most one target per robot")
     p.add_argument("--balance", action="store_true",
                    help="share the targets so that the last robot finishes soonest (always on with --area)")
@@ -143,7 +161,7 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
             try:
                 targets = [parse_target(x, i, now) for i, x in enumerate(args.target)]
                 for i, x in enumerate(args.area):
-                    targets += parse_area(x, i)
+                    targets += parse_area_arg(x, i)
                 if not targets:
                     raise ValueError("nothing to do: give --target or --area")
                 if len(targets) > MAX_TARGETS:

@@ -1,16 +1,24 @@
 """The ground station's fleet input and the RAL's translation of a share: bad input is refused with a message
-naming the target, a share becomes an ordinary goto through its targets in order."""
+naming the target (or the area's file), an area may come as a GeoJSON Polygon file, a share becomes an ordinary
+goto through its targets in order."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import msgspec
 import pytest
 
+from bbcs import keys
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetTarget, FleetTask
+from bbcs.testing import wait_until
 from ral.fleet import can_do_from, goto_of
-from ral.fleet_gcs import parse_target
+from ral.fleet_gcs import parse_area_arg, parse_target
 from ral.fleet_protocol import Execute
+from ral.gcs import cli
+from ral.survey_area import area_targets
 
 
 def test_targets_parse_with_kind_and_a_deadline_from_now() -> None:
@@ -50,3 +58,61 @@ def test_what_a_robot_bids_on() -> None:
     assert can_do_from("", ["land"]) == frozenset()
     assert can_do_from("visit, inspect", []) == {"visit", "inspect"}
     assert can_do_from("none", ["goto"]) == frozenset()
+
+
+FIELD = [(37.4112, -6.0022), (37.4112, -6.0003), (37.4122, -6.0003), (37.4122, -6.0022)]
+
+
+def _polygon_file(tmp_path: Path, corners: list[tuple[float, float]], name: str = "field.geojson") -> Path:
+    ring = [[lon, lat] for lat, lon in [*corners, corners[0]]]
+    path = tmp_path / name
+    path.write_text(json.dumps({"type": "Feature", "properties": {},
+                                "geometry": {"type": "Polygon", "coordinates": [ring]}}))
+    return path
+
+
+def test_an_area_from_a_geojson_polygon_is_the_same_as_from_its_corners(tmp_path: Path) -> None:
+    corners = ";".join(f"{lat},{lon}" for lat, lon in FIELD)
+    from_file = parse_area_arg(f"field;22;60;{_polygon_file(tmp_path, FIELD)}", 0)
+    assert from_file == parse_area_arg(f"field;22;60;{corners}", 0) == area_targets("field", FIELD, 22.0, 60.0)
+    assert len(from_file) == 6
+
+
+@pytest.mark.parametrize(("content", "why"), [
+    (None, "no such polygon file"),
+    ('{"type": "LineString", "coordinates": [[-6.0, 37.41], [-5.999, 37.41]]}', "is not a Polygon"),
+    ('{"type": "Polygon", "coordinates": [[[-6.0, 97.0], [-5.999, 37.41], [-5.999, 37.411]]]}', "vertex 0"),
+    ("{not json", "not valid JSON"),
+])
+def test_a_bad_polygon_file_is_refused_naming_the_argument_and_the_file(tmp_path: Path, content: str | None,
+                                                                          why: str) -> None:
+    path = tmp_path / "bad.geojson"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(ValueError, match=why) as err:
+        parse_area_arg(f"field;22;60;{path}", 1)
+    assert "--area 2" in str(err.value) and "bad.geojson" in str(err.value)
+
+
+def test_cromat_gcs_fleet_post_sends_an_area_file_s_cells_and_nothing_for_a_bad_file(
+        router: int, clients, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Over a real router: the task on the bus holds the file's cells; a bad file exits 2 and puts nothing (the
+    marker published after it is the first thing the listener gets)."""
+    listener = clients(router)
+    got: list[bytes] = []
+    sub = listener.declare_subscriber(keys.fleet_task_key("*"), lambda s: got.append(s.payload.to_bytes()))
+    try:
+        base = ["--connect", f"tcp/127.0.0.1:{router}", "--name", "poster", "fleet", "post", "--wait", "0.5"]
+        bad = tmp_path / "bad.geojson"
+        bad.write_text('{"type": "Point", "coordinates": [-6.0, 37.41]}')
+        assert cli.main([*base, "--id", "bad", "--area", f"bad;22;60;{bad}"]) == 2
+        assert "bad.geojson" in capsys.readouterr().out
+        clients(router).put(keys.fleet_task_key("marker"), b"marker")
+        wait_until(lambda: got, 10, "the marker")
+        assert got == [b"marker"], "nothing was posted for the bad file"
+        assert cli.main([*base, "--id", "field", "--area", f"field;22;60;{_polygon_file(tmp_path, FIELD)}"]) == 3
+        wait_until(lambda: len(got) == 2, 10, "the posted task")
+        task = msgspec.msgpack.decode(got[1], type=FleetTask)
+        assert task.id == "field" and task.balance and task.targets == area_targets("field", FIELD, 22.0, 60.0)
+    finally:
+        sub.undeclare()
