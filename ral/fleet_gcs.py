@@ -20,7 +20,7 @@ import zenoh.ext
 from bbcs import keys
 from bbcs.contracts.fleet import MAX_TARGETS, FleetDecision, FleetState, FleetTarget, FleetTask
 from ral.gcs.waypoints import load_polygon
-from ral.survey_area import area_targets, parse_area
+from ral.survey_area import parse_area
 
 
 class FleetView:
@@ -105,19 +105,14 @@ def parse_target(text: str, index: int, now: float) -> FleetTarget:
         raise ValueError(f"--target {index + 1} {text!r}: {exc}") from exc
 
 
+def _polygon_corners(path: str) -> list[tuple[float, float]]:
+    return [(v.lat, v.lon) for v in load_polygon(path)]
+
+
 def parse_area_arg(text: str, index: int) -> list[FleetTarget]:
     """``--area``: ``ID;ALT;SPACING_M;`` then the corners ``LAT,LON;LAT,LON;...`` or one GeoJSON Polygon file
     (``.geojson``/``.json``, the same files ``cromat gcs survey`` and ``world add-nfz`` read)."""
-    parts = [p.strip() for p in text.split(";")]
-    if len(parts) != 4 or not parts[3].lower().endswith((".geojson", ".json")):
-        return parse_area(text, index)
-    where = f"--area {index + 1} {text!r}"
-    try:
-        alt, spacing = float(parts[1]), float(parts[2])
-        corners = [(v.lat, v.lon) for v in load_polygon(parts[3])]
-        return area_targets(parts[0], corners, alt, spacing)
-    except ValueError as exc:  # a bad number, a file that is not a polygon, an area the grid cannot split
-        raise ValueError(f"{where}: {exc}") from None
+    return parse_area(text, index, polygon_file=_polygon_corners)
 
 
 def add_parser(sub: Any) -> None:

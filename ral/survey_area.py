@@ -9,7 +9,7 @@ is inside the polygon. Pure geometry on the local plane of :mod:`ral.world_geome
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import msgspec
 
@@ -79,22 +79,30 @@ def area_targets(area_id: str, polygon: Sequence[LatLon], alt: float, spacing_m:
     return targets
 
 
-def parse_area(text: str, index: int) -> list[FleetTarget]:
-    """``ID;ALT;SPACING_M;LAT,LON;LAT,LON;LAT,LON[;...]`` (the corners in order around the area)."""
+def parse_area(text: str, index: int,
+               polygon_file: Callable[[str], Sequence[LatLon]] | None = None) -> list[FleetTarget]:
+    """``ID;ALT;SPACING_M;LAT,LON;LAT,LON;LAT,LON[;...]`` (the corners in order around the area), or, given
+    ``polygon_file`` (a reader of polygon files: the ground station's, this module reads no file),
+    ``ID;ALT;SPACING_M;FILE.geojson``."""
     parts = [p.strip() for p in text.split(";")]
     where = f"--area {index + 1} {text!r}"
-    if len(parts) < 6:
+    from_file = len(parts) == 4 and parts[3].lower().endswith((".geojson", ".json"))
+    read = polygon_file if from_file else None
+    if len(parts) < 6 and read is None:
         raise ValueError(f"{where}: expected ID;ALT;SPACING_M;LAT,LON;LAT,LON;LAT,LON[;...] (3 corners or more)")
     try:
         alt, spacing = float(parts[1]), float(parts[2])
-        corners = []
-        for k, corner in enumerate(parts[3:]):
-            lat, lon = (float(v) for v in corner.split(","))
-            try:
-                vertex = msgspec.convert({"lat": lat, "lon": lon}, Vertex)  # the contracts' ranges
-            except msgspec.ValidationError as exc:
-                raise ValueError(f"corner {k + 1} ({corner}): {exc}") from None
-            corners.append((vertex.lat, vertex.lon))
+        if read is not None:
+            corners = list(read(parts[3]))
+        else:
+            corners = []
+            for k, corner in enumerate(parts[3:]):
+                lat, lon = (float(v) for v in corner.split(","))
+                try:
+                    vertex = msgspec.convert({"lat": lat, "lon": lon}, Vertex)  # the contracts' ranges
+                except msgspec.ValidationError as exc:
+                    raise ValueError(f"corner {k + 1} ({corner}): {exc}") from None
+                corners.append((vertex.lat, vertex.lon))
         return area_targets(parts[0], corners, alt, spacing)
-    except ValueError as exc:  # AreaError included; a corner without its comma lands here too
+    except ValueError as exc:  # AreaError and a bad polygon file included; a corner without its comma too
         raise ValueError(f"{where}: {exc}") from None
