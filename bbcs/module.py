@@ -206,6 +206,8 @@ class Module:
         self._blocked_on: _Reader | None = None
         """Set while the loop sits in that channel reader's ``recv()``: waking it takes a session-local sample."""
         self._armed = float("inf")
+        self._due = False
+        """Set by the timer thread once the armed deadline (heartbeat, tick) has passed."""
         self._kick = threading.Event()
         self._wake_requested = False
         self._timer_stop = False
@@ -283,6 +285,8 @@ class Module:
                 kick.wait(delay if delay < 3600 else None)
                 kick.clear()
                 continue
+            if delay <= 0:
+                self._due = True  # what the loop's inner cycle looks at instead of reading the clock per datum
             self._wake_requested = False
             self._wake_now()
             kick.wait(0.01)  # until the loop re-arms a later deadline (it does each time before it blocks)
@@ -328,7 +332,9 @@ class Module:
         empty = q.empty
         handle = self._handle_sample
         drain = self._drain_channel
+        handle_one = self._handle_channel_sample
         while not self._bbcs_stopping:
+            self._due = False
             now = monotonic()
             if now >= next_beat:
                 seq += 1
@@ -371,13 +377,48 @@ class Module:
             if deadline != self._armed:
                 self._armed = deadline
                 self._kick.set()
-            self._blocked_on = channel
-            if not empty() or self._bbcs_stopping:  # re-checked after announcing the block: no lost wake-up
+            # The idle cycle: block on the channel reader, handle what it gives, block again, for as long as
+            # nothing else needs the loop (queue empty, no deadline due, not stopping). It is kept this short
+            # because every step between a handler's publish and the next block delays that publish: Zenoh's
+            # sending thread is usually woken on this thread's CPU and runs once this thread sleeps.
+            recv = channel.chan.recv
+            try_recv = channel.chan.try_recv
+            decode = channel.decode
+            handler = channel.handler
+            lock = self.lock
+            while True:
+                self._blocked_on = channel
+                # re-checked after announcing the block: no lost wake-up
+                if self._due or self._bbcs_stopping or not empty() or self._channel_reader is not channel:
+                    self._blocked_on = None
+                    break
+                try:
+                    sample = recv()
+                except zenoh.ZError as exc:  # a closed channel (its session is closing): nothing more will come
+                    self._blocked_on = None
+                    self.log.debug("input %s: %s", channel.spec.name, exc)
+                    self._channel_reader = None
+                    break
                 self._blocked_on = None
-                continue
-            sample = channel.chan.recv()
-            self._blocked_on = None
-            self._handle_channel_sample(channel, sample)
+                payload = sample.payload.to_bytes()  # _handle_channel_sample, written out: the latency path
+                try:
+                    value = decode(payload)
+                except msgspec.MsgspecError as exc:
+                    if payload or not _is_wake(sample):
+                        self._reject(channel.spec.name, channel.key, exc, payload)
+                else:
+                    with lock:
+                        try:
+                            handler(value)
+                        except Exception:
+                            self._handler_failed(channel.spec.name)
+                try:
+                    sample = try_recv()
+                except zenoh.ZError:
+                    break
+                if sample is not None:  # a burst: handle this one, then batches in the outer loop
+                    handle_one(channel, sample)
+                    break
 
     def _drain_channel(self, reader: _Reader, limit: int) -> int:
         """Handle up to ``limit`` samples waiting in a channel reader, in order; returns how many were taken.

@@ -128,3 +128,36 @@ def test_an_idle_loop_ticks_beats_runs_call_soon_and_stops(slow, sessions) -> No
     assert not loop.is_alive(), "request_stop did not end an idle loop"
     assert time.monotonic() - t0 < 5
     hb.undeclare()
+
+
+def test_a_steady_trickle_still_lets_ticks_heartbeats_and_call_soon_through(slow, sessions) -> None:
+    """Data that each arrive while the loop is blocked are handled in its short idle cycle (block, handle, block);
+    the timer's deadline and the loop's queue still pull it out of that cycle: ticks and heartbeats keep their
+    pace and ``call_soon`` runs, in between the data."""
+    mod, loop = slow
+    s = sessions()
+    beats: list[int] = []
+    hb = s.declare_subscriber(keys.heartbeat_key("r1", "slow"),
+                              lambda smp: beats.append(msgspec.msgpack.decode(smp.payload.to_bytes(),
+                                                                              type=Heartbeat).seq))
+    wait_alive(s, "r1", "slow")
+    pub = Publisher(s, keys.slot_key("r1", "feeder", "items"), InputSlot("items", Item, kind=Kind.STREAM))
+    wait_until(lambda: mod._blocked_on is not None, 10, "the loop blocked on its channel")
+    ticks, n_beats = mod.ticks, len(beats)
+    ran: list[int] = []
+    t0 = time.monotonic()
+    seq = 1
+    while time.monotonic() - t0 < 2.5:          # one datum every ~2 ms: each finds the loop idle
+        pub.publish(Item(seq=seq))
+        if seq % 200 == 0:
+            mod.call_soon(lambda n=seq: ran.append(n))
+        seq += 1
+        time.sleep(0.002)
+    wait_until(lambda: len(mod.got) >= seq - 1, 10, "every datum of the trickle handled")
+    assert mod.got == list(range(1, seq))
+    assert mod.ticks - ticks >= 20, f"{mod.ticks - ticks} ticks in 2.5 s at a 50 ms period"
+    assert len(beats) - n_beats >= 2, "the heartbeat stopped under a trickle of data"
+    wait_until(lambda: len(ran) == (seq - 1) // 200, 5, "every call_soon run")
+    assert ran == sorted(ran)
+    pub.close()
+    hb.undeclare()
