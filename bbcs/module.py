@@ -385,7 +385,7 @@ class Module:
             try_recv = channel.chan.try_recv
             decode = channel.decode
             handler = channel.handler
-            lock = self.lock
+            acquire, release = self.lock.acquire, self.lock.release  # half the cost of ``with`` here
             while True:
                 self._blocked_on = channel
                 # re-checked after announcing the block: no lost wake-up
@@ -407,11 +407,13 @@ class Module:
                     if payload or not _is_wake(sample):
                         self._reject(channel.spec.name, channel.key, exc, payload)
                 else:
-                    with lock:
-                        try:
-                            handler(value)
-                        except Exception:
-                            self._handler_failed(channel.spec.name)
+                    acquire()
+                    try:
+                        handler(value)
+                    except Exception:
+                        self._handler_failed(channel.spec.name)
+                    finally:
+                        release()
                 try:
                     sample = try_recv()
                 except zenoh.ZError:
