@@ -379,8 +379,8 @@ class Module:
                 self._kick.set()
             # The idle cycle: block on the channel reader, handle what it gives, block again, for as long as
             # nothing else needs the loop (queue empty, no deadline due, not stopping). It is kept this short
-            # because every step between a handler's publish and the next block delays that publish: Zenoh's
-            # sending thread is usually woken on this thread's CPU and runs once this thread sleeps.
+            # because every step between a handler's publish and the next block was measured to add to that
+            # datum's latency (docs/performance.md, "the loop's idle cycle").
             recv = channel.chan.recv
             try_recv = channel.chan.try_recv
             decode = channel.decode
@@ -418,8 +418,9 @@ class Module:
                     sample = try_recv()
                 except zenoh.ZError:
                     break
-                if sample is not None:  # a burst: handle this one, then batches in the outer loop
-                    handle_one(channel, sample)
+                if sample is not None:  # a burst: handle this one (unless a handler asked to stop), then batches
+                    if not self._bbcs_stopping:
+                        handle_one(channel, sample)
                     break
 
     def _drain_channel(self, reader: _Reader, limit: int) -> int:
