@@ -269,7 +269,7 @@ def router_config(
     everyone = [s["id"] for s in subjects]
     policies.append({"id": "everyone", "subjects": everyone,
                      "rules": ["observe", "history", "history-sub", "read-queries", "deliver"]})
-    return {
+    config = {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}},
@@ -280,8 +280,6 @@ def router_config(
                     "root_ca_certificate": ca,
                     "listen_certificate": cert,
                     "listen_private_key": key,
-                    "connect_certificate": cert,
-                    "connect_private_key": key,
                     "enable_mtls": True,
                     "verify_name_on_connect": True,
                 },
@@ -295,6 +293,9 @@ def router_config(
             "policies": policies,
         },
     }
+    if peers or hub_cns:  # it dials other routers ([bus] peers): it presents its own certificate there too
+        config["transport"]["link"]["tls"].update({"connect_certificate": cert, "connect_private_key": key})
+    return config
 
 
 def hub_config(*, listen: list[str], ca: str, cert: str, key: str, gcs: list[str],
