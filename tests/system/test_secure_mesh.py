@@ -1,0 +1,169 @@
+"""The fleet mesh over mutual TLS (docs/fleet.md, "A mesh over mutual TLS"), by attack.
+
+A hub (ground) router with its own certificate and policy (``cromat certs --hub``), and the secured robot of
+``uav1_secure.toml`` launched with the hub as its ``tls/`` peer (``[bus.tls] hubs``, ``mesh_robots``); every
+certificate from ``cromat certs`` in tmp_path, one fleet CA. A ground station connected to the hub posts a fleet
+task: the robot's RAL bids, decides, and its goto reaches the DSP simulator (its record); the station sees the
+decision. A router identity of another robot (a real ``router-uav2`` certificate from ``cromat certs --robot
+uav2``, linked to the robot's router as a Zenoh peer) posts a fleet task, submits a GRI goto, and puts a DSP
+command batch on the robot's key: none of it reaches the RAL or the DSP simulator; its own robot's put does
+arrive at a subscriber on the robot's router (the control that lets the test fail).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from bbcs import keys
+from bbcs.contracts import dsp
+from bbcs.contracts import tasks as t
+from bbcs.contracts.fleet import FleetTarget, FleetTask
+from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs.testing import child_env, free_port, wait_until
+from cromat import certs
+from ral.fleet_gcs import FleetView
+from ral.gcs.api import Gcs, NoReply, session_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_secure_launch import MODULES, ROBOT, Robot, SecureLaunch, secure_manifest  # noqa: E402
+
+PEER = "uav2"
+HUB = "hub"
+
+
+@dataclass
+class Mesh:
+    robot: Robot
+    hub_port: int
+    hub_log: Path
+    peer_pki: Path
+
+    def station(self) -> Gcs:
+        """A ground station connected to the hub (not to the robot), presenting the ``gcs`` certificate."""
+        ground = self.robot.pki.with_name("pki-ground")
+        return Gcs(session_config([f"tls/127.0.0.1:{self.hub_port}"], ca=str(ground / "ca.pem"),
+                                  cert=str(ground / "gcs.pem"), key=str(ground / "gcs.key"), connect_timeout_s=10.0),
+                   name="gcs", link=[ROBOT], timeout_s=10.0)
+
+    def peer_router(self) -> SessionConfig:
+        """Another robot's router identity (CN router-uav2) linked to the robot's router as a Zenoh peer."""
+        pki = self.peer_pki
+        return SessionConfig(mode="peer", listen=[], connect=[f"tls/127.0.0.1:{self.robot.launch.port}"],
+                             tls=TlsConfig(root_ca=str(pki / "ca.pem"), cert=str(pki / "router.pem"),
+                                           key=str(pki / "router.key")), connect_timeout_s=10.0)
+
+
+@pytest.fixture
+def mesh(tmp_path: Path) -> Iterator[Mesh]:
+    robot_port, hub_port = free_port(), free_port()
+    manifest, pki = secure_manifest(tmp_path, robot_port)
+    text = manifest.read_text()
+    listen = f'listen = ["tls/127.0.0.1:{robot_port}"]'
+    tls = 'ral = "ral"          # the module that is the RAL'
+    assert text.count(listen) == 1 and text.count(tls) == 1
+    manifest.write_text(text.replace(listen, f'{listen}\npeers = ["tls/127.0.0.1:{hub_port}"]')
+                        .replace(tls, f'hubs = ["{HUB}"]\nmesh_robots = ["{PEER}"]\n{tls}'))
+    ca = tmp_path / "pki-ca"
+    assert certs.main(["--manifest", str(manifest)]) == 0
+    assert certs.main([str(tmp_path / HUB), "--hub", HUB, "--ca", str(ca), "--robots", ROBOT,
+                       "--acl", str(tmp_path / "hub.json5"), "--listen", f"tls/127.0.0.1:{hub_port}"]) == 0
+    assert certs.main([str(tmp_path / PEER), "--robot", PEER, "--ca", str(ca), "--no-local", "--module", "probe",
+                       "--ground", str(tmp_path / f"{PEER}-ground")]) == 0
+    hub_log = tmp_path / "hub.log"
+    with hub_log.open("w") as out:
+        hub = subprocess.Popen([sys.executable, "-m", "bbcs.router", "--config", str(tmp_path / "hub.json5"),
+                                "--listen", f"tls/127.0.0.1:{hub_port}", "--log-refusals"],
+                               env=child_env(), stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    la: SecureLaunch | None = None
+    try:
+        wait_until(lambda: "listening on" in hub_log.read_text(), 30, "the hub router listening")
+        la = SecureLaunch(manifest, tmp_path, robot_port)
+        la.wait_line(f"all {len(MODULES)} modules up", 90)
+        yield Mesh(Robot(la, pki, tmp_path), hub_port, hub_log, tmp_path / PEER)
+    finally:
+        try:
+            if la is not None:
+                try:
+                    la.stop()
+                finally:
+                    la.cleanup()
+        finally:
+            hub.terminate()
+            hub.wait(10)
+
+
+def _added(robot: Robot, mark: int) -> list[tuple[float, float]]:
+    return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4))
+            for c in robot.commands()[mark:] if c["name"] == "ADD_WAYPOINT"]
+
+
+@pytest.mark.timeout(240)
+def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own_robot(mesh: Mesh) -> None:
+    robot = mesh.robot
+    with mesh.station() as gcs:
+        # the ground station on the hub sees the robot through the mesh (its state crossed robot router -> hub)
+        wait_until(lambda: (st := gcs.state(ROBOT)).position is not None and st.home is not None, 60,
+                   "the robot's position seen through the hub")
+        home = gcs.state(ROBOT).home
+        assert home is not None
+        mark = len(robot.commands())
+        view = FleetView(gcs.session)
+        # the attack: another robot's router identity, linked straight to the robot's router
+        got: list[str] = []
+        own_key = keys.slot_key(PEER, "probe", "marker")
+        ground = robot.pki.with_name("pki-ground")
+        listener = open_session(session_config([f"tls/127.0.0.1:{robot.launch.port}"], ca=str(ground / "ca.pem"),
+                                               cert=str(ground / "gcs.pem"), key=str(ground / "gcs.key")))
+        try:
+            sub = listener.declare_subscriber(own_key, lambda s: got.append(s.payload.to_bytes().decode()))
+            forged_at = (round(home.lat - 0.0004, 4), round(home.lon - 0.0004, 4))
+            goto_at = (round(home.lat - 0.0006, 4), round(home.lon + 0.0005, 4))
+            dsp_at = (round(home.lat + 0.0007, 4), round(home.lon - 0.0006, 4))
+            with Gcs(mesh.peer_router(), name="router-uav2", timeout_s=3.0) as peer:
+                FleetView(peer.session).post(FleetTask(id="forged", targets=[FleetTarget(
+                    id="f0", lat=forged_at[0], lon=forged_at[1], alt=home.alt + 10.0)], posted_by="gcs"))
+                with pytest.raises(NoReply):
+                    peer.send(ROBOT, t.Goto(waypoints=[t.Waypoint(lat=goto_at[0], lon=goto_at[1],
+                                                                  alt=home.alt + 10.0)]))
+                batch = dsp.DspCommands(sender="path_follower", commands=[dsp.AddWaypoint(
+                    lat=dsp_at[0], lon=dsp_at[1], alt=home.alt + 10.0)])
+                peer.session.put(keys.slot_key(ROBOT, dsp.MODULE, dsp.commands_slot("path_follower")),
+                                 msgspec.msgpack.encode(batch))
+                peer.session.put(own_key, b"after the forged writes")
+                wait_until(lambda: got, 30, "the peer router's own-robot put at a subscriber on the robot's router")
+            sub.undeclare()
+        finally:
+            listener.close()
+        assert got == ["after the forged writes"]
+        # the ground station's fleet task, through the hub: bid, decision, the target to the DSP simulator
+        target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
+        try:
+            view.post(FleetTask(id="mesh_t1", targets=[FleetTarget(id="m0", lat=target[0], lon=target[1],
+                                                                   alt=home.alt + 10.0)], posted_by="gcs"))
+            dec = view.wait(lambda: view.agreed("mesh_t1", {ROBOT}), 30)
+            assert dec is not None and dec.bidders == [ROBOT] and dec.routes[ROBOT] == ["m0"], view.decisions(
+                "mesh_t1")
+            wait_until(lambda: target in _added(robot, mark), 60, "the fleet target at the DSP simulator")
+            # the forged fleet task was posted before the real one: had it got through, the RAL would have answered
+            assert view.answered("forged") == set() and view.decisions("forged") == {}
+        finally:
+            view.close()
+        added = _added(robot, mark)
+        assert forged_at not in added and goto_at not in added and dsp_at not in added, added
+        gcs.send(ROBOT, t.Hold())
+    log = robot.router_log()
+    for denied in (f"router-uav2 may not put on {keys.fleet_task_key('forged')}",
+                   f"router-uav2 may not query on {keys.ral_key(ROBOT, 'task')}",
+                   f"router-uav2 may not put on {keys.slot_key(ROBOT, 'dsp', 'commands_path_follower')}"):
+        assert denied in log, log
+    # the hub's link and the robot's own identities were never refused: the mesh needs no right it lacks
+    others = [line for line in log.splitlines() if " denied: " in line and "router-uav2" not in line]
+    assert others == [], others
+    assert [line for line in mesh.hub_log.read_text().splitlines() if " denied: " in line] == []
