@@ -10,7 +10,9 @@ Three folders, so that no key ends up where it does not belong (docs/security.md
 * the **ground folder** (``--ground``, default ``DIR-ground``): ``ca.pem`` and each ground station's pair.
 
 Each certificate's common name is the identity the router's access policy knows it by (``gcs``, ``ral``,
-``manager``, a module's instance name). The router's certificate carries the host names clients connect to
+``manager``, a module's instance name); the router's is ``router-<robot>`` when the robot is known (its identity
+on the fleet mesh, docs/fleet.md), and ``--hub NAME`` issues a hub router's pair instead (with ``--acl``, its
+config: :func:`bbcs.acl.hub_config`). The router's certificate carries the host names clients connect to
 (default ``localhost`` and ``127.0.0.1``). An existing CA is reused, so new identities can be added later.
 With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + access policy, see
 :mod:`bbcs.acl`) pointing at the robot folder. Keys are written mode 0600 and must never be committed.
