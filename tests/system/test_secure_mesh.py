@@ -86,6 +86,8 @@ def mesh(tmp_path: Path) -> Iterator[Mesh]:
         wait_until(lambda: "listening on" in hub_log.read_text(), 30, "the hub router listening")
         la = SecureLaunch(manifest, tmp_path, robot_port)
         la.wait_line(f"all {len(MODULES)} modules up", 90)
+        # the duplicate-name check reached the hub over mTLS as the router's identity (router-uav1)
+        la.wait_line(f"robot name {ROBOT!r} is free on the mesh (tls/127.0.0.1:{hub_port})", 1)
         yield Mesh(Robot(la, pki, tmp_path), hub_port, hub_log, tmp_path / PEER)
     finally:
         try:
