@@ -7,7 +7,8 @@ task: the robot's RAL bids, decides, and its goto reaches the DSP simulator (its
 decision. A router identity of another robot (a real ``router-uav2`` certificate from ``cromat certs --robot
 uav2``, linked to the robot's router as a Zenoh peer) posts a fleet task, submits a GRI goto, and puts a DSP
 command batch on the robot's key: none of it reaches the RAL or the DSP simulator; its own robot's put does
-arrive at a subscriber on the robot's router (the control that lets the test fail).
+arrive at a subscriber on the robot's router (the control that lets the test fail). A write of the robot's own
+command key relayed by the hub is refused by the robot's router.
 """
 
 from __future__ import annotations
@@ -144,6 +145,22 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
         finally:
             listener.close()
         assert got == ["after the forged writes"]
+        # a write of this robot's keys relayed by the hub (here from a session presenting this robot's own router
+        # certificate, which the hub admits for uav1's keys) is refused by the robot's router: a hub never writes
+        # this robot's keys
+        relay_at = (round(home.lat + 0.0008, 4), round(home.lon + 0.0008, 4))
+        command_key = keys.slot_key(ROBOT, dsp.MODULE, dsp.commands_slot("path_follower"))
+        relayed = open_session(SessionConfig(mode="client", connect=[f"tls/127.0.0.1:{mesh.hub_port}"],
+                                             tls=TlsConfig(root_ca=str(robot.pki / "ca.pem"),
+                                                           cert=str(robot.pki / "router.pem"),
+                                                           key=str(robot.pki / "router.key"))))
+        try:
+            relayed.put(command_key, msgspec.msgpack.encode(dsp.DspCommands(sender="path_follower", commands=[
+                dsp.AddWaypoint(lat=relay_at[0], lon=relay_at[1], alt=home.alt + 10.0)])))
+            wait_until(lambda: f"denied: hub may not put on {command_key}" in robot.router_log(), 30,
+                       "the robot's router refusing the hub's relay of its own command key")
+        finally:
+            relayed.close()
         # the ground station's fleet task, through the hub: bid, decision, the target to the DSP simulator
         target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
         try:
@@ -158,7 +175,7 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
         finally:
             view.close()
         added = _added(robot, mark)
-        assert forged_at not in added and goto_at not in added and dsp_at not in added, added
+        assert not {forged_at, goto_at, dsp_at, relay_at} & set(added), added
         gcs.send(ROBOT, t.Hold())
     log = robot.router_log()
     for denied in (f"router-uav2 may not put on {keys.fleet_task_key('forged')}",
@@ -166,6 +183,7 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
                    f"router-uav2 may not put on {keys.slot_key(ROBOT, 'dsp', 'commands_path_follower')}"):
         assert denied in log, log
     # the hub's link and the robot's own identities were never refused: the mesh needs no right it lacks
-    others = [line for line in log.splitlines() if " denied: " in line and "router-uav2" not in line]
+    others = [line for line in log.splitlines() if " denied: " in line and "router-uav2" not in line
+              and f"denied: hub may not put on {command_key}" not in line]
     assert others == [], others
     assert [line for line in mesh.hub_log.read_text().splitlines() if " denied: " in line] == []
