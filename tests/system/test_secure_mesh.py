@@ -13,6 +13,7 @@ command key relayed by the hub is refused by the robot's router.
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -187,3 +188,88 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
               and f"denied: hub may not put on {command_key}" not in line]
     assert others == [], others
     assert [line for line in mesh.hub_log.read_text().splitlines() if " denied: " in line] == []
+
+
+def _robot_manifest(folder: Path, name: str, port: int, peer: str, peer_port: int | None) -> tuple[Path, Path]:
+    """uav1_secure.toml renamed ``name`` in ``folder`` on ``port``, with ``peer`` as its mesh robot (dialed when
+    ``peer_port`` is given)."""
+    folder.mkdir()
+    manifest, pki = secure_manifest(folder, port)
+    text = manifest.read_text()
+    listen = f'listen = ["tls/127.0.0.1:{port}"]'
+    tls = 'ral = "ral"          # the module that is the RAL'
+    for old in ('name = "uav1"', listen, tls):
+        assert text.count(old) == 1, old
+    dial = f'\npeers = ["tls/127.0.0.1:{peer_port}"]' if peer_port is not None else ""
+    manifest.write_text(text.replace('name = "uav1"', f'name = "{name}"').replace(listen, listen + dial)
+                        .replace(tls, f'mesh_robots = ["{peer}"]\n{tls}'))
+    return manifest, pki
+
+
+@pytest.mark.timeout(300)
+def test_two_secured_robots_linked_directly_share_their_state_and_refuse_each_others_commands(
+        tmp_path: Path) -> None:
+    """No hub: uav1's router dials uav2's over mTLS (``mesh_robots`` on both). A ground station on uav1's router
+    sees uav2 (its RAL's token, GRI state and fleet state, with their history, crossed uav2's router → uav1's under
+    CN router-uav2). The station's fleet-task put reaches uav2's router under router-uav1's CN and is refused
+    there, yet uav2 learns the task from uav1's fleet state (uav1's own key) and both agree: RALs relay the tasks
+    they know. A command query from that station to uav2 is refused (by uav1's router already; router-uav1 has no
+    ground-station rights on uav2's either).
+    Neither router refuses anything else of the robots' own traffic."""
+    ca = tmp_path / "pki-ca"
+    p1, p2 = free_port(), free_port()
+    m2, pki2 = _robot_manifest(tmp_path / PEER, PEER, p2, ROBOT, None)
+    m1, pki1 = _robot_manifest(tmp_path / ROBOT, ROBOT, p1, PEER, p2)
+    for manifest in (m1, m2):
+        assert certs.main(["--manifest", str(manifest), "--ca", str(ca)]) == 0
+    launches: list[SecureLaunch] = []
+    try:
+        for manifest, folder, port in ((m2, tmp_path / PEER, p2), (m1, tmp_path / ROBOT, p1)):
+            launches.append(SecureLaunch(manifest, folder, port))
+        for la in launches:
+            la.wait_line(f"all {len(MODULES)} modules up", 120)
+        r1, r2 = Robot(launches[1], pki1, tmp_path / ROBOT), Robot(launches[0], pki2, tmp_path / PEER)
+        with r1.client("gcs", name="gcs", link=[ROBOT], timeout_s=10.0) as gcs:
+            wait_until(lambda: gcs.robots(2.0) == [ROBOT, PEER], 60, "both robots seen on uav1's router")
+            wait_until(lambda: gcs.state(PEER).position is not None, 60, "uav2's GRI state on uav1's router")
+            wait_until(lambda: gcs.state(ROBOT).home is not None, 60, "uav1's take-off point")
+            home = gcs.state(ROBOT).home
+            assert home is not None
+            view = FleetView(gcs.session)
+            try:
+                assert view.wait(lambda: PEER in view.states and ROBOT in view.states, 30), sorted(view.states)
+                target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
+                marks = {ROBOT: len(r1.commands()), PEER: len(r2.commands())}
+                view.post(FleetTask(id="direct_t1", targets=[FleetTarget(id="d0", lat=target[0], lon=target[1],
+                                                                         alt=home.alt + 10.0)], posted_by="gcs"))
+                # the put itself is refused by uav2's router (it arrives under router-uav1's CN) ...
+                fleet = f"router-{ROBOT} may not put on {keys.fleet_task_key('direct_t1')}"
+                wait_until(lambda: fleet in r2.router_log(), 30, "uav2's router refusing the relayed fleet task")
+                # ... and uav2 learns the task from uav1's fleet state, uav1's own key (RALs relay the tasks they
+                # know, for late joiners and partitions: docs/fleet.md); both bid and agree
+                dec = view.wait(lambda: view.agreed("direct_t1", {ROBOT, PEER}), 30)
+                assert dec is not None and dec.bidders == [ROBOT, PEER], view.decisions("direct_t1")
+                flier = next(r for r, route in dec.routes.items() if route == ["d0"])
+                at = {ROBOT: r1, PEER: r2}[flier]
+                wait_until(lambda: target in _added(at, marks[flier]), 60, f"the fleet target at {flier}'s DSP")
+            finally:
+                view.close()
+            gcs.send(ROBOT, t.Hold())
+            with pytest.raises(NoReply):  # uav2 is not this station's to command: its own router refuses that
+                gcs.send(PEER, t.Hold(), timeout_s=3.0)
+        task_query = f"gcs may not query on {keys.ral_key(PEER, 'task')}"
+        assert task_query in r1.router_log()
+        # the station's link (token, heartbeats on cromat/@gcs/**) is uav1's only: uav2's router refuses it too
+        link = re.compile(rf"denied: router-{ROBOT} may not (liveliness token|undeclare liveliness token|put) on "
+                          rf"\S*{re.escape(keys.gcs_key('gcs'))}[/ `]")
+        assert link.search(r2.router_log())
+        for robot, allowed in ((r1, [task_query]), (r2, [fleet])):
+            denied = [line for line in robot.router_log().splitlines() if " denied: " in line
+                      and not any(a in line for a in allowed) and not (robot is r2 and link.search(line))]
+            assert denied == [], denied
+    finally:
+        for la in reversed(launches):
+            try:
+                la.stop()
+            finally:
+                la.cleanup()
