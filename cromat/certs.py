@@ -206,7 +206,7 @@ def _hub(args: argparse.Namespace) -> int:
     out = Path(args.dir)
     robots = [r.strip() for r in (args.robots or "").split(",") if r.strip()]
     try:
-        acl.mesh_router_cn(args.hub)  # a valid name
+        acl.keys.validate_name(args.hub, "hub identity")
         if (out / f"{CA}.key").exists():
             raise CertError(f"{out / 'ca.key'}: a CA key in the hub's folder; keep it in the operator's CA folder")
         if Path(args.ca).resolve() == out.resolve():
