@@ -269,7 +269,7 @@ def router_config(
     everyone = [s["id"] for s in subjects]
     policies.append({"id": "everyone", "subjects": everyone,
                      "rules": ["observe", "history", "history-sub", "read-queries", "deliver"]})
-    config = {
+    config: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}},
