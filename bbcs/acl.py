@@ -23,6 +23,16 @@ Default deny; then:
   - a ground station: only ``cromat/@gcs/**`` (its link tokens and heartbeats) and fleet tasks
     ``cromat/@fleet/task/*``; it may query ``@ral/task`` (tasks), ``@manager/route`` (route swaps),
     ``@ral/world_request`` (world edits) and ``@ral/sync`` (synchronised starts), which no other identity may.
+
+The fleet mesh (docs/fleet.md): Zenoh's policy sees only the identity of the link a message arrives on, never the
+original sender, so trust follows the link. Two identities of other routers:
+
+* a **peer robot's router** (CN ``router-<robot>``, :func:`mesh_router_cn`) may write only what its own robot
+  owns (:func:`robot_keys`: every key under ``cromat/<that robot>/``), and observe like everyone;
+* a **hub** (ground) router forwards ground stations and other robots: it gets a ground station's rights and the
+  write rights of every robot but this one (it is as trusted as everything behind it).
+
+Neither may write this robot's keys. :func:`hub_config` is the hub router's own policy.
 """
 
 from __future__ import annotations
@@ -114,6 +124,30 @@ def _own(robot: str, name: str) -> list[str]:
     return [*own, *_adv(own), keys.schema_pattern(robot, name)]
 
 
+MESH_ROUTER_PREFIX = "router-"
+
+
+def mesh_router_cn(robot: str) -> str:
+    """The certificate CN of ``robot``'s router on the fleet mesh (``router-uav2``)."""
+    return MESH_ROUTER_PREFIX + keys.validate_name(robot, "robot name")
+
+
+def robot_keys(r: str) -> list[str]:
+    """Every key robot ``r`` (its modules, RAL and manager) writes or serves, ``@adv`` included: named chunk by
+    chunk, because ``*``/``**`` never match a verbatim ``@`` chunk. ``r`` may be ``*`` (any robot)."""
+    own = [keys.slot_pattern(r), keys.route_ack_pattern(r), keys.heartbeat_pattern(r)]
+    services = [keys.manager_pattern(r), keys.ral_pattern(r)]
+    return [*own, *_adv(own), keys.schema_pattern(r), *services,
+            *_adv([keys.manager_child_pattern(r), keys.ral_child_pattern(r)]),
+            *(keys.schema_key_of(k(r)) for k in (keys.ral_key, keys.manager_key))]
+
+
+def _robot_write_rules(rid: str, r: str) -> list[dict[str, Any]]:
+    """Robot ``r``'s writes, its servers and its presence tokens (``@alive``, advanced publishers')."""
+    return [_rule(f"{rid}-write", WRITE + SERVE, robot_keys(r)),
+            _rule(f"{rid}-token", ["liveliness_token"], [keys.alive_pattern(r)])]
+
+
 def _rule(rid: str, messages: list[str], key_exprs: list[str], permission: str = "allow",
           flow: str = "ingress") -> dict[str, Any]:
     return {"id": rid, "permission": permission, "flows": [flow], "messages": list(messages),
@@ -134,8 +168,14 @@ def router_config(
     identities: dict[str, str] | None = None,
     controls: dict[str, str] | None = None,
     dsp_senders: list[str] | None = None,
+    mesh_robots: list[str] | None = None,
+    hubs: list[str] | None = None,
 ) -> dict[str, Any]:
     """A complete Zenoh router config: ``tls/`` listeners with mTLS and the access policy above.
+
+    ``mesh_robots`` are the robots whose routers link to this one directly (identity ``router-<name>``),
+    ``hubs`` the CNs of hub (ground) routers. The router presents its own certificate on the links it dials
+    (``[bus] peers``), so the other end's policy knows it by its CN as well.
 
     ``identities`` maps a module name (or ``ral``) to the certificate CN it presents when that differs from the
     name; the module's rights stay keyed by its name (its slots are ``cromat/<robot>/<name>/*``). ``controls``
@@ -149,6 +189,13 @@ def router_config(
         keys.validate_name(name, "identity")
     if not gcs:
         raise ValueError("at least one GCS identity is needed")
+    peers, hub_cns = list(mesh_robots or []), list(hubs or [])
+    for name in [*peers, *hub_cns]:
+        keys.validate_name(name, "mesh identity")
+    if robot != "*" and robot in peers:
+        raise ValueError(f"robot {robot!r} cannot be its own mesh peer")
+    if (peers or hub_cns) and robot == "*":
+        raise ValueError("a router with mesh identities needs its robot name (its own keys stay its own)")
     control = {m: (controls or {}).get(m, "control_entrada") for m in modules}
     senders = [m for m in modules if m in COMMAND_RIGHTS] if dsp_senders is None else list(dsp_senders)
     r = robot
@@ -202,10 +249,27 @@ def router_config(
         policies.append({"id": f"m-{name}", "subjects": [f"m-{name}"],
                          "rules": [f"m-{name}-write", f"m-{name}-token", f"m-{name}-no-control",
                                    f"m-{name}-no-control-pub"]})
+    for name in peers:
+        rules += _robot_write_rules(f"peer-{name}", name)
+        subjects.append({"id": f"peer-{name}", "cert_common_names": [mesh_router_cn(name)]})
+        policies.append({"id": f"peer-{name}", "subjects": [f"peer-{name}"],
+                         "rules": [f"peer-{name}-write", f"peer-{name}-token"]})
+    if hub_cns:
+        # a hub forwards ground stations and every other robot; this robot's own keys stay its own (a deny wins)
+        rules += [*_robot_write_rules("hub-robots", "*"),
+                  _rule("hub-not-this-robot", [*WRITE, "declare_queryable"], robot_keys(r), permission="deny"),
+                  # its publishers' presence; an advanced subscriber's token (``@adv/sub``) stays allowed
+                  _rule("hub-not-this-robot-token", ["liveliness_token"],
+                        [keys.alive_pattern(r), *(k.removesuffix("/**") + "/pub/**" for k in _adv_keys(r))],
+                        permission="deny")]
+        subjects.append({"id": "hub", "cert_common_names": hub_cns})
+        policies.append({"id": "hub", "subjects": ["hub"],
+                         "rules": ["gcs-command", "gcs-link", "hub-robots-write", "hub-robots-token",
+                                   "hub-not-this-robot", "hub-not-this-robot-token"]})
     everyone = [s["id"] for s in subjects]
     policies.append({"id": "everyone", "subjects": everyone,
                      "rules": ["observe", "history", "history-sub", "read-queries", "deliver"]})
-    return {
+    config: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}},
@@ -228,6 +292,49 @@ def router_config(
             "subjects": subjects,
             "policies": policies,
         },
+    }
+    if peers or hub_cns:  # it dials other routers ([bus] peers): it presents its own certificate there too
+        config["transport"]["link"]["tls"].update({"connect_certificate": cert, "connect_private_key": key})
+    return config
+
+
+def hub_config(*, listen: list[str], ca: str, cert: str, key: str, gcs: list[str],
+               robots: list[str]) -> dict[str, Any]:
+    """A hub (ground) router's config: mTLS on ``tls/`` links and its own policy. Ground stations connected to it
+    get a ground station's rights on every robot; each robot's router (``router-<robot>``) may write only its own
+    robot's keys; everyone observes. The robots' routers (``[bus] peers``) or the hub (``--connect``) may dial."""
+    for name in [*gcs, *robots]:
+        keys.validate_name(name, "identity")
+    if not gcs:
+        raise ValueError("at least one GCS identity is needed")
+    rules: list[dict[str, Any]] = [
+        _rule("observe", OBSERVE[:3], _read_keys() + _adv_keys()),
+        _rule("history", ["query"], _adv_keys()),
+        _rule("history-sub", ["liveliness_token"], _adv_sub(_adv_keys())),
+        _rule("read-queries", ["query"], READ_QUERIES),
+        _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
+        _rule("gcs-command", ["query"], _gcs_commands("*")),
+        _rule("gcs-link", ["put", "delete", "liveliness_token"], [keys.gcs_pattern(), keys.fleet_task_key("*")]),
+    ]
+    subjects: list[dict[str, Any]] = [{"id": "gcs", "cert_common_names": list(gcs)}]
+    policies: list[dict[str, Any]] = [{"id": "gcs", "subjects": ["gcs"], "rules": ["gcs-command", "gcs-link"]}]
+    for name in dict.fromkeys(robots):
+        rules += _robot_write_rules(f"robot-{name}", name)
+        subjects.append({"id": f"robot-{name}", "cert_common_names": [mesh_router_cn(name)]})
+        policies.append({"id": f"robot-{name}", "subjects": [f"robot-{name}"],
+                         "rules": [f"robot-{name}-write", f"robot-{name}-token"]})
+    policies.append({"id": "everyone", "subjects": [s["id"] for s in subjects],
+                     "rules": ["observe", "history", "history-sub", "read-queries", "deliver"]})
+    return {
+        "mode": "router",
+        "listen": {"endpoints": list(listen)},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"protocols": ["tls"], "tls": {
+            "root_ca_certificate": ca, "listen_certificate": cert, "listen_private_key": key,
+            "connect_certificate": cert, "connect_private_key": key, "enable_mtls": True,
+            "verify_name_on_connect": True}}},
+        "access_control": {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+                           "policies": policies},
     }
 
 

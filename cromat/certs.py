@@ -10,7 +10,9 @@ Three folders, so that no key ends up where it does not belong (docs/security.md
 * the **ground folder** (``--ground``, default ``DIR-ground``): ``ca.pem`` and each ground station's pair.
 
 Each certificate's common name is the identity the router's access policy knows it by (``gcs``, ``ral``,
-``manager``, a module's instance name). The router's certificate carries the host names clients connect to
+``manager``, a module's instance name); the router's is ``router-<robot>`` when the robot is known (its identity
+on the fleet mesh, docs/fleet.md), and ``--hub NAME`` issues a hub router's pair instead (with ``--acl``, its
+config: :func:`bbcs.acl.hub_config`). The router's certificate carries the host names clients connect to
 (default ``localhost`` and ``127.0.0.1``). An existing CA is reused, so new identities can be added later.
 With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + access policy, see
 :mod:`bbcs.acl`) pointing at the robot folder. Keys are written mode 0600 and must never be committed.
@@ -94,10 +96,11 @@ def _san(hosts: list[str]) -> str:
 
 
 def make_leaf(
-    directory: Path, name: str, hosts: list[str] | None = None, days: int = 825, ca_dir: Path | None = None
+    directory: Path, name: str, hosts: list[str] | None = None, days: int = 825, ca_dir: Path | None = None,
+    cn: str | None = None,
 ) -> tuple[Path, Path]:
     """``NAME.key``/``NAME.pem`` in ``directory``, signed by the CA in ``ca_dir`` (default ``directory``),
-    CN=NAME, server+client use; ``directory`` also gets the CA's certificate (never its key)."""
+    CN=``cn`` (default NAME), server+client use; ``directory`` also gets the CA's certificate (never its key)."""
     ca_dir = ca_dir or directory
     ca_key, ca_pem = ca_dir / f"{CA}.key", ca_dir / f"{CA}.pem"
     if not ca_key.exists():
@@ -116,7 +119,7 @@ def make_leaf(
             "extendedKeyUsage=serverAuth,clientAuth\n"
             f"subjectAltName={_san(hosts or [name])}\n"
         )
-        _openssl("req", "-new", "-key", str(key), "-subj", f"/CN={name}", "-out", str(csr))
+        _openssl("req", "-new", "-key", str(key), "-subj", f"/CN={cn or name}", "-out", str(csr))
         _openssl(
             "x509",
             "-req",
@@ -187,8 +190,39 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="ENDPOINT",
         help="router TLS endpoint for --acl (default tls/0.0.0.0:7447)",
     )
-    p.add_argument("--robot", default="*", help="robot name the --acl policy is for (default: any)")
+    p.add_argument("--robot", default="*", help="robot name the --acl policy is for (default: any); also names the "
+                   "router's certificate router-ROBOT, its identity on the fleet mesh")
+    p.add_argument("--hub", metavar="NAME", help="instead: a hub (ground) router's pair NAME.pem/NAME.key in DIR "
+                   "(its hosts: --router-host); with --acl, the hub's Zenoh config (mTLS + its policy, --robots)")
+    p.add_argument("--robots", metavar="A,B,...", help="with --hub --acl: the robots whose routers link to the hub")
     return p
+
+
+def _hub(args: argparse.Namespace) -> int:
+    """``--hub NAME``: the hub router's certificate (CN NAME) in DIR and, with ``--acl``, its config."""
+    if not args.dir or not args.ca:
+        print("cromat certs: --hub needs the hub's folder DIR and the fleet's CA folder --ca", file=sys.stderr)
+        return 2
+    out = Path(args.dir)
+    robots = [r.strip() for r in (args.robots or "").split(",") if r.strip()]
+    try:
+        acl.keys.validate_name(args.hub, "hub identity")
+        if (out / f"{CA}.key").exists():
+            raise CertError(f"{out / 'ca.key'}: a CA key in the hub's folder; keep it in the operator's CA folder")
+        if Path(args.ca).resolve() == out.resolve():
+            raise CertError("the CA folder must not be the hub's folder")
+        make_ca(Path(args.ca), args.ca_name)
+        make_leaf(out, args.hub, args.router_host or list(DEFAULT_HOSTS), args.days, Path(args.ca))
+        if args.acl:
+            cfg = acl.hub_config(listen=args.listen or ["tls/0.0.0.0:7447"], ca=str((out / "ca.pem").resolve()),
+                                 cert=str((out / f"{args.hub}.pem").resolve()),
+                                 key=str((out / f"{args.hub}.key").resolve()), gcs=args.gcs or ["gcs"], robots=robots)
+            acl.write(cfg, Path(args.acl))
+    except (CertError, ValueError) as exc:
+        print(f"cromat certs: {exc}", file=sys.stderr)
+        return 2
+    print(f"cromat certs: hub {args.hub} in {out}" + (f"; hub router config {args.acl}" if args.acl else ""))
+    return 0
 
 
 def _from_manifest(path: str) -> tuple[Path, str, list[str], list[str]]:
@@ -207,6 +241,8 @@ def _from_manifest(path: str) -> tuple[Path, str, list[str], list[str]]:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.hub:
+        return _hub(args)
     if args.init_ca:
         if not args.ca:
             print("cromat certs: --init-ca needs --ca DIR (the operator's CA folder)", file=sys.stderr)
@@ -251,7 +287,8 @@ def main(argv: list[str] | None = None) -> int:
         ca_dir.mkdir(parents=True, exist_ok=True)
         os.chmod(ca_dir, 0o700)
         make_ca(ca_dir, args.ca_name)
-        make_leaf(out, "router", args.router_host or list(DEFAULT_HOSTS), args.days, ca_dir)
+        make_leaf(out, "router", args.router_host or list(DEFAULT_HOSTS), args.days, ca_dir,
+                  cn=None if args.robot == "*" else acl.mesh_router_cn(args.robot))
         for name in robot_side:
             make_leaf(out, name, None, args.days, ca_dir)
         for name in dict.fromkeys(gcs):

@@ -565,7 +565,7 @@ class Manager:
         try:
             if self.m.raw.bus.peers:
                 problem = mesh.duplicate_name_problem(self.m.robot, [self.expand(e) for e in self.m.raw.bus.peers],
-                                                      self.out)
+                                                      self.out, tls=secure.router_tls(self.m) if self.m.pki else None)
                 if problem is not None:
                     raise LaunchError(problem)
             self.prewarm_modules()

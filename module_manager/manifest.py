@@ -75,6 +75,11 @@ class TlsSection(_Section):
     """Ground-station identities the policy lets submit tasks and swap routes."""
     ral: str = "ral"
     """The module that is the robot's RAL (it gets the RAL's rights in the policy, not a module's)."""
+    mesh_robots: list[str] = msgspec.field(default_factory=list)
+    """Robots whose routers link to this one directly over ``tls/`` (certificate CN ``router-<robot>``): each may
+    write only its own robot's keys (docs/fleet.md, "A mesh over mutual TLS")."""
+    hubs: list[str] = msgspec.field(default_factory=list)
+    """Certificate CNs of hub (ground) routers: a ground station's rights plus every other robot's writes."""
 
 
 class BusSection(_Section):
@@ -383,9 +388,12 @@ class _Checker:
             raise self.fail("bus.links", "links = \"peers\" cannot keep a hand-written router config's access rules "
                                          "(bus.zenoh_config) between modules: use [bus.tls] or links = \"router\"")
         for i, endpoint in enumerate(raw.bus.peers):
-            if not endpoint.startswith("tcp/"):
-                raise self.fail(f"bus.peers.{i}", f"{endpoint!r}: the fleet mesh is built over tcp/ endpoints only "
-                                                  "(tls/ peers are not supported yet, docs/fleet.md)")
+            if raw.bus.tls is None and not endpoint.startswith("tcp/"):
+                raise self.fail(f"bus.peers.{i}", f"{endpoint!r}: without [bus.tls] the fleet mesh is built over tcp/ "
+                                                  "endpoints (tls/ peers need [bus.tls], docs/fleet.md)")
+            if raw.bus.tls is not None and not endpoint.startswith("tls/"):
+                raise self.fail(f"bus.peers.{i}", f"{endpoint!r}: a secured robot ([bus.tls]) links to its peers over "
+                                                  "tls/ only (mutual TLS, docs/fleet.md)")
         task_types = tuple(raw.robot.task_types)
         table = self.slot_table()
         modes = self.modes(table)
@@ -454,6 +462,7 @@ class _Checker:
             if ident in reserved:
                 raise self.fail(key, f"identity {ident!r} is {reserved[ident]}'s: a module must not share it")
             reserved[ident] = f"module {name}"
+        self.mesh(tls, reserved)
         pki = (self.path.parent / tls.pki).resolve()
         if not self.check_pki:
             return pki
@@ -471,6 +480,29 @@ class _Checker:
                 raise self.fail(key, f"certificate file {pki / file} does not exist (create the certificates with "
                                      f"`cromat certs --manifest {self.path}`)")
         return pki
+
+    def mesh(self, tls: TlsSection, reserved: dict[str, str]) -> None:
+        """``mesh_robots`` and ``hubs``: valid, distinct names, not this robot nor a local identity; ``tls/``
+        peers need someone listed (a router nobody listed would be denied everything)."""
+        robot = self.raw.robot.name
+        for i, name in enumerate(tls.mesh_robots):
+            self.name(name, f"bus.tls.mesh_robots.{i}", "robot name")
+            if name == robot:
+                raise self.fail(f"bus.tls.mesh_robots.{i}", f"{name!r} is this robot: a robot is not its own mesh peer")
+        if len(set(tls.mesh_robots)) != len(tls.mesh_robots):
+            raise self.fail("bus.tls.mesh_robots", "a robot is listed twice")
+        for i, name in enumerate(tls.hubs):
+            key = f"bus.tls.hubs.{i}"
+            self.name(name, key, "hub identity")
+            if name in reserved:
+                raise self.fail(key, f"identity {name!r} is {reserved[name]}'s: a hub must not share it")
+            if name.startswith("router-"):
+                raise self.fail(key, f"{name!r} looks like a robot router's identity (router-<robot>): list robots "
+                                     "in bus.tls.mesh_robots")
+            reserved[name] = "a hub"
+        if self.raw.bus.peers and not (tls.mesh_robots or tls.hubs):
+            raise self.fail("bus.peers", "a secured robot's peers must be listed by identity: the robots in "
+                                         "bus.tls.mesh_robots, hub routers in bus.tls.hubs (docs/fleet.md)")
 
     def slot_table(self) -> SlotTable:
         seen: dict[int, int] = {}

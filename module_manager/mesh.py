@@ -13,14 +13,16 @@ from collections.abc import Callable
 
 from bbcs import keys
 from bbcs.errors import SessionError
-from bbcs.session import SessionConfig, open_session
+from bbcs.session import SessionConfig, TlsConfig, open_session
 
 CHECK_TIMEOUT_S = 3.0
 
 
-def holders_of(robot: str, peers: list[str], timeout_s: float = CHECK_TIMEOUT_S) -> list[str] | None:
-    """Keys of the liveliness tokens of ``robot`` seen through ``peers``; None when no peer can be reached."""
-    cfg = SessionConfig(mode="client", connect=list(peers), connect_timeout_s=timeout_s)
+def holders_of(robot: str, peers: list[str], timeout_s: float = CHECK_TIMEOUT_S,
+               tls: TlsConfig | None = None) -> list[str] | None:
+    """Keys of the liveliness tokens of ``robot`` seen through ``peers``; None when no peer can be reached.
+    ``tls``: the certificate to present on ``tls/`` peers (a secured robot asks as its router's identity)."""
+    cfg = SessionConfig(mode="client", connect=list(peers), connect_timeout_s=timeout_s, tls=tls)
     try:
         session = open_session(cfg)
     except SessionError:
@@ -36,9 +38,9 @@ def holders_of(robot: str, peers: list[str], timeout_s: float = CHECK_TIMEOUT_S)
 
 
 def duplicate_name_problem(robot: str, peers: list[str], out: Callable[[str], None],
-                           timeout_s: float = CHECK_TIMEOUT_S) -> str | None:
+                           timeout_s: float = CHECK_TIMEOUT_S, tls: TlsConfig | None = None) -> str | None:
     """Why ``robot`` must not start (its name is alive on the mesh), or None when it may."""
-    held = holders_of(robot, peers, timeout_s)
+    held = holders_of(robot, peers, timeout_s, tls)
     if held is None:
         out(f"  mesh        no peer reachable ({', '.join(peers)}): robot name {robot!r} not checked, "
             "starting alone (the router keeps trying its peers)")

@@ -51,7 +51,8 @@ def router_config(manifest: Manifest, listen: list[str]) -> dict[str, Any]:
         listen=list(listen), ca=str(pki / "ca.pem"), cert=str(pki / f"{ROUTER}.pem"),
         key=str(pki / f"{ROUTER}.key"), robot=manifest.robot, gcs=list(tls.gcs), modules=modules,
         ral=ral_module or tls.ral, manager=MANAGER_MODULE, identities=cn,
-        controls={n: manifest.modules[n].control_slot for n in modules})
+        controls={n: manifest.modules[n].control_slot for n in modules},
+        mesh_robots=list(tls.mesh_robots), hubs=list(tls.hubs))
     if not tls.acl:
         del cfg["access_control"]
     return cfg
@@ -64,6 +65,15 @@ def write_router_config(manifest: Manifest, listen: list[str], folder: Path) -> 
                     + json.dumps(router_config(manifest, listen), indent=2) + "\n")
     path.chmod(0o600)
     return path
+
+
+def router_tls(manifest: Manifest) -> TlsConfig:
+    """The router's own certificate (CN ``router-<robot>``) as a client's: how the launch asks its mesh peers."""
+    pki = manifest.pki
+    _tls(manifest)
+    assert pki is not None
+    return TlsConfig(root_ca=str(pki / "ca.pem"), cert=str(pki / f"{ROUTER}.pem"), key=str(pki / f"{ROUTER}.key"),
+                     mtls=True)
 
 
 def client_bus(manifest: Manifest, connect: list[str], identity: str) -> SessionConfig:

@@ -1,0 +1,276 @@
+"""The fleet mesh over mutual TLS (docs/fleet.md, "A mesh over mutual TLS"), by attack.
+
+A hub (ground) router with its own certificate and policy (``cromat certs --hub``), and the secured robot of
+``uav1_secure.toml`` launched with the hub as its ``tls/`` peer (``[bus.tls] hubs``, ``mesh_robots``); every
+certificate from ``cromat certs`` in tmp_path, one fleet CA. A ground station connected to the hub posts a fleet
+task: the robot's RAL bids, decides, and its goto reaches the DSP simulator (its record); the station sees the
+decision. A router identity of another robot (a real ``router-uav2`` certificate from ``cromat certs --robot
+uav2``, linked to the robot's router as a Zenoh peer) posts a fleet task, submits a GRI goto, and puts a DSP
+command batch on the robot's key: none of it reaches the RAL or the DSP simulator; its own robot's put does
+arrive at a subscriber on the robot's router (the control that lets the test fail). A write of the robot's own
+command key relayed by the hub is refused by the robot's router.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from bbcs import keys
+from bbcs.contracts import dsp
+from bbcs.contracts import tasks as t
+from bbcs.contracts.fleet import FleetTarget, FleetTask
+from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs.testing import child_env, free_port, wait_until
+from cromat import certs
+from ral.fleet_gcs import FleetView
+from ral.gcs.api import Gcs, NoReply, session_config
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_secure_launch import MODULES, ROBOT, Robot, SecureLaunch, secure_manifest  # noqa: E402
+
+PEER = "uav2"
+HUB = "hub"
+
+
+@dataclass
+class Mesh:
+    robot: Robot
+    hub_port: int
+    hub_log: Path
+    peer_pki: Path
+
+    def station(self) -> Gcs:
+        """A ground station connected to the hub (not to the robot), presenting the ``gcs`` certificate."""
+        ground = self.robot.pki.with_name("pki-ground")
+        return Gcs(session_config([f"tls/127.0.0.1:{self.hub_port}"], ca=str(ground / "ca.pem"),
+                                  cert=str(ground / "gcs.pem"), key=str(ground / "gcs.key"), connect_timeout_s=10.0),
+                   name="gcs", link=[ROBOT], timeout_s=10.0)
+
+    def peer_router(self) -> SessionConfig:
+        """Another robot's router identity (CN router-uav2) linked to the robot's router as a Zenoh peer."""
+        pki = self.peer_pki
+        return SessionConfig(mode="peer", listen=[], connect=[f"tls/127.0.0.1:{self.robot.launch.port}"],
+                             tls=TlsConfig(root_ca=str(pki / "ca.pem"), cert=str(pki / "router.pem"),
+                                           key=str(pki / "router.key")), connect_timeout_s=10.0)
+
+
+@pytest.fixture
+def mesh(tmp_path: Path) -> Iterator[Mesh]:
+    robot_port, hub_port = free_port(), free_port()
+    manifest, pki = secure_manifest(tmp_path, robot_port)
+    text = manifest.read_text()
+    listen = f'listen = ["tls/127.0.0.1:{robot_port}"]'
+    tls = 'ral = "ral"          # the module that is the RAL'
+    assert text.count(listen) == 1 and text.count(tls) == 1
+    manifest.write_text(text.replace(listen, f'{listen}\npeers = ["tls/127.0.0.1:{hub_port}"]')
+                        .replace(tls, f'hubs = ["{HUB}"]\nmesh_robots = ["{PEER}"]\n{tls}'))
+    ca = tmp_path / "pki-ca"
+    assert certs.main(["--manifest", str(manifest)]) == 0
+    assert certs.main([str(tmp_path / HUB), "--hub", HUB, "--ca", str(ca), "--robots", ROBOT,
+                       "--acl", str(tmp_path / "hub.json5"), "--listen", f"tls/127.0.0.1:{hub_port}"]) == 0
+    assert certs.main([str(tmp_path / PEER), "--robot", PEER, "--ca", str(ca), "--no-local", "--module", "probe",
+                       "--ground", str(tmp_path / f"{PEER}-ground")]) == 0
+    hub_log = tmp_path / "hub.log"
+    with hub_log.open("w") as out:
+        hub = subprocess.Popen([sys.executable, "-m", "bbcs.router", "--config", str(tmp_path / "hub.json5"),
+                                "--listen", f"tls/127.0.0.1:{hub_port}", "--log-refusals"],
+                               env=child_env(), stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    la: SecureLaunch | None = None
+    try:
+        wait_until(lambda: "listening on" in hub_log.read_text(), 30, "the hub router listening")
+        la = SecureLaunch(manifest, tmp_path, robot_port)
+        la.wait_line(f"all {len(MODULES)} modules up", 90)
+        # the duplicate-name check reached the hub over mTLS as the router's identity (router-uav1)
+        la.wait_line(f"robot name {ROBOT!r} is free on the mesh (tls/127.0.0.1:{hub_port})", 1)
+        yield Mesh(Robot(la, pki, tmp_path), hub_port, hub_log, tmp_path / PEER)
+    finally:
+        try:
+            if la is not None:
+                try:
+                    la.stop()
+                finally:
+                    la.cleanup()
+        finally:
+            hub.terminate()
+            hub.wait(10)
+
+
+def _added(robot: Robot, mark: int) -> list[tuple[float, float]]:
+    return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4))
+            for c in robot.commands()[mark:] if c["name"] == "ADD_WAYPOINT"]
+
+
+@pytest.mark.timeout(240)
+def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own_robot(mesh: Mesh) -> None:
+    robot = mesh.robot
+    with mesh.station() as gcs:
+        # the ground station on the hub sees the robot through the mesh (its state crossed robot router -> hub)
+        wait_until(lambda: (st := gcs.state(ROBOT)).position is not None and st.home is not None, 60,
+                   "the robot's position seen through the hub")
+        home = gcs.state(ROBOT).home
+        assert home is not None
+        mark = len(robot.commands())
+        view = FleetView(gcs.session)
+        # the attack: another robot's router identity, linked straight to the robot's router
+        got: list[str] = []
+        own_key = keys.slot_key(PEER, "probe", "marker")
+        ground = robot.pki.with_name("pki-ground")
+        listener = open_session(session_config([f"tls/127.0.0.1:{robot.launch.port}"], ca=str(ground / "ca.pem"),
+                                               cert=str(ground / "gcs.pem"), key=str(ground / "gcs.key")))
+        try:
+            sub = listener.declare_subscriber(own_key, lambda s: got.append(s.payload.to_bytes().decode()))
+            forged_at = (round(home.lat - 0.0004, 4), round(home.lon - 0.0004, 4))
+            goto_at = (round(home.lat - 0.0006, 4), round(home.lon + 0.0005, 4))
+            dsp_at = (round(home.lat + 0.0007, 4), round(home.lon - 0.0006, 4))
+            with Gcs(mesh.peer_router(), name="router-uav2", timeout_s=3.0) as peer:
+                FleetView(peer.session).post(FleetTask(id="forged", targets=[FleetTarget(
+                    id="f0", lat=forged_at[0], lon=forged_at[1], alt=home.alt + 10.0)], posted_by="gcs"))
+                with pytest.raises(NoReply):
+                    peer.send(ROBOT, t.Goto(waypoints=[t.Waypoint(lat=goto_at[0], lon=goto_at[1],
+                                                                  alt=home.alt + 10.0)]))
+                batch = dsp.DspCommands(sender="path_follower", commands=[dsp.AddWaypoint(
+                    lat=dsp_at[0], lon=dsp_at[1], alt=home.alt + 10.0)])
+                peer.session.put(keys.slot_key(ROBOT, dsp.MODULE, dsp.commands_slot("path_follower")),
+                                 msgspec.msgpack.encode(batch))
+                peer.session.put(own_key, b"after the forged writes")
+                wait_until(lambda: got, 30, "the peer router's own-robot put at a subscriber on the robot's router")
+            sub.undeclare()
+        finally:
+            listener.close()
+        assert got == ["after the forged writes"]
+        # a write of this robot's keys relayed by the hub (here from a session presenting this robot's own router
+        # certificate, which the hub admits for uav1's keys) is refused by the robot's router: a hub never writes
+        # this robot's keys
+        relay_at = (round(home.lat + 0.0008, 4), round(home.lon + 0.0008, 4))
+        command_key = keys.slot_key(ROBOT, dsp.MODULE, dsp.commands_slot("path_follower"))
+        relayed = open_session(SessionConfig(mode="client", connect=[f"tls/127.0.0.1:{mesh.hub_port}"],
+                                             tls=TlsConfig(root_ca=str(robot.pki / "ca.pem"),
+                                                           cert=str(robot.pki / "router.pem"),
+                                                           key=str(robot.pki / "router.key"))))
+        try:
+            relayed.put(command_key, msgspec.msgpack.encode(dsp.DspCommands(sender="path_follower", commands=[
+                dsp.AddWaypoint(lat=relay_at[0], lon=relay_at[1], alt=home.alt + 10.0)])))
+            wait_until(lambda: f"denied: hub may not put on {command_key}" in robot.router_log(), 30,
+                       "the robot's router refusing the hub's relay of its own command key")
+        finally:
+            relayed.close()
+        # the ground station's fleet task, through the hub: bid, decision, the target to the DSP simulator
+        target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
+        try:
+            view.post(FleetTask(id="mesh_t1", targets=[FleetTarget(id="m0", lat=target[0], lon=target[1],
+                                                                   alt=home.alt + 10.0)], posted_by="gcs"))
+            dec = view.wait(lambda: view.agreed("mesh_t1", {ROBOT}), 30)
+            assert dec is not None and dec.bidders == [ROBOT] and dec.routes[ROBOT] == ["m0"], view.decisions(
+                "mesh_t1")
+            wait_until(lambda: target in _added(robot, mark), 60, "the fleet target at the DSP simulator")
+            # the forged fleet task was posted before the real one: had it got through, the RAL would have answered
+            assert view.answered("forged") == set() and view.decisions("forged") == {}
+        finally:
+            view.close()
+        added = _added(robot, mark)
+        assert not {forged_at, goto_at, dsp_at, relay_at} & set(added), added
+        gcs.send(ROBOT, t.Hold())
+    for denied in (f"router-uav2 may not put on {keys.fleet_task_key('forged')}",
+                   f"router-uav2 may not query on {keys.ral_key(ROBOT, 'task')}",
+                   f"router-uav2 may not put on {keys.slot_key(ROBOT, 'dsp', 'commands_path_follower')}"):
+        # the router's log reader runs beside Zenoh's routing: its line may follow the refusal by a moment
+        wait_until(lambda denied=denied: denied in robot.router_log(), 30, f"{denied!r} in the router's log")
+    log = robot.router_log()
+    # the hub's link and the robot's own identities were never refused: the mesh needs no right it lacks
+    others = [line for line in log.splitlines() if " denied: " in line and "router-uav2" not in line
+              and f"denied: hub may not put on {command_key}" not in line]
+    assert others == [], others
+    assert [line for line in mesh.hub_log.read_text().splitlines() if " denied: " in line] == []
+
+
+def _robot_manifest(folder: Path, name: str, port: int, peer: str, peer_port: int | None) -> tuple[Path, Path]:
+    """uav1_secure.toml renamed ``name`` in ``folder`` on ``port``, with ``peer`` as its mesh robot (dialed when
+    ``peer_port`` is given)."""
+    folder.mkdir()
+    manifest, pki = secure_manifest(folder, port)
+    text = manifest.read_text()
+    listen = f'listen = ["tls/127.0.0.1:{port}"]'
+    tls = 'ral = "ral"          # the module that is the RAL'
+    for old in ('name = "uav1"', listen, tls):
+        assert text.count(old) == 1, old
+    dial = f'\npeers = ["tls/127.0.0.1:{peer_port}"]' if peer_port is not None else ""
+    manifest.write_text(text.replace('name = "uav1"', f'name = "{name}"').replace(listen, listen + dial)
+                        .replace(tls, f'mesh_robots = ["{peer}"]\n{tls}'))
+    return manifest, pki
+
+
+@pytest.mark.timeout(300)
+def test_two_secured_robots_linked_directly_share_their_state_and_refuse_each_others_commands(
+        tmp_path: Path) -> None:
+    """No hub: uav1's router dials uav2's over mTLS (``mesh_robots`` on both). A ground station on uav1's router
+    sees uav2 (its RAL's token, GRI state and fleet state, with their history, crossed uav2's router → uav1's under
+    CN router-uav2). The station's fleet-task put reaches uav2's router under router-uav1's CN and is refused
+    there, yet uav2 learns the task from uav1's fleet state (uav1's own key) and both agree: RALs relay the tasks
+    they know. A command query from that station to uav2 is refused (by uav1's router already; router-uav1 has no
+    ground-station rights on uav2's either).
+    Neither router refuses anything else of the robots' own traffic."""
+    ca = tmp_path / "pki-ca"
+    p1, p2 = free_port(), free_port()
+    m2, pki2 = _robot_manifest(tmp_path / PEER, PEER, p2, ROBOT, None)
+    m1, pki1 = _robot_manifest(tmp_path / ROBOT, ROBOT, p1, PEER, p2)
+    for manifest in (m1, m2):
+        assert certs.main(["--manifest", str(manifest), "--ca", str(ca)]) == 0
+    launches: list[SecureLaunch] = []
+    try:
+        for manifest, folder, port in ((m2, tmp_path / PEER, p2), (m1, tmp_path / ROBOT, p1)):
+            launches.append(SecureLaunch(manifest, folder, port))
+        for la in launches:
+            la.wait_line(f"all {len(MODULES)} modules up", 120)
+        r1, r2 = Robot(launches[1], pki1, tmp_path / ROBOT), Robot(launches[0], pki2, tmp_path / PEER)
+        with r1.client("gcs", name="gcs", link=[ROBOT], timeout_s=10.0) as gcs:
+            wait_until(lambda: gcs.robots(2.0) == [ROBOT, PEER], 60, "both robots seen on uav1's router")
+            wait_until(lambda: gcs.state(PEER).position is not None, 60, "uav2's GRI state on uav1's router")
+            wait_until(lambda: gcs.state(ROBOT).home is not None, 60, "uav1's take-off point")
+            home = gcs.state(ROBOT).home
+            assert home is not None
+            view = FleetView(gcs.session)
+            try:
+                assert view.wait(lambda: PEER in view.states and ROBOT in view.states, 30), sorted(view.states)
+                target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
+                marks = {ROBOT: len(r1.commands()), PEER: len(r2.commands())}
+                view.post(FleetTask(id="direct_t1", targets=[FleetTarget(id="d0", lat=target[0], lon=target[1],
+                                                                         alt=home.alt + 10.0)], posted_by="gcs"))
+                # the put itself is refused by uav2's router (it arrives under router-uav1's CN) ...
+                fleet = f"router-{ROBOT} may not put on {keys.fleet_task_key('direct_t1')}"
+                wait_until(lambda: fleet in r2.router_log(), 30, "uav2's router refusing the relayed fleet task")
+                # ... and uav2 learns the task from uav1's fleet state, uav1's own key (RALs relay the tasks they
+                # know, for late joiners and partitions: docs/fleet.md); both bid and agree
+                dec = view.wait(lambda: view.agreed("direct_t1", {ROBOT, PEER}), 30)
+                assert dec is not None and dec.bidders == [ROBOT, PEER], view.decisions("direct_t1")
+                flier = next(r for r, route in dec.routes.items() if route == ["d0"])
+                at = {ROBOT: r1, PEER: r2}[flier]
+                wait_until(lambda: target in _added(at, marks[flier]), 60, f"the fleet target at {flier}'s DSP")
+            finally:
+                view.close()
+            gcs.send(ROBOT, t.Hold())
+            with pytest.raises(NoReply):  # uav2 is not this station's to command: its own router refuses that
+                gcs.send(PEER, t.Hold(), timeout_s=3.0)
+        task_query = f"gcs may not query on {keys.ral_key(PEER, 'task')}"
+        wait_until(lambda: task_query in r1.router_log(), 30, "uav1's router refusing the command to uav2")
+        # the station's link (token, heartbeats on cromat/@gcs/**) is uav1's only: uav2's router refuses it too
+        link = re.compile(rf"denied: router-{ROBOT} may not (liveliness token|undeclare liveliness token|put) on "
+                          rf"\S*{re.escape(keys.gcs_key('gcs'))}[/ `]")
+        wait_until(lambda: link.search(r2.router_log()), 30, "uav2's router refusing uav1's station's link")
+        for robot, allowed in ((r1, [task_query]), (r2, [fleet])):
+            denied = [line for line in robot.router_log().splitlines() if " denied: " in line
+                      and not any(a in line for a in allowed) and not (robot is r2 and link.search(line))]
+            assert denied == [], denied
+    finally:
+        for la in reversed(launches):
+            try:
+                la.stop()
+            finally:
+                la.cleanup()
