@@ -22,9 +22,10 @@ def test_tcp_peers_are_accepted(tmp_path) -> None:
     assert Manager(m, out=lambda _line: None).m.raw.bus.peers == m.raw.bus.peers
 
 
-def test_a_tls_peer_is_refused_naming_the_key(tmp_path) -> None:
+def test_a_tls_peer_without_bus_tls_is_refused_naming_the_key(tmp_path) -> None:
     manifest, _ = fleet_manifest(tmp_path, "uav_p", [41001])
     manifest.write_text(manifest.read_text().replace('"tcp/127.0.0.1:41001"', '"tls/127.0.0.1:41001"'))
-    with pytest.raises(ManifestError, match=r"bus\.peers\.0: 'tls/127\.0\.0\.1:41001': the fleet mesh") as err:
+    refusal = r"bus\.peers\.0: 'tls/127\.0\.0\.1:41001': without \[bus\.tls\] the fleet mesh"
+    with pytest.raises(ManifestError, match=refusal) as err:
         load_manifest(manifest)
     assert str(manifest.name) in str(err.value)
