@@ -383,9 +383,6 @@ class Module:
             # datum's latency (docs/performance.md, "the loop's idle cycle").
             recv = channel.chan.recv
             try_recv = channel.chan.try_recv
-            decode = channel.decode
-            handler = channel.handler
-            acquire, release = self.lock.acquire, self.lock.release  # half the cost of ``with`` here
             while True:
                 self._blocked_on = channel
                 # re-checked after announcing the block: no lost wake-up
@@ -400,20 +397,7 @@ class Module:
                     self._channel_reader = None
                     break
                 self._blocked_on = None
-                payload = sample.payload.to_bytes()  # _handle_channel_sample, written out: the latency path
-                try:
-                    value = decode(payload)
-                except msgspec.MsgspecError as exc:
-                    if payload or not _is_wake(sample):
-                        self._reject(channel.spec.name, channel.key, exc, payload)
-                else:
-                    acquire()
-                    try:
-                        handler(value)
-                    except Exception:
-                        self._handler_failed(channel.spec.name)
-                    finally:
-                        release()
+                handle_one(channel, sample)
                 try:
                     sample = try_recv()
                 except zenoh.ZError:
@@ -472,11 +456,14 @@ class Module:
             if payload or not _is_wake(sample):
                 self._reject(reader.spec.name, reader.key, exc, payload)
             return
-        with self.lock:
-            try:
-                reader.handler(value)
-            except Exception:
-                self._handler_failed(reader.spec.name)
+        lock = self.lock
+        lock.acquire()  # not ``with``: half the cost here, on every idle datum's path
+        try:
+            reader.handler(value)
+        except Exception:
+            self._handler_failed(reader.spec.name)
+        finally:
+            lock.release()
 
     def _handler_failed(self, slot: str) -> None:
         self.log.exception("handler on_%s failed", slot)

@@ -57,6 +57,10 @@ class Slow(Module):
         self.ticks += 1
 
 
+def _beat_seq(sample) -> int:  # noqa: ANN001
+    return msgspec.msgpack.decode(sample.payload.to_bytes(), type=Heartbeat).seq
+
+
 @pytest.fixture
 def slow(router: int) -> Iterator[tuple[Slow, threading.Thread]]:
     mod = Slow(ModuleContext(robot="r1", module="slow", bus=local_client(router)))
@@ -106,9 +110,7 @@ def test_an_idle_loop_ticks_beats_runs_call_soon_and_stops(slow, sessions) -> No
     mod, loop = slow
     s = sessions()
     beats: list[int] = []
-    hb = s.declare_subscriber(keys.heartbeat_key("r1", "slow"),
-                              lambda smp: beats.append(msgspec.msgpack.decode(smp.payload.to_bytes(),
-                                                                              type=Heartbeat).seq))
+    hb = s.declare_subscriber(keys.heartbeat_key("r1", "slow"), lambda smp: beats.append(_beat_seq(smp)))
     wait_alive(s, "r1", "slow")
     wait_until(lambda: mod._blocked_on is not None, 10, "the loop blocked on its channel")
     ticks = mod.ticks
@@ -137,9 +139,7 @@ def test_a_steady_trickle_still_lets_ticks_heartbeats_and_call_soon_through(slow
     mod, loop = slow
     s = sessions()
     beats: list[int] = []
-    hb = s.declare_subscriber(keys.heartbeat_key("r1", "slow"),
-                              lambda smp: beats.append(msgspec.msgpack.decode(smp.payload.to_bytes(),
-                                                                              type=Heartbeat).seq))
+    hb = s.declare_subscriber(keys.heartbeat_key("r1", "slow"), lambda smp: beats.append(_beat_seq(smp)))
     wait_alive(s, "r1", "slow")
     pub = Publisher(s, keys.slot_key("r1", "feeder", "items"), InputSlot("items", Item, kind=Kind.STREAM))
     wait_until(lambda: mod._blocked_on is not None, 10, "the loop blocked on its channel")
