@@ -30,7 +30,7 @@ from pathlib import Path
 
 import msgspec
 from cryptography import x509
-from cryptography.exceptions import InvalidSignature
+from cryptography.exceptions import InvalidSignature, UnsupportedAlgorithm
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
@@ -152,19 +152,19 @@ def verify_task(task: FleetTask, trust: FleetTrust, now: float) -> str:
     try:
         cert = x509.load_der_x509_certificate(task.signer_cert)
         key = cert.public_key()
-    except (ValueError, TypeError) as exc:
+        constraints = cert.extensions.get_extension_for_class(x509.BasicConstraints).value
+    except x509.ExtensionNotFound:
+        constraints = None
+    except (ValueError, TypeError, UnsupportedAlgorithm) as exc:
         raise BadCertificate(f"unreadable signer certificate ({exc})") from exc
     if not isinstance(key, ec.EllipticCurvePublicKey) or not _p256(key):
         raise BadCertificate("signer certificate key is not EC P-256")
+    if constraints is not None and constraints.ca:
+        raise BadCertificate("signer certificate is a CA's")
     try:
         cert.verify_directly_issued_by(trust.ca)
-    except (ValueError, TypeError, InvalidSignature) as exc:
+    except (ValueError, TypeError, InvalidSignature, UnsupportedAlgorithm) as exc:
         raise UntrustedIssuer(f"signer certificate not issued by the fleet CA ({exc or type(exc).__name__})") from exc
-    try:
-        if cert.extensions.get_extension_for_class(x509.BasicConstraints).value.ca:
-            raise BadCertificate("signer certificate is a CA's")
-    except x509.ExtensionNotFound:
-        pass
     when = dt.datetime.fromtimestamp(now, dt.UTC)
     _valid_at(trust.ca, when, "fleet CA")
     _valid_at(cert, when, "signer certificate")

@@ -82,6 +82,9 @@ class TaskGate:
             except TaskRefused as exc:
                 why = type(exc).__name__
                 log.warning("fleet task %s from %s refused: %s", task.id, source, exc.reason)
+            except Exception as exc:  # a check that breaks refuses the task (fails closed), never the whole sample
+                why = "CheckFailed"
+                log.exception("fleet task %s from %s refused: its check failed (%s)", task.id, source, exc)
             self._seen[digest] = why
             while len(self._seen) > self.remember:
                 self._seen.popitem(last=False)

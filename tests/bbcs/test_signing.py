@@ -9,6 +9,10 @@ from pathlib import Path
 
 import msgspec
 import pytest
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
+from cryptography.x509.oid import NameOID
 
 from bbcs.contracts.fleet import FleetTarget, FleetTask, signed_bytes
 from bbcs.signing import (
@@ -161,3 +165,25 @@ def test_the_station_signs_only_in_range_tasks_with_its_own_key(pki: Pki) -> Non
         TaskSigner.from_files(pki.ground / "gcs.pem", pki.ground / "vision.key")
     with pytest.raises(SigningError, match="cannot read"):
         TaskSigner.from_files(pki.ground / "nobody.pem", pki.ground / "nobody.key")
+
+
+def test_a_certificate_whose_key_is_not_p256_is_refused_even_from_the_fleet_ca(pki: Pki, tmp_path: Path) -> None:
+    """An RSA ground-station certificate issued by the fleet CA itself (not something cromat certs makes)."""
+    ca_key = serialization.load_pem_private_key((pki.ca / "ca.key").read_bytes(), password=None)
+    ca_cert = x509.load_pem_x509_certificate((pki.ca / "ca.pem").read_bytes())
+    key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    start = dt.datetime.now(dt.UTC) - dt.timedelta(days=1)
+    cert = (x509.CertificateBuilder().subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "gcs")]))
+            .issuer_name(ca_cert.subject).public_key(key.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(start).not_valid_after(start + dt.timedelta(days=30))
+            .sign(ca_key, hashes.SHA256()))
+    signer = TaskSigner.from_files(pki.ground / "gcs.pem", pki.ground / "gcs.key")
+    forged = msgspec.structs.replace(signer.sign(TASK), signer_cert=cert.public_bytes(serialization.Encoding.DER))
+    err = refused(forged, pki.trust(), start.timestamp() + 3600.0)
+    assert isinstance(err, BadCertificate) and "not EC P-256" in err.reason
+    (tmp_path / "rsa.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    (tmp_path / "rsa.key").write_bytes(key.private_bytes(serialization.Encoding.PEM,
+                                                         serialization.PrivateFormat.PKCS8,
+                                                         serialization.NoEncryption()))
+    with pytest.raises(SigningError, match="EC P-256"):
+        TaskSigner.from_files(tmp_path / "rsa.pem", tmp_path / "rsa.key")
