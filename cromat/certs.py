@@ -17,8 +17,8 @@ config: :func:`bbcs.acl.hub_config`). The router's certificate carries the host 
 With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + access policy, see
 :mod:`bbcs.acl`) pointing at the robot folder. Keys are written mode 0600 and must never be committed.
 
-The openssl commands are listed in docs/security.md. (The ``cryptography`` package is not a dependency; the
-openssl command-line tool is used.)
+The openssl commands are listed in docs/security.md. (Certificates are made with the openssl command-line tool;
+the ``cryptography`` package only signs and checks fleet tasks, bbcs/signing.py.)
 """
 
 from __future__ import annotations

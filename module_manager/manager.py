@@ -362,7 +362,8 @@ class Manager:
         ctx = ModuleContext(robot=self.m.robot, module=info.name, bus=self.module_bus_for(self.m.identity(info.name)),
                             slot_table=self.m.slot_table,
                             routes=dict(mod.routes), conf=str(self.m.conf),
-                            params={k: self.expand(v) for k, v in info.spec.params.items()},
+                            params={**{k: self.expand(v) for k, v in info.spec.params.items()},
+                                    **secure.ral_fleet_params(self.m, info.name)},  # signed fleet tasks
                             restart_count=action.restart_count)
         now = self.clock()
         mod.run_count = action.restart_count + 1

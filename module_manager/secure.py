@@ -84,3 +84,12 @@ def client_bus(manifest: Manifest, connect: list[str], identity: str) -> Session
     return SessionConfig(mode="client", connect=list(connect), tls=TlsConfig(
         root_ca=str(pki / "ca.pem"), cert=str(pki / f"{identity}.pem"), key=str(pki / f"{identity}.key"),
         mtls=True))
+
+
+def ral_fleet_params(manifest: Manifest, module: str) -> dict[str, str]:
+    """The RAL's extra parameters on a secured robot: the fleet CA and the ground-station identities whose signed
+    fleet tasks it adopts (bbcs/signing.py, docs/fleet.md); nothing for other modules or an unsecured robot."""
+    tls = manifest.raw.bus.tls
+    if tls is None or manifest.pki is None or module != tls.ral:
+        return {}
+    return {"fleet_ca": str(manifest.pki / "ca.pem"), "fleet_signers": ",".join(tls.gcs)}

@@ -8,15 +8,21 @@ share through the RAL's ordinary task path.
 - The callbacks only hand samples to the node under a lock; the RAL's main-loop tick runs the protocol and
   queues what to fly as a job of the RAL's worker, which sends it through :meth:`Ral.handle` like a ground
   station's ``goto`` (admitted against the robot's own limits and geofence, then to the Module Manager).
+- On a secured robot (``[bus.tls]``) every fleet task, from a ground station's put or inside a peer's fleet
+  state, passes :class:`TaskGate` first: only a task signed by one of the manifest's ground stations with a
+  certificate of the fleet CA (``bbcs/signing.py``) reaches the protocol; anything else is dropped, counted and
+  logged once, so it is never adopted, bid on or relayed in this robot's own fleet state.
 - Losing the mesh changes nothing in the robot: its task, its failsafe and its link to its own modules go through
   its own router; only its view of the others goes stale.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import threading
 import time
+from collections import Counter, OrderedDict
 from collections.abc import Callable
 from typing import Any
 
@@ -28,6 +34,7 @@ from bbcs import keys
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetState, FleetTask
+from bbcs.signing import FleetTrust, TaskRefused, verify_task
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from ral.fleet_protocol import Execute, FleetConfig, FleetNode, OwnState
 
@@ -45,17 +52,62 @@ def can_do_from(param: str, kinds: list[str]) -> frozenset[str]:
     return frozenset({"visit"}) if "goto" in kinds else frozenset()
 
 
+class TaskGate:
+    """Which fleet tasks this robot may adopt. ``trust`` None (an unsecured robot): every task. Otherwise only
+    those :func:`bbcs.signing.verify_task` accepts at the time of ``clock``; a refusal is counted by reason
+    (``refused``) and logged once per distinct task, and remembered (up to ``remember`` tasks) so that a peer
+    republishing it every period costs a hash, not a verification."""
+
+    def __init__(self, trust: FleetTrust | None, clock: Callable[[], float], remember: int = 1024) -> None:
+        self.trust = trust
+        self.clock = clock
+        self.remember = remember
+        self.refused: Counter[str] = Counter()
+        """Refusal class name (``Unsigned``, ``BadSignature``, ...) → tasks dropped for it, every arrival counted."""
+        self.admitted = 0
+        self._seen: OrderedDict[bytes, str | None] = OrderedDict()
+
+    def admit(self, task: FleetTask, source: str) -> bool:
+        if self.trust is None:
+            return True
+        digest = hashlib.sha256(msgspec.msgpack.encode(task)).digest()
+        if digest in self._seen:
+            self._seen.move_to_end(digest)
+            why = self._seen[digest]
+        else:
+            try:
+                signer = verify_task(task, self.trust, self.clock())
+                why = None
+                log.info("fleet task %s from %s: signed by ground station %s", task.id, source, signer)
+            except TaskRefused as exc:
+                why = type(exc).__name__
+                log.warning("fleet task %s from %s refused: %s", task.id, source, exc.reason)
+            except Exception as exc:  # a check that breaks refuses the task (fails closed), never the whole sample
+                why = "CheckFailed"
+                log.exception("fleet task %s from %s refused: its check failed (%s)", task.id, source, exc)
+            self._seen[digest] = why
+            while len(self._seen) > self.remember:
+                self._seen.popitem(last=False)
+        if why is None:
+            self.admitted += 1
+            return True
+        self.refused[why] += 1
+        return False
+
+
 class FleetLink:
     """One RAL's fleet membership. ``own`` gives the robot's state at each tick; ``fly`` queues an Execute on the
     RAL's worker."""
 
     def __init__(self, robot: str, kind: str, own: Callable[[], OwnState], fly: Callable[[Execute], None],
-                 cfg: FleetConfig | None = None, clock: Callable[[], float] | None = None) -> None:
+                 cfg: FleetConfig | None = None, clock: Callable[[], float] | None = None,
+                 trust: FleetTrust | None = None) -> None:
         self.node = FleetNode(robot, kind, cfg)
         self.robot = robot
         self.own = own
         self.fly = fly
         self.clock = clock or time.time
+        self.gate = TaskGate(trust, self.clock)
         self.lock = threading.Lock()
         self.entities: list[Any] = []
         self.pub: Publisher[FleetState] | None = None
@@ -87,7 +139,13 @@ class FleetLink:
             log.warning("unreadable fleet task dropped: %s", exc)
             return
         with self.lock:
-            self.node.post(task, self.clock())
+            if self._admit(task, "a ground station's put"):
+                self.node.post(task, self.clock())
+
+    def _admit(self, task: FleetTask, source: str) -> bool:
+        """Under ``lock``: a task this node already adopted, unchanged, passes without a second verification."""
+        run = self.node.runs.get(task.id)
+        return (run is not None and run.task == task) or self.gate.admit(task, source)
 
     def _on_state(self, sample: zenoh.Sample) -> None:
         try:
@@ -96,6 +154,9 @@ class FleetLink:
             log.warning("unreadable fleet state dropped: %s", exc)
             return
         with self.lock:
+            tasks = [x for x in state.tasks if self._admit(x, f"{state.robot}'s fleet state")]
+            if len(tasks) != len(state.tasks):
+                state = msgspec.structs.replace(state, tasks=tasks)
             self.node.on_state(state, self.clock())
 
     def _on_alive(self, sample: zenoh.Sample) -> None:

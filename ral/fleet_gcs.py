@@ -1,7 +1,8 @@
 """The ground station's side of fleet allocation: post a fleet task, watch what every RAL decided.
 
 ``cromat gcs fleet post --target ID,LAT,LON,ALT[,KIND[,DEADLINE_S]] ...`` puts a :class:`FleetTask` on
-``cromat/@fleet/task/<id>`` through any router of the mesh, then waits until every robot that answered shows the
+``cromat/@fleet/task/<id>`` through any router of the mesh (signed with the station's ``--cert``/``--key`` when it
+has them: a secured robot adopts only signed tasks, docs/fleet.md), then waits until every robot that answered shows the
 same decision (equal digests) and prints who flies what. ``cromat gcs fleet status [TASK]`` prints the fleet
 states as they are now. The station allocates nothing: it only reads what the robots decided.
 """
@@ -19,6 +20,7 @@ import zenoh.ext
 
 from bbcs import keys
 from bbcs.contracts.fleet import MAX_TARGETS, FleetDecision, FleetState, FleetTarget, FleetTask
+from bbcs.signing import SigningError, TaskSigner
 from ral.gcs.waypoints import load_polygon
 from ral.survey_area import parse_area
 
@@ -47,8 +49,13 @@ class FleetView:
     def close(self) -> None:
         self._sub.undeclare()
 
-    def post(self, task: FleetTask) -> None:
+    def post(self, task: FleetTask, signer: TaskSigner | None = None) -> FleetTask:
+        """Put ``task``, signed by ``signer`` (a station with a TLS identity: secured robots adopt only signed
+        tasks, bbcs/signing.py); returns what was put."""
+        if signer is not None:
+            task = signer.sign(task)
         self.session.put(keys.fleet_task_key(task.id), msgspec.msgpack.encode(task))
+        return task
 
     def decisions(self, task: str) -> dict[str, FleetDecision]:
         """Robot → its latest decision for ``task``."""
@@ -168,7 +175,12 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
             except (ValueError, msgspec.ValidationError) as exc:
                 print(f"cromat gcs fleet: {exc}", file=out)
                 return 2
-            view.post(task)
+            try:  # a station with a TLS identity signs with it: a secured robot adopts nothing else
+                signer = TaskSigner.from_files(args.cert, args.key) if getattr(args, "cert", None) else None
+            except SigningError as exc:
+                print(f"cromat gcs fleet: {exc}", file=out)
+                return 2
+            view.post(task, signer)
             dec = view.wait(lambda: view.agreed(task.id), args.wait)
             if dec is None:
                 decs = view.decisions(task.id)

@@ -47,6 +47,7 @@ from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.trajectory import GeoPoint as TrajPoint
 from bbcs.contracts.trajectory import OrbitRequest, SurveyRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.module import Module
+from bbcs.signing import FleetTrust
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.fleet import FleetLink, can_do_from, goto_of, own_state_of
@@ -89,6 +90,12 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     """Fleet target kinds this robot bids on, comma-separated (``none``: never); empty: ``visit`` if it has goto."""
     fleet_bid_window_s: float = 2.0
     """Longest wait for every live RAL's bid before a fleet round is decided without it (ral/fleet.py)."""
+    fleet_ca: str = ""
+    """Set by the launch on a secured robot (``[bus.tls]``): the fleet CA (PEM) a ground station's certificate must
+    be issued by for this RAL to adopt a fleet task it signed (bbcs/signing.py). Empty on a TLS bus: the bus's CA."""
+    fleet_signers: str = ""
+    """Set by the launch with ``fleet_ca``: the ground-station identities (``[bus.tls] gcs``, comma-separated) whose
+    signature makes a fleet task adoptable; none on a TLS bus: every fleet task is refused."""
     sync_clock_offset_s: float = 0.0
     """Tests only: this robot's fleet-time clock runs this far from the host's (docs/sync.md)."""
     sync_clock_drift_ppm: float = 0.0
@@ -739,8 +746,24 @@ class Ral(Module):
                           reach_m=max(self.cfg.position_tolerance_m, 10.0),
                           reach_alt_m=max(self.cfg.altitude_tolerance_m, 5.0))
         self._fleet = FleetLink(self.robot, self.cfg.kind, self._fleet_own,
-                                lambda job: self._jobs.put(lambda: self._fleet_fly(job)), cfg, clock=self.clock)
+                                lambda job: self._jobs.put(lambda: self._fleet_fly(job)), cfg, clock=self.clock,
+                                trust=self._fleet_trust())
         self._fleet.start(session)
+
+    def _fleet_trust(self) -> FleetTrust | None:
+        """Who may sign the fleet tasks this RAL adopts: None (any task) unless the robot is secured, i.e. the
+        launch passed ``fleet_ca`` or the RAL's own bus is TLS."""
+        tls = self.context.bus.tls
+        ca = self.cfg.fleet_ca or (tls.root_ca if tls is not None else "")
+        if not ca:
+            return None
+        signers = [x.strip() for x in self.cfg.fleet_signers.split(",") if x.strip()]
+        trust = FleetTrust.from_files(ca, signers)
+        if signers:
+            self.log.info("fleet tasks adopted only if signed by %s (certificate of %s)", ", ".join(signers), ca)
+        else:
+            self.log.warning("secured bus but no fleet_signers: every fleet task is refused")
+        return trust
 
     def _fleet_own(self) -> OwnState:
         with self.lock:

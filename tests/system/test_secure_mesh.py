@@ -7,8 +7,13 @@ task: the robot's RAL bids, decides, and its goto reaches the DSP simulator (its
 decision. A router identity of another robot (a real ``router-uav2`` certificate from ``cromat certs --robot
 uav2``, linked to the robot's router as a Zenoh peer) posts a fleet task, submits a GRI goto, and puts a DSP
 command batch on the robot's key: none of it reaches the RAL or the DSP simulator; its own robot's put does
-arrive at a subscriber on the robot's router (the control that lets the test fail). A write of the robot's own
-command key relayed by the hub is refused by the robot's router.
+arrive at a subscriber on the robot's router (the control that lets the test fail). It also publishes a fleet
+state on its own robot's key (which its router may write) carrying forged fleet tasks: one unsigned, one signed by
+the station with its target moved afterwards, one signed with the peer router's own key; beside them a task the
+station did sign (relayed, as RALs do): the robot adopts and flies that one (the control) and refuses the
+forgeries (bbcs/signing.py): never bid on, never relayed, nothing of them at the DSP simulator. A write of the
+robot's own command key relayed by the hub is refused by the robot's router. Every station's fleet task is signed
+with its TLS identity.
 """
 
 from __future__ import annotations
@@ -26,8 +31,9 @@ import pytest
 from bbcs import keys
 from bbcs.contracts import dsp
 from bbcs.contracts import tasks as t
-from bbcs.contracts.fleet import FleetTarget, FleetTask
+from bbcs.contracts.fleet import FleetState, FleetTarget, FleetTask
 from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs.signing import TaskSigner
 from bbcs.testing import child_env, free_port, wait_until
 from cromat import certs
 from ral.fleet_gcs import FleetView
@@ -53,6 +59,11 @@ class Mesh:
         return Gcs(session_config([f"tls/127.0.0.1:{self.hub_port}"], ca=str(ground / "ca.pem"),
                                   cert=str(ground / "gcs.pem"), key=str(ground / "gcs.key"), connect_timeout_s=10.0),
                    name="gcs", link=[ROBOT], timeout_s=10.0)
+
+    def signer(self) -> TaskSigner:
+        """The ground station's signing identity: its own TLS certificate and key (ground folder)."""
+        ground = self.robot.pki.with_name("pki-ground")
+        return TaskSigner.from_files(ground / "gcs.pem", ground / "gcs.key")
 
     def peer_router(self) -> SessionConfig:
         """Another robot's router identity (CN router-uav2) linked to the robot's router as a Zenoh peer."""
@@ -130,6 +141,9 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
             forged_at = (round(home.lat - 0.0004, 4), round(home.lon - 0.0004, 4))
             goto_at = (round(home.lat - 0.0006, 4), round(home.lon + 0.0005, 4))
             dsp_at = (round(home.lat + 0.0007, 4), round(home.lon - 0.0006, 4))
+            unsigned_at = (round(home.lat - 0.0007, 4), round(home.lon - 0.0002, 4))
+            moved_at = (round(home.lat - 0.0002, 4), round(home.lon + 0.0007, 4))
+            self_signed_at = (round(home.lat + 0.0002, 4), round(home.lon - 0.0008, 4))
             with Gcs(mesh.peer_router(), name="router-uav2", timeout_s=3.0) as peer:
                 FleetView(peer.session).post(FleetTask(id="forged", targets=[FleetTarget(
                     id="f0", lat=forged_at[0], lon=forged_at[1], alt=home.alt + 10.0)], posted_by="gcs"))
@@ -140,12 +154,43 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
                     lat=dsp_at[0], lon=dsp_at[1], alt=home.alt + 10.0)])
                 peer.session.put(keys.slot_key(ROBOT, dsp.MODULE, dsp.commands_slot("path_follower")),
                                  msgspec.msgpack.encode(batch))
+                # a taken robot relays fleet tasks in its own fleet state (its router may write that key): one a
+                # ground station signed (relayed, as RALs do: the control, adopted) beside forgeries in the same
+                # sample: unsigned, a signed task with a moved target, one signed with the peer router's own key
+                relayed_at = (round(home.lat + 0.0005, 4), round(home.lon - 0.0003, 4))
+                relayed = mesh.signer().sign(FleetTask(id="relayed", targets=[FleetTarget(
+                    id="r0", lat=relayed_at[0], lon=relayed_at[1], alt=home.alt + 10.0)], posted_by="gcs"))
+                moved = msgspec.structs.replace(relayed, id="moved")
+                moved = mesh.signer().sign(moved)
+                moved = msgspec.structs.replace(moved, targets=[msgspec.structs.replace(
+                    moved.targets[0], lat=moved_at[0], lon=moved_at[1])])
+                peer_key = TaskSigner.from_files(mesh.peer_pki / "router.pem", mesh.peer_pki / "router.key")
+                state = FleetState(robot=PEER, kind="uav", stamp=0.0, tasks=[
+                    FleetTask(id="unsigned", targets=[FleetTarget(id="u0", lat=unsigned_at[0], lon=unsigned_at[1],
+                                                                  alt=home.alt + 10.0)], posted_by="gcs"),
+                    moved,
+                    peer_key.sign(FleetTask(id="self_signed", targets=[FleetTarget(
+                        id="s0", lat=self_signed_at[0], lon=self_signed_at[1], alt=home.alt + 10.0)])),
+                    relayed])
+                peer.session.put(keys.fleet_state_key(PEER), msgspec.msgpack.encode(state))
                 peer.session.put(own_key, b"after the forged writes")
                 wait_until(lambda: got, 30, "the peer router's own-robot put at a subscriber on the robot's router")
             sub.undeclare()
         finally:
             listener.close()
         assert got == ["after the forged writes"]
+        # the control: the signed task relayed in the peer's fleet state is adopted, decided, flown
+        dec = view.wait(lambda: view.agreed("relayed", {ROBOT}), 30)
+        assert dec is not None and dec.routes[ROBOT] == ["r0"], view.decisions("relayed")
+        wait_until(lambda: relayed_at in _added(robot, mark), 60, "the relayed signed task's target at the DSP")
+        # the forgeries of the same sample were refused by the RAL, each with its reason, never bid on
+        ral_log = robot.folder / "logs" / "ral.log"
+        for why in ("unsigned from uav2's fleet state refused: not signed by a ground station",
+                    "moved from uav2's fleet state refused: signature by 'gcs' does not match the task",
+                    "self_signed from uav2's fleet state refused: signer 'router-uav2' is not a ground station"):
+            wait_until(lambda why=why: why in ral_log.read_text(errors="replace"), 10, f"{why!r} in the RAL's log")
+        for forged in ("unsigned", "moved", "self_signed"):
+            assert view.answered(forged) == set() and view.decisions(forged) == {}, forged
         # a write of this robot's keys relayed by the hub (here from a session presenting this robot's own router
         # certificate, which the hub admits for uav1's keys) is refused by the robot's router: a hub never writes
         # this robot's keys
@@ -166,17 +211,22 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
         target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
         try:
             view.post(FleetTask(id="mesh_t1", targets=[FleetTarget(id="m0", lat=target[0], lon=target[1],
-                                                                   alt=home.alt + 10.0)], posted_by="gcs"))
+                                                                   alt=home.alt + 10.0)], posted_by="gcs"),
+                      mesh.signer())
             dec = view.wait(lambda: view.agreed("mesh_t1", {ROBOT}), 30)
             assert dec is not None and dec.bidders == [ROBOT] and dec.routes[ROBOT] == ["m0"], view.decisions(
                 "mesh_t1")
             wait_until(lambda: target in _added(robot, mark), 60, "the fleet target at the DSP simulator")
             # the forged fleet task was posted before the real one: had it got through, the RAL would have answered
             assert view.answered("forged") == set() and view.decisions("forged") == {}
+            for forged in ("unsigned", "moved", "self_signed"):
+                assert view.answered(forged) == set() and view.decisions(forged) == {}, forged
+            # and none of them is relayed in the robot's own fleet state
+            assert {x.id for x in view.states[ROBOT].tasks} == {"relayed", "mesh_t1"}, view.states[ROBOT].tasks
         finally:
             view.close()
         added = _added(robot, mark)
-        assert not {forged_at, goto_at, dsp_at, relay_at} & set(added), added
+        assert not {forged_at, goto_at, dsp_at, relay_at, unsigned_at, moved_at, self_signed_at} & set(added), added
         gcs.send(ROBOT, t.Hold())
     for denied in (f"router-uav2 may not put on {keys.fleet_task_key('forged')}",
                    f"router-uav2 may not query on {keys.ral_key(ROBOT, 'task')}",
@@ -188,7 +238,11 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
     others = [line for line in log.splitlines() if " denied: " in line and "router-uav2" not in line
               and f"denied: hub may not put on {command_key}" not in line]
     assert others == [], others
-    assert [line for line in mesh.hub_log.read_text().splitlines() if " denied: " in line] == []
+    # the hub refuses only the robot's router relaying the peer identity's fleet state (uav2's key under
+    # router-uav1's CN: a robot's router carries its own robot's keys only)
+    relayed_state = f"router-{ROBOT} may not put on {keys.fleet_state_key(PEER)}"
+    assert [line for line in mesh.hub_log.read_text().splitlines()
+            if " denied: " in line and relayed_state not in line] == []
 
 
 def _robot_manifest(folder: Path, name: str, port: int, peer: str, peer_port: int | None) -> tuple[Path, Path]:
@@ -241,8 +295,10 @@ def test_two_secured_robots_linked_directly_share_their_state_and_refuse_each_ot
                 assert view.wait(lambda: PEER in view.states and ROBOT in view.states, 30), sorted(view.states)
                 target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
                 marks = {ROBOT: len(r1.commands()), PEER: len(r2.commands())}
+                ground = pki1.with_name("pki-ground")
                 view.post(FleetTask(id="direct_t1", targets=[FleetTarget(id="d0", lat=target[0], lon=target[1],
-                                                                         alt=home.alt + 10.0)], posted_by="gcs"))
+                                                                         alt=home.alt + 10.0)], posted_by="gcs"),
+                          TaskSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
                 # the put itself is refused by uav2's router (it arrives under router-uav1's CN) ...
                 fleet = f"router-{ROBOT} may not put on {keys.fleet_task_key('direct_t1')}"
                 wait_until(lambda: fleet in r2.router_log(), 30, "uav2's router refusing the relayed fleet task")

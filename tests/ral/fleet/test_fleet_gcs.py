@@ -5,6 +5,7 @@ goto through its targets in order."""
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import msgspec
@@ -13,7 +14,9 @@ import pytest
 from bbcs import keys
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetTarget, FleetTask
+from bbcs.signing import FleetTrust, verify_task
 from bbcs.testing import wait_until
+from cromat import certs
 from ral.fleet import can_do_from, goto_of
 from ral.fleet_gcs import parse_area_arg, parse_target
 from ral.fleet_protocol import Execute
@@ -114,5 +117,34 @@ def test_cromat_gcs_fleet_post_sends_an_area_file_s_cells_and_nothing_for_a_bad_
         wait_until(lambda: len(got) == 2, 10, "the posted task")
         task = msgspec.msgpack.decode(got[1], type=FleetTask)
         assert task.id == "field" and task.balance and task.targets == area_targets("field", FIELD, 22.0, 60.0)
+    finally:
+        sub.undeclare()
+
+
+def test_cromat_gcs_fleet_post_signs_with_the_station_s_certificate_and_refuses_a_key_not_its_own(
+        router: int, clients, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Over a real router: with ``--cert``/``--key`` the task on the bus carries the station's certificate and a
+    signature that verifies (bbcs/signing.py); a key that is not the certificate's exits 2 and puts nothing."""
+    (tmp_path / "ca").mkdir()
+    certs.make_ca(tmp_path / "ca")
+    for name in ("gcs", "other"):
+        certs.make_leaf(tmp_path / "ground", name, ca_dir=tmp_path / "ca")
+    ground = tmp_path / "ground"
+    listener = clients(router)
+    got: list[bytes] = []
+    sub = listener.declare_subscriber(keys.fleet_task_key("*"), lambda s: got.append(s.payload.to_bytes()))
+    try:
+        base = ["--connect", f"tcp/127.0.0.1:{router}", "--name", "poster", "--cert", str(ground / "gcs.pem")]
+        post = ["fleet", "post", "--wait", "0.5", "--target", "t0,37.41,-6.0,22"]
+        assert cli.main([*base, "--key", str(ground / "other.key"), *post, "--id", "mismatched"]) == 2
+        assert "is not the key of" in capsys.readouterr().out
+        clients(router).put(keys.fleet_task_key("marker"), b"marker")
+        wait_until(lambda: got, 10, "the marker")
+        assert got == [b"marker"], "nothing was posted with a key that is not the certificate's"
+        assert cli.main([*base, "--key", str(ground / "gcs.key"), *post, "--id", "signed"]) == 3
+        wait_until(lambda: len(got) == 2, 10, "the posted task")
+        task = msgspec.msgpack.decode(got[1], type=FleetTask)
+        trust = FleetTrust.from_files(tmp_path / "ca" / "ca.pem", ["gcs"])
+        assert task.id == "signed" and verify_task(task, trust, time.time()) == "gcs"
     finally:
         sub.undeclare()

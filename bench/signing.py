@@ -1,0 +1,84 @@
+"""What signed fleet tasks cost (bbcs/signing.py): the ground station's signature per task, a secured RAL's
+verification per task (first sight), and a task seen again (a peer republishing its fleet state every period:
+a hash, ``TaskGate``'s memory), against the baseline every RAL already pays, decoding the task from msgpack.
+
+``python bench/signing.py [--n 300]``: certificates from ``cromat certs`` in a temporary folder, one task of 1
+target and one of ``MAX_TARGETS``; writes bench/results/signing.json, ``summary``: ``sign_us_p50``,
+``verify_us_p50``, ``seen_again_us_p50``, ``decode_us_p50`` (1-target task), and ``task_bytes_signed`` /
+``task_bytes_unsigned``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import msgspec
+from benchlib import pct, write_results
+
+from bbcs.contracts.fleet import MAX_TARGETS, FleetTarget, FleetTask
+from bbcs.signing import FleetTrust, TaskSigner, verify_task
+from cromat import certs
+from ral.fleet import TaskGate
+
+
+def task_of(n: int) -> FleetTask:
+    return FleetTask(id=f"bench{n}", targets=[FleetTarget(id=f"t{i}", lat=37.41 + i * 1e-4, lon=-6.0, alt=30.0)
+                                              for i in range(n)], posted_by="cromat gcs")
+
+
+def timed_us(fn, n: int) -> list[float]:
+    out = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        fn()
+        out.append((time.perf_counter() - t0) * 1e6)
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--n", type=int, default=300, help="repetitions per measurement (300)")
+    p.add_argument("--out", help="results file (default bench/results/signing.json)")
+    args = p.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        (root / "ca").mkdir()
+        certs.make_ca(root / "ca")
+        certs.make_leaf(root / "ground", "gcs", ca_dir=root / "ca")
+        signer = TaskSigner.from_files(root / "ground" / "gcs.pem", root / "ground" / "gcs.key")
+        trust = FleetTrust.from_files(root / "ca" / "ca.pem", ["gcs"])
+    now = time.time()
+    rows = []
+    for size in (1, MAX_TARGETS):
+        task = task_of(size)
+        signed = signer.sign(task)
+        wire = msgspec.msgpack.encode(signed)
+        gate = TaskGate(trust, lambda: now)
+        assert gate.admit(signed, "bench")
+        rows.append({
+            "targets": size,
+            "bytes_unsigned": len(msgspec.msgpack.encode(task)),
+            "bytes_signed": len(wire),
+            "decode_us": pct(timed_us(lambda w=wire: msgspec.msgpack.decode(w, type=FleetTask), args.n), 50),
+            "sign_us": pct(timed_us(lambda t=task: signer.sign(t), args.n), 50),
+            "verify_us": pct(timed_us(lambda s=signed: verify_task(s, trust, now), args.n), 50),
+            "seen_again_us": pct(timed_us(lambda s=signed, g=gate: g.admit(s, "bench"), args.n), 50),
+        })
+    print(f"{'targets':>7} {'bytes':>13} {'decode µs':>10} {'sign µs':>9} {'verify µs':>10} {'seen again µs':>14}")
+    for r in rows:
+        print(f"{r['targets']:>7} {r['bytes_unsigned']:>6}→{r['bytes_signed']:<6} {r['decode_us']:>10.1f} "
+              f"{r['sign_us']:>9.1f} {r['verify_us']:>10.1f} {r['seen_again_us']:>14.1f}")
+    one = rows[0]
+    summary = {"sign_us_p50": round(one["sign_us"], 1), "verify_us_p50": round(one["verify_us"], 1),
+               "seen_again_us_p50": round(one["seen_again_us"], 1), "decode_us_p50": round(one["decode_us"], 1),
+               "task_bytes_unsigned": one["bytes_unsigned"], "task_bytes_signed": one["bytes_signed"]}
+    path = write_results("signing", {"summary": summary, "rows": rows, "n": args.n}, args.out)
+    print(f"results: {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
