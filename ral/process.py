@@ -788,7 +788,8 @@ class Ral(Module):
         assert self.session is not None
         self.sync_clock = SkewedClock(self.cfg.sync_clock_offset_s, self.cfg.sync_clock_drift_ppm)
         self.world_node = WorldNode(self.session, self.robot, self.sync_clock, start_task=self.world_sync_handle,
-                               point_at=self._point_at_target)
+                               point_at=self._point_at_target,
+                               trust=self._fleet.gate.trust if self._fleet is not None else None)
         self.sync_node = SyncNode(self.session, self.robot, self.sync_clock, start_task=self.world_sync_handle,
                                    check_task=self._world_sync_check)
 
