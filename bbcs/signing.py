@@ -91,6 +91,14 @@ def common_name(cert: x509.Certificate) -> str:
     return value if isinstance(value, str) else value.decode(errors="replace")
 
 
+def signer_name(signer_cert: bytes) -> str:
+    """The CN of a signed item's certificate, for display (not a check: :func:`verify` is); "" if unreadable."""
+    try:
+        return common_name(x509.load_der_x509_certificate(signer_cert))
+    except (ValueError, TypeError):
+        return ""
+
+
 def _p256(key: object) -> bool:
     return isinstance(key, ec.EllipticCurvePublicKey | ec.EllipticCurvePrivateKey) and key.curve.name == "secp256r1"
 

@@ -20,7 +20,7 @@ import msgspec
 from bbcs.contracts import sync as s
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
-from bbcs.signing import SigningError, StationSigner
+from bbcs.signing import SigningError, StationSigner, signer_name
 from ral import sync
 from ral.gcs.api import Gcs, GcsError, NoReply, UsageError
 from ral.gcs.waypoints import WaypointFileError, load_polygon
@@ -199,7 +199,8 @@ def format_entry(e: w.WorldEntry) -> str:
         return f"{head} target   {b.lat:.6f} {b.lon:.6f} {b.alt:.1f} m, seen by {b.seen_by} at {b.seen_at:.3f}"
     kind = {"no_fly_zone": "no-fly", "geofence": "geofence", "surveyed": "surveyed"}[str(type(b).__struct_config__.tag)]
     name = f" ({b.name})" if getattr(b, "name", "") else ""
-    return f"{head} {kind:<8} {len(b.polygon)} vertices{name}"
+    signed = f", signed by {signer_name(e.signer_cert) or '?'}" if e.signer_cert else ""
+    return f"{head} {kind:<8} {len(b.polygon)} vertices{name}{signed}"
 
 
 def _entry_id(args: argparse.Namespace) -> str:

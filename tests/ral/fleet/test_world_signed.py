@@ -249,6 +249,8 @@ def test_gcs_world_signs_with_the_stations_certificate(pki: Pki, nodes, router: 
     assert "added mast (version 1)" in capsys.readouterr().out
     entry = a.get("mast")
     assert entry is not None and world.entry_signer(entry, pki.trust, pki.now) == "gcs"
+    assert cli.main([*base, "world", "show", "uav_a"]) == 0
+    assert "no-fly   4 vertices (radio mast), signed by gcs" in capsys.readouterr().out
     assert cli.main([*base, "world", "remove", "uav_a", "mast"]) == 1
     assert "removal of 'mast' not applied" in capsys.readouterr().out and a.get("mast") == entry
     # a key that is not the certificate's: exit 2, nothing sent
