@@ -760,9 +760,10 @@ class Ral(Module):
         signers = [x.strip() for x in self.cfg.fleet_signers.split(",") if x.strip()]
         trust = FleetTrust.from_files(ca, signers)
         if signers:
-            self.log.info("fleet tasks adopted only if signed by %s (certificate of %s)", ", ".join(signers), ca)
+            self.log.info("fleet tasks and world zone edits adopted only if signed by %s (certificate of %s)",
+                          ", ".join(signers), ca)
         else:
-            self.log.warning("secured bus but no fleet_signers: every fleet task is refused")
+            self.log.warning("secured bus but no fleet_signers: every fleet task and world zone edit is refused")
         return trust
 
     def _fleet_own(self) -> OwnState:

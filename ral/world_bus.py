@@ -212,7 +212,9 @@ class WorldNode:
         station signed it: nothing changes otherwise)."""
         signed = w.edit_of_request(edit)
         if self.gate.trust is not None and signed is not None:
-            what = f"{'removal of' if isinstance(edit, w.WorldDelete) else 'zone'} {edit.id!r}"
+            kind = ("removal of" if isinstance(edit, w.WorldDelete)
+                    else "zone" if isinstance(edit.body, w.NoFlyZone | w.Geofence) else "entry")
+            what = f"{kind} {edit.id!r}"
             with self._gate_lock:
                 why = self.gate.refusal(signed, "a ground station's request", what)
             if why is not None:
