@@ -345,7 +345,8 @@ def test_a_peer_robots_router_cannot_remove_a_station_signed_zone_nor_add_its_ow
     adds a no-fly zone through the robot (unsigned: refused; signed: applied). The peer robot's router identity
     publishes on its own ``@ral/world`` key (which its router may write) an update removing that zone (unsigned,
     and with the signature of a removal the station signed for another id), adding an unsigned zone, and its own
-    robot's target (the control: robots' own entries are not signed, so it arrives). The robot keeps the zone (a
+    robot's target (the control: robots' own entries are not signed, so it arrives); then serves them, and one
+    more fake zone, as its snapshot (``@ral/world_model``, asked for on a differing digest). The robot keeps the zone (a
     goto into it is refused, nothing of it at the DSP simulator) and never holds the fake one; the station's signed
     removal still applies (the same goto then reaches the DSP simulator)."""
     robot = mesh.robot
@@ -381,13 +382,31 @@ def test_a_peer_robots_router_cannot_remove_a_station_signed_zone_nor_add_its_ow
                 return f"target.{PEER}" in held()
 
             wait_until(published, 30, "the peer's own target in the robot's world model (the control)")
+            # the same forgeries and one more in the peer's snapshot, which the robot asks for when the peer's
+            # digest differs from its own (anti-entropy); the peer's target, a version on, is the control
+            fake2 = w.WorldEntry(id="fake2", version=1, origin=PEER, stamp=1.0,
+                                 body=w.Geofence(polygon=_square(*fake_at, 0.001)))
+            control = msgspec.structs.replace(update.entries[-1], version=2)
+            snapshot = w.WorldSnapshot(robot=PEER, digest="forged", entries=[*update.entries[:-1], fake2, control])
+            served = peer.session.declare_queryable(w.world_model_key(PEER), lambda q: q.reply(
+                w.world_model_key(PEER), msgspec.msgpack.encode(snapshot)))
+            try:
+                def asked() -> bool:
+                    peer.session.put(w.world_digest_key(PEER), msgspec.msgpack.encode(
+                        w.WorldDigest(robot=PEER, digest="forged", entries=len(snapshot.entries))))
+                    return held()[f"target.{PEER}"].version == 2
+
+                wait_until(asked, 30, "the peer's snapshot merged by the robot (its target, version 2)")
+            finally:
+                served.undeclare()
         model = held()
-        assert model["mast"] == added.entry and "fake" not in model, model
+        assert model["mast"] == added.entry and "fake" not in model and "fake2" not in model, model
         ral_log = robot.folder / "logs" / "ral.log"
         source = f"from the update on {w.world_key(PEER)} refused"
         for why in (f"removal of 'mast' v5 {source}: not signed by a ground station",
                     f"removal of 'mast' v6 {source}: signature by 'gcs' does not match the edit",
-                    f"entry 'fake' v1 {source}: not signed by a ground station"):
+                    f"entry 'fake' v1 {source}: not signed by a ground station",
+                    f"entry 'fake2' v1 from {PEER}'s snapshot refused: not signed by a ground station"):
             wait_until(lambda why=why: why in ral_log.read_text(errors="replace"), 10, f"{why!r} in the RAL's log")
             assert ral_log.read_text(errors="replace").count(why) == 1, why  # logged once, however often it came
         # by effect: a goto into the zone is refused and sends nothing; a marker goto after it reaches the DSP
