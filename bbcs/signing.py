@@ -1,13 +1,15 @@
-"""Fleet tasks signed by the ground station that posts them, checked by every secured RAL before it adopts one.
+"""Items signed by the ground station that asks for them, checked by every secured RAL before it uses one: fleet
+tasks (docs/fleet.md) and zone edits of the world model (docs/world.md).
 
-On a secured fleet the routers check who writes which key, but a RAL relays the fleet tasks it knows inside its
-own fleet state (docs/fleet.md). A signature lets every robot check that a task, however it arrived, is one a
-ground station posted, unchanged: ECDSA P-256 / SHA-256 over :func:`bbcs.contracts.fleet.signed_bytes`, by the
-key of the station's certificate from ``cromat certs`` (its CN is the station's identity), the certificate
-carried in the task (DER).
+On a secured fleet the routers check who writes which key, but a RAL relays the fleet tasks and world entries it
+knows on its own keys. A signature lets every robot check that an item, however it arrived, is one a ground
+station asked for, unchanged: ECDSA P-256 / SHA-256 over :func:`bbcs.contracts.signed.signed_bytes`, by the key of
+the station's certificate from ``cromat certs`` (its CN is the station's identity), the certificate carried in the
+item (DER). A signed item is any struct with the fields ``signer_cert`` and ``signature``
+(:class:`bbcs.contracts.fleet.FleetTask`, :class:`bbcs.contracts.world.StationEdit`).
 
-:func:`verify_task` is the robot's decision, a pure function of the task, what the robot trusts (the fleet CA and
-its manifest's ground-station identities) and the time: it returns the signer's CN or raises one of
+:func:`verify` is the robot's decision, a pure function of the item, what the robot trusts (the fleet CA and its
+manifest's ground-station identities) and the time: it returns the signer's CN or raises one of
 
 - :class:`Unsigned`: no signature or no certificate;
 - :class:`BadCertificate`: the certificate cannot be read, or its key is not EC P-256, or it is a CA;
@@ -15,11 +17,12 @@ its manifest's ground-station identities) and the time: it returns the signer's 
 - :class:`NotValidNow`: outside its validity dates (or the CA's);
 - :class:`NotAGroundStation`: its CN is not one of the manifest's ground-station identities (a module's, a
   router's);
-- :class:`BadSignature`: the signature does not verify over the task (a changed target, speed, id, ...),
+- :class:`BadSignature`: the signature does not verify over the item (a changed target, speed, id, polygon, ...),
 
-all :class:`TaskRefused`, whose ``reason`` says which in a few words. Only certificates issued directly by the
+all :class:`SignatureRefused`, whose ``reason`` says which in a few words. Only certificates issued directly by the
 fleet CA are accepted (``cromat certs`` issues no intermediates); revocation is not checked (docs/security.md).
-X.509 parsing and ECDSA come from the ``cryptography`` package, not written here.
+X.509 parsing and ECDSA come from the ``cryptography`` package, not written here. ``verify_task``,
+``TaskRefused`` and ``TaskSigner`` are the names fleet code has used since tasks were signed first.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from __future__ import annotations
 import datetime as dt
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import msgspec
 from cryptography import x509
@@ -35,45 +39,50 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
-from bbcs.contracts.fleet import FleetTask, signed_bytes
+from bbcs.contracts.fleet import FleetTask
+from bbcs.contracts.signed import signed_bytes
 
 _ECDSA = ec.ECDSA(hashes.SHA256())
+Signed = TypeVar("Signed", bound=msgspec.Struct)
 
 
 class SigningError(Exception):
     """The station cannot sign: unreadable files, a key that is not EC P-256, or not the certificate's key."""
 
 
-class TaskRefused(Exception):
-    """A fleet task a secured robot does not adopt; ``reason`` says why."""
+class SignatureRefused(Exception):
+    """A signed item (fleet task, zone edit) a secured robot does not use; ``reason`` says why."""
 
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
         self.reason = reason
 
 
-class Unsigned(TaskRefused):
+class Unsigned(SignatureRefused):
     pass
 
 
-class BadCertificate(TaskRefused):
+class BadCertificate(SignatureRefused):
     pass
 
 
-class UntrustedIssuer(TaskRefused):
+class UntrustedIssuer(SignatureRefused):
     pass
 
 
-class NotValidNow(TaskRefused):
+class NotValidNow(SignatureRefused):
     pass
 
 
-class NotAGroundStation(TaskRefused):
+class NotAGroundStation(SignatureRefused):
     pass
 
 
-class BadSignature(TaskRefused):
+class BadSignature(SignatureRefused):
     pass
+
+
+TaskRefused = SignatureRefused
 
 
 def common_name(cert: x509.Certificate) -> str:
@@ -82,26 +91,34 @@ def common_name(cert: x509.Certificate) -> str:
     return value if isinstance(value, str) else value.decode(errors="replace")
 
 
+def signer_name(signer_cert: bytes) -> str:
+    """The CN of a signed item's certificate, for display (not a check: :func:`verify` is); "" if unreadable."""
+    try:
+        return common_name(x509.load_der_x509_certificate(signer_cert))
+    except (ValueError, TypeError):
+        return ""
+
+
 def _p256(key: object) -> bool:
     return isinstance(key, ec.EllipticCurvePublicKey | ec.EllipticCurvePrivateKey) and key.curve.name == "secp256r1"
 
 
 @dataclass(frozen=True)
-class TaskSigner:
+class StationSigner:
     """A ground station's signing identity: its certificate and private key (the pair it uses for mutual TLS)."""
 
     cert: x509.Certificate
     key: ec.EllipticCurvePrivateKey
 
     @classmethod
-    def from_files(cls, cert_pem: str | Path, key_pem: str | Path) -> TaskSigner:
+    def from_files(cls, cert_pem: str | Path, key_pem: str | Path) -> StationSigner:
         try:
             cert = x509.load_pem_x509_certificate(Path(cert_pem).read_bytes())
             key = serialization.load_pem_private_key(Path(key_pem).read_bytes(), password=None)
         except (OSError, ValueError, TypeError) as exc:
             raise SigningError(f"cannot read the station's certificate {cert_pem} or key {key_pem}: {exc}") from exc
         if not isinstance(key, ec.EllipticCurvePrivateKey) or not _p256(key):
-            raise SigningError(f"{key_pem}: fleet tasks are signed with an EC P-256 key (cromat certs makes them)")
+            raise SigningError(f"{key_pem}: a station signs with an EC P-256 key (cromat certs makes them)")
         if cert.public_key() != key.public_key():
             raise SigningError(f"{key_pem} is not the key of {cert_pem}")
         return cls(cert, key)
@@ -110,20 +127,23 @@ class TaskSigner:
     def name(self) -> str:
         return common_name(self.cert)
 
-    def sign(self, task: FleetTask) -> FleetTask:
-        """``task`` as the wire carries it (checked against its declared ranges), with this station's certificate
-        and signature. A task out of range raises ``msgspec.ValidationError`` and is not signed."""
-        wire = msgspec.msgpack.decode(msgspec.msgpack.encode(task), type=FleetTask)  # ranges, floats as floats
+    def sign(self, item: Signed) -> Signed:
+        """``item`` as the wire carries it (checked against its declared ranges), with this station's certificate
+        and signature. An item out of range raises ``msgspec.ValidationError`` and is not signed."""
+        wire = msgspec.msgpack.decode(msgspec.msgpack.encode(item), type=type(item))  # ranges, floats as floats
         unsigned = msgspec.structs.replace(wire, signer_cert=b"", signature=b"")
         signature = self.key.sign(signed_bytes(unsigned), _ECDSA)
         return msgspec.structs.replace(unsigned, signer_cert=self.cert.public_bytes(serialization.Encoding.DER),
                                        signature=signature)
 
 
+TaskSigner = StationSigner
+
+
 @dataclass(frozen=True)
 class FleetTrust:
-    """What a secured robot trusts to sign fleet tasks: certificates issued by the fleet CA with one of these CNs
-    (the manifest's ``[bus.tls] gcs``)."""
+    """What a secured robot trusts to sign fleet tasks and zone edits: certificates issued by the fleet CA with one
+    of these CNs (the manifest's ``[bus.tls] gcs``)."""
 
     ca: x509.Certificate
     stations: frozenset[str]
@@ -144,13 +164,15 @@ def _valid_at(cert: x509.Certificate, when: dt.datetime, what: str) -> None:
         raise NotValidNow(f"{what} expired {cert.not_valid_after_utc:%Y-%m-%d %H:%M:%S} UTC")
 
 
-def verify_task(task: FleetTask, trust: FleetTrust, now: float) -> str:
-    """The signer's CN if ``task`` is signed by a ground station the robot trusts, valid at ``now`` (seconds since
-    the epoch); else raises :class:`TaskRefused` (which one: the module's docstring)."""
-    if not task.signature or not task.signer_cert:
+def verify(item: msgspec.Struct, trust: FleetTrust, now: float) -> str:
+    """The signer's CN if ``item`` is signed by a ground station the robot trusts, valid at ``now`` (seconds since
+    the epoch); else raises :class:`SignatureRefused` (which one: the module's docstring)."""
+    signer_cert: bytes = getattr(item, "signer_cert", b"")
+    signature: bytes = getattr(item, "signature", b"")
+    if not signature or not signer_cert:
         raise Unsigned("not signed by a ground station")
     try:
-        cert = x509.load_der_x509_certificate(task.signer_cert)
+        cert = x509.load_der_x509_certificate(signer_cert)
         key = cert.public_key()
         constraints = cert.extensions.get_extension_for_class(x509.BasicConstraints).value
     except x509.ExtensionNotFound:
@@ -173,7 +195,11 @@ def verify_task(task: FleetTask, trust: FleetTrust, now: float) -> str:
         raise NotAGroundStation(f"signer {name!r} is not a ground station of this robot "
                                 f"({', '.join(sorted(trust.stations)) or 'none listed'})")
     try:
-        key.verify(task.signature, signed_bytes(task), _ECDSA)
+        key.verify(signature, signed_bytes(item), _ECDSA)
     except InvalidSignature:
-        raise BadSignature(f"signature by {name!r} does not match the task (changed after signing)") from None
+        what = "task" if isinstance(item, FleetTask) else "edit"
+        raise BadSignature(f"signature by {name!r} does not match the {what} (changed after signing)") from None
     return name
+
+
+verify_task = verify

@@ -18,11 +18,9 @@ share through the RAL's ordinary task path.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import threading
 import time
-from collections import Counter, OrderedDict
 from collections.abc import Callable
 from typing import Any
 
@@ -34,9 +32,10 @@ from bbcs import keys
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetState, FleetTask
-from bbcs.signing import FleetTrust, TaskRefused, verify_task
+from bbcs.signing import FleetTrust
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from ral.fleet_protocol import Execute, FleetConfig, FleetNode, OwnState
+from ral.signed import SignatureGate
 
 log = logging.getLogger("ral.fleet")
 DEFAULT_SPEED = 5.0
@@ -52,47 +51,15 @@ def can_do_from(param: str, kinds: list[str]) -> frozenset[str]:
     return frozenset({"visit"}) if "goto" in kinds else frozenset()
 
 
-class TaskGate:
-    """Which fleet tasks this robot may adopt. ``trust`` None (an unsecured robot): every task. Otherwise only
-    those :func:`bbcs.signing.verify_task` accepts at the time of ``clock``; a refusal is counted by reason
-    (``refused``) and logged once per distinct task, and remembered (up to ``remember`` tasks) so that a peer
-    republishing it every period costs a hash, not a verification."""
+class TaskGate(SignatureGate):
+    """Which fleet tasks this robot may adopt (:class:`~ral.signed.SignatureGate` over
+    :func:`bbcs.signing.verify_task`)."""
 
     def __init__(self, trust: FleetTrust | None, clock: Callable[[], float], remember: int = 1024) -> None:
-        self.trust = trust
-        self.clock = clock
-        self.remember = remember
-        self.refused: Counter[str] = Counter()
-        """Refusal class name (``Unsigned``, ``BadSignature``, ...) → tasks dropped for it, every arrival counted."""
-        self.admitted = 0
-        self._seen: OrderedDict[bytes, str | None] = OrderedDict()
+        super().__init__(trust, clock, "fleet task", remember, logger=log)
 
-    def admit(self, task: FleetTask, source: str) -> bool:
-        if self.trust is None:
-            return True
-        digest = hashlib.sha256(msgspec.msgpack.encode(task)).digest()
-        if digest in self._seen:
-            self._seen.move_to_end(digest)
-            why = self._seen[digest]
-        else:
-            try:
-                signer = verify_task(task, self.trust, self.clock())
-                why = None
-                log.info("fleet task %s from %s: signed by ground station %s", task.id, source, signer)
-            except TaskRefused as exc:
-                why = type(exc).__name__
-                log.warning("fleet task %s from %s refused: %s", task.id, source, exc.reason)
-            except Exception as exc:  # a check that breaks refuses the task (fails closed), never the whole sample
-                why = "CheckFailed"
-                log.exception("fleet task %s from %s refused: its check failed (%s)", task.id, source, exc)
-            self._seen[digest] = why
-            while len(self._seen) > self.remember:
-                self._seen.popitem(last=False)
-        if why is None:
-            self.admitted += 1
-            return True
-        self.refused[why] += 1
-        return False
+    def admit(self, task: FleetTask, source: str, label: str = "") -> bool:  # type: ignore[override]
+        return super().admit(task, source, label or task.id)
 
 
 class FleetLink:

@@ -760,9 +760,10 @@ class Ral(Module):
         signers = [x.strip() for x in self.cfg.fleet_signers.split(",") if x.strip()]
         trust = FleetTrust.from_files(ca, signers)
         if signers:
-            self.log.info("fleet tasks adopted only if signed by %s (certificate of %s)", ", ".join(signers), ca)
+            self.log.info("fleet tasks and world zone edits adopted only if signed by %s (certificate of %s)",
+                          ", ".join(signers), ca)
         else:
-            self.log.warning("secured bus but no fleet_signers: every fleet task is refused")
+            self.log.warning("secured bus but no fleet_signers: every fleet task and world zone edit is refused")
         return trust
 
     def _fleet_own(self) -> OwnState:
@@ -788,7 +789,8 @@ class Ral(Module):
         assert self.session is not None
         self.sync_clock = SkewedClock(self.cfg.sync_clock_offset_s, self.cfg.sync_clock_drift_ppm)
         self.world_node = WorldNode(self.session, self.robot, self.sync_clock, start_task=self.world_sync_handle,
-                               point_at=self._point_at_target)
+                               point_at=self._point_at_target,
+                               trust=self._fleet.gate.trust if self._fleet is not None else None)
         self.sync_node = SyncNode(self.session, self.robot, self.sync_clock, start_task=self.world_sync_handle,
                                    check_task=self._world_sync_check)
 

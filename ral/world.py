@@ -6,6 +6,8 @@
 - :func:`refusal`: why a task must not run given the model (a point inside, or a leg across, a no-fly zone; a
   point outside every geofence), or None.
 - :func:`target_entry`: a vision target report → the robot's target entry, at most once per second or 2 m.
+- :func:`check_edit` / :func:`entry_signer`: on a secured fleet, whether a zone entry or a removal was signed by a
+  ground station the robot trusts (bbcs/signing.py); a robot's own entries need no signature.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import msgspec
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
 from bbcs.contracts.geo import GeoPoint
+from bbcs.signing import FleetTrust, SignatureRefused, verify
 from ral import world_geometry as g
 
 _encoder = msgspec.msgpack.Encoder(order="deterministic")
@@ -48,21 +51,23 @@ class WorldModel:
         """Merge several; the ones that changed the model."""
         return [e for e in entries if self.merge(e)]
 
-    def put(self, entry_id: str, body: w.Body, *, origin: str, stamp: float, author: str = "") -> w.WorldEntry:
-        """A local write: the next version of ``entry_id``."""
+    def put(self, entry_id: str, body: w.Body, *, origin: str, stamp: float, author: str = "",
+            signer_cert: bytes = b"", signature: bytes = b"") -> w.WorldEntry:
+        """A local write: the next version of ``entry_id`` (with the station's signature of the edit, if any)."""
         held = self._entries.get(entry_id)
         entry = w.WorldEntry(id=entry_id, version=(held.version if held else 0) + 1, origin=origin, stamp=stamp,
-                             body=body, author=author or origin)
+                             body=body, author=author or origin, signer_cert=signer_cert, signature=signature)
         self.merge(entry)
         return entry
 
-    def delete(self, entry_id: str, *, origin: str, stamp: float, author: str = "") -> w.WorldEntry | None:
+    def delete(self, entry_id: str, *, origin: str, stamp: float, author: str = "", signer_cert: bytes = b"",
+               signature: bytes = b"") -> w.WorldEntry | None:
         """A local removal (a tombstone); None when there is nothing live under ``entry_id``."""
         held = self._entries.get(entry_id)
         if held is None or held.deleted:
             return None
         entry = w.WorldEntry(id=entry_id, version=held.version + 1, origin=origin, stamp=stamp, deleted=True,
-                             author=author or origin)
+                             author=author or origin, signer_cert=signer_cert, signature=signature)
         self.merge(entry)
         return entry
 
@@ -146,6 +151,29 @@ def refusal(model: WorldModel, task: t.TaskParams, position: GeoPoint | None = N
             if not any(g.inside(v, s) for s in shapes):
                 return f"{kind}: the area reaches outside every geofence of the fleet ({names})"
     return None
+
+
+# ---------------------------------------------------------------- signed edits (secured fleets)
+
+
+class ReservedId(SignatureRefused):
+    """A zone under an id of the robots' own entries (``target.*``, ``surveyed.*``), which any robot may write."""
+
+
+def check_edit(edit: w.StationEdit, trust: FleetTrust, now: float) -> str:
+    """The CN of the ground station that signed ``edit`` if a secured robot may apply it at ``now``; else raises
+    :class:`~bbcs.signing.SignatureRefused` (:class:`ReservedId`, or why the signature does not hold)."""
+    if not edit.remove and edit.id.startswith(w.ROBOT_ENTRY_PREFIXES):
+        raise ReservedId(f"{edit.id!r} is the id of a robot's own entry ({', '.join(w.ROBOT_ENTRY_PREFIXES)}...)")
+    return verify(edit, trust, now)
+
+
+def entry_signer(entry: w.WorldEntry, trust: FleetTrust, now: float) -> str | None:
+    """Whether a secured robot may merge ``entry``: None for a robot's own entry (a live vision target or surveyed
+    area under its id: not signed), the signing station's CN for a zone or a removal; raises
+    :class:`~bbcs.signing.SignatureRefused` otherwise."""
+    edit = w.edit_of_entry(entry)
+    return None if edit is None else check_edit(edit, trust, now)
 
 
 # ---------------------------------------------------------------- vision targets

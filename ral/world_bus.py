@@ -9,13 +9,18 @@ A :class:`WorldNode` in every RAL:
 - turns its own robot's vision target (``vision/target``) into the robot's target entry, and its completed
   survey tasks (from the manager's task book) into surveyed areas;
 - every ``digest_period_s`` publishes a digest of what it holds; a RAL that hears a different digest asks that
-  peer's model again (anti-entropy: updates lost in a partition are recovered when it heals).
+  peer's model again (anti-entropy: updates lost in a partition are recovered when it heals);
+- on a secured robot (``trust``), applies or merges a zone entry or a removal, from a station's request, a peer's
+  update or a peer's snapshot, only if a ground station signed it (:func:`ral.world.entry_signer`); anything else
+  is dropped, counted by reason (``gate.refused``) and logged once, so it is never applied nor relayed in this
+  RAL's snapshots. The robots' own entries (vision targets, surveyed areas) are not signed.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -27,7 +32,9 @@ from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
 from bbcs.contracts.pan_tilt import DatosPT
+from bbcs.signing import FleetTrust
 from ral import world
+from ral.signed import SignatureGate
 
 log = logging.getLogger(__name__)
 DIGEST_PERIOD_S = 2.0
@@ -61,10 +68,16 @@ class WorldNode:
                  digest_period_s: float = DIGEST_PERIOD_S,
                  on_change: Callable[[list[w.WorldEntry]], None] | None = None,
                  start_task: Callable[[t.TaskParams], gri.TaskReply] | None = None,
-                 point_at: Callable[[w.Target, int], bool] | None = None) -> None:
+                 point_at: Callable[[w.Target, int], bool] | None = None,
+                 trust: FleetTrust | None = None, trust_clock: Callable[[], float] = time.time) -> None:
         """``start_task``: the RAL's own ``handle`` (for track_target's look_at); ``point_at(target, task_id)``:
-        send the pan & tilt a new point if task ``task_id`` still runs (False: it ended, stop following)."""
+        send the pan & tilt a new point if task ``task_id`` still runs (False: it ended, stop following);
+        ``trust``: a secured robot's (the fleet tasks' trust), checked at ``trust_clock``'s time (certificates'
+        dates are wall-clock ones)."""
         self.session = session
+        self.gate = SignatureGate(trust, trust_clock, "world edit", check=world.check_edit,  # type: ignore[arg-type]
+                                  logger=log)
+        self._gate_lock = threading.Lock()
         self.start_task = start_task
         self.point_at = point_at
         self._tracking: tuple[str, int] | None = None
@@ -94,6 +107,19 @@ class WorldNode:
         self._thread.start()
 
     # ------------------------------------------------------------ merging
+
+    def _admitted(self, entries: list[w.WorldEntry], source: str) -> list[w.WorldEntry]:
+        """The entries a secured robot may merge (all of them on an unsecured one)."""
+        if self.gate.trust is None:
+            return entries
+        out = []
+        with self._gate_lock:
+            for entry in entries:
+                edit = w.edit_of_entry(entry)
+                label = f"{'removal of' if entry.deleted else 'entry'} {entry.id!r} v{entry.version}"
+                if edit is None or self.gate.admit(edit, source, label):
+                    out.append(entry)
+        return out
 
     def _merge(self, entries: list[w.WorldEntry]) -> list[w.WorldEntry]:
         with self.lock:
@@ -125,7 +151,7 @@ class WorldNode:
             log.warning("unreadable world update on %s dropped: %s", sample.key_expr, exc)
             return
         if update.robot != self.robot:
-            self._merge(update.entries)
+            self._merge(self._admitted(update.entries, f"the update on {sample.key_expr}"))
 
     def _on_digest(self, sample: zenoh.Sample) -> None:
         try:
@@ -182,14 +208,26 @@ class WorldNode:
         return w.WorldReply(accepted=True, entry=entry, task_id=reply.task_id)
 
     def edit(self, edit: w.WorldPut | w.WorldDelete) -> w.WorldReply:
-        """A ground station's edit, applied here and published to every RAL."""
+        """A ground station's edit, applied here and published to every RAL (on a secured robot only if the
+        station signed it: nothing changes otherwise)."""
+        signed = w.edit_of_request(edit)
+        if self.gate.trust is not None and signed is not None:
+            kind = ("removal of" if isinstance(edit, w.WorldDelete)
+                    else "zone" if isinstance(edit.body, w.NoFlyZone | w.Geofence) else "entry")
+            what = f"{kind} {edit.id!r}"
+            with self._gate_lock:
+                why = self.gate.refusal(signed, "a ground station's request", what)
+            if why is not None:
+                return w.WorldReply(accepted=False, reason=f"{what} not applied: {why} (this robot applies only "
+                                                           f"edits signed by its ground stations)")
         now = self.clock()
+        sig = {"signer_cert": edit.signer_cert, "signature": edit.signature}
         with self.lock:
             if isinstance(edit, w.WorldPut):
                 entry: w.WorldEntry | None = self.model.put(edit.id, edit.body, origin=self.robot, stamp=now,
-                                                           author=edit.author)
+                                                           author=edit.author, **sig)
             else:
-                entry = self.model.delete(edit.id, origin=self.robot, stamp=now, author=edit.author)
+                entry = self.model.delete(edit.id, origin=self.robot, stamp=now, author=edit.author, **sig)
         if entry is None:
             return w.WorldReply(accepted=False, reason=f"no world entry {edit.id!r} to remove")
         self._publish([entry])
@@ -265,7 +303,7 @@ class WorldNode:
             return
         for snap in snapshots:
             if snap.robot != self.robot:
-                self._merge(snap.entries)
+                self._merge(self._admitted(snap.entries, f"{snap.robot}'s snapshot"))
 
     def close(self) -> None:
         self._stop.set()

@@ -18,13 +18,17 @@ from typing import Annotated
 
 import msgspec
 
+from bbcs.contracts.signed import (  # noqa: F401  (limits and signed_bytes: also importable from here)
+    MAX_SIGNATURE,
+    MAX_SIGNER_CERT,
+    SIGNATURE_FIELDS,
+    Signature,
+    SignerCert,
+    signed_bytes,
+)
 from bbcs.contracts.tasks import AltitudeAMSL, Latitude, Longitude
 
 MAX_TARGETS = 200
-MAX_SIGNER_CERT = 4096
-"""A ground station's certificate (DER) from ``cromat certs`` is ~500 bytes; room for longer names and SANs."""
-MAX_SIGNATURE = 80
-"""A DER ECDSA P-256 signature is at most 72 bytes."""
 FleetId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$")]
 """Task, target and robot names: one key chunk."""
 
@@ -53,22 +57,10 @@ class FleetTask(msgspec.Struct, frozen=True, kw_only=True):
     balance: bool = False
     """Share the targets so that the last robot finishes soonest, not so that the robots fly the least in all
     (an area to survey: ``cromat gcs fleet post --area`` sets it)."""
-    signer_cert: Annotated[bytes, msgspec.Meta(max_length=MAX_SIGNER_CERT)] = b""
+    signer_cert: SignerCert = b""
     """The signing ground station's X.509 certificate (DER); empty: not signed (an unsecured fleet)."""
-    signature: Annotated[bytes, msgspec.Meta(max_length=MAX_SIGNATURE)] = b""
+    signature: Signature = b""
     """ECDSA P-256 / SHA-256 over :func:`signed_bytes` (DER), by the key of ``signer_cert`` (bbcs/signing.py)."""
-
-
-SIGNATURE_FIELDS = ("signer_cert", "signature")
-
-
-def signed_bytes(task: FleetTask) -> bytes:
-    """What a ground station signs: the msgpack array of every field of ``task`` but the signature fields, in
-    declaration order (nested targets as maps with every field). msgspec encodes a struct's fields in order and
-    floats as float64, so a task decoded from the wire gives back the bytes its signer signed, provided both sides
-    use the same FleetTask; a field added later changes the bytes (old and new robots then refuse each other's
-    tasks, loudly, rather than trust fields they cannot see)."""
-    return msgspec.msgpack.encode([getattr(task, f) for f in task.__struct_fields__ if f not in SIGNATURE_FIELDS])
 
 
 class BidState(msgspec.Struct, frozen=True, kw_only=True):

@@ -10,6 +10,11 @@
 An entry is identified by ``id``; of two entries with one id the greater ``(version, origin, body bytes)`` wins
 everywhere (last-writer-wins register per id: merging is commutative, associative and idempotent). A removal is
 an entry with ``deleted`` set (a tombstone), so it wins over the older versions it replaces.
+
+On a secured fleet a ground station signs each edit it asks for (:class:`StationEdit`, bbcs/signing.py): the
+request and every entry it becomes carry the station's certificate and signature, so any robot can check a zone
+or a removal however it arrived (a station's request, a peer's update, a peer's snapshot). The entries robots
+write themselves (:data:`ROBOT_ENTRY_PREFIXES`: vision targets, surveyed areas) are not signed.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import msgspec
 
 from bbcs import keys
 from bbcs.contracts.geo import AltitudeAMSL, Latitude, Longitude
+from bbcs.contracts.signed import Signature, SignerCert
 from bbcs.contracts.tasks import Vertex
 
 WORLD = "world"
@@ -79,7 +85,11 @@ class WorldEntry(msgspec.Struct, frozen=True, kw_only=True):
     """``None`` on a removal (``deleted``)."""
     deleted: bool = False
     author: str = ""
-    """Who asked for it (a ground station's name, or the robot itself)."""
+    """Who asked for it (a ground station's name, or the robot itself): a label, not checked (the signer is)."""
+    signer_cert: SignerCert = b""
+    """The certificate (DER) of the ground station that signed this edit (:func:`edit_of_entry`); empty: unsigned
+    (an unsecured fleet, or a robot's own entry)."""
+    signature: Signature = b""
 
 
 class WorldUpdate(msgspec.Struct, frozen=True, kw_only=True):
@@ -103,11 +113,56 @@ class WorldPut(msgspec.Struct, frozen=True, kw_only=True, tag="put"):
     id: EntryId
     body: Body
     author: str = ""
+    signer_cert: SignerCert = b""
+    """A station with a TLS identity signs :func:`edit_of_request` (``cromat gcs world`` does)."""
+    signature: Signature = b""
 
 
 class WorldDelete(msgspec.Struct, frozen=True, kw_only=True, tag="delete"):
     id: EntryId
     author: str = ""
+    signer_cert: SignerCert = b""
+    signature: Signature = b""
+
+
+ROBOT_ENTRY_PREFIXES = ("target.", "surveyed.")
+"""Ids of the entries robots write themselves, unsigned: a vision target (``target.<robot>``), a surveyed area
+(``surveyed.<robot>.<task>``). A zone under such an id would be one a robot could overwrite, so none is admitted."""
+
+
+class StationEdit(msgspec.Struct, frozen=True, kw_only=True):
+    """What a ground station signs for an edit of the world model: the entry ``id``, and either its new ``body``
+    (a no-fly zone or geofence: its kind, polygon and name) or its removal (``remove``, ``body`` None). Never sent
+    on its own: rebuilt from the request or entry that carries the signature."""
+
+    id: EntryId
+    remove: bool
+    body: Body | None = None
+    signer_cert: SignerCert = b""
+    signature: Signature = b""
+
+
+def robot_entry(entry_id: str, body: Body | None, deleted: bool) -> bool:
+    """A live vision target or surveyed area under a robot's own id: written by a RAL, not signed by a station."""
+    return not deleted and isinstance(body, Target | Surveyed) and entry_id.startswith(ROBOT_ENTRY_PREFIXES)
+
+
+def edit_of_entry(entry: WorldEntry) -> StationEdit | None:
+    """The signed edit ``entry`` must carry on a secured fleet; None for a robot's own entry."""
+    if robot_entry(entry.id, entry.body, entry.deleted):
+        return None
+    return StationEdit(id=entry.id, remove=entry.deleted, body=None if entry.deleted else entry.body,
+                       signer_cert=entry.signer_cert, signature=entry.signature)
+
+
+def edit_of_request(request: WorldPut | WorldDelete) -> StationEdit | None:
+    """What a station signs for ``request`` (and a secured RAL checks); None for a robot's own kind of entry."""
+    if isinstance(request, WorldDelete):
+        return StationEdit(id=request.id, remove=True, signer_cert=request.signer_cert, signature=request.signature)
+    if robot_entry(request.id, request.body, False):
+        return None
+    return StationEdit(id=request.id, remove=False, body=request.body, signer_cert=request.signer_cert,
+                       signature=request.signature)
 
 
 class TrackTarget(msgspec.Struct, frozen=True, kw_only=True, tag="track_target"):

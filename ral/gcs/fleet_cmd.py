@@ -20,8 +20,9 @@ import msgspec
 from bbcs.contracts import sync as s
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
+from bbcs.signing import SigningError, StationSigner, signer_name
 from ral import sync
-from ral.gcs.api import Gcs, GcsError, NoReply
+from ral.gcs.api import Gcs, GcsError, NoReply, UsageError
 from ral.gcs.waypoints import WaypointFileError, load_polygon
 from ral.sync_bus import probe
 from ral.world_bus import fetch_snapshots
@@ -48,8 +49,25 @@ def _ask(gcs: Gcs, key: str, request: msgspec.Struct, decoder: msgspec.msgpack.D
     raise NoReply(f"robot {robot!r} did not answer on {key} (not running, or this station may not ask it)")
 
 
-def world_request(gcs: Gcs, robot: str, request: w.WorldRequest) -> w.WorldReply:
-    """Add / remove an entry through ``robot``'s RAL (it publishes it to every RAL), or start a tracking."""
+def signed_request(request: w.WorldPut | w.WorldDelete, signer: StationSigner | None) -> w.WorldPut | w.WorldDelete:
+    """``request`` as the wire carries it, with ``signer``'s signature of the edit (:func:`w.edit_of_request`): a
+    secured robot applies no zone nor removal without it. Unchanged without a signer (an unsecured fleet)."""
+    if signer is None:
+        return request
+    wire = msgspec.msgpack.decode(msgspec.msgpack.encode(request), type=type(request))  # ranges, floats as floats
+    edit = w.edit_of_request(wire)
+    if edit is None:  # a robot's own kind of entry: nothing to sign
+        return wire
+    signed = signer.sign(edit)
+    return msgspec.structs.replace(wire, signer_cert=signed.signer_cert, signature=signed.signature)
+
+
+def world_request(gcs: Gcs, robot: str, request: w.WorldRequest,
+                  signer: StationSigner | None = None) -> w.WorldReply:
+    """Add / remove an entry through ``robot``'s RAL (it publishes it to every RAL), or start a tracking. An edit
+    is signed by ``signer`` (the station's TLS identity) when given."""
+    if signer is not None and isinstance(request, w.WorldPut | w.WorldDelete):
+        request = signed_request(request, signer)
     reply = _ask(gcs, w.world_request_key(robot), request, _world_reply, robot)
     assert isinstance(reply, w.WorldReply)
     return reply
@@ -181,7 +199,8 @@ def format_entry(e: w.WorldEntry) -> str:
         return f"{head} target   {b.lat:.6f} {b.lon:.6f} {b.alt:.1f} m, seen by {b.seen_by} at {b.seen_at:.3f}"
     kind = {"no_fly_zone": "no-fly", "geofence": "geofence", "surveyed": "surveyed"}[str(type(b).__struct_config__.tag)]
     name = f" ({b.name})" if getattr(b, "name", "") else ""
-    return f"{head} {kind:<8} {len(b.polygon)} vertices{name}"
+    signed = f", signed by {signer_name(e.signer_cert) or '?'}" if e.signer_cert else ""
+    return f"{head} {kind:<8} {len(b.polygon)} vertices{name}{signed}"
 
 
 def _entry_id(args: argparse.Namespace) -> str:
@@ -201,6 +220,10 @@ def _print(reply: w.WorldReply | s.SyncReply, out: TextIO, done: str) -> int:
 def run(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
     if args.command == "world":
         c = args.world_command
+        try:  # a station with a TLS identity signs its edits with it: a secured robot applies nothing else
+            signer = StationSigner.from_files(args.cert, args.key) if getattr(args, "cert", None) else None
+        except SigningError as exc:
+            raise UsageError(str(exc)) from None
         if c == "show":
             snap = world_snapshot(gcs, args.robot)
             print(f"world of {snap.robot}: {len(snap.entries)} entries, digest {snap.digest}", file=out)
@@ -216,10 +239,10 @@ def run(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
                 request = msgspec.convert(msgspec.to_builtins(request), w.WorldPut)
             except msgspec.ValidationError as exc:
                 raise WaypointFileError(f"bad world entry: {exc}") from None
-            reply = world_request(gcs, args.robot, request)
+            reply = world_request(gcs, args.robot, request, signer)
             return _print(reply, out, f"added {request.id} (version {reply.entry.version if reply.entry else '?'})")
         if c == "remove":
-            return _print(world_request(gcs, args.robot, w.WorldDelete(id=args.id, author=gcs.name)), out,
+            return _print(world_request(gcs, args.robot, w.WorldDelete(id=args.id, author=gcs.name), signer), out,
                           f"removed {args.id}")
         reply = world_request(gcs, args.robot, w.TrackTarget(target=args.target))
         return _print(reply, out, f"tracking {args.target} (look_at task {reply.task_id})")

@@ -187,3 +187,28 @@ def test_a_certificate_whose_key_is_not_p256_is_refused_even_from_the_fleet_ca(p
                                                          serialization.NoEncryption()))
     with pytest.raises(SigningError, match="EC P-256"):
         TaskSigner.from_files(tmp_path / "rsa.pem", tmp_path / "rsa.key")
+
+
+def test_fleet_tasks_and_zone_edits_share_the_signing_and_a_signature_never_crosses_kinds(pki: Pki) -> None:
+    """One implementation for every signed item (bbcs/contracts/signed.py): a zone edit signs and verifies like a
+    task, and a task's certificate and signature carried by a zone edit (or the other way round) do not verify."""
+    from bbcs.contracts import tasks as t
+    from bbcs.contracts import world as w
+    from bbcs.signing import SignatureRefused, StationSigner, verify
+
+    assert TaskRefused is SignatureRefused and TaskSigner is StationSigner and verify_task is verify
+    signer = pki.signer("gcs")
+    zone = w.NoFlyZone(polygon=[t.Vertex(lat=37.41, lon=-6.0), t.Vertex(lat=37.42, lon=-6.0),
+                                t.Vertex(lat=37.42, lon=-6.01)])
+    edit = signer.sign(w.StationEdit(id="mast", remove=False, body=zone))
+    wire = msgspec.msgpack.decode(msgspec.msgpack.encode(edit), type=w.StationEdit)
+    assert verify(wire, pki.trust(), now_of(signer)) == "gcs"
+    task = signer.sign(TASK)
+    crossed = msgspec.structs.replace(edit, signer_cert=task.signer_cert, signature=task.signature)
+    err = refused(crossed, pki.trust(), now_of(signer))  # type: ignore[arg-type]
+    assert isinstance(err, BadSignature) and "does not match the edit" in err.reason
+    crossed_task = msgspec.structs.replace(task, signer_cert=edit.signer_cert, signature=edit.signature)
+    assert isinstance(refused(crossed_task, pki.trust(), now_of(signer)), BadSignature)
+    with pytest.raises(msgspec.ValidationError, match="signature"):
+        msgspec.msgpack.decode(msgspec.msgpack.encode(msgspec.structs.replace(edit, signature=b"x" * 81)),
+                               type=w.StationEdit)

@@ -31,12 +31,14 @@ import pytest
 from bbcs import keys
 from bbcs.contracts import dsp
 from bbcs.contracts import tasks as t
+from bbcs.contracts import world as w
 from bbcs.contracts.fleet import FleetState, FleetTarget, FleetTask
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.signing import TaskSigner
 from bbcs.testing import child_env, free_port, wait_until
 from cromat import certs
 from ral.fleet_gcs import FleetView
+from ral.gcs import fleet_cmd
 from ral.gcs.api import Gcs, NoReply, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -330,3 +332,98 @@ def test_two_secured_robots_linked_directly_share_their_state_and_refuse_each_ot
                 la.stop()
             finally:
                 la.cleanup()
+
+
+def _square(lat: float, lon: float, half: float = 0.0002) -> list[t.Vertex]:
+    return [t.Vertex(lat=lat - half, lon=lon - half), t.Vertex(lat=lat - half, lon=lon + half),
+            t.Vertex(lat=lat + half, lon=lon + half), t.Vertex(lat=lat + half, lon=lon - half)]
+
+
+@pytest.mark.timeout(240)
+def test_a_peer_robots_router_cannot_remove_a_station_signed_zone_nor_add_its_own(mesh: Mesh) -> None:
+    """Zone edits signed by the ground station (docs/world.md), by attack over real Zenoh: the station on the hub
+    adds a no-fly zone through the robot (unsigned: refused; signed: applied). The peer robot's router identity
+    publishes on its own ``@ral/world`` key (which its router may write) an update removing that zone (unsigned,
+    and with the signature of a removal the station signed for another id), adding an unsigned zone, and its own
+    robot's target (the control: robots' own entries are not signed, so it arrives); then serves them, and one
+    more fake zone, as its snapshot (``@ral/world_model``, asked for on a differing digest). The robot keeps the zone (a
+    goto into it is refused, nothing of it at the DSP simulator) and never holds the fake one; the station's signed
+    removal still applies (the same goto then reaches the DSP simulator)."""
+    robot = mesh.robot
+    with mesh.station() as gcs:
+        wait_until(lambda: (st := gcs.state(ROBOT)).position is not None and st.home is not None, 60,
+                   "the robot's position seen through the hub")
+        home = gcs.state(ROBOT).home
+        assert home is not None
+        zone_at = (round(home.lat + 0.0005, 4), round(home.lon + 0.0005, 4))
+        fake_at = (round(home.lat - 0.0005, 4), round(home.lon - 0.0005, 4))
+        marker_at = (round(home.lat - 0.0003, 4), round(home.lon + 0.0003, 4))
+        zone = w.NoFlyZone(polygon=_square(*zone_at), name="radio mast")
+        unsigned = fleet_cmd.world_request(gcs, ROBOT, w.WorldPut(id="mast", body=zone, author="gcs"))
+        assert not unsigned.accepted and "not signed by a ground station" in unsigned.reason, unsigned.reason
+        added = fleet_cmd.world_request(gcs, ROBOT, w.WorldPut(id="mast", body=zone, author="gcs"), mesh.signer())
+        assert added.accepted and added.entry is not None and added.entry.signature, added.reason
+        other = fleet_cmd.signed_request(w.WorldDelete(id="old_tower"), mesh.signer())
+        seen = w.Target(lat=home.lat, lon=home.lon, alt=home.alt, seen_by=PEER, seen_at=1.0)
+        update = w.WorldUpdate(robot=PEER, entries=[
+            w.WorldEntry(id="mast", version=5, origin=PEER, stamp=1.0, deleted=True, author="gcs"),
+            w.WorldEntry(id="mast", version=6, origin=PEER, stamp=1.0, deleted=True, author="gcs",
+                         signer_cert=other.signer_cert, signature=other.signature),
+            w.WorldEntry(id="fake", version=1, origin=PEER, stamp=1.0, author="gcs",
+                         body=w.NoFlyZone(polygon=_square(*fake_at, 0.001))),
+            w.WorldEntry(id=f"target.{PEER}", version=1, origin=PEER, stamp=1.0, body=seen)])
+
+        def held() -> dict[str, w.WorldEntry]:
+            return {e.id: e for e in fleet_cmd.world_snapshot(gcs, ROBOT).entries}
+
+        with Gcs(mesh.peer_router(), name="router-uav2", timeout_s=3.0) as peer:
+            def published() -> bool:  # again until the robot's subscription has reached the new peer link
+                peer.session.put(w.world_key(PEER), msgspec.msgpack.encode(update))
+                return f"target.{PEER}" in held()
+
+            wait_until(published, 30, "the peer's own target in the robot's world model (the control)")
+            # the same forgeries and one more in the peer's snapshot, which the robot asks for when the peer's
+            # digest differs from its own (anti-entropy); the peer's target, a version on, is the control
+            fake2 = w.WorldEntry(id="fake2", version=1, origin=PEER, stamp=1.0,
+                                 body=w.Geofence(polygon=_square(*fake_at, 0.001)))
+            control = msgspec.structs.replace(update.entries[-1], version=2)
+            snapshot = w.WorldSnapshot(robot=PEER, digest="forged", entries=[*update.entries[:-1], fake2, control])
+            served = peer.session.declare_queryable(w.world_model_key(PEER), lambda q: q.reply(
+                w.world_model_key(PEER), msgspec.msgpack.encode(snapshot)))
+            try:
+                def asked() -> bool:
+                    peer.session.put(w.world_digest_key(PEER), msgspec.msgpack.encode(
+                        w.WorldDigest(robot=PEER, digest="forged", entries=len(snapshot.entries))))
+                    return held()[f"target.{PEER}"].version == 2
+
+                wait_until(asked, 30, "the peer's snapshot merged by the robot (its target, version 2)")
+            finally:
+                served.undeclare()
+        model = held()
+        assert model["mast"] == added.entry and "fake" not in model and "fake2" not in model, model
+        ral_log = robot.folder / "logs" / "ral.log"
+        source = f"from the update on {w.world_key(PEER)} refused"
+        for why in (f"removal of 'mast' v5 {source}: not signed by a ground station",
+                    f"removal of 'mast' v6 {source}: signature by 'gcs' does not match the edit",
+                    f"entry 'fake' v1 {source}: not signed by a ground station",
+                    f"entry 'fake2' v1 from {PEER}'s snapshot refused: not signed by a ground station"):
+            wait_until(lambda why=why: why in ral_log.read_text(errors="replace"), 10, f"{why!r} in the RAL's log")
+            assert ral_log.read_text(errors="replace").count(why) == 1, why  # logged once, however often it came
+        # by effect: a goto into the zone is refused and sends nothing; a marker goto after it reaches the DSP
+        mark = len(robot.commands())
+        into = t.Goto(waypoints=[t.Waypoint(lat=zone_at[0], lon=zone_at[1], alt=home.alt + 10.0)])
+        reply = gcs.send(ROBOT, into)
+        assert not reply.accepted and "no-fly zone 'mast' (radio mast)" in reply.reason, reply.reason
+        reply = gcs.send(ROBOT, t.Goto(waypoints=[t.Waypoint(lat=marker_at[0], lon=marker_at[1],
+                                                             alt=home.alt + 10.0)]))
+        assert reply.accepted, reply.reason
+        wait_until(lambda: marker_at in _added(robot, mark), 60, "the marker goto at the DSP simulator")
+        assert zone_at not in _added(robot, mark)
+        # the station's signed removal still applies, and the same goto then flies
+        removed = fleet_cmd.world_request(gcs, ROBOT, w.WorldDelete(id="mast", author="gcs"), mesh.signer())
+        assert removed.accepted and removed.entry is not None and removed.entry.deleted, removed.reason
+        reply = gcs.send(ROBOT, into)
+        assert reply.accepted, reply.reason
+        wait_until(lambda: zone_at in _added(robot, mark), 60, "the goto into the removed zone at the DSP")
+        assert fake_at not in _added(robot, mark) and "fake" not in held()
+        gcs.send(ROBOT, t.Hold())
