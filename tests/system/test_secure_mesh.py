@@ -33,6 +33,7 @@ from bbcs.contracts import dsp
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
 from bbcs.contracts.fleet import FleetState, FleetTarget, FleetTask
+from bbcs.contracts.robot import GeoPoint
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.signing import TaskSigner
 from bbcs.testing import child_env, free_port, wait_until
@@ -116,6 +117,15 @@ def mesh(tmp_path: Path) -> Iterator[Mesh]:
             hub.wait(10)
 
 
+def _home_through_hub(gcs: Gcs) -> GeoPoint:
+    """The robot's home once the station on the hub sees its position: its state crossed robot router -> hub."""
+    wait_until(lambda: (st := gcs.state(ROBOT)).position is not None and st.home is not None, 60,
+               "the robot's position seen through the hub")
+    home = gcs.state(ROBOT).home
+    assert home is not None
+    return home
+
+
 def _added(robot: Robot, mark: int) -> list[tuple[float, float]]:
     return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4))
             for c in robot.commands()[mark:] if c["name"] == "ADD_WAYPOINT"]
@@ -125,11 +135,7 @@ def _added(robot: Robot, mark: int) -> list[tuple[float, float]]:
 def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own_robot(mesh: Mesh) -> None:
     robot = mesh.robot
     with mesh.station() as gcs:
-        # the ground station on the hub sees the robot through the mesh (its state crossed robot router -> hub)
-        wait_until(lambda: (st := gcs.state(ROBOT)).position is not None and st.home is not None, 60,
-                   "the robot's position seen through the hub")
-        home = gcs.state(ROBOT).home
-        assert home is not None
+        home = _home_through_hub(gcs)
         mark = len(robot.commands())
         view = FleetView(gcs.session)
         # the attack: another robot's router identity, linked straight to the robot's router
@@ -351,10 +357,7 @@ def test_a_peer_robots_router_cannot_remove_a_station_signed_zone_nor_add_its_ow
     removal still applies (the same goto then reaches the DSP simulator)."""
     robot = mesh.robot
     with mesh.station() as gcs:
-        wait_until(lambda: (st := gcs.state(ROBOT)).position is not None and st.home is not None, 60,
-                   "the robot's position seen through the hub")
-        home = gcs.state(ROBOT).home
-        assert home is not None
+        home = _home_through_hub(gcs)
         zone_at = (round(home.lat + 0.0005, 4), round(home.lon + 0.0005, 4))
         fake_at = (round(home.lat - 0.0005, 4), round(home.lon - 0.0005, 4))
         marker_at = (round(home.lat - 0.0003, 4), round(home.lon + 0.0003, 4))

@@ -5,10 +5,7 @@ by the digest exchange; vision targets and completed surveys become entries; tra
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-
 import msgspec
-import pytest
 
 from bbcs import keys
 from bbcs.contracts import gri, mri
@@ -16,7 +13,7 @@ from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
 from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.testing import wait_until
-from ral.world_bus import WorldNode, fetch_snapshots
+from ral.world_bus import fetch_snapshots
 
 LAT, LON = 37.41, -6.0
 
@@ -24,20 +21,6 @@ LAT, LON = 37.41, -6.0
 def square(half: float = 0.001) -> list[t.Vertex]:
     return [t.Vertex(lat=LAT - half, lon=LON - half), t.Vertex(lat=LAT - half, lon=LON + half),
             t.Vertex(lat=LAT + half, lon=LON + half), t.Vertex(lat=LAT + half, lon=LON - half)]
-
-
-@pytest.fixture
-def nodes(router: int, clients) -> Iterator[Callable[..., WorldNode]]:
-    made: list[WorldNode] = []
-
-    def make(robot: str, **kw) -> WorldNode:
-        node = WorldNode(clients(router), robot, lambda: 1000.0, digest_period_s=0.2, **kw)
-        made.append(node)
-        return node
-
-    yield make
-    for node in reversed(made):
-        node.close()
 
 
 def ask(session, robot: str, payload: bytes) -> w.WorldReply:

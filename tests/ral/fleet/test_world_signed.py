@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +33,6 @@ from bbcs.testing import wait_until
 from cromat import certs
 from ral import world
 from ral.gcs.fleet_cmd import signed_request
-from ral.world_bus import WorldNode
 
 LAT, LON = 37.41, -6.0
 
@@ -141,20 +139,6 @@ def test_forged_zones_and_removals_are_refused_each_with_its_reason(pki: Pki) ->
 
 
 # ---------------------------------------------------------------- world nodes on real Zenoh
-
-
-@pytest.fixture
-def nodes(router: int, clients) -> Iterator[Callable[..., WorldNode]]:
-    made: list[WorldNode] = []
-
-    def make(robot: str, **kw) -> WorldNode:
-        node = WorldNode(clients(router), robot, lambda: 1000.0, digest_period_s=0.2, **kw)
-        made.append(node)
-        return node
-
-    yield make
-    for node in reversed(made):
-        node.close()
 
 
 def ask(session, robot: str, request: w.WorldRequest) -> w.WorldReply:
