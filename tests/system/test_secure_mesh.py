@@ -13,7 +13,7 @@ the station with its target moved afterwards, one signed with the peer router's 
 station did sign (relayed, as RALs do): the robot adopts and flies that one (the control) and refuses the
 forgeries (bbcs/signing.py): never bid on, never relayed, nothing of them at the DSP simulator. A write of the
 robot's own command key relayed by the hub is refused by the robot's router. Every station's fleet task is signed
-with its TLS identity.
+with its TLS identity. Two launched robots linked only to a hub share a fleet task the station on the hub posted.
 """
 
 from __future__ import annotations
@@ -430,3 +430,108 @@ def test_a_peer_robots_router_cannot_remove_a_station_signed_zone_nor_add_its_ow
         wait_until(lambda: zone_at in _added(robot, mark), 60, "the goto into the removed zone at the DSP")
         assert fake_at not in _added(robot, mark) and "fake" not in held()
         gcs.send(ROBOT, t.Hold())
+
+
+def _hub_robot_manifest(folder: Path, name: str, port: int, hub_port: int,
+                        home: tuple[float, float, float]) -> tuple[Path, Path]:
+    """uav1_secure.toml renamed ``name`` in ``folder`` on ``port``, its router dialing the hub (``hubs`` and
+    ``peers``: no ``mesh_robots``, no direct link to another robot), its DSP simulator taking off from ``home``."""
+    folder.mkdir()
+    manifest, pki = secure_manifest(folder, port)
+    text = manifest.read_text()
+    listen = f'listen = ["tls/127.0.0.1:{port}"]'
+    tls = 'ral = "ral"          # the module that is the RAL'
+    record = f'"--record", "{folder / "dsp.jsonl"}"]'
+    for old in ('name = "uav1"', listen, tls, record):
+        assert text.count(old) == 1, old
+    manifest.write_text(text.replace('name = "uav1"', f'name = "{name}"')
+                        .replace(listen, f'{listen}\npeers = ["tls/127.0.0.1:{hub_port}"]')
+                        .replace(tls, f'hubs = ["{HUB}"]\n{tls}')
+                        .replace(record, f'{record[:-1]}, "--home", "{",".join(map(str, home))}"]'))
+    return manifest, pki
+
+
+@pytest.mark.timeout(300)
+def test_a_hub_carries_a_signed_fleet_task_and_the_fleet_state_between_two_launched_robots(tmp_path: Path) -> None:
+    """Two secured robots, each with its own router and DSP simulator (homes ~220 m apart), linked over mTLS only
+    to a hub router (``hubs`` and ``peers``; no link between them). A ground station on the hub posts one signed
+    fleet task, one target near each robot, at most one per robot: each robot's bids cross its router → the hub
+    → the other's router (under the hub's CN, which may relay every robot's writes), both RALs decide the same
+    allocation with both bidders, each flies the target nearer to it (at its own DSP simulator, the other's target
+    never), the station sees both decisions, and no router refuses any of this legitimate traffic."""
+    ca = tmp_path / "pki-ca"
+    hub_port, p1, p2 = free_port(), free_port(), free_port()
+    homes = {ROBOT: (37.4117, -6.0025, 12.0), PEER: (37.4137, -6.0025, 12.0)}
+    m1, pki1 = _hub_robot_manifest(tmp_path / ROBOT, ROBOT, p1, hub_port, homes[ROBOT])
+    m2, pki2 = _hub_robot_manifest(tmp_path / PEER, PEER, p2, hub_port, homes[PEER])
+    for manifest in (m1, m2):
+        assert certs.main(["--manifest", str(manifest), "--ca", str(ca)]) == 0
+    assert certs.main([str(tmp_path / HUB), "--hub", HUB, "--ca", str(ca), "--robots", f"{ROBOT},{PEER}",
+                       "--acl", str(tmp_path / "hub.json5"), "--listen", f"tls/127.0.0.1:{hub_port}"]) == 0
+    hub_log = tmp_path / "hub.log"
+    with hub_log.open("w") as out:
+        hub = subprocess.Popen([sys.executable, "-m", "bbcs.router", "--config", str(tmp_path / "hub.json5"),
+                                "--listen", f"tls/127.0.0.1:{hub_port}", "--log-refusals"],
+                               env=child_env(), stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    launches: list[SecureLaunch] = []
+    try:
+        wait_until(lambda: "listening on" in hub_log.read_text(), 30, "the hub router listening")
+        for manifest, name, port in ((m1, ROBOT, p1), (m2, PEER, p2)):
+            launches.append(SecureLaunch(manifest, tmp_path / name, port))
+        for la, name in zip(launches, (ROBOT, PEER), strict=True):
+            la.wait_line(f"all {len(MODULES)} modules up", 120)
+            la.wait_line(f"robot name {name!r} is free on the mesh (tls/127.0.0.1:{hub_port})", 1)
+        robots = {ROBOT: Robot(launches[0], pki1, tmp_path / ROBOT), PEER: Robot(launches[1], pki2, tmp_path / PEER)}
+        ground = pki1.with_name("pki-ground")
+        station = Gcs(session_config([f"tls/127.0.0.1:{hub_port}"], ca=str(ground / "ca.pem"),
+                                     cert=str(ground / "gcs.pem"), key=str(ground / "gcs.key"),
+                                     connect_timeout_s=10.0), name="gcs", link=[ROBOT, PEER], timeout_s=10.0)
+        with station as gcs:
+            wait_until(lambda: gcs.robots(2.0) == [ROBOT, PEER], 60, "both robots seen on the hub")
+            for name in (ROBOT, PEER):
+                wait_until(lambda name=name: (st := gcs.state(name)).position is not None and st.home is not None,
+                           60, f"{name}'s position through the hub")
+            home = {name: gcs.state(name).home for name in (ROBOT, PEER)}
+            assert all(abs(h.lat - homes[n][0]) < 1e-4 for n, h in home.items() if h is not None), home
+            near = {name: (round(h.lat + 0.0003, 4), round(h.lon + 0.0002, 4)) for name, h in home.items()
+                    if h is not None}
+            view = FleetView(gcs.session)
+            try:
+                assert view.wait(lambda: {ROBOT, PEER} <= set(view.states), 30), sorted(view.states)
+                marks = {name: len(r.commands()) for name, r in robots.items()}
+                view.post(FleetTask(id="hub_t1", one_per_robot=True, posted_by="gcs", targets=[
+                    FleetTarget(id=f"near_{name}", lat=lat, lon=lon, alt=homes[name][2] + 10.0)
+                    for name, (lat, lon) in near.items()]),
+                          TaskSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
+                # both decisions, the same on both robots, with both bidders: each RAL had the other's bids, which
+                # travel in its fleet state (cromat/<robot>/@ral/fleet) from its router through the hub to the other's
+                dec = view.wait(lambda: view.agreed("hub_t1", {ROBOT, PEER}), 30)
+                assert dec is not None, view.decisions("hub_t1")
+                assert set(view.decisions("hub_t1")) == {ROBOT, PEER}
+                assert dec.bidders == [ROBOT, PEER] and dec.unassigned == [], dec
+                assert dec.routes == {ROBOT: [f"near_{ROBOT}"], PEER: [f"near_{PEER}"]}, dec.routes
+                for name, robot in robots.items():
+                    wait_until(lambda name=name, robot=robot: near[name] in _added(robot, marks[name]), 60,
+                               f"{name}'s near target at its DSP simulator")
+            finally:
+                view.close()
+            for name, robot in robots.items():
+                other = PEER if name == ROBOT else ROBOT
+                assert near[other] not in _added(robot, marks[name]), (name, _added(robot, marks[name]))
+                assert gcs.send(name, t.Hold()).accepted, name  # a command through the hub, too
+        # neither robot's router (nor the hub) refused anything: the hub relays the station's task and link and
+        # each robot's fleet state to the other without a right missing
+        for name, robot in robots.items():
+            assert "cromat router: listening on" in robot.router_log(), name  # its log is there to read
+            assert [line for line in robot.router_log().splitlines() if " denied: " in line] == [], name
+        assert [line for line in hub_log.read_text().splitlines() if " denied: " in line] == []
+    finally:
+        try:
+            for la in reversed(launches):
+                try:
+                    la.stop()
+                finally:
+                    la.cleanup()
+        finally:
+            hub.terminate()
+            hub.wait(10)
