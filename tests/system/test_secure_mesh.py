@@ -106,15 +106,20 @@ def mesh(tmp_path: Path) -> Iterator[Mesh]:
         la.wait_line(f"robot name {ROBOT!r} is free on the mesh (tls/127.0.0.1:{hub_port})", 1)
         yield Mesh(Robot(la, pki, tmp_path), hub_port, hub_log, tmp_path / PEER)
     finally:
-        try:
-            if la is not None:
-                try:
-                    la.stop()
-                finally:
-                    la.cleanup()
-        finally:
-            hub.terminate()
-            hub.wait(10)
+        _stop_all([la] if la is not None else [], hub)
+
+
+def _stop_all(launches: list[SecureLaunch], hub: subprocess.Popen) -> None:
+    """Every launch stopped and cleaned up, newest first, then the hub router, even if one of them fails."""
+    try:
+        for la in reversed(launches):
+            try:
+                la.stop()
+            finally:
+                la.cleanup()
+    finally:
+        hub.terminate()
+        hub.wait(10)
 
 
 def _home_through_hub(gcs: Gcs) -> GeoPoint:
@@ -526,12 +531,4 @@ def test_a_hub_carries_a_signed_fleet_task_and_the_fleet_state_between_two_launc
             assert [line for line in robot.router_log().splitlines() if " denied: " in line] == [], name
         assert [line for line in hub_log.read_text().splitlines() if " denied: " in line] == []
     finally:
-        try:
-            for la in reversed(launches):
-                try:
-                    la.stop()
-                finally:
-                    la.cleanup()
-        finally:
-            hub.terminate()
-            hub.wait(10)
+        _stop_all(launches, hub)
