@@ -21,8 +21,7 @@ manifest's ground-station identities) and the time: it returns the signer's CN o
 
 all :class:`SignatureRefused`, whose ``reason`` says which in a few words. Only certificates issued directly by the
 fleet CA are accepted (``cromat certs`` issues no intermediates); revocation is not checked (docs/security.md).
-X.509 parsing and ECDSA come from the ``cryptography`` package, not written here. ``verify_task``,
-``TaskRefused`` and ``TaskSigner`` are the names fleet code has used since tasks were signed first.
+X.509 parsing and ECDSA come from the ``cryptography`` package, not written here.
 """
 
 from __future__ import annotations
@@ -82,9 +81,6 @@ class BadSignature(SignatureRefused):
     pass
 
 
-TaskRefused = SignatureRefused
-
-
 def common_name(cert: x509.Certificate) -> str:
     names = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
     value = names[0].value if names else ""
@@ -135,9 +131,6 @@ class StationSigner:
         signature = self.key.sign(signed_bytes(unsigned), _ECDSA)
         return msgspec.structs.replace(unsigned, signer_cert=self.cert.public_bytes(serialization.Encoding.DER),
                                        signature=signature)
-
-
-TaskSigner = StationSigner
 
 
 @dataclass(frozen=True)
@@ -200,6 +193,3 @@ def verify(item: msgspec.Struct, trust: FleetTrust, now: float) -> str:
         what = "task" if isinstance(item, FleetTask) else "edit"
         raise BadSignature(f"signature by {name!r} does not match the {what} (changed after signing)") from None
     return name
-
-
-verify_task = verify

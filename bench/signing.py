@@ -24,7 +24,7 @@ from benchlib import pct, write_results
 from bbcs.contracts import world as w
 from bbcs.contracts.fleet import MAX_TARGETS, FleetTarget, FleetTask
 from bbcs.contracts.tasks import Vertex
-from bbcs.signing import FleetTrust, TaskSigner, verify_task
+from bbcs.signing import FleetTrust, StationSigner, verify
 from cromat import certs
 from ral import world
 from ral.fleet import TaskGate
@@ -67,7 +67,7 @@ def main() -> int:
         (root / "ca").mkdir()
         certs.make_ca(root / "ca")
         certs.make_leaf(root / "ground", "gcs", ca_dir=root / "ca")
-        signer = TaskSigner.from_files(root / "ground" / "gcs.pem", root / "ground" / "gcs.key")
+        signer = StationSigner.from_files(root / "ground" / "gcs.pem", root / "ground" / "gcs.key")
         trust = FleetTrust.from_files(root / "ca" / "ca.pem", ["gcs"])
     now = time.time()
     rows = []
@@ -83,7 +83,7 @@ def main() -> int:
             "bytes_signed": len(wire),
             "decode_us": pct(timed_us(lambda w=wire: msgspec.msgpack.decode(w, type=FleetTask), args.n), 50),
             "sign_us": pct(timed_us(lambda t=task: signer.sign(t), args.n), 50),
-            "verify_us": pct(timed_us(lambda s=signed: verify_task(s, trust, now), args.n), 50),
+            "verify_us": pct(timed_us(lambda s=signed: verify(s, trust, now), args.n), 50),
             "seen_again_us": pct(timed_us(lambda s=signed, g=gate: g.admit(s, "bench"), args.n), 50),
         })
     for size in (4, 500):

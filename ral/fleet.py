@@ -53,7 +53,7 @@ def can_do_from(param: str, kinds: list[str]) -> frozenset[str]:
 
 class TaskGate(SignatureGate):
     """Which fleet tasks this robot may adopt (:class:`~ral.signed.SignatureGate` over
-    :func:`bbcs.signing.verify_task`)."""
+    :func:`bbcs.signing.verify`)."""
 
     def __init__(self, trust: FleetTrust | None, clock: Callable[[], float], remember: int = 1024) -> None:
         super().__init__(trust, clock, "fleet task", remember, logger=log)

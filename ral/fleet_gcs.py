@@ -20,7 +20,7 @@ import zenoh.ext
 
 from bbcs import keys
 from bbcs.contracts.fleet import MAX_TARGETS, FleetDecision, FleetState, FleetTarget, FleetTask
-from bbcs.signing import SigningError, TaskSigner
+from bbcs.signing import SigningError, StationSigner
 from ral.gcs.waypoints import load_polygon
 from ral.survey_area import parse_area
 
@@ -49,7 +49,7 @@ class FleetView:
     def close(self) -> None:
         self._sub.undeclare()
 
-    def post(self, task: FleetTask, signer: TaskSigner | None = None) -> FleetTask:
+    def post(self, task: FleetTask, signer: StationSigner | None = None) -> FleetTask:
         """Put ``task``, signed by ``signer`` (a station with a TLS identity: secured robots adopt only signed
         tasks, bbcs/signing.py); returns what was put."""
         if signer is not None:
@@ -176,7 +176,7 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
                 print(f"cromat gcs fleet: {exc}", file=out)
                 return 2
             try:  # a station with a TLS identity signs with it: a secured robot adopts nothing else
-                signer = TaskSigner.from_files(args.cert, args.key) if getattr(args, "cert", None) else None
+                signer = StationSigner.from_files(args.cert, args.key) if getattr(args, "cert", None) else None
             except SigningError as exc:
                 print(f"cromat gcs fleet: {exc}", file=out)
                 return 2

@@ -21,12 +21,12 @@ from bbcs.signing import (
     FleetTrust,
     NotAGroundStation,
     NotValidNow,
+    SignatureRefused,
     SigningError,
-    TaskRefused,
-    TaskSigner,
+    StationSigner,
     Unsigned,
     UntrustedIssuer,
-    verify_task,
+    verify,
 )
 from cromat import certs
 
@@ -43,8 +43,8 @@ class Pki:
         certs.make_leaf(root / "rogue", "gcs", ca_dir=self.other_ca)  # CN gcs, but another CA's
         self.root = root
 
-    def signer(self, name: str, folder: str = "ground") -> TaskSigner:
-        return TaskSigner.from_files(self.root / folder / f"{name}.pem", self.root / folder / f"{name}.key")
+    def signer(self, name: str, folder: str = "ground") -> StationSigner:
+        return StationSigner.from_files(self.root / folder / f"{name}.pem", self.root / folder / f"{name}.key")
 
     def trust(self, stations: tuple[str, ...] = ("gcs",)) -> FleetTrust:
         return FleetTrust.from_files(self.ca / "ca.pem", frozenset(stations))
@@ -60,14 +60,14 @@ TASK = FleetTask(id="area1", targets=[FleetTarget(id="t0", lat=37.41, lon=-6.0, 
                  speed=4.0, posted_by="cromat gcs")
 
 
-def now_of(signer: TaskSigner) -> float:
+def now_of(signer: StationSigner) -> float:
     """A time inside the certificate's validity."""
     return signer.cert.not_valid_before_utc.timestamp() + 3600.0
 
 
-def refused(task: FleetTask, trust: FleetTrust, now: float) -> TaskRefused:
-    with pytest.raises(TaskRefused) as info:
-        verify_task(task, trust, now)
+def refused(task: FleetTask, trust: FleetTrust, now: float) -> SignatureRefused:
+    with pytest.raises(SignatureRefused) as info:
+        verify(task, trust, now)
     return info.value
 
 
@@ -76,7 +76,7 @@ def test_a_signed_task_verifies_also_after_the_wire(pki: Pki) -> None:
     task = signer.sign(TASK)
     assert task.signature and task.signer_cert and task.targets == TASK.targets
     wire = msgspec.msgpack.decode(msgspec.msgpack.encode(task), type=FleetTask)
-    assert verify_task(wire, pki.trust(), now_of(signer)) == "gcs"
+    assert verify(wire, pki.trust(), now_of(signer)) == "gcs"
     # the signature covers every field but itself: the bytes of the unsigned task are the bytes signed
     assert signed_bytes(wire) == signed_bytes(TASK)
 
@@ -104,7 +104,7 @@ def test_a_modules_certificate_is_not_a_ground_station(pki: Pki) -> None:
     err = refused(module.sign(TASK), pki.trust(), now_of(module))
     assert isinstance(err, NotAGroundStation) and "'vision'" in err.reason
     # the same certificate is accepted where the manifest lists it as a station: the CN is what decides
-    assert verify_task(module.sign(TASK), pki.trust(("gcs", "vision")), now_of(module)) == "vision"
+    assert verify(module.sign(TASK), pki.trust(("gcs", "vision")), now_of(module)) == "vision"
 
 
 def test_an_expired_or_not_yet_valid_certificate_is_refused(pki: Pki) -> None:
@@ -137,7 +137,7 @@ def test_garbage_certificate_or_signature_bytes_are_refused(pki: Pki) -> None:
 
 
 def test_a_ca_certificate_cannot_sign(pki: Pki) -> None:
-    ca = TaskSigner.from_files(pki.ca / "ca.pem", pki.ca / "ca.key")
+    ca = StationSigner.from_files(pki.ca / "ca.pem", pki.ca / "ca.key")
     err = refused(ca.sign(TASK), pki.trust(("gcs", "cromat-ca")), now_of(ca))
     assert isinstance(err, BadCertificate) and "CA" in err.reason
 
@@ -160,11 +160,11 @@ def test_the_station_signs_only_in_range_tasks_with_its_own_key(pki: Pki) -> Non
     # integers where floats belong are signed as the wire decodes them (floats), so the robot's bytes match
     task = signer.sign(FleetTask(id="ints", targets=[FleetTarget(id="t0", lat=37, lon=-6, alt=30)]))
     wire = msgspec.msgpack.decode(msgspec.msgpack.encode(task), type=FleetTask)
-    assert verify_task(wire, pki.trust(), now_of(signer)) == "gcs"
+    assert verify(wire, pki.trust(), now_of(signer)) == "gcs"
     with pytest.raises(SigningError, match="is not the key of"):
-        TaskSigner.from_files(pki.ground / "gcs.pem", pki.ground / "vision.key")
+        StationSigner.from_files(pki.ground / "gcs.pem", pki.ground / "vision.key")
     with pytest.raises(SigningError, match="cannot read"):
-        TaskSigner.from_files(pki.ground / "nobody.pem", pki.ground / "nobody.key")
+        StationSigner.from_files(pki.ground / "nobody.pem", pki.ground / "nobody.key")
 
 
 def test_a_certificate_whose_key_is_not_p256_is_refused_even_from_the_fleet_ca(pki: Pki, tmp_path: Path) -> None:
@@ -177,7 +177,7 @@ def test_a_certificate_whose_key_is_not_p256_is_refused_even_from_the_fleet_ca(p
             .issuer_name(ca_cert.subject).public_key(key.public_key()).serial_number(x509.random_serial_number())
             .not_valid_before(start).not_valid_after(start + dt.timedelta(days=30))
             .sign(ca_key, hashes.SHA256()))
-    signer = TaskSigner.from_files(pki.ground / "gcs.pem", pki.ground / "gcs.key")
+    signer = StationSigner.from_files(pki.ground / "gcs.pem", pki.ground / "gcs.key")
     forged = msgspec.structs.replace(signer.sign(TASK), signer_cert=cert.public_bytes(serialization.Encoding.DER))
     err = refused(forged, pki.trust(), start.timestamp() + 3600.0)
     assert isinstance(err, BadCertificate) and "not EC P-256" in err.reason
@@ -186,7 +186,7 @@ def test_a_certificate_whose_key_is_not_p256_is_refused_even_from_the_fleet_ca(p
                                                          serialization.PrivateFormat.PKCS8,
                                                          serialization.NoEncryption()))
     with pytest.raises(SigningError, match="EC P-256"):
-        TaskSigner.from_files(tmp_path / "rsa.pem", tmp_path / "rsa.key")
+        StationSigner.from_files(tmp_path / "rsa.pem", tmp_path / "rsa.key")
 
 
 def test_fleet_tasks_and_zone_edits_share_the_signing_and_a_signature_never_crosses_kinds(pki: Pki) -> None:
@@ -194,9 +194,7 @@ def test_fleet_tasks_and_zone_edits_share_the_signing_and_a_signature_never_cros
     task, and a task's certificate and signature carried by a zone edit (or the other way round) do not verify."""
     from bbcs.contracts import tasks as t
     from bbcs.contracts import world as w
-    from bbcs.signing import SignatureRefused, StationSigner, verify
 
-    assert TaskRefused is SignatureRefused and TaskSigner is StationSigner and verify_task is verify
     signer = pki.signer("gcs")
     zone = w.NoFlyZone(polygon=[t.Vertex(lat=37.41, lon=-6.0), t.Vertex(lat=37.42, lon=-6.0),
                                 t.Vertex(lat=37.42, lon=-6.01)])

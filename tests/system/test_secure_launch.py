@@ -28,7 +28,7 @@ from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetTarget, FleetTask
 from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, TrajectoryRequest, TrajectoryStatus
-from bbcs.signing import TaskSigner
+from bbcs.signing import StationSigner
 from bbcs.testing import child_env, free_port, wait_until
 from cromat import certs
 from module_manager.manifest import ManifestError, load_manifest
@@ -382,7 +382,7 @@ def test_a_secure_robot_takes_part_in_fleet_allocation_and_a_module_identity_can
             ground = robot.pki.with_name("pki-ground")  # the station signs with its own TLS identity
             view.post(FleetTask(id="secure_t1", targets=[FleetTarget(id="s0", lat=target[0], lon=target[1],
                                                                      alt=home.alt + 10.0)], posted_by="gcs"),
-                      TaskSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
+                      StationSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
             dec = view.wait(lambda: view.agreed("secure_t1", {ROBOT}), 30)
             assert dec is not None and dec.bidders == [ROBOT] and dec.routes[ROBOT] == ["s0"], view.decisions(
                 "secure_t1")

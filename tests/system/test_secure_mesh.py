@@ -35,7 +35,7 @@ from bbcs.contracts import world as w
 from bbcs.contracts.fleet import FleetState, FleetTarget, FleetTask
 from bbcs.contracts.robot import GeoPoint
 from bbcs.session import SessionConfig, TlsConfig, open_session
-from bbcs.signing import TaskSigner
+from bbcs.signing import StationSigner
 from bbcs.testing import child_env, free_port, wait_until
 from cromat import certs
 from ral.fleet_gcs import FleetView
@@ -63,10 +63,10 @@ class Mesh:
                                   cert=str(ground / "gcs.pem"), key=str(ground / "gcs.key"), connect_timeout_s=10.0),
                    name="gcs", link=[ROBOT], timeout_s=10.0)
 
-    def signer(self) -> TaskSigner:
+    def signer(self) -> StationSigner:
         """The ground station's signing identity: its own TLS certificate and key (ground folder)."""
         ground = self.robot.pki.with_name("pki-ground")
-        return TaskSigner.from_files(ground / "gcs.pem", ground / "gcs.key")
+        return StationSigner.from_files(ground / "gcs.pem", ground / "gcs.key")
 
     def peer_router(self) -> SessionConfig:
         """Another robot's router identity (CN router-uav2) linked to the robot's router as a Zenoh peer."""
@@ -177,7 +177,7 @@ def test_a_hub_carries_ground_tasks_and_a_peer_robots_router_writes_only_its_own
                 moved = mesh.signer().sign(moved)
                 moved = msgspec.structs.replace(moved, targets=[msgspec.structs.replace(
                     moved.targets[0], lat=moved_at[0], lon=moved_at[1])])
-                peer_key = TaskSigner.from_files(mesh.peer_pki / "router.pem", mesh.peer_pki / "router.key")
+                peer_key = StationSigner.from_files(mesh.peer_pki / "router.pem", mesh.peer_pki / "router.key")
                 state = FleetState(robot=PEER, kind="uav", stamp=0.0, tasks=[
                     FleetTask(id="unsigned", targets=[FleetTarget(id="u0", lat=unsigned_at[0], lon=unsigned_at[1],
                                                                   alt=home.alt + 10.0)], posted_by="gcs"),
@@ -311,7 +311,7 @@ def test_two_secured_robots_linked_directly_share_their_state_and_refuse_each_ot
                 ground = pki1.with_name("pki-ground")
                 view.post(FleetTask(id="direct_t1", targets=[FleetTarget(id="d0", lat=target[0], lon=target[1],
                                                                          alt=home.alt + 10.0)], posted_by="gcs"),
-                          TaskSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
+                          StationSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
                 # the put itself is refused by uav2's router (it arrives under router-uav1's CN) ...
                 fleet = f"router-{ROBOT} may not put on {keys.fleet_task_key('direct_t1')}"
                 wait_until(lambda: fleet in r2.router_log(), 30, "uav2's router refusing the relayed fleet task")
@@ -507,7 +507,7 @@ def test_a_hub_carries_a_signed_fleet_task_and_the_fleet_state_between_two_launc
                 view.post(FleetTask(id="hub_t1", one_per_robot=True, posted_by="gcs", targets=[
                     FleetTarget(id=f"near_{name}", lat=lat, lon=lon, alt=homes[name][2] + 10.0)
                     for name, (lat, lon) in near.items()]),
-                          TaskSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
+                          StationSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
                 # both decisions, the same on both robots, with both bidders: each RAL had the other's bids, which
                 # travel in its fleet state (cromat/<robot>/@ral/fleet) from its router through the hub to the other's
                 dec = view.wait(lambda: view.agreed("hub_t1", {ROBOT, PEER}), 30)

@@ -14,7 +14,7 @@ import pytest
 from bbcs import keys
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetTarget, FleetTask
-from bbcs.signing import FleetTrust, verify_task
+from bbcs.signing import FleetTrust, verify
 from bbcs.testing import wait_until
 from cromat import certs
 from ral.fleet import can_do_from, goto_of
@@ -145,6 +145,6 @@ def test_cromat_gcs_fleet_post_signs_with_the_station_s_certificate_and_refuses_
         wait_until(lambda: len(got) == 2, 10, "the posted task")
         task = msgspec.msgpack.decode(got[1], type=FleetTask)
         trust = FleetTrust.from_files(tmp_path / "ca" / "ca.pem", ["gcs"])
-        assert task.id == "signed" and verify_task(task, trust, time.time()) == "gcs"
+        assert task.id == "signed" and verify(task, trust, time.time()) == "gcs"
     finally:
         sub.undeclare()

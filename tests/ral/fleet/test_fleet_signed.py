@@ -13,7 +13,7 @@ import msgspec
 import pytest
 
 from bbcs.contracts.fleet import FleetState, FleetTarget, FleetTask
-from bbcs.signing import FleetTrust, TaskSigner
+from bbcs.signing import FleetTrust, StationSigner
 from cromat import certs
 from ral.fleet import FleetLink, TaskGate
 from ral.fleet_protocol import OwnState
@@ -23,8 +23,8 @@ TASK = FleetTask(id="t1", targets=[FleetTarget(id="a", lat=37.41, lon=-6.0, alt=
 
 @dataclass
 class Keys:
-    signer: TaskSigner
-    module: TaskSigner
+    signer: StationSigner
+    module: StationSigner
     trust: FleetTrust
     now: float
 
@@ -36,8 +36,8 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Keys:
     certs.make_ca(root / "ca")
     for name in ("gcs", "vision"):
         certs.make_leaf(root / "ground", name, ca_dir=root / "ca")
-    signer = TaskSigner.from_files(root / "ground" / "gcs.pem", root / "ground" / "gcs.key")
-    module = TaskSigner.from_files(root / "ground" / "vision.pem", root / "ground" / "vision.key")
+    signer = StationSigner.from_files(root / "ground" / "gcs.pem", root / "ground" / "gcs.key")
+    module = StationSigner.from_files(root / "ground" / "vision.pem", root / "ground" / "vision.key")
     return Keys(signer, module, FleetTrust.from_files(Path(root / "ca" / "ca.pem"), ["gcs"]),
                 signer.cert.not_valid_before_utc.timestamp() + 60.0)
 
