@@ -69,11 +69,9 @@ def write_router_config(manifest: Manifest, listen: list[str], folder: Path) -> 
 
 def router_tls(manifest: Manifest) -> TlsConfig:
     """The router's own certificate (CN ``router-<robot>``) as a client's: how the launch asks its mesh peers."""
-    pki = manifest.pki
-    _tls(manifest)
-    assert pki is not None
-    return TlsConfig(root_ca=str(pki / "ca.pem"), cert=str(pki / f"{ROUTER}.pem"), key=str(pki / f"{ROUTER}.key"),
-                     mtls=True)
+    tls = client_bus(manifest, [], ROUTER).tls
+    assert tls is not None
+    return tls
 
 
 def client_bus(manifest: Manifest, connect: list[str], identity: str) -> SessionConfig:
