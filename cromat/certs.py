@@ -18,7 +18,7 @@ With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + acces
 :mod:`bbcs.acl`) pointing at the robot folder. Keys are written mode 0600 and must never be committed.
 
 The openssl commands are listed in docs/security.md. (Certificates are made with the openssl command-line tool;
-the ``cryptography`` package only signs and checks fleet tasks, bbcs/signing.py.)
+the ``cryptography`` package only signs and checks fleet tasks and zone edits, bbcs/signing.py.)
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bbcs import acl
+from bbcs import acl, keys
 
 CA = "ca"
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
@@ -206,7 +206,7 @@ def _hub(args: argparse.Namespace) -> int:
     out = Path(args.dir)
     robots = [r.strip() for r in (args.robots or "").split(",") if r.strip()]
     try:
-        acl.keys.validate_name(args.hub, "hub identity")
+        keys.validate_name(args.hub, "hub identity")
         if (out / f"{CA}.key").exists():
             raise CertError(f"{out / 'ca.key'}: a CA key in the hub's folder; keep it in the operator's CA folder")
         if Path(args.ca).resolve() == out.resolve():
