@@ -16,6 +16,12 @@ A fleet manifest names one robot manifest and how to multiply it::
 Mesh: a star on a hub router that ``cromat fleet`` starts first (a ground router: ground stations connect to
 it); every robot's router peers it (``[bus] peers``), Zenoh routing between routers.
 What each robot gets is written under ``--run-dir`` (manifest, .conf, logs), checked before anything starts.
+
+A secured fleet: ``manifest`` names a robot manifest with ``[bus.tls]`` (``uav1_secure.toml``; ``secure = true``
+says so explicitly and is refused with a manifest without it). ``cromat fleet`` then runs ``cromat certs`` into
+the run dir (a fleet CA in ``ca/``, each robot's identities in ``<name>/pki``, the ground station's pair in
+``ground/``, the hub's pair and policy in ``hub/`` and ``hub.json5``), links every robot to the hub over
+``tls/`` (``[bus.tls] hubs``) and starts the hub with mTLS and its policy (``hub = "hub"``: its identity).
 """
 
 from __future__ import annotations
@@ -29,9 +35,11 @@ import sys
 import threading
 import time
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+from bbcs import keys
+from bbcs.acl import MESH_ROUTER_PREFIX
 from bbcs.net import free_port, wait_tcp
 from module_manager.lines import print_line
 from module_manager.manifest import ManifestError, load_manifest
@@ -54,6 +62,13 @@ class FleetSpec:
     conf: tuple[tuple[str, str], ...] = ()
     """.conf lines set in every robot's renamed .conf (e.g. a longer DSP_ACK_TIMEOUT when ten simulators share
     a small machine)."""
+    secure: bool = False
+    """The robot manifest has ``[bus.tls]``: identities issued into the run dir, robots linked to the hub over
+    ``tls/``, the hub started with mTLS and its policy."""
+    hub: str = "hub"
+    """A secured fleet's hub router identity (its certificate CN, each robot's ``[bus.tls] hubs``)."""
+    gcs: tuple[str, ...] = ()
+    """A secured fleet's ground-station identities (the robot manifest's ``[bus.tls] gcs``)."""
 
 
 def load_fleet(path: Path) -> FleetSpec:
@@ -64,7 +79,8 @@ def load_fleet(path: Path) -> FleetSpec:
     f = raw.get("fleet")
     if not isinstance(f, dict):
         raise FleetError(f"{path}: no [fleet] table")
-    unknown = set(f) - {"manifest", "robots", "name", "home", "spacing_m", "drop", "time_scale", "record", "conf"}
+    unknown = set(f) - {"manifest", "robots", "name", "home", "spacing_m", "drop", "time_scale", "record", "conf",
+                        "secure", "hub"}
     if unknown:
         raise FleetError(f"{path}: unknown key(s) in [fleet]: {sorted(unknown)}")
     try:
@@ -83,7 +99,45 @@ def load_fleet(path: Path) -> FleetSpec:
     names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
     if len(set(names)) != len(names):
         raise FleetError(f"{path}: [fleet] name = {spec.name!r} gives one name to two robots")
-    return spec
+    return _secured(path, f, spec, names)
+
+
+def _secured(path: Path, f: dict, spec: FleetSpec, names: list[str]) -> FleetSpec:
+    """``spec`` made secure when its robot manifest has ``[bus.tls]``; an inconsistent secured fleet is refused
+    naming the fleet file and key."""
+    try:
+        base = load_manifest(spec.manifest, check_pki=False)
+    except ManifestError as exc:
+        raise FleetError(f"{path}: [fleet] manifest: {exc}") from exc
+    tls = base.raw.bus.tls
+    secure = f.get("secure", tls is not None)
+    if not isinstance(secure, bool):
+        raise FleetError(f"{path}: [fleet] secure = {secure!r}: true or false")
+    if secure and tls is None:
+        raise FleetError(f"{path}: [fleet] secure = true but manifest {spec.manifest} has no [bus.tls] (point "
+                         "manifest at a secured robot manifest, e.g. uav1_secure.toml)")
+    if not secure and tls is not None:
+        raise FleetError(f"{path}: [fleet] secure = false but manifest {spec.manifest} has [bus.tls]: a secured "
+                         "robot is not launched unsecured (use uav1_sim.toml)")
+    if tls is None:
+        if "hub" in f:
+            raise FleetError(f"{path}: [fleet] hub: a hub identity is for a secured fleet only")
+        return spec
+    for key in ("hubs", "mesh_robots"):
+        if getattr(tls, key):
+            raise FleetError(f"{path}: [fleet] manifest: {spec.manifest}: bus.tls.{key} is set; a fleet links its "
+                             "robots to its own hub (leave it empty)")
+    hub = f.get("hub", "hub")
+    try:
+        keys.validate_name(hub, "hub identity") if isinstance(hub, str) else keys.validate_name("", "hub identity")
+    except ValueError as exc:
+        raise FleetError(f"{path}: [fleet] hub: {exc}") from exc
+    taken = {**{n: "a robot's name" for n in names}, **{g: "a ground station's identity" for g in tls.gcs},
+             "ca": "the CA's file name", "ground": "the ground folder's name"}
+    if hub in taken or hub.startswith(MESH_ROUTER_PREFIX):
+        why = taken.get(hub, "a robot router's identity (router-<robot>)")
+        raise FleetError(f"{path}: [fleet] hub = {hub!r} is {why}: the hub needs its own identity")
+    return replace(spec, secure=True, hub=hub, gcs=tuple(tls.gcs))
 
 
 def robot_name(spec: FleetSpec, n: int) -> str:
@@ -105,12 +159,14 @@ def drop_sections(text: str, headers: set[str]) -> str:
 
 
 def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str]) -> Path:
-    """Write robot ``n``'s manifest (and its renamed .conf) under ``run_dir/<name>``; returns the manifest."""
+    """Write robot ``n``'s manifest (and its renamed .conf) under ``run_dir/<name>``; returns the manifest. A secured
+    fleet's robot gets its pki folder ``run_dir/<name>/pki`` and the hub in ``[bus.tls] hubs`` (its certificates
+    are issued after: :func:`issue_identities`)."""
     name = robot_name(spec, n)
     folder = run_dir / name
     folder.mkdir(parents=True, exist_ok=True)
     text = spec.manifest.read_text()
-    base = load_manifest(spec.manifest)
+    base = load_manifest(spec.manifest, check_pki=False)  # a secured base: its certificates are not needed
     conf_src: Path | None = base.conf
     text, k = re.subn(r'(\[robot\][^\[]*?\nname = )"[^"]*"', rf'\g<1>"{name}"', text, count=1)
     if k != 1:
@@ -145,13 +201,65 @@ def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str]) -> 
     text = re.sub(r'(?m)^(ready = \{ kind = "stdout", pattern = "socket://", timeout_s = )[0-9.]+',
                   r"\g<1>60.0", text)  # ten simulators starting on one small machine: more time to be ready
     text = drop_sections(text, set(spec.drop))
+    if spec.secure:
+        text = re.sub(r"(?m)^(hubs|mesh_robots) = .*\n", "", text)
+        text, k = re.subn(r'(?m)^pki = "[^"]*"', f'pki = "{folder / "pki"}"', text, count=1)
+        if k != 1 or "[bus.tls]\n" not in text:
+            raise FleetError(f"{spec.manifest}: no [bus.tls] pki line to point at the run dir")
+        text = text.replace("[bus.tls]\n", f'[bus.tls]\nhubs = ["{spec.hub}"]\n', 1)
     path = folder / f"{name}.toml"
     path.write_text(text)
     try:
-        load_manifest(path)
+        load_manifest(path, check_pki=False)
     except ManifestError as exc:
         raise FleetError(f"robot {name}: {exc}") from exc
     return path
+
+
+@dataclass(frozen=True)
+class FleetPki:
+    """Where a secured fleet's identities went (all under the run dir; generated, never committed)."""
+
+    ca: Path
+    """The fleet CA's folder (``ca.key``: the operator's, never in a robot's folder)."""
+    ground: Path
+    """The ground stations' pairs (``<gcs>.pem``/``.key``) and ``ca.pem``."""
+    hub: Path
+    """The hub router's pair (``<hub>.pem``/``.key``) and ``ca.pem``."""
+    hub_config: Path
+    """The hub router's Zenoh config: mTLS and its policy (:func:`bbcs.acl.hub_config`)."""
+
+    def station(self, gcs: str) -> tuple[Path, Path, Path]:
+        """(ca, cert, key) of ground station ``gcs``."""
+        return self.ground / "ca.pem", self.ground / f"{gcs}.pem", self.ground / f"{gcs}.key"
+
+
+def run_certs(argv: list[str]) -> None:
+    """``cromat certs ARGV`` as a user runs it (cromat/certs.py: the one place identities are issued)."""
+    proc = subprocess.run([sys.executable, "-m", "cromat.certs", *argv], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise FleetError(f"cromat certs {' '.join(argv)}: {proc.stderr.strip() or proc.stdout.strip()}")
+
+
+def issue_identities(spec: FleetSpec, run_dir: Path, names: list[str], manifests: list[Path],
+                     hub_listen: str) -> FleetPki:
+    """A secured fleet's identities, issued by ``cromat certs`` from one fleet CA: each robot's as ``cromat certs
+    --manifest`` issues them for one robot (router ``router-<robot>``, manager, its modules and RAL), the ground
+    stations', and the hub's pair with its policy (``cromat certs --hub --robots --acl``). Then every robot
+    manifest is checked with its certificates."""
+    pki = FleetPki(ca=run_dir / "ca", ground=run_dir / "ground", hub=run_dir / "hub",
+                   hub_config=run_dir / "hub.json5")
+    for manifest in manifests:
+        run_certs(["--manifest", str(manifest), "--ca", str(pki.ca), "--ground", str(pki.ground)])
+    gcs = [arg for g in spec.gcs for arg in ("--gcs", g)]
+    run_certs([str(pki.hub), "--hub", spec.hub, "--ca", str(pki.ca), "--robots", ",".join(names), "--acl",
+               str(pki.hub_config), "--listen", hub_listen, *gcs])
+    for name, manifest in zip(names, manifests, strict=True):
+        try:
+            load_manifest(manifest)
+        except ManifestError as exc:
+            raise FleetError(f"robot {name}: {exc}") from exc
+    return pki
 
 
 class Fleet:
@@ -163,10 +271,14 @@ class Fleet:
         self.out = out
         self.ports = [free_port() for _ in range(spec.robots)]
         self.hub_port = free_port()
-        hub = f"tcp/127.0.0.1:{self.hub_port}"
+        self.scheme = "tls" if spec.secure else "tcp"
+        self.hub_endpoint = f"{self.scheme}/127.0.0.1:{self.hub_port}"
         self.names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
-        self.manifests = [robot_manifest(spec, n, run_dir, [hub]) for n in range(1, spec.robots + 1)]
+        self.manifests = [robot_manifest(spec, n, run_dir, [self.hub_endpoint]) for n in range(1, spec.robots + 1)]
+        self.pki = issue_identities(spec, run_dir, self.names, self.manifests, self.hub_endpoint) if spec.secure \
+            else None
         self.hub: subprocess.Popen | None = None
+        self.hub_log = run_dir / "hub.log"
         self.batch = 5
         self.by_index: dict[int, subprocess.Popen] = {}
         self.attempts: dict[int, int] = {}
@@ -178,8 +290,14 @@ class Fleet:
         self.cond = threading.Condition()
 
     def start(self, timeout_s: float = 300.0) -> None:
-        self.hub = subprocess.Popen([sys.executable, "-m", "bbcs.router", "--listen",
-                                     f"tcp/127.0.0.1:{self.hub_port}"], stdout=subprocess.DEVNULL)
+        if self.pki is None:
+            self.hub = subprocess.Popen([sys.executable, "-m", "bbcs.router", "--listen", self.hub_endpoint],
+                                        stdout=subprocess.DEVNULL)
+        else:  # mTLS and the hub's policy; its refusals logged (run dir/hub.log)
+            with self.hub_log.open("w") as log:
+                self.hub = subprocess.Popen([sys.executable, "-m", "bbcs.router", "--config", str(self.pki.hub_config),
+                                             "--listen", self.hub_endpoint, "--log-refusals"],
+                                            stdout=log, stderr=subprocess.STDOUT)
         if not wait_tcp("127.0.0.1", self.hub_port, 30):
             raise FleetError(f"the hub router does not listen on 127.0.0.1:{self.hub_port}")
         for first in range(0, len(self.names), self.batch):  # a few at a time: a small machine starts them all
@@ -192,7 +310,7 @@ class Fleet:
         name = self.names[i]
         proc = subprocess.Popen(
             [sys.executable, "-m", "module_manager.cli", str(self.manifests[i]), "--listen",
-             f"tcp/127.0.0.1:{self.ports[i]}", "--log-dir", str(self.run_dir / name / "logs")],
+             f"{self.scheme}/127.0.0.1:{self.ports[i]}", "--log-dir", str(self.run_dir / name / "logs")],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # in the fleet's process group
         self.procs.append(proc)
         self.by_index[i] = proc
@@ -240,6 +358,20 @@ class Fleet:
                 p.wait(5)
 
 
+def station_lines(fleet: Fleet) -> list[str]:
+    """For a secured fleet: where each ground station's pair is and the command that connects it to the hub."""
+    if fleet.pki is None:
+        return []
+    lines = []
+    for gcs in fleet.spec.gcs:
+        ca, cert, key = fleet.pki.station(gcs)
+        lines.append(f"fleet: ground station {gcs}: cromat gcs --connect {fleet.hub_endpoint} --ca {ca} "
+                     f"--cert {cert} --key {key} robots")
+    lines.append(f"fleet: identities from the fleet CA {fleet.pki.ca} (keep ca.key off the robots); hub "
+                 f"{fleet.spec.hub}'s policy {fleet.pki.hub_config}, its refusals in {fleet.hub_log}")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="cromat fleet", description=__doc__.splitlines()[0])
     ap.add_argument("fleet", help="fleet manifest (.toml), e.g. bbcs_conf/fleet10_sim.toml")
@@ -254,14 +386,18 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     if args.check:
         print(f"{args.fleet}: ok ({spec.robots} robots: {', '.join(fleet.names)})")
+        for line in station_lines(fleet):
+            print(line)
         return 0
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
         fleet.start()
-        print_line(f"fleet: all {spec.robots} robots up, meshed on tcp/127.0.0.1:{fleet.hub_port} "
+        print_line(f"fleet: all {spec.robots} robots up, meshed on {fleet.hub_endpoint} "
                    f"({' '.join(f'{n}={p}' for n, p in zip(fleet.names, fleet.ports, strict=True))})")
+        for line in station_lines(fleet):
+            print_line(line)
         while not stop.is_set() and all(p.poll() is None for p in fleet.procs):
             stop.wait(0.5)
         return 0
