@@ -367,8 +367,8 @@ def station_lines(fleet: Fleet) -> list[str]:
         ca, cert, key = fleet.pki.station(gcs)
         lines.append(f"fleet: ground station {gcs}: cromat gcs --connect {fleet.hub_endpoint} --ca {ca} "
                      f"--cert {cert} --key {key} robots")
-    lines.append(f"fleet: identities from the fleet CA {fleet.pki.ca} (keep ca.key off the robots); hub "
-                 f"{fleet.spec.hub}'s policy {fleet.pki.hub_config}, its refusals in {fleet.hub_log}")
+    lines.append(f"fleet: identities from the fleet CA {fleet.pki.ca} (keep ca.key off the robots); the hub "
+                 f"router ({fleet.spec.hub}): policy {fleet.pki.hub_config}, refusals in {fleet.hub_log}")
     return lines
 
 
