@@ -127,13 +127,19 @@ def _secured(path: Path, f: dict, spec: FleetSpec, names: list[str]) -> FleetSpe
         if getattr(tls, key):
             raise FleetError(f"{path}: [fleet] manifest: {spec.manifest}: bus.tls.{key} is set; a fleet links its "
                              "robots to its own hub (leave it empty)")
+    dropped = {"bus", "bus.tls"} & set(spec.drop)
+    if dropped:
+        raise FleetError(f"{path}: [fleet] drop: {sorted(dropped)[0]!r}: a secured fleet keeps [bus.tls]")
     hub = f.get("hub", "hub")
+    if not isinstance(hub, str):
+        raise FleetError(f"{path}: [fleet] hub = {hub!r}: the hub router's identity, a name")
     try:
-        keys.validate_name(hub, "hub identity") if isinstance(hub, str) else keys.validate_name("", "hub identity")
+        keys.validate_name(hub, "hub identity")
     except ValueError as exc:
         raise FleetError(f"{path}: [fleet] hub: {exc}") from exc
     taken = {**{n: "a robot's name" for n in names}, **{g: "a ground station's identity" for g in tls.gcs},
-             "ca": "the CA's file name", "ground": "the ground folder's name"}
+             **{base.identity(m): f"module {m}'s identity" for m in base.modules},
+             "ca": "the CA's", "router": "a robot router's", "manager": "the manager's identity"}
     if hub in taken or hub.startswith(MESH_ROUTER_PREFIX):
         why = taken.get(hub, "a robot router's identity (router-<robot>)")
         raise FleetError(f"{path}: [fleet] hub = {hub!r} is {why}: the hub needs its own identity")

@@ -93,6 +93,9 @@ def _secure_with(tmp_path: Path, extra: str) -> Path:
     ('manifest = "CONF/uav1_secure.toml"\nhub = "uav02"\n', r"\[fleet\] hub = 'uav02' is a robot's name"),
     ('manifest = "CONF/uav1_secure.toml"\nhub = "gcs"\n', r"\[fleet\] hub = 'gcs' is a ground station's identity"),
     ('manifest = "CONF/uav1_secure.toml"\nhub = "a/b"\n', r"\[fleet\] hub: hub identity 'a/b'"),
+    ('manifest = "CONF/uav1_secure.toml"\nhub = 7\n', r"\[fleet\] hub = 7: the hub router's identity"),
+    ('manifest = "CONF/uav1_secure.toml"\nhub = "ral"\n', r"\[fleet\] hub = 'ral' is module ral's identity"),
+    ('manifest = "CONF/uav1_secure.toml"\ndrop = ["bus.tls"]\n', r"\[fleet\] drop: 'bus\.tls': a secured fleet keeps"),
     ('manifest = "CONF/uav1_sim.toml"\nhub = "hub"\n', r"\[fleet\] hub: a hub identity is for a secured fleet"),
 ])
 def test_an_inconsistent_secured_fleet_is_refused_naming_file_and_key(tmp_path: Path, body: str, why: str) -> None:
