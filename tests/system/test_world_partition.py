@@ -4,15 +4,18 @@ the hub router (tests/system/netns_support.py, as in test_fleet_partition.py). E
 ``ral.world_bus.WorldNode`` in a process of its own (tests/system/world_agent.py), on a secured fleet's trust: it
 applies and merges zones and removals only if the ground station signed them.
 
-- before the cut: a station-signed zone ``range`` added through b reaches c through the relay;
+- before the cut: station-signed zones ``range`` and ``pond`` added through b reach c through the relay;
 - during the cut: the ground station (on the hub) adds a signed no-fly zone ``quarry`` through a and removes
-  ``range``; a's vision reports a target and a's manager completes a survey; c's vision reports a target of its
-  own. a and b agree on their side; c holds none of it (it would fly into ``quarry``, and still refuses ``range``),
-  and a and b do not hold c's target;
+  ``range`` and ``pond``; a's vision reports a target and a's manager completes a survey; c's vision reports a
+  target of its own, and a station on c's side moves ``pond`` (the same version as the removal: a conflict). a and
+  b agree on their side; c holds none of it (it would fly into ``quarry``, and still refuses ``range``), and a and
+  b hold neither c's target nor the moved ``pond``;
 - after the heal (nothing replayed: only the 2 s digest exchange can bring the entries across): within
   ``CONVERGE_S`` of the heal every node holds every entry, tombstones included, with the same digest; each entry
   keeps its origin robot, its stamp (written during the cut) and the station's signature (no node's gate refused
-  anything); c now refuses a goto into ``quarry``, naming it, and lets one into the removed ``range`` pass.
+  anything); c now refuses a goto into ``quarry``, naming it, and lets one into the removed ``range`` pass; the
+  conflict over ``pond`` ends the same everywhere (the greater origin, c, wins: a refuses a goto into the moved
+  pond, naming c).
 
 The control, by hand: with ``WorldNode._on_digest`` returning at once (no anti-entropy), the heal converges
 nothing and the test fails at the ``CONVERGE_S`` wait.
@@ -141,11 +144,11 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
 
         # before the cut: a zone through b reaches c (the relay is c's link)
         in_range, in_quarry = point(1000, 0), point(-1000, 0)
-        added = edit(session, "b", w.WorldPut(id="range", body=w.NoFlyZone(polygon=square(1000, 0, 100),
-                                                                           name="firing range"), author="ground"),
-                     signer)
-        assert added.accepted, added.reason
-        wait_until(lambda: "range" in c.entries(), 30, "the zone at c through the relay")
+        for zone_id, where in (("range", square(1000, 0, 100)), ("pond", square(0, 1000, 100))):
+            added = edit(session, "b", w.WorldPut(id=zone_id, body=w.NoFlyZone(polygon=where), author="ground"),
+                         signer)
+            assert added.accepted, added.reason
+        wait_until(lambda: {"range", "pond"} <= set(c.entries()), 30, "the zones at c through the relay")
         assert c.refusal(*in_range) is not None and c.refusal(*in_quarry) is None
 
         relay.cut()
@@ -153,17 +156,26 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
         quarry = edit(session, "a", w.WorldPut(id="quarry", body=w.NoFlyZone(polygon=square(-1000, 0, 100),
                                                                              name="quarry"), author="ground"), signer)
         removed = edit(session, "a", w.WorldDelete(id="range", author="ground"), signer)
-        assert quarry.accepted and removed.accepted, (quarry.reason, removed.reason)
+        pond_gone = edit(session, "a", w.WorldDelete(id="pond", author="ground"), signer)
+        assert quarry.accepted and removed.accepted and pond_gone.accepted, (quarry, removed, pond_gone)
+        moved = signed_request(w.WorldPut(id="pond", body=w.NoFlyZone(polygon=square(0, 2000, 100)),
+                                          author="field"), signer)
+        pond = msgspec.msgpack.decode(bytes.fromhex(c.ask(op="edit", request=msgspec.msgpack.encode(moved).hex())[
+            "reply"]), type=w.WorldReply)
+        assert pond.accepted and pond.entry is not None and pond.entry.version == pond_gone.entry.version == 2
         seen_a = a.entry("see", lat=point(50, 50)[0], lon=point(50, 50)[1], alt=20.0)
         surveyed_a = a.entry("survey", task=7, polygon=[[v.lat, v.lon] for v in square(200, 200, 50)])
         seen_c = c.entry("see", lat=point(650, -40)[0], lon=point(650, -40)[1], alt=21.0)
-        written = {e.id: e for e in (quarry.entry, removed.entry, seen_a, surveyed_a, seen_c) if e is not None}
-        assert len(written) == 5
+        written = {e.id: e for e in (quarry.entry, removed.entry, seen_a, surveyed_a, seen_c, pond.entry)
+                   if e is not None}
+        assert len(written) == 6
         wait_until(lambda: len({a.snapshot()[0].digest, b.snapshot()[0].digest}) == 1
                    and b.entries().get("target.a") == seen_a, 20, "a and b agree during the cut")
         c_cut = c.entries()
         assert not {"quarry", "target.a", "surveyed.a.7"} & set(c_cut) and not c_cut["range"].deleted, c_cut
-        assert "target.c" not in a.entries() and "target.c" not in b.entries()
+        assert "target.c" not in a.entries() and "target.c" not in b.entries() and b.entries()["pond"].deleted
+        in_pond = point(0, 2000)
+        assert a.refusal(*in_pond) is None and c.refusal(*in_pond) is not None
         assert c.refusal(*in_quarry) is None, "c, cut off, knows nothing of the zone"
         assert c.refusal(*in_range) is not None, "c, cut off, still holds the removed zone"
 
@@ -185,8 +197,8 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
 
         models = {name: {e.id: e for e in s.entries} for name, (s, _) in snaps.items()}
         assert models["a"] == models["b"] == models["c"]
-        assert sorted(models["c"]) == ["quarry", "range", "surveyed.a.7", "target.a", "target.c"]
-        origins = {"quarry": "a", "range": "a", "target.a": "a", "surveyed.a.7": "a", "target.c": "c"}
+        assert sorted(models["c"]) == ["pond", "quarry", "range", "surveyed.a.7", "target.a", "target.c"]
+        origins = {"quarry": "a", "range": "a", "target.a": "a", "surveyed.a.7": "a", "target.c": "c", "pond": "c"}
         for entry_id, entry in written.items():  # origin, stamp, signature: as written, not as merged
             assert models["c"][entry_id] == entry and models["a"][entry_id] == entry, entry_id
             assert entry.origin == origins[entry_id] and cut_at <= entry.stamp <= heal_at, entry
@@ -198,6 +210,8 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
         why_not = c.refusal(*in_quarry)
         assert why_not is not None and "inside no-fly zone 'quarry'" in why_not and "set by ground via a" in why_not
         assert c.refusal(*in_range) is None, "the removal made during the cut reached c"
+        why_not = a.refusal(*in_pond)
+        assert why_not is not None and "inside no-fly zone 'pond', set by field via c" in why_not, why_not
         assert relay.accepted >= 2, "the heal went through a new relayed connection"
     finally:
         if session is not None:

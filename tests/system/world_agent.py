@@ -7,6 +7,8 @@ Driven by JSON lines on stdin, one JSON line answered on stdout each (``ready`` 
   ``vision/target`` key, as the vision module writes it); answers the entry the RAL made of it (msgpack, hex);
 - ``{"op": "survey", "task", "polygon": [[lat, lon], ...]}``: the robot's manager lists that survey task as
   completed (its ``RobotState`` on the MRI state key); answers the surveyed-area entry;
+- ``{"op": "edit", "request": msgpack hex}``: a ground station in the robot's own partition asks this RAL for a
+  ``WorldPut``/``WorldDelete`` (what its ``world_request`` queryable runs); answers the ``WorldReply`` (hex);
 - ``{"op": "snapshot"}``: the node's whole model (``WorldSnapshot``, msgpack, hex) and what its gate refused;
 - ``{"op": "check", "lat", "lon", "alt"}``: what the RAL answers a ``goto`` to that point from where the robot
   hovers (``position``): ``WorldNode.refusal``, the check ``Ral.handle`` makes before admitting any task.
@@ -82,6 +84,9 @@ def main() -> int:
                     mri.RobotState(robot=robot, kind="uav", stamp=time.time(), ended=[done])))
                 entry = _wait_entry(node, f"surveyed.{robot}.{cmd['task']}", lambda e: True)
                 out = {"entry": msgspec.msgpack.encode(entry).hex()}
+            elif op == "edit":
+                request = msgspec.msgpack.decode(bytes.fromhex(cmd["request"]), type=w.WorldRequest)
+                out = {"reply": msgspec.msgpack.encode(node.request(request)).hex()}
             elif op == "snapshot":
                 out = {"snapshot": msgspec.msgpack.encode(node.snapshot()).hex(), "refused": dict(node.gate.refused)}
             elif op == "check":
