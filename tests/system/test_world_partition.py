@@ -27,6 +27,7 @@ import json
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
@@ -56,6 +57,14 @@ M = 1 / 111_320  # degrees of latitude per metre
 CONVERGE_S = 20.0
 """From the heal to one model everywhere: c's router reconnects (Zenoh retries a lost link every 1 to 4 s), then
 the next digest (every 2 s) differs and the peers' snapshots are asked for (a query of at most 3 s)."""
+
+
+def poll(predicate: Callable[[], bool], deadline_s: float, what: str) -> float:
+    """Ask the agents every 0.1 s (three stdin round trips a poll, not every 10 ms) until ``predicate``; the
+    seconds it took. Fails naming ``what`` at the deadline."""
+    start = time.monotonic()
+    wait_until(lambda: predicate() or time.sleep(0.1) or False, deadline_s, what)
+    return time.monotonic() - start
 
 
 def point(north_m: float, east_m: float) -> tuple[float, float]:
@@ -148,7 +157,8 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
             added = edit(session, "b", w.WorldPut(id=zone_id, body=w.NoFlyZone(polygon=where), author="ground"),
                          signer)
             assert added.accepted, added.reason
-        wait_until(lambda: {"range", "pond"} <= set(c.entries()), 30, "the zones at c through the relay")
+        poll(lambda: {"range", "pond"} <= set(c.entries()) & set(a.entries()), 30, "the zones at a, and at c through "
+             "the relay")
         assert c.refusal(*in_range) is not None and c.refusal(*in_quarry) is None
 
         relay.cut()
@@ -169,8 +179,8 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
         written = {e.id: e for e in (quarry.entry, removed.entry, seen_a, surveyed_a, seen_c, pond.entry)
                    if e is not None}
         assert len(written) == 6
-        wait_until(lambda: len({a.snapshot()[0].digest, b.snapshot()[0].digest}) == 1
-                   and b.entries().get("target.a") == seen_a, 20, "a and b agree during the cut")
+        poll(lambda: len({a.snapshot()[0].digest, b.snapshot()[0].digest}) == 1
+             and b.entries().get("target.a") == seen_a, 20, "a and b agree during the cut")
         c_cut = c.entries()
         assert not {"quarry", "target.a", "surveyed.a.7"} & set(c_cut) and not c_cut["range"].deleted, c_cut
         assert "target.c" not in a.entries() and "target.c" not in b.entries() and b.entries()["pond"].deleted
@@ -181,18 +191,13 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
 
         heal_at = time.time()
         relay.heal()
-        healed_at = time.monotonic()
         snaps: dict[str, tuple[w.WorldSnapshot, dict[str, int]]] = {}
 
         def one_model() -> bool:
             snaps.update({name: agent.snapshot() for name, agent in agents.items()})
-            if len({s.digest for s, _ in snaps.values()}) == 1:
-                return True
-            time.sleep(0.1)  # three stdin round trips a poll: not every 10 ms
-            return False
+            return len({s.digest for s, _ in snaps.values()}) == 1
 
-        wait_until(one_model, CONVERGE_S, "one world model on a, b and c after the heal")
-        converge_s = time.monotonic() - healed_at
+        converge_s = poll(one_model, CONVERGE_S, "one world model on a, b and c after the heal")
         print(f"world model converged {converge_s:.2f} s after the heal")
 
         models = {name: {e.id: e for e in s.entries} for name, (s, _) in snaps.items()}
