@@ -151,7 +151,7 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
         probe = reaches_port_from_own_netns(hub)
         assert probe.returncode != 0 and "refused" in probe.stderr.lower(), probe.stderr
 
-        # before the cut: a zone through b reaches c (the relay is c's link)
+        # before the cut: zones added through b reach a, and c through the relay (its only link)
         in_range, in_quarry = point(1000, 0), point(-1000, 0)
         for zone_id, where in (("range", square(1000, 0, 100)), ("pond", square(0, 1000, 100))):
             added = edit(session, "b", w.WorldPut(id=zone_id, body=w.NoFlyZone(polygon=where), author="ground"),
