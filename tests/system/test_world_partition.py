@@ -38,7 +38,7 @@ from bbcs.contracts import world as w
 from bbcs.net import free_port
 from bbcs.session import local_client, open_session
 from bbcs.signing import StationSigner
-from bbcs.testing import CutRelay, Processes, start_router, wait_until
+from bbcs.testing import CutRelay, Processes, wait_port, wait_until
 from cromat import certs
 from ral.gcs.fleet_cmd import signed_request
 
@@ -130,7 +130,15 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
     procs: list[subprocess.Popen] = []
     relay = session = None
     try:
-        hub = start_router(routers)
+        def router(*connect: str) -> int:
+            """A router on a free port; not waited for here (each agent waits up to 30 s for its own)."""
+            port = free_port()
+            routers.start(["-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{port}",
+                           *[arg for link in connect for arg in ("--connect", link)]], stdout=subprocess.DEVNULL)
+            return port
+
+        hub = router()
+        wait_port(hub, 30)  # the helper's 10 s is short on this machine at a load of 40
         agents: dict[str, Agent] = {}
 
         def world_agent(name: str, port: int, north_m: float) -> list[str]:
@@ -139,7 +147,7 @@ def test_world_entries_written_on_both_sides_of_a_namespace_cut_reach_every_robo
                     str(ALT), "--ca", str(tmp_path / "ca" / "ca.pem"), "--station", "gcs"]
 
         for name, north in (("a", 0), ("b", 300)):
-            port = start_router(routers, connect=(f"tcp/127.0.0.1:{hub}",))
+            port = router(f"tcp/127.0.0.1:{hub}")
             agents[name] = Agent(start_ready(procs, world_agent(name, port, north), name, stdin=subprocess.PIPE))
         sock = tmp_path / "c_link.sock"
         relay = CutRelay.unix(sock, hub)
