@@ -17,8 +17,9 @@ applies and merges zones and removals only if the ground station signed them.
   conflict over ``pond`` ends the same everywhere (the greater origin, c, wins: a refuses a goto into the moved
   pond, naming c).
 
-The control, by hand: with ``WorldNode._on_digest`` returning at once (no anti-entropy), the heal converges
-nothing and the test fails at the ``CONVERGE_S`` wait.
+The controls, by hand: with ``WorldNode._on_digest`` returning at once (no anti-entropy), the heal converges
+nothing and the test fails at the ``CONVERGE_S`` wait; with ``relay.cut()`` left out, it fails during the cut (c's
+edit of ``pond`` is version 3: c already holds the removal).
 """
 
 from __future__ import annotations
