@@ -20,9 +20,6 @@ Safe *streams* published during a cut are not replayed after the heal, except GR
 
 from __future__ import annotations
 
-import os
-import shutil
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -32,19 +29,21 @@ import pytest
 from bbcs.contracts.fleet import FleetTarget, FleetTask
 from bbcs.net import free_port
 from bbcs.session import local_client, open_session
-from bbcs.testing import CutRelay, Processes, child_env, start_router, wait_until
+from bbcs.testing import CutRelay, Processes, start_router, wait_until
 from ral.fleet_gcs import FleetView
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from netns_support import (  # noqa: E402
+    in_own_netns,
+    namespaces_allowed,
+    reaches_port_from_own_netns,
+    start_ready,
+    stop_groups,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCH = ROOT / "bench" / "fleet.py"
 LAT0, LON0, ALT = 37.4117, -6.0025, 22.0
-
-
-def namespaces_allowed() -> str | None:
-    if shutil.which("unshare") is None or shutil.which("ip") is None:
-        return "unshare or ip not installed"
-    probe = subprocess.run(["unshare", "-n", "ip", "link", "set", "lo", "up"], capture_output=True, text=True)
-    return None if probe.returncode == 0 else f"network namespaces not allowed here: {probe.stderr.strip()}"
 
 
 def agent(procs: list[subprocess.Popen], name: str, port: int, north: float, east: float,
@@ -53,22 +52,7 @@ def agent(procs: list[subprocess.Popen], name: str, port: int, north: float, eas
     linked to the mesh only through that endpoint."""
     cmd = [sys.executable, str(BENCH), "--agent", name, "--port", str(port), "--north", str(north),
            "--east", str(east), "--speed", "1"]
-    if netns_link is not None:
-        router = [sys.executable, "-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{port}", "--connect", netns_link]
-        shell = ("ip link set lo up || exit 97; " + " ".join(map(_q, router)) + " >/dev/null & exec "
-                 + " ".join(map(_q, cmd)))
-        proc = subprocess.Popen(["unshare", "-n", "sh", "-c", shell], cwd=str(ROOT), env=child_env(),
-                                stdout=subprocess.PIPE, text=True, start_new_session=True)
-    else:
-        proc = subprocess.Popen(cmd, cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, text=True,
-                                start_new_session=True)
-    procs.append(proc)
-    assert proc.stdout is not None and proc.stdout.readline().strip() == "ready", f"agent {name} did not start"
-    return proc
-
-
-def _q(arg: str) -> str:
-    return "'" + arg.replace("'", "'\\''") + "'"
+    return start_ready(procs, cmd if netns_link is None else in_own_netns(cmd, port, netns_link), f"agent {name}")
 
 
 @pytest.mark.timeout(240)
@@ -104,9 +88,7 @@ def test_a_robot_cut_off_in_its_own_network_namespace_heals_into_one_allocation(
 
         wait_until(lambda: alive() == everyone, 30, "c's token seen through the relay from its namespace")
         # c's namespace has no route to the hub's TCP port: the relay is its only way out
-        probe = subprocess.run(["unshare", "-n", "sh", "-c", "ip link set lo up && exec " + " ".join(map(_q, [
-            sys.executable, "-c", f"import socket; socket.create_connection(('127.0.0.1', {hub}), 1)"]))],
-            capture_output=True, text=True)
+        probe = reaches_port_from_own_netns(hub)
         assert probe.returncode != 0 and "refused" in probe.stderr.lower(), probe.stderr
 
         m = 1 / 111_320
@@ -142,14 +124,7 @@ def test_a_robot_cut_off_in_its_own_network_namespace_heals_into_one_allocation(
             view.close()
         if session is not None:
             session.close()
-        for p in procs:
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGTERM)
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait(5)
+        stop_groups(procs)
         if relay is not None:
             relay.close()
         routers.stop_all()
