@@ -155,13 +155,26 @@ def goto_of(job: Execute) -> gri.TaskRequest:
     return t.Goto(waypoints=[t.Waypoint(lat=x.lat, lon=x.lon, alt=x.alt) for x in job.targets], speed=job.task.speed)
 
 
+def state_of_charge(battery_v: float | None, empty_v: float, full_v: float) -> float | None:
+    """The state of charge (0..1) a bid weighs, from the pack voltage: linear between the empty and full voltages
+    and clamped. Coarse (a LiPo's curve is flat in its middle and sags under load), but it orders robots the
+    right way, which is all an auction needs; None when the robot reports no voltage."""
+    if battery_v is None:
+        return None
+    return min(1.0, max(0.0, (battery_v - empty_v) / (full_v - empty_v)))
+
+
 def own_state_of(telemetry: Any, speed: float, can_do: frozenset[str], live_tasks: list[t.TaskInfo],
-                 available: bool = True) -> OwnState:
-    """The robot's bid state from the RAL's view: its position, its speed, how busy a movement task the fleet
-    did not give it keeps it, and whether its own failsafe is in force (``available`` False)."""
+                 available: bool = True, pack_v: tuple[float, float] | None = None) -> OwnState:
+    """The robot's bid state from the RAL's view: its position, its speed, its battery (``pack_v``: the empty and
+    full voltages; None: not weighed), how busy a movement task the fleet did not give it keeps it, and whether
+    its own failsafe is in force (``available`` False)."""
     pos = telemetry.position if telemetry is not None else None
+    volts = getattr(telemetry, "battery_v", None) if telemetry is not None else None
+    battery = state_of_charge(volts, *pack_v) if pack_v is not None else None
     busy = BUSY_DEFAULT_S if any(i.task_type == "movement" and i.origin != "fleet" and i.kind not in ("hold", "")
                                  for i in live_tasks) else 0.0
     flying = any(i.origin == "fleet" and i.status == "running" for i in live_tasks)
     return OwnState(lat=pos.lat if pos else None, lon=pos.lon if pos else None, alt=pos.alt if pos else None,
-                    speed=speed, can_do=can_do, busy_s=busy, flying_share=flying, available=available)
+                    speed=speed, can_do=can_do, battery=battery, busy_s=busy, flying_share=flying,
+                    available=available)

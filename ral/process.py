@@ -90,6 +90,12 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     """Fleet target kinds this robot bids on, comma-separated (``none``: never); empty: ``visit`` if it has goto."""
     fleet_bid_window_s: float = 2.0
     """Longest wait for every live RAL's bid before a fleet round is decided without it (ral/fleet.py)."""
+    battery_full_v: float = 0.0
+    """Pack voltage at a full charge (the UAV's 6S LiPo: 25.2 V); with ``battery_empty_v``, turns the telemetry's
+    ``battery_v`` into the state of charge a fleet bid weighs (ral/fleet.py ``state_of_charge``). 0: no estimate,
+    bids carry no battery."""
+    battery_empty_v: float = 0.0
+    """Pack voltage taken as empty (below the full one)."""
     fleet_ca: str = ""
     """Set by the launch on a secured robot (``[bus.tls]``): the fleet CA (PEM) a ground station's certificate must
     be issued by for this RAL to adopt a fleet task it signed (bbcs/signing.py). Empty on a TLS bus: the bus's CA."""
@@ -114,6 +120,11 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
             cfg = msgspec.convert(plain, cls, strict=False)
         except msgspec.ValidationError as exc:
             raise ValueError(f"bad RAL parameter: {exc}") from exc
+        if (cfg.battery_full_v or cfg.battery_empty_v) and not 0.0 <= cfg.battery_empty_v < cfg.battery_full_v <= 100.0:
+            raise ValueError(
+                f"bad RAL parameter: battery_empty_v = {cfg.battery_empty_v:g} and battery_full_v = "
+                f"{cfg.battery_full_v:g} must be volts with 0 <= empty < full <= 100 (both, or neither)"
+            )
         if cfg.mri_timeout_s <= mri.MANAGER_ACK_S:
             raise ValueError(
                 f"bad RAL parameter: mri_timeout_s = {cfg.mri_timeout_s:g} must exceed the manager's ack wait "
@@ -770,8 +781,9 @@ class Ral(Module):
         with self.lock:
             kinds = available_kinds(self.available, self.task_names)
             speed = self.limits.cruise_speed or min(5.0, self.limits.max_speed)
+            pack = (self.cfg.battery_empty_v, self.cfg.battery_full_v) if self.cfg.battery_full_v else None
             return own_state_of(self.telemetry, speed, can_do_from(self.cfg.fleet_can_do, kinds),
-                                list(self._live.values()), available=self.link.state != "failsafe")
+                                list(self._live.values()), available=self.link.state != "failsafe", pack_v=pack)
 
     def _fleet_fly(self, job: Execute) -> None:
         reply = self.handle(goto_of(job), origin="fleet")

@@ -24,3 +24,12 @@ def test_mri_timeout_not_above_the_manager_ack_wait_is_refused() -> None:
 def test_unknown_parameter_is_named() -> None:
     with pytest.raises(ValueError, match="unknown RAL parameter.*'mri_timeuot_s'"):
         RalConfig.from_params({"mri_timeuot_s": "8"})
+
+
+def test_battery_voltages_come_in_a_pair_with_empty_below_full() -> None:
+    cfg, _ = RalConfig.from_params({"battery_full_v": "25.2", "battery_empty_v": "19.8"})
+    assert (cfg.battery_empty_v, cfg.battery_full_v) == (19.8, 25.2)
+    for bad in ({"battery_full_v": "19.8", "battery_empty_v": "25.2"}, {"battery_empty_v": "19.8"},
+                {"battery_full_v": "25.2", "battery_empty_v": "-1"}, {"battery_full_v": "250", "battery_empty_v": "1"}):
+        with pytest.raises(ValueError, match="battery_empty_v = .* must be volts with 0 <= empty < full <= 100"):
+            RalConfig.from_params(bad)
