@@ -36,6 +36,7 @@ from bbcs.signing import FleetTrust
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from ral.fleet_protocol import Execute, FleetConfig, FleetNode, OwnState
 from ral.signed import SignatureGate
+from ral.tasks import distance_m
 
 log = logging.getLogger("ral.fleet")
 DEFAULT_SPEED = 5.0
@@ -164,16 +165,37 @@ def state_of_charge(battery_v: float | None, empty_v: float, full_v: float) -> f
     return min(1.0, max(0.0, (battery_v - empty_v) / (full_v - empty_v)))
 
 
+def busy_seconds(task: t.TaskInfo, pos: Any, speed: float) -> float:
+    """How long a movement task the fleet did not give keeps the robot, as its bids count it: for a path (goto,
+    follow_path) the rest of it from where the robot is (from the waypoint nearest it, or the next one once it is
+    past it) at the task's speed or the robot's; for any other movement (a take-off, a survey, an orbit, ...)
+    ``BUSY_DEFAULT_S``, a coarse stand-in stated in docs/fleet.md."""
+    params = task.params
+    if not isinstance(params, (t.Goto, t.FollowPath)) or pos is None:
+        return BUSY_DEFAULT_S
+    wps = params.waypoints
+    pace = params.speed or speed
+    near = min(range(len(wps)), key=lambda k: distance_m(pos.lat, pos.lon, wps[k].lat, wps[k].lon))
+    if near + 1 < len(wps):
+        ahead, leg = wps[near + 1], distance_m(wps[near].lat, wps[near].lon, wps[near + 1].lat, wps[near + 1].lon)
+        if distance_m(pos.lat, pos.lon, ahead.lat, ahead.lon) < leg:  # past the nearest one, on the next leg
+            near += 1
+    metres = distance_m(pos.lat, pos.lon, wps[near].lat, wps[near].lon) + sum(
+        distance_m(a.lat, a.lon, b.lat, b.lon) for a, b in zip(wps[near:], wps[near + 1:], strict=False))
+    return metres / pace
+
+
 def own_state_of(telemetry: Any, speed: float, can_do: frozenset[str], live_tasks: list[t.TaskInfo],
                  available: bool = True, pack_v: tuple[float, float] | None = None) -> OwnState:
     """The robot's bid state from the RAL's view: its position, its speed, its battery (``pack_v``: the empty and
-    full voltages; None: not weighed), how busy a movement task the fleet did not give it keeps it, and whether
+    full voltages; None: not weighed), how long movement tasks the fleet did not give it keep it busy (the longest
+    of them, ``busy_seconds``), and whether
     its own failsafe is in force (``available`` False)."""
     pos = telemetry.position if telemetry is not None else None
     volts = getattr(telemetry, "battery_v", None) if telemetry is not None else None
     battery = state_of_charge(volts, *pack_v) if pack_v is not None else None
-    busy = BUSY_DEFAULT_S if any(i.task_type == "movement" and i.origin != "fleet" and i.kind not in ("hold", "")
-                                 for i in live_tasks) else 0.0
+    busy = max((busy_seconds(i, pos, speed) for i in live_tasks
+                if i.task_type == "movement" and i.origin != "fleet" and i.kind not in ("hold", "")), default=0.0)
     flying = any(i.origin == "fleet" and i.status == "running" for i in live_tasks)
     return OwnState(lat=pos.lat if pos else None, lon=pos.lon if pos else None, alt=pos.alt if pos else None,
                     speed=speed, can_do=can_do, battery=battery, busy_s=busy, flying_share=flying,
