@@ -7,6 +7,7 @@ from a Zenoh JSON5 file (``--config``) or the TLS options.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import signal
 import sys
@@ -15,6 +16,16 @@ import threading
 from bbcs import router_audit
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
+
+
+def robot_router_zid(robot: str) -> str:
+    """The Zenoh id of robot ``robot``'s router: the same for every router of that name, different for any other.
+
+    Zenoh refuses a link from a router whose id is already linked (its own, or one it holds a link with), so two
+    robots of one name can never be on one mesh at once: the second router's links to the mesh are closed at
+    the handshake ("reason INVALID"), whenever it joins (at start, later, or at the same instant as the first),
+    and nothing of it crosses. ``cromat launch`` starts every robot's router with ``--robot``."""
+    return hashlib.sha256(f"cromat robot router {robot}".encode()).hexdigest()[:32]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -27,6 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tls-ca", metavar="PEM", help="CA certificate for tls/ endpoints")
     p.add_argument("--tls-cert", metavar="PEM", help="router certificate for tls/ endpoints")
     p.add_argument("--tls-key", metavar="PEM", help="router private key for tls/ endpoints")
+    p.add_argument("--robot", metavar="NAME",
+                   help="the robot this router serves: its Zenoh id comes from the name, so the mesh refuses a "
+                        "second robot of the same name (and this router says so when refused)")
     p.add_argument("--scouting", action="store_true", help="enable UDP multicast scouting (off by default)")
     p.add_argument("--admin-space", action="store_true",
                    help="answer queries on Zenoh's admin space @/<zid>/router/** (read-only; off by default)")
@@ -42,10 +56,10 @@ def main(argv: list[str] | None = None) -> int:
         tls = TlsConfig(root_ca=args.tls_ca, cert=args.tls_cert, key=args.tls_key)
     cfg = SessionConfig(mode="router", listen=args.listen or ["tcp/127.0.0.1:7447"], connect=args.connect,
                         multicast_scouting=args.scouting, tls=tls, config_file=args.config,
-                        admin_space=args.admin_space)
-    if args.log_refusals:  # before the session: Zenoh's log must already go through the reader
+                        admin_space=args.admin_space, zid=robot_router_zid(args.robot) if args.robot else None)
+    if args.log_refusals or args.robot:  # before the session: Zenoh's log goes through the reader
         sys.stdout = os.fdopen(os.dup(1), "w", buffering=1)
-        router_audit.install(sys.stdout)
+        router_audit.install(sys.stdout, log_filter=None if args.log_refusals else router_audit.LINK_LOG_FILTER)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

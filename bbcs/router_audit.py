@@ -47,6 +47,13 @@ _ALLOWED = b" is authorized to "
 _CACHED_HIT = b"Using cached result"
 TABLE_LINES = 9
 """Message kinds in one permission table (Zenoh 1.x ACL: query, reply, put, delete, 3 declarations, 2 liveliness)."""
+_MESH_REFUSED = re.compile(r"close message \(reason (?P<why>INVALID|CONNECTION_TO_SELF)\) in response to an OpenSyn "
+                           r"on: .*? dst: (?P<dst>[^,\s]+)")
+_SELF_LINK = re.compile(r"zenoh_transport::unicast::manager\S*: (?P<zid>[0-9a-f]+) Attempt to establish transport to "
+                        r"itself")
+LINK_LOG_FILTER = "warn"
+"""Enough for refused links (a TLS refusal is a WARN line, a mesh's refusal an ERROR line), with no ACL tracing."""
+MESH_REFUSED = "mesh refused"
 _LINK = re.compile(r"zenoh_link_tls\S*: (?P<why>[^.]*(?:certificate|handshake failed|alert)[^.]*)", re.IGNORECASE)
 
 
@@ -63,6 +70,17 @@ def parse(line: str) -> Refusal | None:
     if m:
         who = m.groupdict().get("cn") or m.groupdict().get("zid")
         return Refusal("denied", f"{who} may not {m['what'].lower()} on {m['key']} ({m['flow']})")
+    m = _MESH_REFUSED.search(line)
+    if m:
+        return Refusal(MESH_REFUSED, f"the router at {m['dst']} closed this router's link at the handshake (reason "
+                       f"{m['why']}): a router with this router's Zenoh id is already on that mesh. A robot's router "
+                       "takes its id from the robot name, so another robot of this name is most likely there: "
+                       "robot names must be unique (rename one in [robot] name)")
+    m = _SELF_LINK.search(line)
+    if m:
+        return Refusal(MESH_REFUSED, f"refused a link from a router with this router's own Zenoh id ({m['zid']}): "
+                       "another robot of this name tried to join the mesh here; robot names must be unique "
+                       "(rename one in [robot] name)")
     m = _LINK.search(line)
     if m and "eof" not in m["why"]:
         return Refusal("link refused", m["why"].strip())
@@ -126,10 +144,12 @@ class RefusalLog:
         return out
 
 
-def install(out: TextIO, log: RefusalLog | None = None) -> RefusalLog:
+def install(out: TextIO, log: RefusalLog | None = None, log_filter: str | None = None) -> RefusalLog:
     """Route this process's stdout (where Zenoh logs) through a reader that reports refusals on ``out``.
 
     Call before the Zenoh session is opened; ``out`` must be a stream on a *duplicate* of the real stdout.
+    ``log_filter``: Zenoh's log filter (default ``LOG_FILTER``, with the ACL's denials; ``LINK_LOG_FILTER``:
+    refused links only).
     """
     import zenoh
 
@@ -154,7 +174,7 @@ def install(out: TextIO, log: RefusalLog | None = None) -> RefusalLog:
     threading.Thread(target=pump, name="router-refusals", daemon=True).start()
     # at exit the reader thread dies first; Zenoh's last trace lines would then fill the pipe and block the exit
     atexit.register(_detach_stdout)
-    zenoh.init_log_from_env_or(LOG_FILTER)
+    zenoh.init_log_from_env_or(log_filter or LOG_FILTER)
     return log
 
 

@@ -62,6 +62,9 @@ class SessionConfig(msgspec.Struct, frozen=True, kw_only=True):
     """User/password authentication (Zenoh ``usrpwd``); authenticates but does not encrypt: combine with TLS."""
     access_control: dict[str, Any] | None = None
     """A Zenoh ``access_control`` section this session enforces on what arrives at it (a peer's ingress ACL)."""
+    zid: str | None = None
+    """A fixed Zenoh id (hex, at most 32 digits); None: a random one. A robot's router takes its id from the robot
+    name (``bbcs.router.robot_router_zid``), so Zenoh itself refuses a second router of that name on the mesh."""
 
 
 def _set(conf: zenoh.Config, key: str, value: object) -> None:
@@ -78,6 +81,8 @@ def zenoh_config(cfg: SessionConfig) -> zenoh.Config:
     else:
         conf = zenoh.Config()
     _set(conf, "mode", cfg.mode)
+    if cfg.zid is not None:
+        _set(conf, "id", cfg.zid)
     _set(conf, "listen/endpoints", list(cfg.listen))
     _set(conf, "connect/endpoints", list(cfg.connect))
     _set(conf, "scouting/multicast/enabled", cfg.multicast_scouting)

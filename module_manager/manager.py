@@ -26,7 +26,7 @@ from typing import Any
 import msgspec
 import zenoh
 
-from bbcs import keys, wire
+from bbcs import keys, router_audit, wire
 from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
 from bbcs.contracts import mri
 from bbcs.contracts.errors import ErrorReport
@@ -130,6 +130,7 @@ class Manager:
             name: (msgspec.to_builtins(m.initial) if m.initial is not None else None)
             for name, m in manifest.modes.items()}
         self.telemetry: RobotTelemetry | None = None
+        self._mesh_refusals: set[str] = set()
         self._mode_acks: dict[str, mri.ModeAck | None] = {}
         self._mode_ack_decode = msgspec.msgpack.Decoder(mri.ModeAck).decode
         self.epoch = time.time()
@@ -202,13 +203,28 @@ class Manager:
             argv.append("--log-refusals")  # a secure robot's refusals go to the router's log (docs/security.md)
         for peer in self.m.raw.bus.peers:
             argv += ["--connect", self.expand(peer)]
+        argv += ["--robot", self.m.robot]  # its Zenoh id from the name: the mesh refuses a second robot of it
         t = self.clock()
-        self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir)
+        self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir,
+                            watch_stdout=True, echo=self._router_line)
         host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))
         if not wait_tcp(host, port, self.m.raw.bus.ready_timeout_s, lambda: self.router.poll() is None):
             raise LaunchError(f"the router did not listen on {host}:{port} within "
                               f"{self.m.raw.bus.ready_timeout_s:g} s (exit {self.router.poll()})")
         self.out(f"  router      listening on {', '.join(self.listen)} ({self.clock() - t:.2f} s)")
+
+    def _router_line(self, line: str) -> None:
+        """The router's word that the mesh refused it (another robot of this name is linked there): shown on the
+        launch's output, once per peer, besides the router's log (bbcs.router_audit)."""
+        if not line.startswith(f"cromat router: {router_audit.MESH_REFUSED}: "):
+            if self.log_dir is None:  # no router log: its lines go where they went before, our stdout
+                sys.stdout.write(line + "\n")
+                sys.stdout.flush()
+            return
+        said = line.rsplit(" (", 1)[0]  # without the running count
+        if said not in self._mesh_refusals:
+            self._mesh_refusals.add(said)
+            self.out(f"  router      {said.removeprefix('cromat router: ')}")
 
     def start_processes(self) -> None:
         """Start every plain process (simulators) at once, then wait for each one's readiness: their start-up

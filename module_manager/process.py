@@ -38,8 +38,11 @@ class Child:
     """One started process, its output handling and how it ended."""
 
     def __init__(self, name: str, argv: list[str], env: dict[str, str], cwd: str | None = None,
-                 log_dir: Path | None = None, watch_stdout: bool = False, stdin_pipe: bool = False) -> None:
+                 log_dir: Path | None = None, watch_stdout: bool = False, stdin_pipe: bool = False,
+                 echo: Callable[[str], None] | None = None) -> None:
+        """``echo``: called with every stdout line (``watch_stdout``), besides the log: what the launch must show."""
         self.name = name
+        self._echo = echo
         self.argv = argv
         self._log: IO[bytes] | None = None
         out: int | IO[bytes] | None = None
@@ -79,6 +82,8 @@ class Child:
             if self._log is not None:
                 self._log.write(raw)
                 self._log.flush()
+            if self._echo is not None:
+                self._echo(line)
         with self._line_seen:
             self._line_seen.notify_all()
 

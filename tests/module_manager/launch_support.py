@@ -48,8 +48,8 @@ def group_members(pgid: int) -> list[int]:
 class Launch:
     """``python -m module_manager.cli MANIFEST`` as a session leader, its stdout collected line by line."""
 
-    def __init__(self, manifest: Path, tmp_path: Path, *extra: str) -> None:
-        self.port = free_port()
+    def __init__(self, manifest: Path, tmp_path: Path, *extra: str, port: int | None = None) -> None:
+        self.port = port or free_port()
         self.log_dir = tmp_path / "logs"
         """Each child's stdout/stderr, ``<name>.log`` (``cromat launch --log-dir``)."""
         self.lines: list[str] = []

@@ -2,8 +2,9 @@
 routers meshed by Zenoh itself through ``[bus] peers`` (loopback, no scouting).
 
 A ground station on any router sees every robot and its GRI state; a second robot under a name already alive on
-the mesh is refused before it starts anything. (A robot that loses the mesh keeping its path is not tested yet:
-docs/fleet.md.)
+the mesh is refused before it starts anything; one that joins later, when its launch could not check its name,
+is refused by the mesh itself (its router's Zenoh id comes from the robot name), says so on its launch's output,
+and nothing of it crosses.
 """
 
 from __future__ import annotations
@@ -14,14 +15,17 @@ import threading
 from pathlib import Path
 
 from bbcs.contracts import gri
+from bbcs.net import free_port
 from bbcs.testing import wait_until
 from module_manager.fleet import drop_sections
-from ral.gcs.api import Gcs, session_config
+from ral.gcs.api import Gcs, NoReply, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, Launch, group_members  # noqa: E402
 from test_gcs_mission import sim_manifest  # noqa: E402
+
+from modules.dsp.sim.record import read_record
 
 N_MODULES = 5
 """uav1_sim.toml's modules without vision."""
@@ -52,11 +56,11 @@ def fleet_manifest(tmp_path: Path, name: str, peers: list[int]) -> tuple[Path, P
     return sim_manifest(folder, edit=edit)
 
 
-def launch(tmp_path: Path, name: str, peers: list[int]) -> tuple[Launch, Path]:
-    """A robot of this test: no vision (nothing here needs it)."""
+def launch(tmp_path: Path, name: str, peers: list[int], port: int | None = None) -> tuple[Launch, Path]:
+    """A robot of this test: no vision (nothing here needs it); ``port``: where its router listens."""
     manifest, record = fleet_manifest(tmp_path, name, peers)
     manifest.write_text(drop_sections(manifest.read_text(), VISION_SECTIONS))
-    return Launch(manifest, tmp_path / name), record
+    return Launch(manifest, tmp_path / name, port=port), record
 
 
 def gcs_on(port: int, name: str, link: list[str]) -> Gcs:
@@ -108,6 +112,53 @@ def test_meshed_robots_are_seen_from_any_router_and_duplicates_are_refused(tmp_p
         wait_until(lambda: stations[0].robots(2.0) == names, 30, "the three robots after the refused duplicate")
     finally:
         for gcs in stations:
+            gcs.close()
+        for la in reversed(launches):
+            la.stop()
+            la.cleanup()
+
+
+def test_a_robot_of_the_same_name_joining_later_is_refused_by_the_mesh_itself(tmp_path: Path) -> None:
+    port_a = free_port()
+    (tmp_path / "first").mkdir()
+    (tmp_path / "second").mkdir()
+    launches: list[Launch] = []
+    gcs = None
+    try:
+        # b first: its peer (a's router) is not up yet, so its launch cannot check the name and starts alone
+        b, record_b = launch(tmp_path / "second", "uav_d", [port_a])
+        launches.append(b)
+        b.wait_line(f"all {N_MODULES} modules up", 90)
+        assert "not checked" in b.wait_line("  mesh "), b.lines
+        # a robot of the same name comes up where b's router keeps dialling
+        a, record_a = launch(tmp_path / "first", "uav_d", [], port=port_a)
+        launches.append(a)
+        a.wait_line(f"all {N_MODULES} modules up", 90)
+        refused = b.wait_line("mesh refused", 30)
+        assert f"the router at tcp/127.0.0.1:{port_a} closed this router's link" in refused, b.lines
+        assert "robot names must be unique" in refused
+        assert "another robot of this name tried to join the mesh here" in a.wait_line("mesh refused", 30), a.lines
+
+        # nothing of b crosses: a take-off through a's router reaches a's DSP simulator, not b's
+        gcs = gcs_on(port_a, "ground", ["uav_d"])
+        wait_until(lambda: gcs.robots(1.0) == ["uav_d"], 30, "uav_d seen from a's router")
+        def placed() -> bool:
+            try:
+                tel = gcs.state("uav_d", 2.0).telemetry
+            except NoReply:
+                return False
+            return tel is not None and tel.position is not None
+
+        wait_until(placed, 30, "a's telemetry in its GRI state")
+        before_a, before_b = len(read_record(record_a)), len(read_record(record_b))
+        reply = gcs.send("uav_d", gri.TakeOff(height=10.0))
+        assert reply.accepted, reply.reason
+        wait_until(lambda: any(r["name"] == "SET_MODE" for r in read_record(record_a)[before_a:]), 30,
+                   "the take-off at a's DSP simulator")
+        assert read_record(record_b)[before_b:] == [], read_record(record_b)[before_b:]
+        assert b.proc.poll() is None  # b is refused by the mesh, not stopped: it keeps flying on its own rules
+    finally:
+        if gcs is not None:
             gcs.close()
         for la in reversed(launches):
             la.stop()
