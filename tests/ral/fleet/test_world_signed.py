@@ -20,6 +20,7 @@ import pytest
 
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
+from bbcs.contracts.signed import seal_of
 from bbcs.signing import (
     BadSignature,
     FleetTrust,
@@ -80,7 +81,7 @@ def entry_of(request: w.WorldPut | w.WorldDelete, version: int = 1, origin: str 
     """The entry a RAL makes of ``request``, after a trip over msgpack (as a peer's update carries it)."""
     body = request.body if isinstance(request, w.WorldPut) else None
     entry = w.WorldEntry(id=request.id, version=version, origin=origin, stamp=1.0, body=body,
-                         deleted=body is None, signer_cert=request.signer_cert, signature=request.signature)
+                         deleted=body is None, **seal_of(request))
     return msgspec.msgpack.decode(msgspec.msgpack.encode(entry), type=w.WorldEntry)
 
 
