@@ -53,9 +53,8 @@ class ReplayMemory:
         self.tolerance = tolerance
         self._held: dict[str, _Held] = {}
 
-    def check(self, item: msgspec.Struct, digest: bytes, now: float) -> None:
+    def check(self, item: msgspec.Struct, digest: bytes) -> None:
         """Raises :class:`~bbcs.signing.Replayed` if ``item`` must not be adopted, given what is held."""
-        self._prune(now)
         held = self._held.get(self.key(item))
         if held is not None and held.digest != digest:
             check_newer(item, held.signed_at, "copy of this id")
@@ -66,7 +65,8 @@ class ReplayMemory:
         if held is None or signed_at > held.signed_at:
             self._held[self.key(item)] = _Held(signed_at, getattr(item, "valid_until", 0.0), digest)
 
-    def _prune(self, now: float) -> None:
+    def prune(self, now: float) -> None:
+        """Forget what expired (any copy of it is refused as expired from now on)."""
         for key in [k for k, h in self._held.items() if now > h.valid_until + self.tolerance]:
             del self._held[key]
 
@@ -155,6 +155,8 @@ class SignatureGate:
         if self.crl is not None:
             self.trust = self.crl.refreshed(self.trust)
         now = self.clock()
+        if self.replay is not None:
+            self.replay.prune(now)
         digest = hashlib.sha256(msgspec.msgpack.encode(item)).digest()
         verdict = self._verdict(item, digest, now, source, label)
         if isinstance(verdict, _Authentic):
@@ -163,7 +165,7 @@ class SignatureGate:
                     check_revoked(verdict.serial, verdict.signer, self.trust)
                 check_window(item, now, expiry=expiry, tolerance=self.tolerance)
                 if self.replay is not None:
-                    self.replay.check(item, digest, now)
+                    self.replay.check(item, digest)
             except SignatureRefused as exc:
                 self._tell(digest, type(exc).__name__, f"{self.what} {label} from {source} refused: {exc.reason}")
                 self.refused[type(exc).__name__] += 1

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -152,7 +153,7 @@ def ask(session, robot: str, request: w.WorldRequest) -> w.WorldReply:
 def test_secured_nodes_apply_only_signed_edits_and_drop_forgeries_from_updates_and_snapshots(
         pki: Pki, nodes, router: int, clients, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.INFO, logger="ral.world_bus")
-    secured = {"trust": pki.trust, "trust_clock": lambda: pki.now}
+    secured = {"trust": pki.trust, "trust_clock": time.time}  # requests are signed now, valid for minutes
     a, b = nodes("uav_a", **secured), nodes("uav_b", **secured)
     gcs = clients(router)
     # a station's request: unsigned refused, nothing applied; signed applied and spread with its signature
@@ -222,7 +223,7 @@ def test_gcs_world_signs_with_the_stations_certificate(pki: Pki, nodes, router: 
                                                        capsys: pytest.CaptureFixture) -> None:
     from ral.gcs import cli
 
-    a = nodes("uav_a", trust=pki.trust, trust_clock=lambda: pki.now)
+    a = nodes("uav_a", trust=pki.trust, trust_clock=time.time)
     ring = [[v.lon, v.lat] for v in square()]
     zone = tmp_path / "mast.geojson"
     zone.write_text(json.dumps({"type": "Polygon", "coordinates": [[*ring, ring[0]]]}))
