@@ -245,3 +245,36 @@ def test_gcs_world_signs_with_the_stations_certificate(pki: Pki, nodes, router: 
     assert "is not the key of" in capsys.readouterr().err and a.get("mast") == entry
     assert cli.main([*base, *identity, "world", "remove", "uav_a", "mast"]) == 0
     assert a.get("mast") is None
+
+
+def test_a_captured_zone_request_replayed_never_undoes_a_newer_edit_nor_applies_after_its_expiry(
+        pki: Pki, nodes, router: int, clients) -> None:
+    """Whoever captured the station's signed request to add a zone sends it again after the station removed the
+    zone (to put it back), and the removal again after the station re-added it: refused as ``Replayed`` by the robot
+    asked, the model unchanged at both robots. A request replayed after its validity: ``Expired``."""
+    clock = {"now": time.time()}
+    secured = {"trust": pki.trust, "trust_clock": lambda: clock["now"]}
+    a, b = nodes("uav_a", **secured), nodes("uav_b", **secured)
+    gcs, attacker = clients(router), clients(router)
+    at = clock["now"]
+    add = signed_request(w.WorldPut(id="mast", body=ZONE, author="gcs"), pki.gcs)
+    assert ask(gcs, "uav_a", add).accepted
+    remove = signed_request(w.WorldDelete(id="mast", author="gcs"), pki.gcs)
+    assert ask(gcs, "uav_a", remove).accepted
+    wait_until(lambda: a.get("mast") is None and b.model.held("mast") is not None and b.get("mast") is None, 10,
+               "the removal at both robots")
+    reply = ask(attacker, "uav_b", add)  # the captured addition, to the other robot
+    assert not reply.accepted and "edit of 'mast' not applied: signed at" in reply.reason, reply.reason
+    assert a.get("mast") is None and b.get("mast") is None and b.gate.refused == {"Replayed": 1}
+    readd = signed_request(w.WorldPut(id="mast", body=ZONE, author="gcs"), pki.gcs)
+    assert ask(gcs, "uav_b", readd).accepted
+    wait_until(lambda: a.get("mast") is not None, 10, "the zone re-added at uav_a")
+    reply = ask(attacker, "uav_a", remove)  # the captured removal
+    assert not reply.accepted and a.get("mast") is not None and a.gate.refused == {"Replayed": 1}
+    assert b.get("mast") is not None
+    # a fresh edit signed long ago, never used: expired once its validity (5 min) is past
+    other = signed_request(w.WorldPut(id="tower", body=w.NoFlyZone(polygon=square(lat=LAT + 0.01))), pki.gcs)
+    clock["now"] = at + 3600.0
+    reply = ask(attacker, "uav_a", other)
+    assert not reply.accepted and "valid until" in reply.reason and a.get("tower") is None
+    assert a.gate.refused == {"Replayed": 1, "Expired": 1}
