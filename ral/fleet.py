@@ -10,9 +10,9 @@ share through the RAL's ordinary task path.
   station's ``goto`` (admitted against the robot's own limits and geofence, then to the Module Manager).
 - On a secured robot (``[bus.tls]``) every fleet task, from a ground station's put or inside a peer's fleet
   state, passes :class:`TaskGate` first: only a task signed by one of the manifest's ground stations with a
-  certificate of the fleet CA (``bbcs/signing.py``), not revoked, within its validity and not replayed, reaches the
-  protocol; anything else is dropped, counted and
-  logged once, so it is never adopted, bid on or relayed in this robot's own fleet state.
+  certificate of the fleet CA (``bbcs/signing.py``), not revoked, within its validity and not replayed, reaches
+  the protocol; anything else is dropped, counted and logged once, so it is never adopted, bid on or relayed in
+  this robot's own fleet state.
 - Losing the mesh changes nothing in the robot: its task, its failsafe and its link to its own modules go through
   its own router; only its view of the others goes stale.
 """

@@ -139,8 +139,9 @@ ROBOT_ENTRY_PREFIXES = ("target.", "surveyed.")
 
 class StationEdit(msgspec.Struct, frozen=True, kw_only=True):
     """What a ground station signs for an edit of the world model: the entry ``id``, and either its new ``body``
-    (a no-fly zone or geofence: its kind, polygon and name) or its removal (``remove``, ``body`` None). Never sent
-    on its own: rebuilt from the request or entry that carries the signature."""
+    (a no-fly zone or geofence: its kind, polygon and name) or its removal (``remove``, ``body`` None), with when
+    it was signed and until when a robot may apply the request (``signed_at``, ``valid_until``). Never sent on its
+    own: rebuilt from the request or entry that carries the signature."""
 
     id: EntryId
     remove: bool
