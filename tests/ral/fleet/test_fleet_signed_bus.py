@@ -148,3 +148,15 @@ def test_a_revoked_stations_task_is_refused_the_other_stations_is_flown(
     wait_until(lambda: robot.link.gate.refused["Revoked"] >= 1, 10, "gcs1's task refused")
     assert "stolen" not in robot.link.node.runs and not robot.flew("stolen")
     assert robot.flew("genuine") and set(robot.link.gate.refused) == {"Revoked"}
+
+
+def test_the_station_chooses_the_lifetime_of_what_it_posts(pki: Pki, router: int, clients) -> None:  # noqa: ANN001
+    from ral.fleet_gcs import FleetView
+
+    view = FleetView(clients(router))
+    try:
+        unsigned = task("t9", 10.0)
+        posted = view.post(unsigned, pki.signer("gcs1"), lifetime_s=120.0)
+        assert posted.valid_until - posted.signed_at == 120.0 and posted.targets == unsigned.targets
+    finally:
+        view.close()
