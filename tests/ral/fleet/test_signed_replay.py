@@ -219,3 +219,21 @@ def test_an_older_signed_zone_edit_never_undoes_a_newer_one_whatever_its_version
     assert model.get("target.uav_b") is None
     model.merge(w.WorldEntry(id="target.uav_b", version=3, origin="uav_b", stamp=2.0, body=seen))
     assert model.get("target.uav_b") is not None
+
+
+def test_a_revoked_stations_zone_edit_is_refused_as_a_request_and_as_an_entry(pki: Pki) -> None:
+    """The world node's gate (ral/world_bus.py: ``check_edit``) reads the same revocation list as the fleet's."""
+    from ral.signed import SignatureGate
+
+    gcs1, gcs2 = pki.signer("gcs1"), pki.signer("gcs2")
+    clock = Clock(gcs1.cert.not_valid_before_utc.timestamp() + 60.0)
+    gate = SignatureGate(pki.trust(), clock, "world edit", check=world.check_edit)  # type: ignore[arg-type]
+    assert certs.main([str(pki.robot), "--revoke", "gcs1"]) == 0
+    zone = w.NoFlyZone(polygon=[t.Vertex(lat=37.41, lon=-6.0), t.Vertex(lat=37.42, lon=-6.0),
+                                t.Vertex(lat=37.42, lon=-6.01)])
+    stolen = gcs1.sign(w.StationEdit(id="mast", remove=True), now=clock.now)
+    why = gate.refusal(stolen, "a ground station's request", "removal of 'mast'")
+    assert why is not None and "revoked by the fleet CA" in why
+    assert not gate.admit(stolen, "uav2's update", "removal of 'mast' v3", expiry=False)
+    assert gate.admit(gcs2.sign(w.StationEdit(id="mast", remove=False, body=zone), now=clock.now), "x", "zone")
+    assert gate.refused == {"Revoked": 2}
