@@ -23,6 +23,7 @@ from benchlib import pct, write_results
 
 from bbcs.contracts import world as w
 from bbcs.contracts.fleet import MAX_TARGETS, FleetTarget, FleetTask
+from bbcs.contracts.signed import seal_of
 from bbcs.contracts.tasks import Vertex
 from bbcs.signing import FleetTrust, StationSigner, verify
 from cromat import certs
@@ -45,7 +46,7 @@ def zone_of(n: int) -> w.WorldPut:
 
 def entry_of(put: w.WorldPut) -> w.WorldEntry:
     return w.WorldEntry(id=put.id, version=1, origin="uav1", stamp=0.0, body=put.body, author=put.author,
-                        signer_cert=put.signer_cert, signature=put.signature)
+                        **seal_of(put))
 
 
 def timed_us(fn, n: int) -> list[float]:
@@ -66,9 +67,16 @@ def main() -> int:
         root = Path(tmp)
         (root / "ca").mkdir()
         certs.make_ca(root / "ca")
-        certs.make_leaf(root / "ground", "gcs", ca_dir=root / "ca")
+        for name in ("gcs", "gcs_old"):
+            certs.make_leaf(root / "ground", name, ca_dir=root / "ca")
+        certs.revoke(root / "ca", root / "ground" / "gcs_old.pem", [root / "robot"])
         signer = StationSigner.from_files(root / "ground" / "gcs.pem", root / "ground" / "gcs.key")
-        trust = FleetTrust.from_files(root / "ca" / "ca.pem", ["gcs"])
+        trust = FleetTrust.from_files(root / "ca" / "ca.pem", ["gcs"], root / "robot" / "crl.pem")
+        assert len(trust.revoked) == 1
+        return measure(args, signer, trust)
+
+
+def measure(args: argparse.Namespace, signer: StationSigner, trust: FleetTrust) -> int:
     now = time.time()
     rows = []
     for size in (1, MAX_TARGETS):

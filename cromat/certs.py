@@ -17,13 +17,20 @@ config: :func:`bbcs.acl.hub_config`). The router's certificate carries the host 
 With ``--acl FILE`` it also writes the robot router's Zenoh config (mTLS + access policy, see
 :mod:`bbcs.acl`) pointing at the robot folder. Keys are written mode 0600 and must never be committed.
 
+``--revoke NAME`` (a ground station's identity in the ground folder, or a certificate file) puts that certificate
+on the fleet CA's revocation list (CRL, signed by the CA key, :func:`revoke`) and writes the list as ``crl.pem``
+in the CA folder (the running list), the robot folder (where the launch tells the RAL to read it) and the ground
+folder: a secured robot then adopts nothing that certificate signs (bbcs/signing.py). Copy ``crl.pem`` to every
+robot's folder.
+
 The openssl commands are listed in docs/security.md. (Certificates are made with the openssl command-line tool;
-the ``cryptography`` package only signs and checks fleet tasks and zone edits, bbcs/signing.py.)
+the ``cryptography`` package signs and checks fleet tasks and zone edits, bbcs/signing.py, and builds the CRL.)
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import ipaddress
 import os
 import secrets
@@ -33,9 +40,18 @@ import sys
 import tempfile
 from pathlib import Path
 
+from cryptography import x509
+from cryptography.exceptions import InvalidSignature, UnsupportedAlgorithm
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+
 from bbcs import acl, keys
 
 CA = "ca"
+CRL = "crl.pem"
+CRL_DAYS = 365
+"""The list's ``nextUpdate``: robots do not refuse a list older than this (a robot off the network must not stop
+obeying its stations because the operator's list went stale); informational."""
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")
 
 
@@ -142,6 +158,61 @@ def make_leaf(
     return key, pem
 
 
+def revoke(ca_dir: Path, cert_pem: Path, copies: list[Path], now: dt.datetime | None = None) -> Path:
+    """Add ``cert_pem`` to the CRL of the CA in ``ca_dir`` (kept there as ``crl.pem``, with every certificate
+    revoked before), signed by the CA's key, and write a copy as ``crl.pem`` in each folder of ``copies``.
+    Returns the CA folder's list. A certificate the CA did not issue raises :class:`CertError`."""
+    try:
+        ca_cert = x509.load_pem_x509_certificate((ca_dir / f"{CA}.pem").read_bytes())
+        ca_key = serialization.load_pem_private_key((ca_dir / f"{CA}.key").read_bytes(), password=None)
+    except (OSError, ValueError) as exc:
+        raise CertError(f"{ca_dir}: cannot read the CA (ca.pem, ca.key): {exc}") from exc
+    if not isinstance(ca_key, ec.EllipticCurvePrivateKey):
+        raise CertError(f"{ca_dir / 'ca.key'}: not an EC key (cromat certs makes EC P-256 CAs)")
+    try:
+        cert = x509.load_pem_x509_certificate(cert_pem.read_bytes())
+    except (OSError, ValueError) as exc:
+        raise CertError(f"cannot read the certificate to revoke {cert_pem}: {exc}") from exc
+    try:
+        cert.verify_directly_issued_by(ca_cert)
+    except (ValueError, TypeError, InvalidSignature, UnsupportedAlgorithm) as exc:
+        raise CertError(f"{cert_pem} was not issued by the CA in {ca_dir}: nothing to revoke there") from exc
+    now = now or dt.datetime.now(dt.UTC)
+    held = ca_dir / CRL
+    builder = (x509.CertificateRevocationListBuilder().issuer_name(ca_cert.subject).last_update(now)
+               .next_update(now + dt.timedelta(days=CRL_DAYS)))
+    serials = set()
+    if held.exists():
+        try:
+            previous = x509.load_pem_x509_crl(held.read_bytes())
+        except ValueError as exc:
+            raise CertError(f"{held}: unreadable revocation list ({exc}); move it away to start a new one") from exc
+        if not previous.is_signature_valid(ca_cert.public_key()):  # type: ignore[arg-type]
+            raise CertError(f"{held}: revocation list not signed by this CA; move it away to start a new one")
+        for entry in previous:
+            builder = builder.add_revoked_certificate(entry)
+            serials.add(entry.serial_number)
+    if cert.serial_number not in serials:
+        builder = builder.add_revoked_certificate(
+            x509.RevokedCertificateBuilder().serial_number(cert.serial_number).revocation_date(now).build())
+    data = builder.sign(ca_key, hashes.SHA256()).public_bytes(serialization.Encoding.PEM)
+    for folder in [ca_dir, *copies]:
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = folder / f".{CRL}.tmp"
+        tmp.write_bytes(data)
+        tmp.replace(folder / CRL)  # whole or not at all: a RAL may read it at any moment
+    return held
+
+
+def _revoked_file(name: str, ground: Path) -> Path:
+    """``--revoke`` takes a certificate file, or an identity whose certificate is in the ground folder."""
+    path = Path(name)
+    if path.suffix == ".pem" and path.exists():
+        return path
+    keys.validate_name(name, "identity to revoke")
+    return ground / f"{name}.pem"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="cromat certs", description="Create a CA and TLS certificates for cromat."
@@ -195,6 +266,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hub", metavar="NAME", help="instead: a hub (ground) router's pair NAME.pem/NAME.key in DIR "
                    "(its hosts: --router-host); with --acl, the hub's Zenoh config (mTLS + its policy, --robots)")
     p.add_argument("--robots", metavar="A,B,...", help="with --hub --acl: the robots whose routers link to the hub")
+    p.add_argument("--revoke", action="append", metavar="NAME|PEM", help="instead: revoke a ground station "
+                   "(its certificate NAME.pem in the ground folder, or a certificate file): the CA's revocation list "
+                   "crl.pem, written to the CA, robot and ground folders (repeatable)")
     return p
 
 
@@ -277,6 +351,16 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     ca_dir = Path(args.ca) if args.ca else out.with_name(out.name + "-ca")
     ground = Path(args.ground) if args.ground else out.with_name(out.name + "-ground")
+    if args.revoke:
+        try:
+            for name in args.revoke:
+                revoke(ca_dir, _revoked_file(name, ground), [out, ground])
+        except (CertError, ValueError) as exc:
+            print(f"cromat certs: {exc}", file=sys.stderr)
+            return 2
+        print(f"cromat certs: revoked {', '.join(args.revoke)}; revocation list {out / CRL} (copy it to every "
+              f"robot's folder; a running RAL reads it again when it changes)")
+        return 0
     try:
         if (out / f"{CA}.key").exists():
             raise CertError(f"{out / 'ca.key'}: a CA key in the robot's folder; move it to the operator's CA folder "

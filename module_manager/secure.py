@@ -90,4 +90,5 @@ def ral_fleet_params(manifest: Manifest, module: str) -> dict[str, str]:
     tls = manifest.raw.bus.tls
     if tls is None or manifest.pki is None or module != tls.ral:
         return {}
-    return {"fleet_ca": str(manifest.pki / "ca.pem"), "fleet_signers": ",".join(tls.gcs)}
+    return {"fleet_ca": str(manifest.pki / "ca.pem"), "fleet_signers": ",".join(tls.gcs),
+            "fleet_crl": str(manifest.pki / "crl.pem")}

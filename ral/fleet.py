@@ -10,8 +10,9 @@ share through the RAL's ordinary task path.
   station's ``goto`` (admitted against the robot's own limits and geofence, then to the Module Manager).
 - On a secured robot (``[bus.tls]``) every fleet task, from a ground station's put or inside a peer's fleet
   state, passes :class:`TaskGate` first: only a task signed by one of the manifest's ground stations with a
-  certificate of the fleet CA (``bbcs/signing.py``) reaches the protocol; anything else is dropped, counted and
-  logged once, so it is never adopted, bid on or relayed in this robot's own fleet state.
+  certificate of the fleet CA (``bbcs/signing.py``), not revoked, within its validity and not replayed, reaches
+  the protocol; anything else is dropped, counted and logged once, so it is never adopted, bid on or relayed in
+  this robot's own fleet state.
 - Losing the mesh changes nothing in the robot: its task, its failsafe and its link to its own modules go through
   its own router; only its view of the others goes stale.
 """
@@ -35,7 +36,7 @@ from bbcs.contracts.fleet import FleetState, FleetTask
 from bbcs.signing import FleetTrust
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from ral.fleet_protocol import Execute, FleetConfig, FleetNode, OwnState
-from ral.signed import SignatureGate
+from ral.signed import ReplayMemory, SignatureGate
 from ral.tasks import distance_m
 
 log = logging.getLogger("ral.fleet")
@@ -53,11 +54,13 @@ def can_do_from(param: str, kinds: list[str]) -> frozenset[str]:
 
 
 class TaskGate(SignatureGate):
-    """Which fleet tasks this robot may adopt (:class:`~ral.signed.SignatureGate` over
-    :func:`bbcs.signing.verify`)."""
+    """Which fleet tasks this robot may adopt (:class:`~ral.signed.SignatureGate`): signed, not revoked, within
+    its validity, and not an older signature of a task id it holds a newer one of
+    (:class:`~ral.signed.ReplayMemory`)."""
 
     def __init__(self, trust: FleetTrust | None, clock: Callable[[], float], remember: int = 1024) -> None:
-        super().__init__(trust, clock, "fleet task", remember, logger=log)
+        super().__init__(trust, clock, "fleet task", remember, logger=log,
+                         replay=ReplayMemory(lambda task: task.id))  # type: ignore[attr-defined]
 
     def admit(self, task: FleetTask, source: str, label: str = "") -> bool:  # type: ignore[override]
         return super().admit(task, source, label or task.id)
@@ -108,12 +111,27 @@ class FleetLink:
             return
         with self.lock:
             if self._admit(task, "a ground station's put"):
+                self._repost(task)
                 self.node.post(task, self.clock())
 
     def _admit(self, task: FleetTask, source: str) -> bool:
         """Under ``lock``: a task this node already adopted, unchanged, passes without a second verification."""
         run = self.node.runs.get(task.id)
         return (run is not None and run.task == task) or self.gate.admit(task, source)
+
+    def _repost(self, task: FleetTask) -> None:
+        """Under ``lock``, ``task`` admitted: a station's newer signature of a task id this robot holds replaces the
+        held copy if it asks for the same work (the run goes on, and the fresher signature is what this robot
+        relays); different work under a known id is not flown (the protocol knows a task by its id: a station
+        posts new work under a new id)."""
+        run = self.node.runs.get(task.id)
+        if run is None or run.task == task or not task.signed_at > run.task.signed_at:
+            return
+        if _work(run.task) == _work(task):
+            run.task = task
+        else:
+            log.warning("fleet task %s re-signed with other targets or options: not applied (a task id is flown "
+                        "once; post new work under a new id)", task.id)
 
     def _on_state(self, sample: zenoh.Sample) -> None:
         try:
@@ -123,6 +141,8 @@ class FleetLink:
             return
         with self.lock:
             tasks = [x for x in state.tasks if self._admit(x, f"{state.robot}'s fleet state")]
+            for task in tasks:
+                self._repost(task)
             if len(tasks) != len(state.tasks):
                 state = msgspec.structs.replace(state, tasks=tasks)
             self.node.on_state(state, self.clock())
@@ -149,6 +169,11 @@ class FleetLink:
             self.pub.publish(state)
         for job in todo:
             self.fly(job)
+
+
+def _work(task: FleetTask) -> FleetTask:
+    """``task`` without its signature and validity: what a robot flies."""
+    return msgspec.structs.replace(task, signed_at=0.0, valid_until=0.0, signer_cert=b"", signature=b"")
 
 
 def goto_of(job: Execute) -> gri.TaskRequest:

@@ -49,11 +49,13 @@ class FleetView:
     def close(self) -> None:
         self._sub.undeclare()
 
-    def post(self, task: FleetTask, signer: StationSigner | None = None) -> FleetTask:
+    def post(self, task: FleetTask, signer: StationSigner | None = None,
+             lifetime_s: float | None = None) -> FleetTask:
         """Put ``task``, signed by ``signer`` (a station with a TLS identity: secured robots adopt only signed
-        tasks, bbcs/signing.py); returns what was put."""
+        tasks, bbcs/signing.py) and adoptable for ``lifetime_s`` (default: ``bbcs.signing.default_lifetime_s``);
+        returns what was put."""
         if signer is not None:
-            task = signer.sign(task)
+            task = signer.sign(task, lifetime_s=lifetime_s)
         self.session.put(keys.fleet_task_key(task.id), msgspec.msgpack.encode(task))
         return task
 
@@ -139,6 +141,8 @@ def add_parser(sub: Any) -> None:
                    help="share the targets so that the last robot finishes soonest (always on with --area)")
     p.add_argument("--speed", type=float, help="flight speed of the robots' paths, m/s")
     p.add_argument("--wait", type=float, default=15.0, help="seconds to wait for the robots to agree (15)")
+    p.add_argument("--valid-for", type=float, metavar="S", help="with --cert: seconds a robot may adopt the signed "
+                   "task (default: an hour, or the last deadline plus ten minutes; docs/fleet.md)")
     s = fs.add_parser("status", help="what every robot decided and visited")
     s.add_argument("task", nargs="?", help="one task (default: every task)")
 
@@ -166,6 +170,8 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
                     targets += parse_area_arg(x, i)
                 if not targets:
                     raise ValueError("nothing to do: give --target or --area")
+                if args.valid_for is not None and not args.valid_for > 0:
+                    raise ValueError(f"--valid-for must be positive, not {args.valid_for:g}")
                 if len(targets) > MAX_TARGETS:
                     raise ValueError(f"{len(targets)} targets in all: a fleet task holds at most {MAX_TARGETS}")
                 task = msgspec.convert({"id": args.id, "targets": [msgspec.to_builtins(x) for x in targets],
@@ -180,7 +186,7 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
             except SigningError as exc:
                 print(f"cromat gcs fleet: {exc}", file=out)
                 return 2
-            view.post(task, signer)
+            view.post(task, signer, args.valid_for)
             dec = view.wait(lambda: view.agreed(task.id), args.wait)
             if dec is None:
                 decs = view.decisions(task.id)

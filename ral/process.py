@@ -102,6 +102,10 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     fleet_signers: str = ""
     """Set by the launch with ``fleet_ca``: the ground-station identities (``[bus.tls] gcs``, comma-separated) whose
     signature makes a fleet task adoptable; none on a TLS bus: every fleet task is refused."""
+    fleet_crl: str = ""
+    """Set by the launch with ``fleet_ca``: the fleet CA's revocation list (PEM, ``cromat certs --revoke``); a
+    station whose certificate it lists signs nothing this RAL adopts. Read again when the file changes; missing:
+    nothing revoked."""
     sync_clock_offset_s: float = 0.0
     """Tests only: this robot's fleet-time clock runs this far from the host's (docs/sync.md)."""
     sync_clock_drift_ppm: float = 0.0
@@ -769,7 +773,7 @@ class Ral(Module):
         if not ca:
             return None
         signers = [x.strip() for x in self.cfg.fleet_signers.split(",") if x.strip()]
-        trust = FleetTrust.from_files(ca, signers)
+        trust = FleetTrust.from_files(ca, signers, self.cfg.fleet_crl or None)
         if signers:
             self.log.info("fleet tasks and world zone edits adopted only if signed by %s (certificate of %s)",
                           ", ".join(signers), ca)

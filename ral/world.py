@@ -21,7 +21,7 @@ import msgspec
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
 from bbcs.contracts.geo import GeoPoint
-from bbcs.signing import FleetTrust, SignatureRefused, verify
+from bbcs.signing import FleetTrust, SignatureRefused, authenticate
 from ral import world_geometry as g
 
 _encoder = msgspec.msgpack.Encoder(order="deterministic")
@@ -29,8 +29,12 @@ TARGET_MIN_PERIOD_S = 1.0
 TARGET_MIN_MOVE_M = 2.0
 
 
-def _rank(entry: w.WorldEntry) -> tuple[int, str, bytes]:
-    return entry.version, entry.origin, _encoder.encode(entry)
+def _rank(entry: w.WorldEntry) -> tuple[float, int, str, bytes]:
+    """A station's zone or removal ranks by when the station signed it first (a replayed older edit never undoes a
+    newer one, whatever version a RAL gave it); a robot's own entries (and every entry of an unsecured fleet,
+    unsigned: 0) by version."""
+    signed = 0.0 if entry.id.startswith(w.ROBOT_ENTRY_PREFIXES) else entry.signed_at
+    return signed, entry.version, entry.origin, _encoder.encode(entry)
 
 
 class WorldModel:
@@ -52,24 +56,31 @@ class WorldModel:
         return [e for e in entries if self.merge(e)]
 
     def put(self, entry_id: str, body: w.Body, *, origin: str, stamp: float, author: str = "",
-            signer_cert: bytes = b"", signature: bytes = b"") -> w.WorldEntry:
+            signer_cert: bytes = b"", signature: bytes = b"", signed_at: float = 0.0,
+            valid_until: float = 0.0) -> w.WorldEntry:
         """A local write: the next version of ``entry_id`` (with the station's signature of the edit, if any)."""
         held = self._entries.get(entry_id)
         entry = w.WorldEntry(id=entry_id, version=(held.version if held else 0) + 1, origin=origin, stamp=stamp,
-                             body=body, author=author or origin, signer_cert=signer_cert, signature=signature)
+                             body=body, author=author or origin, signer_cert=signer_cert, signature=signature,
+                             signed_at=signed_at, valid_until=valid_until)
         self.merge(entry)
         return entry
 
     def delete(self, entry_id: str, *, origin: str, stamp: float, author: str = "", signer_cert: bytes = b"",
-               signature: bytes = b"") -> w.WorldEntry | None:
+               signature: bytes = b"", signed_at: float = 0.0, valid_until: float = 0.0) -> w.WorldEntry | None:
         """A local removal (a tombstone); None when there is nothing live under ``entry_id``."""
         held = self._entries.get(entry_id)
         if held is None or held.deleted:
             return None
         entry = w.WorldEntry(id=entry_id, version=held.version + 1, origin=origin, stamp=stamp, deleted=True,
-                             author=author or origin, signer_cert=signer_cert, signature=signature)
+                             author=author or origin, signer_cert=signer_cert, signature=signature,
+                             signed_at=signed_at, valid_until=valid_until)
         self.merge(entry)
         return entry
+
+    def held(self, entry_id: str) -> w.WorldEntry | None:
+        """What is held under ``entry_id``, a tombstone included."""
+        return self._entries.get(entry_id)
 
     def get(self, entry_id: str) -> w.WorldEntry | None:
         entry = self._entries.get(entry_id)
@@ -162,10 +173,12 @@ class ReservedId(SignatureRefused):
 
 def check_edit(edit: w.StationEdit, trust: FleetTrust, now: float) -> str:
     """The CN of the ground station that signed ``edit`` if a secured robot may apply it at ``now``; else raises
-    :class:`~bbcs.signing.SignatureRefused` (:class:`ReservedId`, or why the signature does not hold)."""
+    :class:`~bbcs.signing.SignatureRefused` (:class:`ReservedId`, or why the signature does not hold). The edit's
+    own validity window is the caller's (:func:`bbcs.signing.check_window`: a station's request must be within it,
+    an entry already in the fleet's model need not)."""
     if not edit.remove and edit.id.startswith(w.ROBOT_ENTRY_PREFIXES):
         raise ReservedId(f"{edit.id!r} is the id of a robot's own entry ({', '.join(w.ROBOT_ENTRY_PREFIXES)}...)")
-    return verify(edit, trust, now)
+    return authenticate(edit, trust, now)
 
 
 def entry_signer(entry: w.WorldEntry, trust: FleetTrust, now: float) -> str | None:

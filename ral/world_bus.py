@@ -32,6 +32,7 @@ from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
 from bbcs.contracts.pan_tilt import DatosPT
+from bbcs.contracts.signed import seal_of
 from bbcs.signing import FleetTrust
 from ral import world
 from ral.signed import SignatureGate
@@ -117,7 +118,7 @@ class WorldNode:
             for entry in entries:
                 edit = w.edit_of_entry(entry)
                 label = f"{'removal of' if entry.deleted else 'entry'} {entry.id!r} v{entry.version}"
-                if edit is None or self.gate.admit(edit, source, label):
+                if edit is None or self.gate.admit(edit, source, label, expiry=False):
                     out.append(entry)
         return out
 
@@ -221,8 +222,15 @@ class WorldNode:
                 return w.WorldReply(accepted=False, reason=f"{what} not applied: {why} (this robot applies only "
                                                            f"edits signed by its ground stations)")
         now = self.clock()
-        sig = {"signer_cert": edit.signer_cert, "signature": edit.signature}
+        sig = seal_of(edit)
         with self.lock:
+            held = self.model.held(edit.id)
+            if self.gate.trust is not None and signed is not None and held is not None and held.signed_at > 0:
+                with self._gate_lock:  # a replayed older edit must not undo a newer one (ral/world.py _rank)
+                    why = self.gate.stale(signed, held.signed_at, "edit of this entry", "a ground station's request",
+                                          f"edit of {edit.id!r}")
+                if why is not None:
+                    return w.WorldReply(accepted=False, reason=f"edit of {edit.id!r} not applied: {why}")
             if isinstance(edit, w.WorldPut):
                 entry: w.WorldEntry | None = self.model.put(edit.id, edit.body, origin=self.robot, stamp=now,
                                                            author=edit.author, **sig)

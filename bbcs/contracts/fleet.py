@@ -22,6 +22,7 @@ from bbcs.contracts.signed import (  # noqa: F401  (limits and signed_bytes: als
     MAX_SIGNATURE,
     MAX_SIGNER_CERT,
     SIGNATURE_FIELDS,
+    VALIDITY_FIELDS,
     Signature,
     SignerCert,
     signed_bytes,
@@ -57,6 +58,10 @@ class FleetTask(msgspec.Struct, frozen=True, kw_only=True):
     balance: bool = False
     """Share the targets so that the last robot finishes soonest, not so that the robots fly the least in all
     (an area to survey: ``cromat gcs fleet post --area`` sets it)."""
+    signed_at: float = 0.0
+    """When the ground station signed it (seconds since the epoch, its clock); 0: not signed."""
+    valid_until: float = 0.0
+    """Until when a robot may adopt it (bbcs/signing.py ``default_lifetime_s``); 0: not signed."""
     signer_cert: SignerCert = b""
     """The signing ground station's X.509 certificate (DER); empty: not signed (an unsecured fleet)."""
     signature: Signature = b""

@@ -1,7 +1,9 @@
 """What a ground station's signature covers, for every signed contract (fleet tasks, zone edits): bbcs/signing.py.
 
-A signed struct carries two fields, ``signer_cert`` (the station's X.509 certificate, DER) and ``signature``
-(ECDSA P-256 / SHA-256, DER); :func:`signed_bytes` is what the signature is over.
+A signed struct carries four fields: ``signed_at`` and ``valid_until`` (seconds since the epoch, the station's
+clock: when it signed, and until when a robot may adopt the item; both inside the signed bytes), ``signer_cert``
+(the station's X.509 certificate, DER) and ``signature`` (ECDSA P-256 / SHA-256, DER); :func:`signed_bytes` is
+what the signature is over.
 """
 
 from __future__ import annotations
@@ -17,6 +19,14 @@ MAX_SIGNATURE = 80
 SignerCert = Annotated[bytes, msgspec.Meta(max_length=MAX_SIGNER_CERT)]
 Signature = Annotated[bytes, msgspec.Meta(max_length=MAX_SIGNATURE)]
 SIGNATURE_FIELDS = ("signer_cert", "signature")
+VALIDITY_FIELDS = ("signed_at", "valid_until")
+"""Signed like the rest of the item, set by the signer: a relay copies all four (:func:`seal_of`)."""
+
+
+def seal_of(item: msgspec.Struct) -> dict[str, object]:
+    """The validity and signature fields of a signed ``item``, to copy onto what carries its signature (a world
+    request or entry carries its :class:`~bbcs.contracts.world.StationEdit`'s)."""
+    return {f: getattr(item, f) for f in (*VALIDITY_FIELDS, *SIGNATURE_FIELDS)}
 
 
 def signed_bytes(item: msgspec.Struct) -> bytes:
@@ -25,5 +35,5 @@ def signed_bytes(item: msgspec.Struct) -> bytes:
     floats as float64, so a struct decoded from the wire gives back the bytes its signer signed, provided both sides
     use the same struct; a field added later changes the bytes (old and new robots then refuse each other's items,
     loudly, rather than trust fields they cannot see). Two signed types never share bytes: their arrays differ in
-    length or in the type of their elements (a fleet task has six fields, a zone edit three)."""
+    length or in the type of their elements (a fleet task has eight fields, a zone edit five)."""
     return msgspec.msgpack.encode([getattr(item, f) for f in item.__struct_fields__ if f not in SIGNATURE_FIELDS])

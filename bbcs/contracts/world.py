@@ -25,7 +25,7 @@ import msgspec
 
 from bbcs import keys
 from bbcs.contracts.geo import AltitudeAMSL, Latitude, Longitude
-from bbcs.contracts.signed import Signature, SignerCert
+from bbcs.contracts.signed import Signature, SignerCert, seal_of
 from bbcs.contracts.tasks import Vertex
 
 WORLD = "world"
@@ -86,6 +86,9 @@ class WorldEntry(msgspec.Struct, frozen=True, kw_only=True):
     deleted: bool = False
     author: str = ""
     """Who asked for it (a ground station's name, or the robot itself): a label, not checked (the signer is)."""
+    signed_at: float = 0.0
+    """When the ground station signed this edit (its clock); a newer signed edit of an id wins (ral/world.py)."""
+    valid_until: float = 0.0
     signer_cert: SignerCert = b""
     """The certificate (DER) of the ground station that signed this edit (:func:`edit_of_entry`); empty: unsigned
     (an unsecured fleet, or a robot's own entry)."""
@@ -113,6 +116,8 @@ class WorldPut(msgspec.Struct, frozen=True, kw_only=True, tag="put"):
     id: EntryId
     body: Body
     author: str = ""
+    signed_at: float = 0.0
+    valid_until: float = 0.0
     signer_cert: SignerCert = b""
     """A station with a TLS identity signs :func:`edit_of_request` (``cromat gcs world`` does)."""
     signature: Signature = b""
@@ -121,6 +126,8 @@ class WorldPut(msgspec.Struct, frozen=True, kw_only=True, tag="put"):
 class WorldDelete(msgspec.Struct, frozen=True, kw_only=True, tag="delete"):
     id: EntryId
     author: str = ""
+    signed_at: float = 0.0
+    valid_until: float = 0.0
     signer_cert: SignerCert = b""
     signature: Signature = b""
 
@@ -132,12 +139,15 @@ ROBOT_ENTRY_PREFIXES = ("target.", "surveyed.")
 
 class StationEdit(msgspec.Struct, frozen=True, kw_only=True):
     """What a ground station signs for an edit of the world model: the entry ``id``, and either its new ``body``
-    (a no-fly zone or geofence: its kind, polygon and name) or its removal (``remove``, ``body`` None). Never sent
-    on its own: rebuilt from the request or entry that carries the signature."""
+    (a no-fly zone or geofence: its kind, polygon and name) or its removal (``remove``, ``body`` None), with when
+    it was signed and until when a robot may apply the request (``signed_at``, ``valid_until``). Never sent on its
+    own: rebuilt from the request or entry that carries the signature."""
 
     id: EntryId
     remove: bool
     body: Body | None = None
+    signed_at: float = 0.0
+    valid_until: float = 0.0
     signer_cert: SignerCert = b""
     signature: Signature = b""
 
@@ -152,17 +162,16 @@ def edit_of_entry(entry: WorldEntry) -> StationEdit | None:
     if robot_entry(entry.id, entry.body, entry.deleted):
         return None
     return StationEdit(id=entry.id, remove=entry.deleted, body=None if entry.deleted else entry.body,
-                       signer_cert=entry.signer_cert, signature=entry.signature)
+                       **seal_of(entry))
 
 
 def edit_of_request(request: WorldPut | WorldDelete) -> StationEdit | None:
     """What a station signs for ``request`` (and a secured RAL checks); None for a robot's own kind of entry."""
     if isinstance(request, WorldDelete):
-        return StationEdit(id=request.id, remove=True, signer_cert=request.signer_cert, signature=request.signature)
+        return StationEdit(id=request.id, remove=True, **seal_of(request))
     if robot_entry(request.id, request.body, False):
         return None
-    return StationEdit(id=request.id, remove=False, body=request.body, signer_cert=request.signer_cert,
-                       signature=request.signature)
+    return StationEdit(id=request.id, remove=False, body=request.body, **seal_of(request))
 
 
 class TrackTarget(msgspec.Struct, frozen=True, kw_only=True, tag="track_target"):

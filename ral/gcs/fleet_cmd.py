@@ -20,6 +20,7 @@ import msgspec
 from bbcs.contracts import sync as s
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
+from bbcs.contracts.signed import seal_of
 from bbcs.signing import SigningError, StationSigner, signer_name
 from ral import sync
 from ral.gcs.api import Gcs, GcsError, NoReply, UsageError
@@ -59,7 +60,7 @@ def signed_request(request: w.WorldPut | w.WorldDelete, signer: StationSigner | 
     if edit is None:  # a robot's own kind of entry: nothing to sign
         return wire
     signed = signer.sign(edit)
-    return msgspec.structs.replace(wire, signer_cert=signed.signer_cert, signature=signed.signature)
+    return msgspec.structs.replace(wire, **seal_of(signed))
 
 
 def world_request(gcs: Gcs, robot: str, request: w.WorldRequest,

@@ -78,7 +78,10 @@ def test_a_signed_task_verifies_also_after_the_wire(pki: Pki) -> None:
     wire = msgspec.msgpack.decode(msgspec.msgpack.encode(task), type=FleetTask)
     assert verify(wire, pki.trust(), now_of(signer)) == "gcs"
     # the signature covers every field but itself: the bytes of the unsigned task are the bytes signed
-    assert signed_bytes(wire) == signed_bytes(TASK)
+    # the signature covers every field but itself (its validity too): the bytes of the unsigned task are the bytes
+    # signed
+    dated = msgspec.structs.replace(TASK, signed_at=wire.signed_at, valid_until=wire.valid_until)
+    assert signed_bytes(wire) == signed_bytes(dated)
 
 
 def test_a_changed_target_speed_or_id_breaks_the_signature(pki: Pki) -> None:
@@ -198,7 +201,7 @@ def test_fleet_tasks_and_zone_edits_share_the_signing_and_a_signature_never_cros
     signer = pki.signer("gcs")
     zone = w.NoFlyZone(polygon=[t.Vertex(lat=37.41, lon=-6.0), t.Vertex(lat=37.42, lon=-6.0),
                                 t.Vertex(lat=37.42, lon=-6.01)])
-    edit = signer.sign(w.StationEdit(id="mast", remove=False, body=zone))
+    edit = signer.sign(w.StationEdit(id="mast", remove=False, body=zone), now=now_of(signer))
     wire = msgspec.msgpack.decode(msgspec.msgpack.encode(edit), type=w.StationEdit)
     assert verify(wire, pki.trust(), now_of(signer)) == "gcs"
     task = signer.sign(TASK)

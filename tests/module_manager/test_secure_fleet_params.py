@@ -23,7 +23,8 @@ def test_the_secured_ral_gets_the_fleet_ca_and_the_manifest_s_ground_stations(tm
     path.write_text(text)
     m = load_manifest(path, check_pki=False)
     assert secure.ral_fleet_params(m, "ral") == {"fleet_ca": str(tmp_path / "pki" / "ca.pem"),
-                                                 "fleet_signers": "gcs,gcs_backup"}
+                                                 "fleet_signers": "gcs,gcs_backup",
+                                                 "fleet_crl": str(tmp_path / "pki" / "crl.pem")}
     assert secure.ral_fleet_params(m, "vision") == {}
 
 

@@ -6,6 +6,7 @@ every task as before. (Over real Zenoh: tests/system/test_secure_mesh.py.)"""
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +27,11 @@ class Keys:
     signer: StationSigner
     module: StationSigner
     trust: FleetTrust
-    now: float
+
+    @property
+    def now(self) -> float:
+        """The robot's time: the wall clock (tasks are signed at it, valid for an hour; certificates for years)."""
+        return time.time()
 
 
 @pytest.fixture(scope="module")
@@ -38,8 +43,7 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Keys:
         certs.make_leaf(root / "ground", name, ca_dir=root / "ca")
     signer = StationSigner.from_files(root / "ground" / "gcs.pem", root / "ground" / "gcs.key")
     module = StationSigner.from_files(root / "ground" / "vision.pem", root / "ground" / "vision.key")
-    return Keys(signer, module, FleetTrust.from_files(Path(root / "ca" / "ca.pem"), ["gcs"]),
-                signer.cert.not_valid_before_utc.timestamp() + 60.0)
+    return Keys(signer, module, FleetTrust.from_files(Path(root / "ca" / "ca.pem"), ["gcs"]))
 
 
 class _Payload:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import pytest
 
 from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
+from bbcs.contracts.signed import seal_of
 from bbcs.signing import (
     BadSignature,
     FleetTrust,
@@ -80,7 +82,7 @@ def entry_of(request: w.WorldPut | w.WorldDelete, version: int = 1, origin: str 
     """The entry a RAL makes of ``request``, after a trip over msgpack (as a peer's update carries it)."""
     body = request.body if isinstance(request, w.WorldPut) else None
     entry = w.WorldEntry(id=request.id, version=version, origin=origin, stamp=1.0, body=body,
-                         deleted=body is None, signer_cert=request.signer_cert, signature=request.signature)
+                         deleted=body is None, **seal_of(request))
     return msgspec.msgpack.decode(msgspec.msgpack.encode(entry), type=w.WorldEntry)
 
 
@@ -151,7 +153,7 @@ def ask(session, robot: str, request: w.WorldRequest) -> w.WorldReply:
 def test_secured_nodes_apply_only_signed_edits_and_drop_forgeries_from_updates_and_snapshots(
         pki: Pki, nodes, router: int, clients, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.INFO, logger="ral.world_bus")
-    secured = {"trust": pki.trust, "trust_clock": lambda: pki.now}
+    secured = {"trust": pki.trust, "trust_clock": time.time}  # requests are signed now, valid for minutes
     a, b = nodes("uav_a", **secured), nodes("uav_b", **secured)
     gcs = clients(router)
     # a station's request: unsigned refused, nothing applied; signed applied and spread with its signature
@@ -221,7 +223,7 @@ def test_gcs_world_signs_with_the_stations_certificate(pki: Pki, nodes, router: 
                                                        capsys: pytest.CaptureFixture) -> None:
     from ral.gcs import cli
 
-    a = nodes("uav_a", trust=pki.trust, trust_clock=lambda: pki.now)
+    a = nodes("uav_a", trust=pki.trust, trust_clock=time.time)
     ring = [[v.lon, v.lat] for v in square()]
     zone = tmp_path / "mast.geojson"
     zone.write_text(json.dumps({"type": "Polygon", "coordinates": [[*ring, ring[0]]]}))
@@ -243,3 +245,36 @@ def test_gcs_world_signs_with_the_stations_certificate(pki: Pki, nodes, router: 
     assert "is not the key of" in capsys.readouterr().err and a.get("mast") == entry
     assert cli.main([*base, *identity, "world", "remove", "uav_a", "mast"]) == 0
     assert a.get("mast") is None
+
+
+def test_a_captured_zone_request_replayed_never_undoes_a_newer_edit_nor_applies_after_its_expiry(
+        pki: Pki, nodes, router: int, clients) -> None:
+    """Whoever captured the station's signed request to add a zone sends it again after the station removed the
+    zone (to put it back), and the removal again after the station re-added it: refused as ``Replayed`` by the robot
+    asked, the model unchanged at both robots. A request replayed after its validity: ``Expired``."""
+    clock = {"now": time.time()}
+    secured = {"trust": pki.trust, "trust_clock": lambda: clock["now"]}
+    a, b = nodes("uav_a", **secured), nodes("uav_b", **secured)
+    gcs, attacker = clients(router), clients(router)
+    at = clock["now"]
+    add = signed_request(w.WorldPut(id="mast", body=ZONE, author="gcs"), pki.gcs)
+    assert ask(gcs, "uav_a", add).accepted
+    remove = signed_request(w.WorldDelete(id="mast", author="gcs"), pki.gcs)
+    assert ask(gcs, "uav_a", remove).accepted
+    wait_until(lambda: a.get("mast") is None and b.model.held("mast") is not None and b.get("mast") is None, 10,
+               "the removal at both robots")
+    reply = ask(attacker, "uav_b", add)  # the captured addition, to the other robot
+    assert not reply.accepted and "edit of 'mast' not applied: signed at" in reply.reason, reply.reason
+    assert a.get("mast") is None and b.get("mast") is None and b.gate.refused == {"Replayed": 1}
+    readd = signed_request(w.WorldPut(id="mast", body=ZONE, author="gcs"), pki.gcs)
+    assert ask(gcs, "uav_b", readd).accepted
+    wait_until(lambda: a.get("mast") is not None, 10, "the zone re-added at uav_a")
+    reply = ask(attacker, "uav_a", remove)  # the captured removal
+    assert not reply.accepted and a.get("mast") is not None and a.gate.refused == {"Replayed": 1}
+    assert b.get("mast") is not None
+    # a fresh edit signed long ago, never used: expired once its validity (5 min) is past
+    other = signed_request(w.WorldPut(id="tower", body=w.NoFlyZone(polygon=square(lat=LAT + 0.01))), pki.gcs)
+    clock["now"] = at + 3600.0
+    reply = ask(attacker, "uav_a", other)
+    assert not reply.accepted and "valid until" in reply.reason and a.get("tower") is None
+    assert a.gate.refused == {"Replayed": 1, "Expired": 1}
