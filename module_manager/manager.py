@@ -29,6 +29,7 @@ import zenoh
 from bbcs import keys, router_audit, wire
 from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
 from bbcs.contracts import mri
+from bbcs.contracts.error_codes import RouterErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.module import Heartbeat
@@ -225,6 +226,12 @@ class Manager:
         if said not in self._mesh_refusals:
             self._mesh_refusals.add(said)
             self.out(f"  router      {said.removeprefix('cromat router: ')}")
+            with self.lock:  # in the manager's state, so in the GRI state's errors: a station on this router sees it
+                self.errors.append(mri.ErrorEvent(
+                    module="router", code=int(RouterErrorCode.DUPLICATE_ROBOT_NAME),
+                    name=RouterErrorCode.DUPLICATE_ROBOT_NAME.name, stamp=time.time(),
+                    detail=said.removeprefix(f"cromat router: {router_audit.MESH_REFUSED}: ")))
+                self._touch()
 
     def start_processes(self) -> None:
         """Start every plain process (simulators) at once, then wait for each one's readiness: their start-up

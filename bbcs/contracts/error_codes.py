@@ -106,6 +106,14 @@ class RalErrorCode(IntEnum):
     """A running task's effect was lost (module restart or error, no progress, manager restart)."""
 
 
+class RouterErrorCode(IntEnum):
+    """Codes the Module Manager puts in its error list for the robot's router (module ``router``)."""
+
+    DUPLICATE_ROBOT_NAME = 801
+    """The fleet mesh refused a link of this robot's router, or this router refused one: another robot of the same
+    name (robot routers take their Zenoh id from the name, docs/fleet.md "Unique names")."""
+
+
 class UquadErrorCode(IntEnum):
     """Codes on the uQuad flight module's ERROR slot."""
 

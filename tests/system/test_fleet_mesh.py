@@ -150,6 +150,16 @@ def test_a_robot_of_the_same_name_joining_later_is_refused_by_the_mesh_itself(tm
             return tel is not None and tel.position is not None
 
         wait_until(placed, 30, "a's telemetry in its GRI state")
+
+        def told() -> list[str]:  # what a station on a's router is told, in the robot's GRI state
+            try:
+                errors = gcs.state("uav_d", 2.0).errors
+            except NoReply:
+                return []
+            return [e.detail for e in errors if e.module == "router" and e.name == "DUPLICATE_ROBOT_NAME"]
+
+        wait_until(told, 30, "the refused duplicate in a's GRI state errors")
+        assert "another robot of this name tried to join the mesh here" in told()[0]
         before_a, before_b = len(read_record(record_a)), len(read_record(record_b))
         reply = gcs.send("uav_d", gri.TakeOff(height=10.0))
         assert reply.accepted, reply.reason
