@@ -13,6 +13,10 @@ A fleet manifest names one robot manifest and how to multiply it::
     time_scale = 1.0
     record = true                  # each DSP simulator records what it receives (run dir/<name>/dsp_record.jsonl)
 
+More robots of other manifests (another kind: the uQuad) in ``[[fleet.group]]`` tables (``manifest``, ``robots``,
+``name``, optionally ``drop`` and ``conf``), further along the same line; a robot without a DSP simulator gets its
+home in its .conf's ``HOME_*`` lines (``bbcs_conf/fleet_mixed_sim.toml``).
+
 Mesh: a star on a hub router that ``cromat fleet`` starts first (a ground router: ground stations connect to
 it); every robot's router peers it (``[bus] peers``), Zenoh routing between routers.
 What each robot gets is written under ``--run-dir`` (manifest, .conf, logs), checked before anything starts.
@@ -29,6 +33,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -69,6 +74,26 @@ class FleetSpec:
     """A secured fleet's hub router identity (its certificate CN, each robot's ``[bus.tls] hubs``)."""
     gcs: tuple[str, ...] = ()
     """A secured fleet's ground-station identities (the robot manifest's ``[bus.tls] gcs``)."""
+    groups: tuple[FleetSpec, ...] = ()
+    """More robots of other manifests (``[[fleet.group]]``, e.g. uQuads beside the UAVs), meshed on the same hub,
+    their homes further along the same line."""
+
+    @property
+    def total(self) -> int:
+        """Robots in the whole fleet, every group included."""
+        return self.robots + sum(g.robots for g in self.groups)
+
+
+def members(spec: FleetSpec) -> list[tuple[FleetSpec, int, int]]:
+    """Every robot of the fleet as (its group's spec, its number n in the group, its place on the line from 0)."""
+    out = [(spec, n, n - 1) for n in range(1, spec.robots + 1)]
+    for group in spec.groups:
+        out += [(group, n, len(out)) for n in range(1, group.robots + 1)]
+    return out
+
+
+GROUP_KEYS = {"manifest", "robots", "name", "drop", "conf"}
+"""What a ``[[fleet.group]]`` sets; the rest (home line, spacing, time scale, record) is the fleet's."""
 
 
 def load_fleet(path: Path) -> FleetSpec:
@@ -80,7 +105,7 @@ def load_fleet(path: Path) -> FleetSpec:
     if not isinstance(f, dict):
         raise FleetError(f"{path}: no [fleet] table")
     unknown = set(f) - {"manifest", "robots", "name", "home", "spacing_m", "drop", "time_scale", "record", "conf",
-                        "secure", "hub"}
+                        "secure", "hub", "group"}
     if unknown:
         raise FleetError(f"{path}: unknown key(s) in [fleet]: {sorted(unknown)}")
     try:
@@ -96,10 +121,53 @@ def load_fleet(path: Path) -> FleetSpec:
         raise FleetError(f"{path}: [fleet] robots = {spec.robots}: 1..100 on one machine")
     if len(spec.home) != 3:
         raise FleetError(f"{path}: [fleet] home must be [lat, lon, alt]")
-    names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
+    spec = replace(spec, groups=_groups(path, f.get("group", []), spec))
+    if spec.total > 100:
+        raise FleetError(f"{path}: [fleet] {spec.total} robots in all: 1..100 on one machine")
+    names = [robot_name(g, n) for g, n, _ in members(spec)]
     if len(set(names)) != len(names):
-        raise FleetError(f"{path}: [fleet] name = {spec.name!r} gives one name to two robots")
+        twice = sorted({n for n in names if names.count(n) > 1})[0]
+        raise FleetError(f"{path}: [fleet] name = {spec.name!r} gives one name to two robots ({twice!r}; the "
+                         "name patterns of the fleet and its groups must give every robot its own name)")
+    if spec.groups and f.get("secure", False):
+        raise FleetError(f"{path}: [[fleet.group]]: a secured fleet of several robot manifests is not built "
+                         "(docs/fleet.md); launch one manifest per secured fleet")
     return _secured(path, f, spec, names)
+
+
+def _groups(path: Path, raw: object, fleet: FleetSpec) -> tuple[FleetSpec, ...]:
+    """The ``[[fleet.group]]`` tables, each refused naming the file and the group's index and key."""
+    if not isinstance(raw, list):
+        raise FleetError(f"{path}: [fleet] group: write each group as a [[fleet.group]] table")
+    groups = []
+    for i, g in enumerate(raw):
+        where = f"{path}: [[fleet.group]] {i + 1}"
+        if not isinstance(g, dict):
+            raise FleetError(f"{where}: a table of {sorted(GROUP_KEYS)}")
+        unknown = set(g) - GROUP_KEYS
+        if unknown:
+            raise FleetError(f"{where}: unknown key(s) {sorted(unknown)} (a group sets {sorted(GROUP_KEYS)}; the "
+                             "home line, spacing, time scale and record are the fleet's)")
+        for key in ("manifest", "robots", "name"):
+            if key not in g:
+                raise FleetError(f"{where}: no {key}")
+        try:
+            group = replace(fleet, manifest=(path.parent / str(g["manifest"])).resolve(), robots=int(g["robots"]),
+                            name=str(g["name"]), drop=tuple(g.get("drop", ())),
+                            conf=tuple((str(k), str(v)) for k, v in dict(g.get("conf", {})).items()))
+        except (TypeError, ValueError) as exc:
+            raise FleetError(f"{where}: {exc}") from exc
+        if not 1 <= group.robots <= 100:
+            raise FleetError(f"{where}: robots = {group.robots}: 1..100 on one machine")
+        try:
+            base = load_manifest(group.manifest, check_pki=False)
+        except ManifestError as exc:
+            raise FleetError(f"{where}: manifest: {exc}") from exc
+        if base.raw.bus.tls is not None:
+            raise FleetError(f"{where}: manifest {group.manifest} has [bus.tls]: a secured fleet of several robot "
+                             "manifests is not built (docs/fleet.md)")
+        groups.append(group)
+    return tuple(groups)
 
 
 def _secured(path: Path, f: dict, spec: FleetSpec, names: list[str]) -> FleetSpec:
@@ -164,16 +232,22 @@ def drop_sections(text: str, headers: set[str]) -> str:
     return "".join(out)
 
 
-def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str]) -> Path:
-    """Write robot ``n``'s manifest (and its renamed .conf) under ``run_dir/<name>``; returns the manifest. A secured
-    fleet's robot gets its pki folder ``run_dir/<name>/pki`` and the hub in ``[bus.tls] hubs`` (its certificates
-    are issued after: :func:`issue_identities`)."""
+def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str], place: int | None = None) -> Path:
+    """Write robot ``n``'s manifest (and its renamed .conf) under ``run_dir/<name>``; returns the manifest. Its home
+    is ``place`` (default ``n - 1``) spacings east of the fleet's: the DSP simulator's ``--home``, or for a robot
+    without one (the uQuad) its .conf's ``HOME_LAT``/``HOME_LON``/``HOME_ALT``, which its simulator starts from.
+    A secured fleet's robot gets its pki folder ``run_dir/<name>/pki`` and the hub in ``[bus.tls] hubs`` (its
+    certificates are issued after: :func:`issue_identities`)."""
     name = robot_name(spec, n)
     folder = run_dir / name
     folder.mkdir(parents=True, exist_ok=True)
     text = spec.manifest.read_text()
     base = load_manifest(spec.manifest, check_pki=False)  # a secured base: its certificates are not needed
     conf_src: Path | None = base.conf
+    east = ((n - 1) if place is None else place) * spec.spacing_m
+    lat, lon, alt = spec.home
+    lon += east / (111_320.0 * math.cos(math.radians(lat)))
+    has_dsp_sim = re.search(r'(?m)^command = \[[^\n]*"modules\.dsp\.sim"', text) is not None
     text, k = re.subn(r'(\[robot\][^\[]*?\nname = )"[^"]*"', rf'\g<1>"{name}"', text, count=1)
     if k != 1:
         raise FleetError(f"{spec.manifest}: no [robot] name to rename")
@@ -182,6 +256,22 @@ def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str]) -> 
         conf_text, k = re.subn(r"(?m)^ROBOT:.*$", f"ROBOT: {name}", conf_text, count=1)
         if k != 1:
             raise FleetError(f"{conf_src}: no ROBOT line to rename")
+        homes = () if has_dsp_sim else (("HOME_LAT", f"{lat:.6f}"), ("HOME_LON", f"{lon:.6f}"),
+                                        ("HOME_ALT", f"{alt:g}"))
+        # files the .conf names relative to itself (the uQuad's IMU calibration, its control gains): each robot
+        # gets its own copy beside its renamed .conf, as each real robot has its own
+        for m in re.finditer(r"(?m)^[A-Z][A-Z0-9_]*:[ \t]*([^\s#]+)", conf_text):
+            ref = Path(m.group(1))
+            if not ref.is_absolute() and (conf_src.parent / ref).is_file():
+                (folder / ref).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(conf_src.parent / ref, folder / ref)
+        # a robot that logs data files (the uQuad's loggers: LOG_DIR) logs them in its own run folder
+        conf_text = re.sub(r"(?m)^LOG_DIR:.*$", f"LOG_DIR: {folder / 'data'}", conf_text, count=1)
+        for key, value in homes:
+            conf_text, k = re.subn(rf"(?m)^{key}:.*$", f"{key}: {value}", conf_text, count=1)
+            if k != 1:
+                raise FleetError(f"{conf_src}: no DSP simulator in {spec.manifest} and no {key} line in its .conf: "
+                                 f"no way to give robot {name} its home")
         for key, value in spec.conf:
             if not re.fullmatch(r"[A-Z][A-Z0-9_]*", key):
                 raise FleetError(f"[fleet] conf: {key!r} is not a .conf key")
@@ -194,16 +284,16 @@ def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str]) -> 
     endpoints = ", ".join(f'"{p}"' for p in peers)
     text = re.sub(r"(?m)^peers = .*\n", "", text)
     text = text.replace("[bus]\n", f"[bus]\npeers = [{endpoints}]\n", 1)
-    east = (n - 1) * spec.spacing_m
-    lat, lon, alt = spec.home
-    lon += east / (111_320.0 * math.cos(math.radians(lat)))
     extra = [f'"--home", "{lat:.6f},{lon:.6f},{alt:g}"', f'"--time-scale", "{spec.time_scale:g}"']
     if spec.record:
         extra.append(f'"--record", "{folder / "dsp_record.jsonl"}"')
-    text, k = re.subn(r'(?m)^(command = \[[^\n]*"modules\.dsp\.sim"[^\n]*?)\]\s*$',
-                      lambda m: m.group(1) + ", " + ", ".join(extra) + "]", text, count=1)
-    if k != 1:
-        raise FleetError(f"{spec.manifest}: no DSP simulator command (modules.dsp.sim) to give a home")
+    if has_dsp_sim:
+        text, k = re.subn(r'(?m)^(command = \[[^\n]*"modules\.dsp\.sim"[^\n]*?)\]\s*$',
+                          lambda m: m.group(1) + ", " + ", ".join(extra) + "]", text, count=1)
+        if k != 1:
+            raise FleetError(f"{spec.manifest}: the DSP simulator's command must fit on one line to give it a home")
+    elif conf_src is None:
+        raise FleetError(f"{spec.manifest}: no DSP simulator and no .conf: no way to give robot {name} its home")
     text = re.sub(r'(?m)^(ready = \{ kind = "stdout", pattern = "socket://", timeout_s = )[0-9.]+',
                   r"\g<1>60.0", text)  # ten simulators starting on one small machine: more time to be ready
     text = drop_sections(text, set(spec.drop))
@@ -275,12 +365,13 @@ class Fleet:
         self.spec = spec
         self.run_dir = run_dir
         self.out = out
-        self.ports = [free_port() for _ in range(spec.robots)]
+        who = members(spec)
+        self.ports = [free_port() for _ in who]
         self.hub_port = free_port()
         self.scheme = "tls" if spec.secure else "tcp"
         self.hub_endpoint = f"{self.scheme}/127.0.0.1:{self.hub_port}"
-        self.names = [robot_name(spec, n) for n in range(1, spec.robots + 1)]
-        self.manifests = [robot_manifest(spec, n, run_dir, [self.hub_endpoint]) for n in range(1, spec.robots + 1)]
+        self.names = [robot_name(g, n) for g, n, _ in who]
+        self.manifests = [robot_manifest(g, n, run_dir, [self.hub_endpoint], place) for g, n, place in who]
         self.pki = issue_identities(spec, run_dir, self.names, self.manifests, self.hub_endpoint) if spec.secure \
             else None
         self.hub: subprocess.Popen | None = None
@@ -391,7 +482,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cromat fleet: {exc}", file=sys.stderr)
         return 1
     if args.check:
-        print(f"{args.fleet}: ok ({spec.robots} robots: {', '.join(fleet.names)})")
+        print(f"{args.fleet}: ok ({spec.total} robots: {', '.join(fleet.names)})")
         for line in station_lines(fleet):
             print(line)
         return 0
@@ -400,7 +491,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
         fleet.start()
-        print_line(f"fleet: all {spec.robots} robots up, meshed on {fleet.hub_endpoint} "
+        print_line(f"fleet: all {spec.total} robots up, meshed on {fleet.hub_endpoint} "
                    f"({' '.join(f'{n}={p}' for n, p in zip(fleet.names, fleet.ports, strict=True))})")
         for line in station_lines(fleet):
             print_line(line)

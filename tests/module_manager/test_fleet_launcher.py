@@ -3,11 +3,12 @@ renamed, meshed on the hub, its simulator at its own home; a bad fleet manifest 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
 
-from module_manager.fleet import FleetError, load_fleet, robot_manifest
+from module_manager.fleet import FleetError, load_fleet, members, robot_manifest, robot_name
 from module_manager.manifest import load_manifest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -52,3 +53,48 @@ def test_a_conf_override_that_is_not_a_conf_key_is_refused(tmp_path: Path) -> No
                     'conf = {{ "bad key" = "1" }}\n'.replace("{{", "{").replace("}}", "}"))
     with pytest.raises(FleetError, match="not a .conf key"):
         robot_manifest(load_fleet(path), 1, tmp_path / "run", [])
+
+
+MIXED = ROOT / "bbcs_conf" / "fleet_mixed_sim.toml"
+
+
+def test_a_mixed_fleet_places_each_kind_on_one_line_with_its_own_home_and_files(tmp_path: Path) -> None:
+    """UAVs get their home as the DSP simulator's --home; a uQuad (no DSP simulator) in its .conf's HOME_* lines,
+    with its own copies of the files its .conf names and its data logs in its run folder."""
+    spec = load_fleet(MIXED)
+    assert spec.total == 4 and [robot_name(g, n) for g, n, _ in members(spec)] == ["uav01", "uav02", "uav03",
+                                                                                     "quad01"]
+    (group, n, place), = [x for x in members(spec) if x[0] is not spec]
+    uav3 = robot_manifest(spec, 3, tmp_path, ["tcp/127.0.0.1:41000"]).read_text()
+    uav3_lon = float(uav3.split('"--home", "')[1].split('"')[0].split(",")[1])
+    quad = load_manifest(robot_manifest(group, n, tmp_path, ["tcp/127.0.0.1:41000"], place))
+    assert quad.robot == "quad01" and quad.raw.bus.peers == ["tcp/127.0.0.1:41000"] and "goto" in quad.tasks
+    conf = quad.conf.read_text()
+    lat = float(conf.split("\nHOME_LAT: ")[1].split()[0])
+    lon = float(conf.split("\nHOME_LON: ")[1].split()[0])
+    assert lat == pytest.approx(37.4117) and float(conf.split("\nHOME_ALT: ")[1].split()[0]) == 12.0
+    # one spacing (60 m) east of the third UAV
+    assert (lon - uav3_lon) * 111_320.0 * math.cos(math.radians(lat)) == pytest.approx(60.0, abs=0.5)
+    assert "\nROBOT: quad01\n" in conf and f"\nLOG_DIR: {tmp_path / 'quad01' / 'data'}" in conf
+    for name in ("uquad1_imu_calib.conf", "uquad1_K_prop.txt", "uquad1_K_int.txt"):
+        copy = tmp_path / "quad01" / name
+        assert copy.read_bytes() == (ROOT / "bbcs_conf" / name).read_bytes()
+    assert "DSP_ACK_TIMEOUT" not in conf  # the UAVs' .conf lines are not the group's
+
+
+@pytest.mark.parametrize("group, why", [
+    ('manifest = "uquad1_sim.toml"\nrobots = 1\n', r"\[\[fleet.group\]\] 1: no name"),
+    ('manifest = "uquad1_sim.toml"\nrobots = 1\nname = "uav{n:02d}"\n', "gives one name to two robots"),
+    ('manifest = "uquad1_sim.toml"\nrobots = 1\nname = "q{n}"\nhome = [0, 0, 0]\n', r"unknown key\(s\) \['home'\]"),
+    ('manifest = "uav1_secure.toml"\nrobots = 1\nname = "s{n}"\n', "secured fleet of several robot manifests"),
+    ('manifest = "nowhere.toml"\nrobots = 1\nname = "q{n}"\n', r"\[\[fleet.group\]\] 1: manifest"),
+])
+def test_a_bad_group_is_refused_naming_the_file_and_group(tmp_path: Path, group: str, why: str) -> None:
+    path = tmp_path / "fleet.toml"
+    conf = ROOT / "bbcs_conf"
+    path.write_text(f'[fleet]\nmanifest = "{conf / "uav1_sim.toml"}"\nrobots = 1\n\n[[fleet.group]]\n'
+                    + group.replace('"uquad1_sim.toml"', f'"{conf / "uquad1_sim.toml"}"')
+                    .replace('"uav1_secure.toml"', f'"{conf / "uav1_secure.toml"}"'))
+    with pytest.raises(FleetError, match=why) as err:
+        load_fleet(path)
+    assert str(path) in str(err.value)
