@@ -877,6 +877,8 @@ class Module:
             return 2
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: module.request_stop())
+        stopped = threading.Event()
+        _watch_orphan_stop(module, stopped, os.getppid())
         try:
             module.run()
         except ConfError as exc:
@@ -885,7 +887,50 @@ class Module:
         except SessionError as exc:
             module.log.error("%s", exc)
             return 2
+        finally:
+            stopped.set()
         return 0
+
+
+ORPHAN_STOP_GRACE_S = 5.0
+"""How long a module whose parent is gone waits for its loop to stop after SIGINT/SIGTERM before it exits anyway."""
+
+
+def _watch_orphan_stop(module: Module, stopped: threading.Event, parent: int) -> None:
+    """Make sure a stop signal stops the process even when its loop cannot see it.
+
+    The loop may sit in a Zenoh ``recv()``, in Rust, where Python runs no signal handler; it is normally woken by a
+    sample its own timer puts through the router. When the manager dies, every child gets SIGTERM at once
+    (PR_SET_PDEATHSIG), the router among them, so that wake may never come and the module would outlive its
+    manager. A thread sees the signal through ``signal.set_wakeup_fd`` (written by the C handler even while the
+    main thread is in Rust), asks the loop to stop, and if the parent is gone and the loop has not stopped within
+    ``ORPHAN_STOP_GRACE_S``, exits the process. With a live parent it does nothing more: the manager's own grace
+    and SIGKILL decide."""
+    try:
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    except (OSError, ValueError):  # not the main thread, or no pipes: the plain handlers remain
+        return
+
+    def watch() -> None:
+        while True:
+            try:
+                got = os.read(read_fd, 64)
+            except OSError:
+                return
+            if not {signal.SIGINT, signal.SIGTERM} & set(got):
+                continue
+            module.request_stop()
+            if stopped.wait(ORPHAN_STOP_GRACE_S):
+                return
+            if os.getppid() != parent:
+                module.log.warning("stop signal, parent gone and the loop still blocked after %g s: exiting",
+                                   ORPHAN_STOP_GRACE_S)
+                logging.shutdown()
+                os._exit(0)
+
+    threading.Thread(target=watch, name=f"{module.module}-stop-watch", daemon=True).start()
 
 
 def _is_wake(sample: Any) -> bool:
