@@ -32,7 +32,7 @@ __all__ = ["free_port", "wait_port", "wait_until", "child_env", "stop_process", 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def wait_port(port: int, deadline_s: float = 10.0) -> None:
+def wait_port(port: int, deadline_s: float = 30.0) -> None:
     if not wait_tcp("127.0.0.1", port, deadline_s):
         raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {deadline_s} s")
 

@@ -89,7 +89,7 @@ class BusSection(_Section):
     """Where the manager and modules connect; empty: derived from the first tcp ``listen`` endpoint."""
     zenoh_config: str | None = None
     """Zenoh JSON5 file for the router (access control, TLS), relative to the manifest."""
-    ready_timeout_s: Positive = 10.0
+    ready_timeout_s: Positive = 30.0
     tls: TlsSection | None = None
     """Mutual TLS (and access control) on the router; see docs/manifest.md."""
     admin_space: bool = False
