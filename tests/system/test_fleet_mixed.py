@@ -6,25 +6,20 @@ telemetry within reach, its fleet state's done list) although it speaks no DSP a
 
 from __future__ import annotations
 
-import os
-import re
-import signal
-import subprocess
 import sys
-import threading
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
 
 from bbcs.session import open_session
-from bbcs.testing import child_env, wait_until
+from bbcs.testing import wait_until
 from module_manager.fleet import load_fleet, members, robot_name
 from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, NoReply, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
-from launch_support import ROOT, group_members  # noqa: E402
+from fleet_support import ROOT, fleet_run  # noqa: E402
 from test_fleet_alloc import cli_post, take_off_all  # noqa: E402
 from test_fleet_scale import records  # noqa: E402
 
@@ -37,25 +32,10 @@ def test_uavs_and_a_uquad_share_one_fleet_task(tmp_path: Path) -> None:
     names = sorted(robot_name(g, n) for g, n, _ in members(spec))
     assert names == ["quad01", "uav01", "uav02", "uav03"]
     run = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "module_manager.fleet", str(FLEET), "--run-dir", str(run)],
-                            cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
-    lines: list[str] = []
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line.rstrip())
-
-    threading.Thread(target=read, daemon=True).start()
-    gcs = view = session = None
-    try:
-        wait_until(lambda: any(x.startswith("fleet: all 4 robots up") for x in lines) or proc.poll() is not None,
-                   180, "the four robots up")
-        up = next((x for x in lines if x.startswith("fleet: all 4 robots up")), None)
-        assert up is not None, "\n".join(lines[-40:])
-        hub = int(re.search(r"meshed on tcp/127\.0\.0\.1:(\d+)", up).group(1))
-        gcs = Gcs(session_config([f"tcp/127.0.0.1:{hub}"]), name="ground", link=names, timeout_s=10.0)
+    with fleet_run(FLEET, run) as fleet, ExitStack() as closing:
+        hub = fleet.hub_port(4, 180)
+        gcs = closing.enter_context(Gcs(session_config([f"tcp/127.0.0.1:{hub}"]), name="ground", link=names,
+                                        timeout_s=10.0))
         wait_until(lambda: gcs.robots(1.0) == names, 60, "all four robots seen from the hub")
         assert {gcs.state(n).kind for n in names} == {"uav", "uquad"}
         take_off_all(gcs, names)
@@ -68,8 +48,9 @@ def test_uavs_and_a_uquad_share_one_fleet_task(tmp_path: Path) -> None:
 
         for n in names:
             wait_until(lambda n=n: settled(n), 60, f"{n}: its take-off task over")
-        session = open_session(session_config([f"tcp/127.0.0.1:{hub}"]))
+        session = closing.enter_context(open_session(session_config([f"tcp/127.0.0.1:{hub}"])))
         view = FleetView(session)
+        closing.callback(view.close)
         targets, where = [], {}
         for name in names:  # one target north of each home: 33 m for a UAV, 11 m for the uQuad (2 m/s cruise)
             st = gcs.state(name)
@@ -87,17 +68,3 @@ def test_uavs_and_a_uquad_share_one_fleet_task(tmp_path: Path) -> None:
             got = set(records(run, name))
             assert where[f"{name}_t"] in got and not {where[t] for t in where if t != f"{name}_t"} & got, (name, got)
         assert not (run / "quad01" / "dsp_record.jsonl").exists()
-    finally:
-        if view is not None:
-            view.close()
-        if session is not None:
-            session.close()
-        if gcs is not None:
-            gcs.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(120)
-        finally:
-            for pid in group_members(proc.pid):
-                os.kill(pid, signal.SIGKILL)

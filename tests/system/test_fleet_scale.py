@@ -9,25 +9,20 @@ About 70 processes: it takes a 2-core machine's two cores for about a minute, so
 
 from __future__ import annotations
 
-import os
-import re
-import signal
-import subprocess
 import sys
-import threading
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
 
 from bbcs.session import open_session
-from bbcs.testing import child_env, wait_until
+from bbcs.testing import wait_until
 from module_manager.fleet import load_fleet
 from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
-from launch_support import ROOT, group_members  # noqa: E402
+from fleet_support import ROOT, fleet_run  # noqa: E402
 from test_fleet_alloc import cli_post, take_off_all  # noqa: E402
 
 from modules.dsp.sim.record import read_record
@@ -45,36 +40,15 @@ def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path
     spec = load_fleet(FLEET)
     names = [spec.name.format(n=n) for n in range(1, spec.robots + 1)]
     run = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "module_manager.fleet", str(FLEET), "--run-dir", str(run)],
-                            cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
-    lines: list[str] = []
-    cond = threading.Condition()
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            with cond:
-                lines.append(line.rstrip())
-                cond.notify_all()
-
-    threading.Thread(target=read, daemon=True).start()
-    gcs = view = session = None
-    try:
-        try:
-            wait_until(lambda: any(x.startswith("fleet: all 10 robots up") for x in lines) or proc.poll() is not None,
-                       300, "the ten robots up")
-        except AssertionError as exc:
-            raise AssertionError(f"{exc}; up so far: {[x for x in lines if 'modules up' in x]}; "
-                                 f"{len(lines)} lines, the last ones:\n" + "\n".join(lines[-30:])) from None
-        up = next((x for x in lines if x.startswith("fleet: all 10 robots up")), None)
-        assert up is not None, "\n".join(lines[-40:])
-        hub = int(re.search(r"meshed on tcp/127\.0\.0\.1:(\d+)", up).group(1))
-        gcs = Gcs(session_config([f"tcp/127.0.0.1:{hub}"]), name="ground", link=names, timeout_s=10.0)
+    with fleet_run(FLEET, run) as fleet, ExitStack() as closing:
+        hub = fleet.hub_port(10, 300)
+        gcs = closing.enter_context(Gcs(session_config([f"tcp/127.0.0.1:{hub}"]), name="ground", link=names,
+                                        timeout_s=10.0))
         wait_until(lambda: gcs.robots(1.0) == names, 60, "all ten robots seen from the hub")
         take_off_all(gcs, names)
-        session = open_session(session_config([f"tcp/127.0.0.1:{hub}"]))
+        session = closing.enter_context(open_session(session_config([f"tcp/127.0.0.1:{hub}"])))
         view = FleetView(session)
+        closing.callback(view.close)
 
         # twenty targets on the grid, two by each robot's home (north and south of it, ~33 m away; homes are 60 m
         # apart). Posted balanced (the last robot done soonest, as a user sharing work expects): each robot's own
@@ -101,17 +75,3 @@ def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path
             mine = {where[t] for t in dec.routes[name]}
             theirs = {where[t] for r, ts in dec.routes.items() if r != name for t in ts} - mine
             assert mine <= got and not theirs & got, (name, dec.routes[name], got)
-    finally:
-        if view is not None:
-            view.close()
-        if session is not None:
-            session.close()
-        if gcs is not None:
-            gcs.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(120)
-        finally:
-            for pid in group_members(proc.pid):
-                os.kill(pid, signal.SIGKILL)

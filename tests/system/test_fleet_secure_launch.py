@@ -14,12 +14,9 @@ each target arrives as ADD_WAYPOINT at the DSP record of the nearer robot only.
 
 from __future__ import annotations
 
-import os
 import re
-import signal
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import msgspec
@@ -34,8 +31,8 @@ from bbcs.testing import child_env, wait_until
 from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, NoReply, Unreachable, session_config
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
-from launch_support import ROOT, group_members  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fleet_support import ROOT, fleet_run  # noqa: E402
 
 from modules.dsp.sim.record import read_record
 
@@ -60,25 +57,9 @@ def denials(path: Path) -> list[str]:
 def test_a_secured_fleet_from_one_manifest_flies_the_stations_task_and_refuses_a_robot_routers(
         tmp_path: Path) -> None:
     run = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "module_manager.fleet", str(FLEET), "--run-dir", str(run)],
-                            cwd=str(ROOT), env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
-    lines: list[str] = []
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line.rstrip())
-
-    threading.Thread(target=read, daemon=True).start()
-    try:
-        try:
-            wait_until(lambda: any(STATION.match(x) for x in lines) or proc.poll() is not None, 180,
-                       "the fleet up and its station line")
-        except AssertionError as exc:
-            raise AssertionError(f"{exc}; the last lines:\n" + "\n".join(lines[-30:])) from None
-        found = next((m for x in lines if (m := STATION.match(x))), None)
-        assert found is not None, "\n".join(lines[-30:])
+    with fleet_run(FLEET, run) as fleet:
+        found = STATION.match(fleet.wait_line(STATION.match, 180, "the fleet up and its station line"))
+        assert found is not None
         hub, ca, cert, key = found.groups()
         assert Path(cert) == run / "ground" / "gcs.pem" and Path(key).stat().st_mode & 0o777 == 0o600
         station = Gcs(session_config([hub], ca=ca, cert=cert, key=key, connect_timeout_s=10.0), name="gcs",
@@ -153,11 +134,3 @@ def test_a_secured_fleet_from_one_manifest_flies_the_stations_task_and_refuses_a
             assert [x for x in denials(run / name / "logs" / "router.log")
                     if f"denied: hub may not put on {command_key}" not in x] == [], name
         assert [x for x in denials(run / "hub.log") if "router-uav01 may not" not in x] == []
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(60)
-        finally:
-            for pid in group_members(proc.pid):
-                os.kill(pid, signal.SIGKILL)

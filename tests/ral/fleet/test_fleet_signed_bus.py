@@ -11,6 +11,7 @@ sessions of it, flying a point robot, ground stations and an attacker on session
 from __future__ import annotations
 
 import dataclasses
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -21,7 +22,7 @@ import pytest
 
 from bbcs import keys
 from bbcs.contracts.fleet import FleetTarget, FleetTask
-from bbcs.signing import CLOCK_TOLERANCE_S, FleetTrust, StationSigner
+from bbcs.signing import CLOCK_TOLERANCE_S, FleetTrust
 from bbcs.testing import wait_until
 from cromat import certs
 from ral.fleet import FleetLink
@@ -29,21 +30,12 @@ from ral.fleet_protocol import Execute, FleetConfig, OwnState
 
 LAT, LON, ALT = 37.41, -6.0, 30.0
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from station_pki import Pki  # noqa: E402
+
 
 def task(task_id: str, north_m: float) -> FleetTask:
     return FleetTask(id=task_id, targets=[FleetTarget(id="a", lat=LAT + north_m / 111_000.0, lon=LON, alt=ALT)])
-
-
-class Pki:
-    def __init__(self, root: Path) -> None:
-        self.robot, self.ground = root / "robot", root / "robot-ground"
-        assert certs.main([str(self.robot), "--gcs", "gcs1", "--gcs", "gcs2"]) == 0
-
-    def signer(self, name: str) -> StationSigner:
-        return StationSigner.from_files(self.ground / f"{name}.pem", self.ground / f"{name}.key")
-
-    def trust(self) -> FleetTrust:
-        return FleetTrust.from_files(self.robot / "ca.pem", ["gcs1", "gcs2"], self.robot / "crl.pem")
 
 
 @pytest.fixture

@@ -7,6 +7,7 @@ while the robot runs; an older zone edit replayed over a newer one, with any ver
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 
 import msgspec
@@ -16,7 +17,7 @@ from bbcs.contracts import tasks as t
 from bbcs.contracts import world as w
 from bbcs.contracts.fleet import FleetState, FleetTarget, FleetTask
 from bbcs.contracts.signed import seal_of
-from bbcs.signing import CLOCK_TOLERANCE_S, FleetTrust, StationSigner
+from bbcs.signing import CLOCK_TOLERANCE_S, FleetTrust
 from cromat import certs
 from ral import world
 from ral.fleet import FleetLink, TaskGate
@@ -25,18 +26,8 @@ from ral.fleet_protocol import Execute, OwnState
 TARGET = FleetTarget(id="a", lat=37.41, lon=-6.0, alt=30.0)
 TASK = FleetTask(id="t1", targets=[TARGET])
 
-
-class Pki:
-    def __init__(self, root: Path) -> None:
-        self.robot, self.ground = root / "robot", root / "robot-ground"
-        assert certs.main([str(self.robot), "--gcs", "gcs1", "--gcs", "gcs2"]) == 0
-        self.root = root
-
-    def signer(self, name: str) -> StationSigner:
-        return StationSigner.from_files(self.ground / f"{name}.pem", self.ground / f"{name}.key")
-
-    def trust(self) -> FleetTrust:
-        return FleetTrust.from_files(self.robot / "ca.pem", ["gcs1", "gcs2"], self.robot / "crl.pem")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from station_pki import Pki  # noqa: E402
 
 
 @pytest.fixture
