@@ -34,6 +34,7 @@ import itertools
 import logging
 import os
 import queue
+import select
 import signal
 import threading
 import time
@@ -897,37 +898,36 @@ ORPHAN_STOP_GRACE_S = 5.0
 
 
 def _watch_orphan_stop(module: Module, stopped: threading.Event, parent: int) -> None:
-    """Make sure a stop signal stops the process even when its loop cannot see it.
+    """Make sure a stop signal, or the death of the parent, stops the process even when its loop cannot see it.
 
     The loop may sit in a Zenoh ``recv()``, in Rust, where Python runs no signal handler; it is normally woken by a
     sample its own timer puts through the router. When the manager dies, every child gets SIGTERM at once
     (PR_SET_PDEATHSIG), the router among them, so that wake may never come and the module would outlive its
     manager. A thread sees the signal through ``signal.set_wakeup_fd`` (written by the C handler even while the
-    main thread is in Rust), asks the loop to stop, and if the parent is gone and the loop has not stopped within
-    ``ORPHAN_STOP_GRACE_S``, exits the process. With a live parent it does nothing more: the manager's own grace
-    and SIGKILL decide."""
+    main thread is in Rust) and checks every second that the parent is still there; on either it asks the loop
+    to stop, and if the parent is gone and the loop has not stopped within ``ORPHAN_STOP_GRACE_S``, it exits the
+    process. With a live parent it does nothing more: the manager's own grace and SIGKILL decide."""
     try:
         read_fd, write_fd = os.pipe()
         os.set_blocking(write_fd, False)
         signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
     except (OSError, ValueError):  # not the main thread, or no pipes: the plain handlers remain
         return
+    stop_signals = {signal.SIGINT, signal.SIGTERM}
 
     def watch() -> None:
-        while True:
-            try:
-                got = os.read(read_fd, 64)
-            except OSError:
-                return
-            if not {signal.SIGINT, signal.SIGTERM} & set(got):
-                continue
-            module.request_stop()
-            if stopped.wait(ORPHAN_STOP_GRACE_S):
-                return
-            if os.getppid() != parent:
-                module.log.warning("stop signal, parent gone and the loop still blocked after %g s: exiting",
-                                   ORPHAN_STOP_GRACE_S)
-                logging.shutdown()
+        asked_at: float | None = None
+        while not stopped.is_set():
+            ready, _, _ = select.select([read_fd], [], [], 1.0)
+            if ready and stop_signals & set(os.read(read_fd, 64)) or os.getppid() != parent:
+                if asked_at is None:
+                    asked_at = time.monotonic()
+                    module.request_stop()
+            if asked_at is not None and os.getppid() != parent \
+                    and time.monotonic() - asked_at >= ORPHAN_STOP_GRACE_S and not stopped.is_set():
+                # no logging call here: a lock held by a blocked thread would hang it
+                os.write(2, f"{module.module}: stop signal, parent gone and the loop still not stopped after "
+                            f"{ORPHAN_STOP_GRACE_S:g} s: exiting\n".encode())
                 os._exit(0)
 
     threading.Thread(target=watch, name=f"{module.module}-stop-watch", daemon=True).start()
