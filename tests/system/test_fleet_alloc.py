@@ -87,9 +87,9 @@ class FleetRobot:
 
 
 def cli_post(port: int, task: str, targets: list[str], timeout_s: float = 40.0,
-             areas: tuple[str, ...] = (), balance: bool = False) -> subprocess.CompletedProcess:
+             areas: tuple[str, ...] = (), balance: bool = False, wait_s: float = 30.0) -> subprocess.CompletedProcess:
     args = [sys.executable, "-m", "ral.gcs.cli", "--connect", f"tcp/127.0.0.1:{port}", "--name", "poster",
-            "fleet", "post", "--id", task, "--wait", "30"] + (["--balance"] if balance else [])
+            "fleet", "post", "--id", task, "--wait", f"{wait_s:g}"] + (["--balance"] if balance else [])
     for x in targets:
         args += ["--target", x]
     for x in areas:
