@@ -9,6 +9,7 @@ About 70 processes: it takes a 2-core machine's two cores for about a minute, so
 
 from __future__ import annotations
 
+import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
@@ -35,6 +36,9 @@ def records(run: Path, name: str) -> list[tuple[float, float]]:
     return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in lines if c["name"] == "ADD_WAYPOINT"]
 
 
+@pytest.mark.skipif(os.environ.get("CROMAT_FLEET_SCALE") != "1",
+                    reason="ten robot stacks saturate a 2-core machine for a minute and starve the tests beside "
+                           "them; set CROMAT_FLEET_SCALE=1 to run it")
 @pytest.mark.timeout(600)
 def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path) -> None:
     spec = load_fleet(FLEET)
