@@ -6,6 +6,7 @@ Used by this project's tests and usable by anyone testing their own modules agai
 
 from __future__ import annotations
 
+import fcntl
 import os
 import signal
 import socket
@@ -13,7 +14,8 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +29,7 @@ from bbcs.routing import RouteAck
 from bbcs.slots import Direction, SlotSpec
 
 __all__ = ["free_port", "wait_port", "wait_until", "child_env", "stop_process", "start_router", "Processes",
-           "ModuleDriver", "Recorder", "Input", "Tick", "RouteChange", "Stop"]
+           "run_turn", "ModuleDriver", "Recorder", "Input", "Tick", "RouteChange", "Stop"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -55,6 +57,27 @@ def stop_process(proc: subprocess.Popen, grace_s: float = 10.0) -> int | None:
             proc.kill()
             proc.wait(5)
     return proc.returncode
+
+
+@contextmanager
+def run_turn(folder: str | Path, alone: bool) -> Iterator[None]:
+    """A turn to run one test among processes sharing ``folder`` (pytest-xdist workers): a shared turn beside other
+    shared ones, an ``alone`` turn once no other turn is held, and none begins while an ``alone`` turn waits.
+
+    Two ``flock``s: ``run`` (shared, or exclusive when alone) and ``gate``, which a waiting alone turn holds
+    exclusively so that new shared turns queue behind it instead of starving it."""
+    folder = Path(folder)
+    with open(folder / "gate", "a+") as gate, open(folder / "run", "a+") as run:
+        fcntl.flock(gate, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        if not alone:
+            fcntl.flock(gate, fcntl.LOCK_UN)
+        fcntl.flock(run, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        try:
+            yield
+        finally:
+            fcntl.flock(run, fcntl.LOCK_UN)
+            if alone:
+                fcntl.flock(gate, fcntl.LOCK_UN)
 
 
 class Processes:

@@ -5,11 +5,13 @@ Everything runs on 127.0.0.1 with multicast scouting off, and everything started
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from collections.abc import Callable, Iterator
 
 import pytest
 
-from bbcs.testing import Processes, start_router
+from bbcs.testing import Processes, run_turn, start_router
 
 # helpers whose asserts check what tests see: rewritten so a failure shows the values, as in a test file
 pytest.register_assert_rewrite("harness", "tests.system.uav_stack")
@@ -72,9 +74,52 @@ runs them one after another, from the start of the run, while the other worker r
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Heavy files first (a stable sort: their own order kept), so their one work unit starts at once."""
+    """Heavy files first (a stable sort: their own order kept), so their one work unit starts at once; within
+    them, the tests marked ``alone`` last (by then the other worker has most often finished its share)."""
     root = config.rootpath
-    items.sort(key=lambda item: item.path.relative_to(root).as_posix() not in HEAVY_STACKS)
+    items.sort(key=lambda item: (item.path.relative_to(root).as_posix() not in HEAVY_STACKS,
+                                 item.get_closest_marker("alone") is not None))
+
+
+# ------------------------------------------------------------------ tests that run alone under xdist
+#
+# A test marked ``alone`` (ten robot stacks: about 70 processes) takes both cores for a minute; beside it, the other
+# worker's tests miss their deadlines. Each xdist worker runs every test's whole protocol (its module fixtures'
+# set-up and tear-down included) holding a shared lock on one file, an ``alone`` test an exclusive one: the other
+# worker waits between two of its tests, its module-scoped stacks idle, until the ``alone`` test is done
+# (bbcs.testing.run_turn). Without xdist, nothing is locked.
+
+ALONE_DIR = "cromat_alone_dir"
+_alone_dir = pytest.StashKey[str]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "alone: under xdist, run while no other worker runs a test")
+    if not hasattr(config, "workerinput"):  # the controller (or a run without xdist)
+        config.stash[_alone_dir] = tempfile.mkdtemp(prefix="cromat-alone-")
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    folder = config.stash.get(_alone_dir, None)
+    if folder is not None:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node: object) -> None:
+    """xdist, on the controller: each worker learns the run's lock folder."""
+    node.workerinput[ALONE_DIR] = node.config.stash[_alone_dir]  # type: ignore[attr-defined]
+
+
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    """Outermost (``tryfirst``): the wait for a turn is not counted in pytest-timeout's limit."""
+    folder = getattr(item.config, "workerinput", {}).get(ALONE_DIR)
+    if folder is None:
+        yield
+        return
+    with run_turn(folder, item.get_closest_marker("alone") is not None):
+        yield
 
 
 @pytest.hookimpl(optionalhook=True)

@@ -4,12 +4,12 @@ all ten, takes them off and posts twenty targets; the ten RALs agree on one allo
 targets, and every target is flown by the robot that won it (its DSP simulator's record), and by no other.
 
 About 70 processes: it takes a 2-core machine's two cores for about a minute, so it is one of the heavy files
-(tests/conftest.py's ``HEAVY_STACKS``) that one xdist worker runs one after another.
+(tests/conftest.py's ``HEAVY_STACKS``) that one xdist worker runs one after another, the last of them, and it is
+marked ``alone``: while it runs, the other worker starts no test (beside it, their deadlines were missed).
 """
 
 from __future__ import annotations
 
-import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
@@ -36,9 +36,7 @@ def records(run: Path, name: str) -> list[tuple[float, float]]:
     return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in lines if c["name"] == "ADD_WAYPOINT"]
 
 
-@pytest.mark.skipif(os.environ.get("CROMAT_FLEET_SCALE") != "1",
-                    reason="ten robot stacks saturate a 2-core machine for a minute and starve the tests beside "
-                           "them; set CROMAT_FLEET_SCALE=1 to run it")
+@pytest.mark.alone  # ten stacks starve any test beside them (tests/conftest.py): under xdist it runs by itself
 @pytest.mark.timeout(600)
 def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path) -> None:
     spec = load_fleet(FLEET)
