@@ -61,8 +61,9 @@ def stop_process(proc: subprocess.Popen, grace_s: float = 10.0) -> int | None:
 
 @contextmanager
 def run_turn(folder: str | Path, alone: bool) -> Iterator[None]:
-    """A turn to run one test among processes sharing ``folder`` (pytest-xdist workers): a shared turn beside other
-    shared ones, an ``alone`` turn once no other turn is held, and none begins while an ``alone`` turn waits.
+    """A turn to run tests (this project's conftest: one test file) among processes sharing ``folder`` (pytest-xdist
+    workers): a shared turn beside other shared ones, an ``alone`` turn once no other turn is held, and no turn
+    begins while an ``alone`` turn waits.
 
     Two ``flock``s: ``run`` (shared, or exclusive when alone) and ``gate``, which a waiting alone turn holds
     exclusively so that new shared turns queue behind it instead of starving it."""

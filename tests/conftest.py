@@ -8,6 +8,8 @@ from __future__ import annotations
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
+from contextlib import ExitStack
+from pathlib import Path
 
 import pytest
 
@@ -81,20 +83,22 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
                                  item.get_closest_marker("alone") is not None))
 
 
-# ------------------------------------------------------------------ tests that run alone under xdist
+# ------------------------------------------------------------------ test files that run alone under xdist
 #
-# A test marked ``alone`` (ten robot stacks: about 70 processes) takes both cores for a minute; beside it, the other
-# worker's tests miss their deadlines. Each xdist worker runs every test's whole protocol (its module fixtures'
-# set-up and tear-down included) holding a shared lock on one file, an ``alone`` test an exclusive one: the other
-# worker waits between two of its tests, its module-scoped stacks idle, until the ``alone`` test is done
-# (bbcs.testing.run_turn). Without xdist, nothing is locked.
+# A test marked ``alone`` (ten robot stacks: about 80 processes) takes both cores for a minute; beside it, the other
+# worker's tests missed their deadlines. Pausing the other worker between two tests is not enough: a module-scoped
+# robot stack of a file it is half-way through keeps running, slows the ten robots and is starved by them (a CI run
+# with per-test turns lost a pan command of such a stack). So each xdist worker holds a turn per test *file*, from
+# its first test's set-up to its last test's tear-down (its module fixtures with it): shared for ordinary files,
+# exclusive for a file with an ``alone`` test, which therefore starts once the other worker has finished its current
+# file, and no new file starts meanwhile (bbcs.testing.run_turn). Without xdist, nothing is locked.
 
 ALONE_DIR = "cromat_alone_dir"
 _alone_dir = pytest.StashKey[str]()
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line("markers", "alone: under xdist, run while no other worker runs a test")
+    config.addinivalue_line("markers", "alone: under xdist, its file runs while no other worker runs a test file")
     if not hasattr(config, "workerinput"):  # the controller (or a run without xdist)
         config.stash[_alone_dir] = tempfile.mkdtemp(prefix="cromat-alone-")
 
@@ -111,6 +115,18 @@ def pytest_configure_node(node: object) -> None:
     node.workerinput[ALONE_DIR] = node.config.stash[_alone_dir]  # type: ignore[attr-defined]
 
 
+class _FileTurn:
+    """This worker's turn for the test file it is running (one at a time: xdist runs a worker's items in order)."""
+
+    path: Path | None = None
+    held = ExitStack()
+
+
+def _file_is_alone(item: pytest.Item) -> bool:
+    return any(other.get_closest_marker("alone") is not None
+               for other in item.session.items if other.path == item.path)
+
+
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
     """Outermost (``tryfirst``): the wait for a turn is not counted in pytest-timeout's limit."""
@@ -118,22 +134,13 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     if folder is None:
         yield
         return
-    with run_turn(folder, item.get_closest_marker("alone") is not None):
+    if _FileTurn.path != item.path:
+        _FileTurn.held.close()
+        _FileTurn.held.enter_context(run_turn(folder, _file_is_alone(item)))
+        _FileTurn.path = item.path
+    try:
         yield
-
-
-@pytest.hookimpl(optionalhook=True)
-def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
-    """For the configured ``--dist loadfile`` (pyproject.toml): work units of whole files (a module-scoped robot
-    stack starts once, on one worker, and tests numbered to run in order on it do), all ``HEAVY_STACKS`` files one
-    unit. Another ``--dist`` given on the command line is left to xdist."""
-    if config.getvalue("dist") != "loadfile":
-        return None
-    from xdist.scheduler import LoadFileScheduling
-
-    class HeavyTogetherScheduling(LoadFileScheduling):
-        def _split_scope(self, nodeid: str) -> str:
-            path = nodeid.split("::", 1)[0]
-            return "heavy_stacks" if path in HEAVY_STACKS else path
-
-    return HeavyTogetherScheduling(config, log)
+    finally:
+        if nextitem is None or nextitem.path != item.path:  # its module fixtures were torn down with this item
+            _FileTurn.held.close()
+            _FileTurn.path = None

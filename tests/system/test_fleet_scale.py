@@ -3,9 +3,10 @@ router, Module Manager, modules and DSP simulator), meshed in a star; a ground s
 all ten, takes them off and posts twenty targets; the ten RALs agree on one allocation, each robot's own two
 targets, and every target is flown by the robot that won it (its DSP simulator's record), and by no other.
 
-About 70 processes: it takes a 2-core machine's two cores for about a minute, so it is one of the heavy files
+About 80 processes: it takes a 2-core machine's two cores for about a minute, so it is one of the heavy files
 (tests/conftest.py's ``HEAVY_STACKS``) that one xdist worker runs one after another, the last of them, and it is
-marked ``alone``: while it runs, the other worker starts no test (beside it, their deadlines were missed).
+marked ``alone``: it starts once the other worker has finished its current test file, and that worker starts no
+other file until it is done (beside it, their deadlines were missed).
 """
 
 from __future__ import annotations
