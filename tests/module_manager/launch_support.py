@@ -124,5 +124,19 @@ def standbys(manager_pid: int, entry: str) -> dict[int, bool]:
     return found
 
 
+def describe(pids: list[int]) -> str:
+    """What a test that expected these processes gone prints: each one's command line, state and parent."""
+    out = []
+    for pid in pids:
+        try:
+            status = dict(line.split(":\t", 1) for line in (Path("/proc") / str(pid) / "status").read_text()
+                          .splitlines() if ":\t" in line)
+            out.append(f"{pid} ({status.get('State', '?').strip()}, parent {status.get('PPid', '?').strip()}, "
+                       f"{status.get('Threads', '?').strip()} threads): {' '.join(cmdline(pid))}")
+        except OSError:
+            out.append(f"{pid}: gone")
+    return "\n".join(out)
+
+
 def cmdline(pid: int) -> list[str]:
     return [a.decode() for a in (Path("/proc") / str(pid) / "cmdline").read_bytes().split(b"\0") if a]

@@ -19,7 +19,7 @@ from bbcs.testing import child_env, wait_until
 from module_manager.standby import context_line, preload
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from launch_support import ROOT, Launch, cmdline, group_members, standbys, write_manifest  # noqa: E402
+from launch_support import ROOT, Launch, cmdline, describe, group_members, standbys, write_manifest  # noqa: E402
 
 UP = "all 3 modules up"
 MRI_S = 20.0
@@ -94,7 +94,10 @@ def test_a_killed_module_becomes_its_standby_with_the_current_routes(robot, clie
     warm(robot)
     robot.proc.kill()
     robot.proc.wait(30)
-    wait_until(lambda: group_members(robot.pgid) == [], 30, "modules and standbys gone with the manager")
+    try:
+        wait_until(lambda: group_members(robot.pgid) == [], 30, "modules and standbys gone with the manager")
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}; still there:\n{describe(group_members(robot.pgid))}") from None
 
 
 def test_a_stopped_module_has_no_standby_and_starts_cold(robot, clients):
