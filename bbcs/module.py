@@ -34,7 +34,6 @@ import itertools
 import logging
 import os
 import queue
-import select
 import signal
 import threading
 import time
@@ -54,6 +53,7 @@ from bbcs.events import Event, Input, RouteChange, Stop, Tick
 from bbcs.routing import IGNORE, RouteAck
 from bbcs.session import open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec, declare_reader
+from bbcs.stop_signals import forward_stop_signals
 from bbcs.wire import declare_schema_queryable
 
 HEARTBEAT_PERIOD_S = 1.0
@@ -244,7 +244,8 @@ class Module:
         """Called at the switch point of a route change (old source drained, new one not yet handled)."""
 
     def request_stop(self) -> None:
-        """Ask the event loop to stop (safe from signal handlers and other threads)."""
+        """Ask the event loop to stop, from any thread (not from a signal handler: it takes locks; see
+        bbcs.stop_signals)."""
         self._bbcs_stopping = True
         self._stop.set()
         self._bbcs_queue.put((None, _STOP))
@@ -876,10 +877,9 @@ class Module:
         except Exception as exc:
             log.error("cannot start: %s", exc)
             return 2
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: module.request_stop())
         stopped = threading.Event()
-        _watch_orphan_stop(module, stopped, os.getppid())
+        parent = os.getppid()
+        restore_signals = _stop_on_signal_or_orphan(module, stopped, parent)
         try:
             module.run()
         except ConfError as exc:
@@ -890,47 +890,63 @@ class Module:
             return 2
         finally:
             stopped.set()
+            restore_signals()  # stopped: from here a stop signal simply ends the process, even one whose exit hangs
+            if os.getppid() != parent:
+                _exit_deadline()
         return 0
 
 
 ORPHAN_STOP_GRACE_S = 5.0
-"""How long a module whose parent is gone waits for its loop to stop after SIGINT/SIGTERM before it exits anyway."""
+"""How long a module whose parent is gone waits for its loop to stop after SIGINT/SIGTERM before it exits anyway,
+and how long its exit may then take before the kernel ends it (SIGALRM)."""
 
 
-def _watch_orphan_stop(module: Module, stopped: threading.Event, parent: int) -> None:
-    """Make sure a stop signal, or the death of the parent, stops the process even when its loop cannot see it.
+def _exit_deadline() -> None:
+    """An orphan's last resort: SIGALRM, left to its default action, ends the process ``ORPHAN_STOP_GRACE_S``
+    from now, whatever Python is doing then. Measured under load: modules and standbys whose loop had stopped
+    stayed in their interpreter's exit (a Zenoh session's threads, its router gone) for over 30 s with their
+    manager SIGKILLed; a thread cannot help there, as exit runs no Python thread. Any thread may arm it."""
+    if signal.getsignal(signal.SIGALRM) == signal.SIG_DFL:
+        signal.alarm(int(ORPHAN_STOP_GRACE_S))
 
-    The loop may sit in a Zenoh ``recv()``, in Rust, where Python runs no signal handler; it is normally woken by a
-    sample its own timer puts through the router. When the manager dies, every child gets SIGTERM at once
-    (PR_SET_PDEATHSIG), the router among them, so that wake may never come and the module would outlive its
-    manager. A thread sees the signal through ``signal.set_wakeup_fd`` (written by the C handler even while the
-    main thread is in Rust) and checks every second that the parent is still there; on either it asks the loop
-    to stop, and if the parent is gone and the loop has not stopped within ``ORPHAN_STOP_GRACE_S``, it exits the
-    process. With a live parent it does nothing more: the manager's own grace and SIGKILL decide."""
-    try:
-        read_fd, write_fd = os.pipe()
-        os.set_blocking(write_fd, False)
-        signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
-    except (OSError, ValueError):  # not the main thread, or no pipes: the plain handlers remain
-        return
-    stop_signals = {signal.SIGINT, signal.SIGTERM}
+
+def _stop_on_signal_or_orphan(module: Module, stopped: threading.Event, parent: int) -> Callable[[], None]:
+    """Make sure a stop signal, or the death of the parent, stops the process even when its loop cannot see it;
+    returns the function that puts the previous signal handlers back.
+
+    Signals are handled on a helper thread (bbcs.stop_signals): ``request_stop`` takes locks, which a handler run
+    on the main thread must not (one interrupted the module's own ``Event.set()`` at shutdown: a deadlock). The
+    loop may also sit in a Zenoh ``recv()``, in Rust; it is normally woken by a sample its own timer puts through
+    the router. When the manager dies, every child gets SIGTERM at once (PR_SET_PDEATHSIG), the router among
+    them, so that wake may never come and the module would outlive its manager. So a watch thread also checks
+    every second that the parent is still there; once it is gone, the loop is asked to stop, the kernel's
+    deadline is armed (:func:`_exit_deadline`, which holds through the interpreter's exit), and if the loop has
+    not stopped within ``ORPHAN_STOP_GRACE_S`` of the request, the process exits. With a live parent nothing
+    more happens: the manager's own grace and SIGKILL decide."""
+    asked: list[float] = []
+
+    def ask(_signum: int = 0) -> None:
+        if not asked:
+            asked.append(time.monotonic())
+        module.request_stop()
+
+    restore = forward_stop_signals(ask)
 
     def watch() -> None:
-        asked_at: float | None = None
-        while not stopped.is_set():
-            ready, _, _ = select.select([read_fd], [], [], 1.0)
-            if ready and stop_signals & set(os.read(read_fd, 64)) or os.getppid() != parent:
-                if asked_at is None:
-                    asked_at = time.monotonic()
-                    module.request_stop()
-            if asked_at is not None and os.getppid() != parent \
-                    and time.monotonic() - asked_at >= ORPHAN_STOP_GRACE_S and not stopped.is_set():
+        while not stopped.wait(1.0):
+            if os.getppid() == parent:
+                continue
+            _exit_deadline()
+            if not asked:
+                ask()
+            elif time.monotonic() - asked[0] >= ORPHAN_STOP_GRACE_S and not stopped.is_set():
                 # no logging call here: a lock held by a blocked thread would hang it
                 os.write(2, f"{module.module}: stop signal, parent gone and the loop still not stopped after "
                             f"{ORPHAN_STOP_GRACE_S:g} s: exiting\n".encode())
                 os._exit(0)
 
     threading.Thread(target=watch, name=f"{module.module}-stop-watch", daemon=True).start()
+    return restore
 
 
 def _is_wake(sample: Any) -> bool:

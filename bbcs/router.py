@@ -16,6 +16,7 @@ import threading
 from bbcs import router_audit
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs.stop_signals import forward_stop_signals
 
 
 def robot_router_zid(robot: str) -> str:
@@ -49,6 +50,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+EXIT_DEADLINE_S = 10
+"""Seconds a stopping router has to close its session and exit before SIGALRM (default action) ends it."""
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     tls = None
@@ -61,17 +66,22 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout = os.fdopen(os.dup(1), "w", buffering=1)
         router_audit.install(sys.stdout, log_filter=None if args.log_refusals else router_audit.LINK_LOG_FILTER)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a handler
     try:
         session = open_session(cfg)
     except SessionError as exc:
+        restore_signals()
         print(f"cromat router: {exc}", file=sys.stderr)
         return 2
     try:
         print(f"cromat router: listening on {', '.join(cfg.listen)} (zid {session.zid()})", flush=True)
         stop.wait()
     finally:
+        # stopping: a second signal ends the process, and so does the kernel if closing and exiting take longer
+        # than EXIT_DEADLINE_S (measured under load: a router SIGTERMed with its manager SIGKILLed stayed over 30 s)
+        restore_signals()
+        if signal.getsignal(signal.SIGALRM) == signal.SIG_DFL:
+            signal.alarm(EXIT_DEADLINE_S)
         session.close()
     return 0
 

@@ -4,10 +4,10 @@ and stop every child on Ctrl+C / SIGTERM."""
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from pathlib import Path
 
+from bbcs.stop_signals import forward_stop_signals
 from module_manager.manager import LaunchError, Manager
 from module_manager.manifest import ManifestError, load_manifest
 
@@ -43,15 +43,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cromat launch: {exc}", file=sys.stderr)
         return 2
 
-    def on_signal(signum: int, _frame: object) -> None:
-        manager.stop_event.set()
-
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    restore_signals = forward_stop_signals(lambda _signum: manager.stop_event.set())  # never a lock in a handler
     try:
         return manager.run(once_up=args.once_up, status_interval=args.status_interval)
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        restore_signals()
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ from pathlib import Path
 from bbcs import keys
 from bbcs.acl import MESH_ROUTER_PREFIX
 from bbcs.net import free_port, wait_tcp
+from bbcs.stop_signals import forward_stop_signals
 from module_manager.lines import print_line
 from module_manager.manifest import ManifestError, load_manifest
 
@@ -487,8 +488,7 @@ def main(argv: list[str] | None = None) -> int:
             print(line)
         return 0
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    forward_stop_signals(lambda _signum: stop.set())  # never a lock in a signal handler (bbcs.stop_signals)
     try:
         fleet.start()
         print_line(f"fleet: all {spec.total} robots up, meshed on {fleet.hub_endpoint} "

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import queue
-import signal
 import sys
 import threading
 import time
@@ -56,6 +55,7 @@ from foxglove.messages import (  # noqa: E402
 )
 
 from bbcs.contracts.lidar import LidarScan  # noqa: E402
+from bbcs.stop_signals import forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, Decoder, discover
 from cromat.tools.connection import ToolError, add_connection_options, connect
@@ -267,8 +267,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     selections = [keyexpr.expand(s) for s in args.select] if args.select else keyexpr.everything(args.robot)
     session = connect(args)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a signal handler
     ctx = foxglove.Context()
     server = None
     bridge = None
@@ -293,6 +292,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             stop.wait(0.2)
         status.done()
     finally:
+        restore_signals()
         if bridge is not None:
             bridge.close()
         if server is not None:

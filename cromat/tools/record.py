@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import threading
 import time
@@ -24,6 +23,7 @@ import msgspec
 import zenoh
 import zenoh.ext
 
+from bbcs.stop_signals import forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, discover, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
@@ -270,8 +270,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             raise ToolError(f"{sel!r} is not a key expression: {exc}") from None
     session = connect(args)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a signal handler
     try:
         catalog = discover(session, args.robot, args.timeout)
         split = bool(args.split_size or args.split_duration)
@@ -295,6 +294,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         status.done()
         summary = rec.stop()
     finally:
+        restore_signals()
         session.close()
     print("\n".join(summary.lines()), file=out)
     if args.summary_json:

@@ -11,7 +11,6 @@ for late joiners.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
@@ -24,6 +23,7 @@ import msgspec
 import zenoh
 
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
+from bbcs.stop_signals import forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import stand_in, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
@@ -151,8 +151,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         raise ToolError(f"not a readable MCAP recording: {exc}") from None
     session = connect(args)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a signal handler
     rep = Replayer(session, remap)
     status = StatusLine()
     n = 0
@@ -186,6 +185,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                             f"t={(message.log_time - first) / 1e9:7.1f} s")
         status.done()
     finally:
+        restore_signals()
         rep.close()
         session.close()
     print(f"replayed {sum(rep.published.values())} of {total} messages on {len(rep.published)} keys"

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from bbcs.conf import ConfError
+from bbcs.stop_signals import forward_stop_signals
 from modules.lidar_logger.area import AreaError, load_polygon, polygon_enu
 from modules.lidar_logger.clock import SYSTEM_CLOCK, ScaledClock
 from modules.lidar_logger.config import load_lidar_conf, merge_lidar_conf, read_config_file
@@ -111,14 +111,11 @@ def _run(args: argparse.Namespace) -> int:
     settings = conf.to_settings(progress=not args.quiet)
     clock = SYSTEM_CLOCK if args.time_scale == 1.0 else ScaledClock(args.time_scale)
     logger = LidarLogger(settings, clock=clock)
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    for sig in previous:
-        signal.signal(sig, lambda *_: logger.request_stop("signal"))
+    restore_signals = forward_stop_signals(lambda _signum: logger.request_stop("signal"))  # no lock in a handler
     try:
         summary = logger.run()
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        restore_signals()
     return summary.exit_code
 
 

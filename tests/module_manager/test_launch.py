@@ -19,7 +19,7 @@ from bbcs.errors import EXIT_CONFIG
 from bbcs.testing import wait_until
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from launch_support import ROOT, Launch, group_members, write_manifest  # noqa: E402
+from launch_support import ROOT, Launch, describe, group_members, write_manifest  # noqa: E402
 
 UP = "all 3 modules up"
 MRI_S = 20.0
@@ -103,7 +103,10 @@ def test_manager_sigkilled_leaves_no_orphan(launch):
     assert len(group_members(la.pgid)) >= 5
     la.proc.kill()
     la.proc.wait(30)
-    wait_until(lambda: group_members(la.pgid) == [], 30, "children to die with the manager (PR_SET_PDEATHSIG)")
+    try:
+        wait_until(lambda: group_members(la.pgid) == [], 30, "children to die with the manager (PR_SET_PDEATHSIG)")
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}; still there:\n{describe(group_members(la.pgid))}") from None
 
 
 def test_kill9_module_is_restarted_with_its_current_routing(launch, clients, tmp_path):

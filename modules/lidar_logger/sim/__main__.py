@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import threading
 from pathlib import Path
 
+from bbcs.stop_signals import forward_stop_signals
 from modules.lidar_logger.clock import ScaledClock
 from modules.lidar_logger.sim.follow import FollowClock, FollowedFlight, TruthReceiver
 from modules.lidar_logger.sim.ldmrs_sim import LdmrsOptions, LdmrsSimulator
@@ -62,8 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     options = LdmrsOptions(return_fraction=args.return_fraction, silent_after=args.silent_after,
                            seed=args.seed)
     done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
+    forward_stop_signals(lambda _signum: done.set())  # never a lock in a signal handler
     with MTiGSimulator(world) as imu:
         link = Path(args.pty_link) if args.pty_link else None
         if link is not None:  # before the LD-MRS listens: a launcher waiting on its port finds the link there
