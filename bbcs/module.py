@@ -34,7 +34,6 @@ import itertools
 import logging
 import os
 import queue
-import signal
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -53,7 +52,7 @@ from bbcs.events import Event, Input, RouteChange, Stop, Tick
 from bbcs.routing import IGNORE, RouteAck
 from bbcs.session import open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec, declare_reader
-from bbcs.stop_signals import forward_stop_signals
+from bbcs.stop_signals import exit_deadline, forward_stop_signals
 from bbcs.wire import declare_schema_queryable
 
 HEARTBEAT_PERIOD_S = 1.0
@@ -892,22 +891,13 @@ class Module:
             stopped.set()
             restore_signals()  # stopped: from here a stop signal simply ends the process, even one whose exit hangs
             if os.getppid() != parent:
-                _exit_deadline()
+                exit_deadline(ORPHAN_STOP_GRACE_S)
         return 0
 
 
-ORPHAN_STOP_GRACE_S = 5.0
-"""How long a module whose parent is gone waits for its loop to stop after SIGINT/SIGTERM before it exits anyway,
-and how long its exit may then take before the kernel ends it (SIGALRM)."""
-
-
-def _exit_deadline() -> None:
-    """An orphan's last resort: SIGALRM, left to its default action, ends the process ``ORPHAN_STOP_GRACE_S``
-    from now, whatever Python is doing then. Measured under load: modules and standbys whose loop had stopped
-    stayed in their interpreter's exit (a Zenoh session's threads, its router gone) for over 30 s with their
-    manager SIGKILLed; a thread cannot help there, as exit runs no Python thread. Any thread may arm it."""
-    if signal.getsignal(signal.SIGALRM) == signal.SIG_DFL:
-        signal.alarm(int(ORPHAN_STOP_GRACE_S))
+ORPHAN_STOP_GRACE_S = 5
+"""Seconds a module whose parent is gone waits for its loop to stop after SIGINT/SIGTERM before it exits anyway,
+and that its exit may then take before the kernel ends it (SIGALRM)."""
 
 
 def _stop_on_signal_or_orphan(module: Module, stopped: threading.Event, parent: int) -> Callable[[], None]:
@@ -920,9 +910,9 @@ def _stop_on_signal_or_orphan(module: Module, stopped: threading.Event, parent: 
     the router. When the manager dies, every child gets SIGTERM at once (PR_SET_PDEATHSIG), the router among
     them, so that wake may never come and the module would outlive its manager. So a watch thread also checks
     every second that the parent is still there; once it is gone, the loop is asked to stop, the kernel's
-    deadline is armed (:func:`_exit_deadline`, which holds through the interpreter's exit), and if the loop has
-    not stopped within ``ORPHAN_STOP_GRACE_S`` of the request, the process exits. With a live parent nothing
-    more happens: the manager's own grace and SIGKILL decide."""
+    deadline is armed once (bbcs.stop_signals.exit_deadline, which holds through the interpreter's exit), and
+    if the loop has not stopped within ``ORPHAN_STOP_GRACE_S`` of the request, the process exits. With a live
+    parent nothing more happens: the manager's own grace and SIGKILL decide."""
     asked: list[float] = []
 
     def ask(_signum: int = 0) -> None:
@@ -933,10 +923,13 @@ def _stop_on_signal_or_orphan(module: Module, stopped: threading.Event, parent: 
     restore = forward_stop_signals(ask)
 
     def watch() -> None:
+        orphaned = False
         while not stopped.wait(1.0):
             if os.getppid() == parent:
                 continue
-            _exit_deadline()
+            if not orphaned:
+                orphaned = True
+                exit_deadline(ORPHAN_STOP_GRACE_S)
             if not asked:
                 ask()
             elif time.monotonic() - asked[0] >= ORPHAN_STOP_GRACE_S and not stopped.is_set():

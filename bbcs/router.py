@@ -9,14 +9,13 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
-import signal
 import sys
 import threading
 
 from bbcs import router_audit
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
-from bbcs.stop_signals import forward_stop_signals
+from bbcs.stop_signals import exit_deadline, forward_stop_signals
 
 
 def robot_router_zid(robot: str) -> str:
@@ -80,8 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         # stopping: a second signal ends the process, and so does the kernel if closing and exiting take longer
         # than EXIT_DEADLINE_S (measured under load: a router SIGTERMed with its manager SIGKILLed stayed over 30 s)
         restore_signals()
-        if signal.getsignal(signal.SIGALRM) == signal.SIG_DFL:
-            signal.alarm(EXIT_DEADLINE_S)
+        exit_deadline(EXIT_DEADLINE_S)
         session.close()
     return 0
 

@@ -82,8 +82,25 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     it to end; placed last, it waited for whatever long system file was running, both workers idle but one
     (CI with it last: 12:24 and 13:29)."""
     root = config.rootpath
-    alone = {item.path for item in items if item.get_closest_marker("alone") is not None}
+    alone = config.stash[_alone_files] = {item.path for item in items if item.get_closest_marker("alone") is not None}
     items.sort(key=lambda item: (item.path.relative_to(root).as_posix() not in HEAVY_STACKS, item.path not in alone))
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+    """For the configured ``--dist loadfile`` (pyproject.toml): work units of whole files (a module-scoped robot
+    stack starts once, on one worker, and tests numbered to run in order on it do), all ``HEAVY_STACKS`` files one
+    unit. Another ``--dist`` given on the command line is left to xdist."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class HeavyTogetherScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split("::", 1)[0]
+            return "heavy_stacks" if path in HEAVY_STACKS else path
+
+    return HeavyTogetherScheduling(config, log)
 
 
 # ------------------------------------------------------------------ test files that run alone under xdist
@@ -98,6 +115,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 ALONE_DIR = "cromat_alone_dir"
 _alone_dir = pytest.StashKey[str]()
+_alone_files = pytest.StashKey[set[Path]]()
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -125,11 +143,6 @@ class _FileTurn:
     held = ExitStack()
 
 
-def _file_is_alone(item: pytest.Item) -> bool:
-    return any(other.get_closest_marker("alone") is not None
-               for other in item.session.items if other.path == item.path)
-
-
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
     """Outermost (``tryfirst``): the wait for a turn is not counted in pytest-timeout's limit."""
@@ -139,7 +152,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
         return
     if _FileTurn.path != item.path:
         _FileTurn.held.close()
-        _FileTurn.held.enter_context(run_turn(folder, _file_is_alone(item)))
+        _FileTurn.held.enter_context(run_turn(folder, item.path in item.config.stash[_alone_files]))
         _FileTurn.path = item.path
     try:
         yield
