@@ -79,8 +79,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """Heavy files first (a stable sort: their own order kept), so their one work unit starts at once; within
     them, the files with an ``alone`` test first. At the start of the run the other worker is in one of the
     unit-test files xdist hands out first (the ones with most tests), and the ``alone`` file waits seconds for
-    it to end; placed last, it waited for whatever long system file was running, both workers idle but one
-    (CI with it last: 12:24 and 13:29)."""
+    it to end; placed last, it would wait for whatever long system file was running."""
     root = config.rootpath
     alone = config.stash[_alone_files] = {item.path for item in items if item.get_closest_marker("alone") is not None}
     items.sort(key=lambda item: (item.path.relative_to(root).as_posix() not in HEAVY_STACKS, item.path not in alone))
