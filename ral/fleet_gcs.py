@@ -91,6 +91,12 @@ class FleetView:
                     return got
                 self.lock.wait(min(left, 0.2))
 
+    def abstentions(self, task: str) -> dict[str, str]:
+        """Robot → why it does not bid on ``task`` in its latest word (robots that bid are not listed)."""
+        with self.lock:
+            return {r: b.abstained for r, st in self.states.items() for b in st.bids
+                    if b.task == task and b.state is None and b.abstained}
+
     def visited(self, task: str) -> set[str]:
         prefix = f"{task}/"
         with self.lock:
@@ -159,7 +165,8 @@ def format_decision(dec: FleetDecision, visited: set[str]) -> list[str]:
 
 
 def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
-    """Exit codes as ``cromat gcs``: 0 agreed, 2 bad target, 3 no agreement within ``--wait``."""
+    """Exit codes as ``cromat gcs``: 0 agreed, 2 bad target, 3 no agreement within ``--wait``; 4 agreed, but some
+    targets are left unassigned (no robot that answered bids on them: each one's reason is printed)."""
     view = FleetView(session)
     try:
         if args.fleet_command == "post":
@@ -194,7 +201,13 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
                       f"digests { {r: d.digest for r, d in decs.items()} }", file=out)
                 return 3
             print("\n".join(format_decision(dec, view.visited(task.id))), file=out)
+            for robot, why in sorted(view.abstentions(task.id).items()):
+                print(f"  {robot} does not bid: {why}", file=out)
             print(f"agreed by {len(view.answered(task.id))} robots", file=out)
+            if dec.unassigned:
+                print(f"{len(dec.unassigned)} of {len(task.targets)} targets unassigned: no robot that answered can "
+                      "do them (or reach them before their deadline)", file=out)
+                return 4
             return 0
         view.wait(lambda: bool(view.states), 2.0)
         tasks = sorted({d.task for st in view.states.values() for d in st.decisions})

@@ -10,6 +10,7 @@ Rounds, per fleet task:
    runs :func:`decide`, the deterministic auction of ``ral/allocation.py``, on those bids. Same bids → same
    result on every robot; the decision's ``digest`` lets anyone check it.
 3. A new round (``round + 1``) starts when a robot that holds targets of the task drops out (liveliness lost),
+   when a robot that abstained for a passing reason (no position yet, its task list not fetched yet) can bid,
    when a word arrives from a robot the decision did not hear (a late or healed robot), or when a peer published a
    different digest for the same round. Any RAL that sees a higher round joins it. In every round a robot's bid
    carries the targets it still has to visit (``remaining``, kept by it) and every target it knows visited
@@ -99,6 +100,22 @@ def _local(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, flo
 def horizontal_m(lat: float, lon: float, lat2: float, lon2: float) -> float:
     x, y = _local(lat2, lon2, lat, lon)
     return math.hypot(x, y)
+
+
+def abstention(task: FleetTask, own: OwnState, withdrawn: bool) -> str:
+    """Why this robot does not bid on ``task`` ("" when it bids): said in its bid, so that a ground station (and
+    anyone reading the fleet states) sees why a target was left unassigned."""
+    kinds = {t.kind for t in task.targets}
+    if withdrawn or not own.available:
+        return "its own failsafe is in force"
+    if not kinds & own.can_do:
+        can = ", ".join(sorted(own.can_do)) or "nothing"
+        return f"it can do {can}, not {', '.join(sorted(kinds))}"
+    if own.lat is None or own.lon is None:
+        return "no position yet"
+    if not own.speed > 0:
+        return f"speed {own.speed:g} m/s"
+    return ""
 
 
 def decide(task: FleetTask, bids: Iterable[FleetBid], round_: int) -> FleetDecision:
@@ -216,6 +233,10 @@ class FleetNode:
                 mine = run.bids.get(self.robot)
                 if mine is not None and mine.state is not None:
                     self._new_round(run, run.round + 1, now)  # its word changes: everyone decides again
+            mine = run.bids.get(self.robot)
+            if (mine is not None and mine.state is None and mine.abstained and not run.withdrawn
+                    and not abstention(run.task, own, False)):
+                self._new_round(run, run.round + 1, now)  # it can bid now (a position, its tasks): decide again
             if self.robot not in run.bids:
                 run.bids[self.robot] = self._bid(run, own, now)
                 self._dirty = True
@@ -245,13 +266,13 @@ class FleetNode:
         return tuple(t for t in run.decision.routes.get(self.robot, []) if t not in run.done)
 
     def _bid(self, run: _Run, own: OwnState, now: float) -> FleetBid:
-        kinds = {t.kind for t in run.task.targets}
+        why = abstention(run.task, own, run.withdrawn)
         state = None
-        if (own.lat is not None and own.lon is not None and kinds & own.can_do and own.speed > 0
-                and not run.withdrawn):
+        if not why:
+            assert own.lat is not None and own.lon is not None
             state = BidState(lat=own.lat, lon=own.lon, speed=own.speed, battery=own.battery, busy_s=own.busy_s,
-                             can_do=sorted(own.can_do & kinds))
-        return FleetBid(task=run.task.id, round=run.round, robot=self.robot, stamp=now, state=state,
+                             can_do=sorted(own.can_do & {t.kind for t in run.task.targets}))
+        return FleetBid(task=run.task.id, round=run.round, robot=self.robot, stamp=now, state=state, abstained=why,
                         remaining=list(self._route(run)) if state is not None else [],
                         done=sorted(run.done))
 

@@ -80,15 +80,17 @@ class BidState(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class FleetBid(msgspec.Struct, frozen=True, kw_only=True):
-    """One robot's word in one round of one task's auction. ``state`` None: this robot does not bid (its kind
-    cannot do any target, or it has no position yet). ``remaining``: the targets of its current route not yet
-    visited (kept by it in the next allocation); ``done``: every target it knows visited, by anyone."""
+    """One robot's word in one round of one task's auction. ``state`` None: this robot does not bid, and
+    ``abstained`` says why (its kind cannot do any target, it has no position yet, its own failsafe is in force).
+    ``remaining``: the targets of its current route not yet visited (kept by it in the next allocation); ``done``:
+    every target it knows visited, by anyone."""
 
     task: FleetId
     round: int
     robot: FleetId
     stamp: float
     state: BidState | None = None
+    abstained: str = ""
     remaining: list[str] = []
     done: list[str] = []
 

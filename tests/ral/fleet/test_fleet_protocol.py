@@ -41,6 +41,8 @@ class Net:
         self.now = 1000.0
         self.flown: dict[str, list[Execute]] = {r: [] for r in positions}
         self.failsafe: set[str] = set()
+        self.blind: set[str] = set()
+        """Robots without a position (no telemetry yet)."""
 
     def step(self, dt: float = 0.1) -> None:
         self.now += dt
@@ -49,6 +51,8 @@ class Net:
             own_state = own(*self.pos[r], can_do=self.kinds.get(r, frozenset({"visit"})))
             if r in self.failsafe:
                 own_state = dataclasses.replace(own_state, available=False)
+            if r in self.blind:
+                own_state = dataclasses.replace(own_state, lat=None, lon=None, alt=None)
             self.flown[r] += n.tick(own_state, self.now)
             states.append(n.state(self.now))
         for st in states:
@@ -111,6 +115,30 @@ def test_a_kind_that_cannot_do_the_task_does_not_bid() -> None:
     assert rover_bid.state is None, "the rover abstains: its word, no bid"
     assert net.nodes["quad"].runs["mixed"].bids["quad"].state.can_do == ["inspect"]
     assert net.flown["rover"] == []
+
+
+def test_an_abstention_says_why_and_a_robot_that_can_bid_later_is_decided_with() -> None:
+    """Robots without a position when the task comes abstain, saying so, and the targets are left unassigned; once
+    they have one, a new round takes them in and every robot agrees on it (a passing reason does not leave the
+    task unflown for good), while a kind that cannot do it stays out."""
+    net = Net({"a": (0, 0), "b": (0, 300), "c": (250, 150)}, kinds={"c": frozenset({"drive"})})
+    net.blind = {"a", "b"}
+    net.nodes["a"].post(TASK, net.now)
+    net.run(1.0)
+    first = net.nodes["a"].decision("survey1")
+    assert first is not None and first.bidders == [] and len(first.unassigned) == len(TASK.targets), first
+    bids = {r: n.runs["survey1"].bids[r] for r, n in net.nodes.items()}
+    assert bids["a"].state is None and bids["a"].abstained == "no position yet"
+    assert bids["c"].state is None and bids["c"].abstained == "it can do drive, not visit"
+    assert net.flown == {"a": [], "b": [], "c": []}
+    net.blind = set()
+    net.run(1.0)
+    after = net.nodes["c"].decision("survey1")
+    assert after is not None and after.round >= 1 and after.bidders == ["a", "b"] and not after.unassigned, after
+    assert len(set(net.digests("survey1").values())) == 1 and after.routes["a"] and after.routes["b"], after
+    assert net.flown["a"] and net.flown["b"] and not net.flown["c"]
+    net.run(1.0)
+    assert net.nodes["a"].decision("survey1").round == after.round, "c's abstention is for good: no further round"
 
 
 def test_a_robot_that_drops_out_has_its_unvisited_targets_reallocated() -> None:
