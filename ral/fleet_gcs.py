@@ -10,6 +10,7 @@ states as they are now. The station allocates nothing: it only reads what the ro
 from __future__ import annotations
 
 import argparse
+import logging
 import threading
 import time
 from typing import Any, TextIO
@@ -23,6 +24,8 @@ from bbcs.contracts.fleet import MAX_TARGETS, FleetDecision, FleetState, FleetTa
 from bbcs.signing import SigningError, StationSigner
 from ral.gcs.waypoints import load_polygon
 from ral.survey_area import parse_area
+
+log = logging.getLogger(__name__)
 
 
 class FleetView:
@@ -50,13 +53,23 @@ class FleetView:
         self._sub.undeclare()
 
     def post(self, task: FleetTask, signer: StationSigner | None = None,
-             lifetime_s: float | None = None) -> FleetTask:
+             lifetime_s: float | None = None, reach_s: float = 3.0) -> FleetTask:
         """Put ``task``, signed by ``signer`` (a station with a TLS identity: secured robots adopt only signed
         tasks, bbcs/signing.py) and adoptable for ``lifetime_s`` (default: ``bbcs.signing.default_lifetime_s``);
-        returns what was put."""
+        returns what was put. The put waits up to ``reach_s`` until this session knows a robot's task
+        subscriber: a put sent before the router told this fresh session of one is dropped at this side."""
         if signer is not None:
             task = signer.sign(task, lifetime_s=lifetime_s)
-        self.session.put(keys.fleet_task_key(task.id), msgspec.msgpack.encode(task))
+        publisher = self.session.declare_publisher(keys.fleet_task_key(task.id))
+        matched = threading.Event()
+        listener = publisher.declare_matching_listener(lambda status: status.matching and matched.set())
+        try:
+            if not (publisher.matching_status.matching or matched.wait(reach_s)):
+                log.warning("fleet task %s put with no robot's task subscriber in sight after %g s", task.id, reach_s)
+            publisher.put(msgspec.msgpack.encode(task))
+        finally:
+            listener.undeclare()
+            publisher.undeclare()
         return task
 
     def decisions(self, task: str) -> dict[str, FleetDecision]:

@@ -97,7 +97,13 @@ def robots(router: int, clients) -> Iterator[Callable[..., Robot]]:  # noqa: ANN
 
 
 def put(session, item: FleetTask) -> None:  # noqa: ANN001
-    session.put(keys.fleet_task_key(item.id), msgspec.msgpack.encode(item))
+    """Put ``item`` once ``session`` knows a robot's task subscriber (a put sent before is dropped at its side)."""
+    publisher = session.declare_publisher(keys.fleet_task_key(item.id))
+    try:
+        wait_until(lambda: publisher.matching_status.matching, 20, f"a subscriber of {item.id} seen by the sender")
+        publisher.put(msgspec.msgpack.encode(item))
+    finally:
+        publisher.undeclare()
 
 
 def test_a_captured_task_replayed_after_the_robot_finished_it_and_restarted_is_not_flown(
@@ -118,11 +124,23 @@ def test_a_captured_task_replayed_after_the_robot_finished_it_and_restarted_is_n
     robot.stop()  # the robot restarts: a new RAL, no memory of survey1; its clock is now past survey1's validity
     clock["offset"] = captured.valid_until + CLOCK_TOLERANCE_S + 1.0 - now()
     restarted = robots("uav1", pki.trust(), now)
-    put(attacker, captured)
     control = gcs.sign(task("survey2", 200.0), now=now())
     put(station, control)
     wait_until(lambda: restarted.finished("survey2"), 20, "the restarted uav1 to fly the station's new task")
-    wait_until(lambda: restarted.link.gate.refused["Expired"] >= 1, 10, "the replayed survey1 refused")
+    # The attacker replays the captured bytes until the robot has them: its session may still count the stopped
+    # robot's subscriber as a match, and a replay that never reached the restarted robot would prove nothing.
+    replayed_at = 0.0
+
+    def replay_refused() -> bool:
+        nonlocal replayed_at
+        if restarted.link.gate.refused["Expired"] >= 1:
+            return True
+        if time.monotonic() - replayed_at > 0.5:
+            put(attacker, captured)
+            replayed_at = time.monotonic()
+        return False
+
+    wait_until(replay_refused, 10, "the replayed survey1 refused")
     assert "survey1" not in restarted.link.node.runs and not restarted.flew("survey1")
     assert set(restarted.link.gate.refused) == {"Expired"}
 
