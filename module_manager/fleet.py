@@ -367,7 +367,7 @@ class Fleet:
         self.run_dir = run_dir
         self.out = out
         who = members(spec)
-        self.ports = [free_port() for _ in who]
+        self.ports = [0 for _ in who]  # each robot's own listen port, picked as it is started (_start_one)
         self.hub_port = free_port()
         self.scheme = "tls" if spec.secure else "tcp"
         self.hub_endpoint = f"{self.scheme}/127.0.0.1:{self.hub_port}"
@@ -406,6 +406,10 @@ class Fleet:
 
     def _start_one(self, i: int) -> None:
         name = self.names[i]
+        # The robot's own listen port is picked now, not when the fleet was planned, and again on every attempt: a
+        # port picked early can meanwhile be taken by another robot's outgoing connection (the same ephemeral
+        # range), and then the launch's manager cannot reach its own router however often it is started.
+        self.ports[i] = free_port()
         proc = subprocess.Popen(
             [sys.executable, "-m", "module_manager.cli", str(self.manifests[i]), "--listen",
              f"{self.scheme}/127.0.0.1:{self.ports[i]}", "--log-dir", str(self.run_dir / name / "logs")],
