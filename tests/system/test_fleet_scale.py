@@ -11,7 +11,6 @@ other file until it is done (beside it, their deadlines were missed).
 
 from __future__ import annotations
 
-import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
@@ -38,9 +37,6 @@ def records(run: Path, name: str) -> list[tuple[float, float]]:
     return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in lines if c["name"] == "ADD_WAYPOINT"]
 
 
-@pytest.mark.skipif(os.environ.get("CROMAT_FLEET_SCALE") != "1",
-                    reason="opt-in (CROMAT_FLEET_SCALE=1): in 1 of 6 full runs every robot abstained from the post "
-                           "(bidders empty), cause not found yet (docs/fleet.md)")
 @pytest.mark.alone  # ten stacks starve any test beside them (tests/conftest.py): under xdist it runs by itself
 @pytest.mark.timeout(600)
 def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path) -> None:
