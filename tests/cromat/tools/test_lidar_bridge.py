@@ -176,7 +176,11 @@ def test_record_holds_the_scans(lidar_robot, tmp_path):
         try:
             rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", str(out), "--fast")
             assert rep.returncode == 0, rep.stderr
-            wait_until(lambda: len(replayed) >= len(recorded), 30, "every recorded scan replayed")
+            try:
+                wait_until(lambda: len(replayed) >= len(recorded), 30, "every recorded scan replayed")
+            except AssertionError as exc:  # say how many came, and what the replay said it sent
+                raise AssertionError(f"{exc}: {len(replayed)} of {len(recorded)} on the bus; replay said "
+                                     f"{rep.stdout.strip()!r} {rep.stderr.strip()[-500:]!r}") from None
             with lock:
                 assert replayed == recorded
         finally:
