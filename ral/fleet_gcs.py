@@ -66,7 +66,7 @@ class FleetView:
         try:
             if not (publisher.matching_status.matching or matched.wait(reach_s)):
                 log.warning("fleet task %s put with no robot's task subscriber in sight after %g s", task.id, reach_s)
-            publisher.put(msgspec.msgpack.encode(task))
+            self.session.put(keys.fleet_task_key(task.id), msgspec.msgpack.encode(task))  # to the router either way
         finally:
             listener.undeclare()
             publisher.undeclare()
