@@ -57,7 +57,8 @@ class FleetView:
         """Put ``task``, signed by ``signer`` (a station with a TLS identity: secured robots adopt only signed
         tasks, bbcs/signing.py) and adoptable for ``lifetime_s`` (default: ``bbcs.signing.default_lifetime_s``);
         returns what was put. The put waits up to ``reach_s`` until this session knows a robot's task
-        subscriber: a put sent before the router told this fresh session of one is dropped at this side."""
+        subscriber (the router tells it once it knows one): a put that reaches the router before any robot's
+        subscription does is delivered to no one."""
         if signer is not None:
             task = signer.sign(task, lifetime_s=lifetime_s)
         publisher = self.session.declare_publisher(keys.fleet_task_key(task.id))

@@ -97,7 +97,8 @@ def robots(router: int, clients) -> Iterator[Callable[..., Robot]]:  # noqa: ANN
 
 
 def put(session, item: FleetTask) -> None:  # noqa: ANN001
-    """Put ``item`` once ``session`` knows a robot's task subscriber (a put sent before is dropped at its side)."""
+    """Put ``item`` once ``session`` knows a robot's task subscriber (a put that reaches the router before the
+    subscription does is delivered to no one)."""
     publisher = session.declare_publisher(keys.fleet_task_key(item.id))
     try:
         wait_until(lambda: publisher.matching_status.matching, 20, f"a subscriber of {item.id} seen by the sender")
