@@ -234,8 +234,7 @@ class FleetNode:
                 if mine is not None and mine.state is not None:
                     self._new_round(run, run.round + 1, now)  # its word changes: everyone decides again
             mine = run.bids.get(self.robot)
-            if (mine is not None and mine.state is None and mine.abstained and not run.withdrawn
-                    and not abstention(run.task, own, False)):
+            if mine is not None and mine.state is None and not abstention(run.task, own, run.withdrawn):
                 self._new_round(run, run.round + 1, now)  # it can bid now (a position, its tasks): decide again
             if self.robot not in run.bids:
                 run.bids[self.robot] = self._bid(run, own, now)
