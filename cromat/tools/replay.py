@@ -112,6 +112,54 @@ class Replayer:
         pub.publish_raw(payload)
         self.published[pub.key] = self.published.get(pub.key, 0) + 1
 
+    @property
+    def keys(self) -> list[str]:
+        """The keys this replay publishes on (after ``--robot-map``)."""
+        return [pub.key for pub, _ in self._pubs.values()]
+
+    def wait_for_subscribers(self, timeout: float, stop: threading.Event) -> list[str]:
+        """Wait until the router has told this session of a subscriber for every key to be replayed, at most
+        ``timeout`` s (or until ``stop``); returns the keys still without one. Without this wait the first
+        messages of a fast replay went to a router that did not yet route them to anyone. One plain publisher per
+        key, which never puts, tells its matching status (a state key's publisher, which keeps the last value for
+        late joiners, has none)."""
+        pending = set(self.keys)
+        lock = threading.Lock()
+        changed = threading.Event()
+
+        def matched(key: str, status: Any) -> None:
+            if status.matching:
+                with lock:
+                    pending.discard(key)
+                changed.set()
+
+        probes, listeners = [], []
+        try:
+            for key in sorted(pending):
+                probe = self.session.declare_publisher(key)
+                probes.append(probe)
+                listeners.append(probe.declare_matching_listener(lambda st, key=key: matched(key, st)))
+                if probe.matching_status.matching:
+                    with lock:
+                        pending.discard(key)
+            deadline = time.monotonic() + timeout
+            while not stop.is_set():
+                with lock:
+                    if not pending:
+                        break
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                changed.wait(left)
+                changed.clear()
+        finally:
+            for listener in listeners:
+                listener.undeclare()
+            for probe in probes:
+                probe.undeclare()
+        with lock:
+            return sorted(pending)
+
     def close(self) -> None:
         for pub, _ in self._pubs.values():
             pub.close()
@@ -127,7 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--robot-map", metavar="OLD=NEW", help="publish robot OLD's data as robot NEW")
     p.add_argument("--select", action="append", metavar="KEYEXPR", help="only keys matching (repeatable)")
     p.add_argument("--settle", type=float, default=1.0,
-                   help="seconds to wait after declaring publishers before the first message (subscribers match)")
+                   help="at most this many seconds to wait, before the first message, for the router to know a "
+                        "subscriber of every key (default 1; it starts at once when all have one)")
     return p
 
 
@@ -153,10 +202,11 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     stop = threading.Event()
     restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a signal handler
     rep = Replayer(session, remap)
+    unheard: list[str] = []
     status = StatusLine()
     n = 0
     try:
-        # declare every publisher first, then give subscribers a moment to match them
+        # declare every publisher first, then wait (at most --settle) until every key has a subscriber
         for path in files:
             with open(path, "rb") as f:
                 summary = _reader(f).get_summary()
@@ -164,7 +214,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                 key = (ch.metadata or {}).get(mcapfmt.META_KEY, ch.topic)
                 if not selections or any(keyexpr.intersects(s, key) for s in selections):
                     rep.declare(ch)
-        stop.wait(args.settle)
+        unheard = rep.wait_for_subscribers(args.settle, stop)
         wall0 = time.monotonic()
         for channel, message in messages(files):
             if stop.is_set():
@@ -191,6 +241,9 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     print(f"replayed {sum(rep.published.values())} of {total} messages on {len(rep.published)} keys"
           + (f" ({rep.failed} could not be re-encoded)" if rep.failed else "")
           + (" (interrupted)" if stop.is_set() else ""), file=out)
+    if unheard:
+        print(f"{len(unheard)} of {len(rep.keys)} keys had no subscriber when the replay began "
+              f"(--settle {args.settle:g} s): {', '.join(unheard[:5])}{' ...' if len(unheard) > 5 else ''}", file=out)
     return 0
 
 

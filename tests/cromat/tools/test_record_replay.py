@@ -151,6 +151,24 @@ def test_split_by_duration_and_replay_of_the_parts(tmp_path):
             port = start_router(port_proc)
             rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", *map(str, parts), "--fast")
             assert rep.returncode == 0 and f"replayed {total} of {total} messages on 1 keys" in rep.stdout
+            # nobody listens: the replay says so, naming the key
+            assert ("1 of 1 keys had no subscriber when the replay began (--settle 1 s): "
+                    "cromat/uav1/dsp/telemetry") in rep.stdout, rep.stdout
+            # a subscriber listens: the replay starts once the router routes to it (never the 60 s it may wait)
+            # and every message of every part reaches it
+            session = open_session(local_client(port))
+            got: list[bytes] = []
+            sub = session.declare_subscriber("cromat/uav1/dsp/telemetry", lambda s: got.append(s.payload.to_bytes()))
+            try:
+                rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", *map(str, parts), "--fast",
+                             "--settle", "60", timeout=40)
+                assert rep.returncode == 0 and f"replayed {total} of {total} messages on 1 keys" in rep.stdout
+                assert "no subscriber" not in rep.stdout, rep.stdout
+                wait_until(lambda: len(got) >= total, 10, "every replayed message")
+                assert len(got) == total
+            finally:
+                sub.undeclare()
+                session.close()
         finally:
             port_proc.stop_all()
     finally:
