@@ -44,6 +44,9 @@ FLY_ALT = HOME_ALT + 10.0
 GRID = 1e-4
 REALLOC_BOUND_S = 5.0
 """Issue 17's target for re-allocation after a robot is killed."""
+FLEET_SPEED = 8.0
+"""The fleet tasks' speed: uav1.conf's MAX_SPEED (its CRUISE_SPEED is 5 m/s), so the same routes take 5/8 of the
+time (the suite's time is mostly simulated flight)."""
 
 
 def grid(lat: float, lon: float, north: int, east: int) -> tuple[float, float]:
@@ -87,9 +90,12 @@ class FleetRobot:
 
 
 def cli_post(port: int, task: str, targets: list[str], timeout_s: float = 40.0,
-             areas: tuple[str, ...] = (), balance: bool = False, wait_s: float = 30.0) -> subprocess.CompletedProcess:
+             areas: tuple[str, ...] = (), balance: bool = False, wait_s: float = 30.0,
+             speed: float | None = None) -> subprocess.CompletedProcess:
     args = [sys.executable, "-m", "ral.gcs.cli", "--connect", f"tcp/127.0.0.1:{port}", "--name", "poster",
             "fleet", "post", "--id", task, "--wait", f"{wait_s:g}"] + (["--balance"] if balance else [])
+    if speed is not None:
+        args += ["--speed", f"{speed:g}"]
     for x in targets:
         args += ["--target", x]
     for x in areas:
@@ -156,7 +162,7 @@ def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_r
         near = {r: [grid(*HOMES[r], 2, 2), grid(*HOMES[r], -2, 3)] for r in names}
         spec = [f"{r[-1]}{i},{lat},{lon},{FLY_ALT}" for r in names for i, (lat, lon) in enumerate(near[r])]
         before = {r: robots[r].count() for r in names}
-        done = cli_post(robots["uav_b"].launch.port, "t1", spec)
+        done = cli_post(robots["uav_b"].launch.port, "t1", spec, speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
         assert "agreed by 3 robots" in done.stdout, done.stdout
         dec = view.wait(lambda: view.agreed("t1", set(names)), 10)
@@ -175,7 +181,8 @@ def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_r
         # 2. an 'inspect' target: only c's kind can do it; a and b answer without bidding, fly nothing
         before = {r: robots[r].count() for r in names}
         ins = grid(*HOMES["uav_c"], 3, -2)
-        done = cli_post(robots["uav_a"].launch.port, "t2", [f"i0,{ins[0]},{ins[1]},{FLY_ALT},inspect"])
+        done = cli_post(robots["uav_a"].launch.port, "t2", [f"i0,{ins[0]},{ins[1]},{FLY_ALT},inspect"],
+                        speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
         dec = view.agreed("t2", set(names))
         assert dec is not None and dec.bidders == ["uav_c"] and dec.routes["uav_c"] == ["i0"], dec
@@ -192,7 +199,7 @@ def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_r
         cells = {c.id: (c.lat, c.lon) for c in parse_area(area, 0)}
         assert len(cells) == 6
         before = {r: robots[r].count() for r in names}
-        done = cli_post(robots["uav_b"].launch.port, "survey", [], areas=(area,))
+        done = cli_post(robots["uav_b"].launch.port, "survey", [], areas=(area,), speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
         dec = view.wait(lambda: view.agreed("survey", set(names)), 10)
         assert dec is not None and sorted(x for r in names for x in dec.routes[r]) == sorted(cells), dec
@@ -210,7 +217,7 @@ def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_r
         far = {r: [grid(*HOMES[r], 6, 0), grid(*HOMES[r], 6, 6), grid(*HOMES[r], 0, 6)] for r in names}
         spec = [f"{r[-1]}f{i},{lat},{lon},{FLY_ALT}" for r in names for i, (lat, lon) in enumerate(far[r])]
         before = {r: robots[r].count() for r in names}
-        done = cli_post(robots["uav_a"].launch.port, "t3", spec)
+        done = cli_post(robots["uav_a"].launch.port, "t3", spec, speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
         first = view.agreed("t3", set(names))
         assert first is not None and first.round == 0

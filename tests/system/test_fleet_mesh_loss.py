@@ -22,7 +22,7 @@ from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_fleet_alloc import FLY_ALT, HOMES, N_MODULES, FleetRobot, cli_post, grid, take_off_all  # noqa: E402
+from test_fleet_alloc import FLEET_SPEED, FLY_ALT, HOMES, N_MODULES, FleetRobot, cli_post, grid, take_off_all  # noqa: E402
 
 FAILSAFE_S = 2.0
 
@@ -57,7 +57,7 @@ def test_a_robot_that_loses_the_mesh_keeps_flying_its_task_under_its_own_failsaf
         a_pts = [grid(*HOMES["uav_a"], n, e) for n, e in ((12, -12), (-12, -12))]
         spec = ([f"b{i},{lat},{lon},{FLY_ALT}" for i, (lat, lon) in enumerate(b_pts)]
                 + [f"a{i},{lat},{lon},{FLY_ALT}" for i, (lat, lon) in enumerate(a_pts)])
-        done = cli_post(hub, "patrol", spec)
+        done = cli_post(hub, "patrol", spec, speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
         dec = view.agreed("patrol", {"uav_a", "uav_b"})
         assert dec is not None and sorted(dec.routes["uav_b"]) == ["b0", "b1", "b2", "b3"], dec

@@ -25,7 +25,7 @@ from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fleet_support import ROOT, fleet_run  # noqa: E402
-from test_fleet_alloc import cli_post, take_off_all  # noqa: E402
+from test_fleet_alloc import FLEET_SPEED, cli_post, take_off_all  # noqa: E402
 
 from modules.dsp.sim.record import read_record
 
@@ -66,7 +66,7 @@ def test_ten_robots_from_a_fleet_manifest_allocate_twenty_targets(tmp_path: Path
                 targets.append(f"{tid},{lat},{lon},{st.home.alt + 10.0}")
                 where[tid] = (lat, lon)
         # ten robot stacks keep both cores busy: the CLI's own start and the agreement take longer than elsewhere
-        done = cli_post(hub, "sweep", targets, timeout_s=150.0, balance=True, wait_s=90.0)
+        done = cli_post(hub, "sweep", targets, timeout_s=150.0, balance=True, wait_s=90.0, speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
         assert "agreed by 10 robots" in done.stdout, done.stdout
         dec = view.wait(lambda: view.agreed("sweep", set(names)), 20)
