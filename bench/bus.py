@@ -88,13 +88,15 @@ def start_secure_router(procs: Processes, folder: Path) -> int:
     policy (bbcs/acl.py) on a free port, and the peers' ingress policy for the children (``$CROMAT_BENCH_PKI``)."""
     from cromat import certs
     from module_manager.links import peer_policy
+    from module_manager.secure import ROUTER, certificate_cn
 
     port, pki, cfg = free_port(), folder / "pki", folder / "router.json5"
     if certs.main([str(pki), "--gcs", "gcs", "--modules", ",".join(IDENTITY.values()), "--robot", ROBOT,
                    "--acl", str(cfg), "--listen", f"tls/127.0.0.1:{port}"]) != 0:
         raise SystemExit("cromat certs failed")
     router_cfg = json.loads(cfg.read_text().split("\n", 1)[1])  # after the generated header comment
-    (pki / PEER_ACL).write_text(json.dumps(peer_policy(router_cfg["access_control"])))
+    (pki / PEER_ACL).write_text(json.dumps(peer_policy(router_cfg["access_control"],
+                                                            certificate_cn(pki / f"{ROUTER}.pem"))))
     os.environ[PKI_ENV] = str(pki)
     procs.start(["-m", "bbcs.router", "--config", str(cfg), "--listen", f"tls/127.0.0.1:{port}"],
                 stdout=subprocess.DEVNULL)

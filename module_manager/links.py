@@ -45,12 +45,14 @@ def peer_access_control(manifest: Manifest) -> dict[str, Any] | None:
     tls = manifest.raw.bus.tls
     if tls is None or not tls.acl:
         return None
-    return peer_policy(secure.router_config(manifest, [])["access_control"])
+    return peer_policy(secure.router_config(manifest, [])["access_control"], secure.router_cn(manifest))
 
 
-def peer_policy(router_access_control: dict[str, Any], router_cn: str = secure.ROUTER) -> dict[str, Any]:
+def peer_policy(router_access_control: dict[str, Any], router_cn: str) -> dict[str, Any]:
     """The router's ``access_control`` section made a peer's: the same subjects and rules, plus the router's link
-    (certificate CN ``router_cn``) allowed every rule that allows, so that what the router forwards gets in."""
+    (certificate CN ``router_cn``, as its certificate says: :func:`module_manager.secure.router_cn`) allowed every
+    rule that allows, so that what the router forwards gets in. A wrong CN here silently cuts a peer module off
+    from everything that comes through the router (the manager's routes, ground stations, other robots)."""
     ac = copy.deepcopy(router_access_control)
     allowed = [rule["id"] for rule in ac["rules"] if rule["permission"] == "allow"]
     ac["subjects"].append({"id": "router-link", "cert_common_names": [router_cn]})

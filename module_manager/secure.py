@@ -67,6 +67,31 @@ def write_router_config(manifest: Manifest, listen: list[str], folder: Path) -> 
     return path
 
 
+def router_cn(manifest: Manifest) -> str:
+    """The common name the robot router's certificate presents on its links (``router-<robot>`` as ``cromat certs``
+    issues it for a known robot, ``router`` for an older robot folder): read from the certificate itself, since it
+    is what a module's peer policy must let through (:func:`module_manager.links.peer_access_control`)."""
+    pki = manifest.pki
+    _tls(manifest)
+    assert pki is not None
+    return certificate_cn(pki / f"{ROUTER}.pem")
+
+
+def certificate_cn(path: Path) -> str:
+    """The subject CN of the PEM certificate at ``path`` (ValueError naming the file when it has none)."""
+    from cryptography import x509  # only secured launches with peer links need it: off the plain start's path
+
+    from bbcs.signing import common_name
+
+    try:
+        cn = common_name(x509.load_pem_x509_certificate(path.read_bytes()))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot read the router's certificate ({exc})") from exc
+    if not cn:
+        raise ValueError(f"{path}: the router's certificate names no common name")
+    return cn
+
+
 def router_tls(manifest: Manifest) -> TlsConfig:
     """The router's own certificate (CN ``router-<robot>``) as a client's: how the launch asks its mesh peers."""
     tls = client_bus(manifest, [], ROUTER).tls

@@ -63,3 +63,17 @@ def test_tls_mistakes_are_manifest_errors(tmp_path: Path, old: str, new: str, ma
 def test_missing_pki_folder_is_named(tmp_path: Path) -> None:
     with pytest.raises(ManifestError, match=r"bus\.tls\.pki: certificate folder .*pki does not exist"):
         load_manifest(manifest_with(tmp_path))
+
+
+def test_router_cn_is_read_from_the_routers_certificate(tmp_path: Path) -> None:
+    from cromat import certs
+
+    path = manifest_with(tmp_path)
+    assert certs.main(["--manifest", str(path)]) == 0
+    assert secure.router_cn(load_manifest(path)) == "router-uav1"
+
+
+def test_an_unreadable_router_certificate_is_named(tmp_path: Path) -> None:
+    (tmp_path / "router.pem").write_text("not a certificate\n")
+    with pytest.raises(ValueError, match=r"router\.pem: cannot read the router's certificate"):
+        secure.certificate_cn(tmp_path / "router.pem")

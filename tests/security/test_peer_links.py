@@ -194,3 +194,47 @@ def test_without_the_receivers_policy_the_forgery_would_arrive(rig: Rig) -> None
     assert inbox.wait_for(TELEMETRY, b"forged"), "a forgery on a direct link to a victim without a policy was lost"
     inbox.close()
     pub.undeclare()
+
+
+def test_what_the_router_forwards_reaches_a_module_enforcing_its_policy(rig: Rig) -> None:
+    """The manager is a client of the router: its CONTROL_ENTRADA write reaches pan_tilt only through the router's
+    link, which the module's policy must know by the CN the router's certificate really presents
+    (``router-uav1``); a wrong CN there cut every peer module off from the manager and the ground stations."""
+    victim = rig.module("pan_tilt")
+    manager = open_session(secure.client_bus(rig.manifest, rig.connect, "manager"))
+    rig.sessions.append(manager)
+    inbox = Inbox(victim, CONTROL)
+    pub = manager.declare_publisher(CONTROL)
+    wait_until(lambda: pub.matching_status.matching, 30, "pan_tilt's CONTROL_ENTRADA subscription never reached "
+               "the manager through the router")
+    route = msgspec.msgpack.encode({"datos": 2})
+    for _ in range(10):  # a put may cross the subscription's declaration on its way: repeat until one lands
+        pub.put(route)
+        if inbox.wait_for(CONTROL, route, 1.0):
+            break
+    assert inbox.values(CONTROL), "the manager's write through the router never reached the module's peer session"
+    inbox.close()
+    pub.undeclare()
+
+
+def test_a_client_of_the_router_sees_a_policed_peer_modules_token(rig: Rig) -> None:
+    """Supervision: the manager learns that a module is alive from its liveliness token, which a peer module
+    sends to the router only once the router's interest (declared over the same link) is let in by its policy."""
+    module = rig.module("telemetry")
+    token = module.liveliness().declare_token(keys.alive_key(ROBOT, "telemetry"))
+    manager = open_session(secure.client_bus(rig.manifest, rig.connect, "manager"))
+    rig.sessions.append(manager)
+    seen = threading.Event()
+    sub = manager.liveliness().declare_subscriber(keys.alive_key(ROBOT, "telemetry"), lambda _s: seen.set(),
+                                                  history=True)
+    assert seen.wait(20), "the manager never saw the peer module's liveliness token through the router"
+    sub.undeclare()
+    token.undeclare()
+
+
+def test_the_peer_policy_names_the_routers_certificate(rig: Rig) -> None:
+    router_cn = secure.router_cn(rig.manifest)
+    assert router_cn == f"router-{ROBOT}"  # cromat certs --manifest names the router by its robot
+    policy = links.peer_access_control(rig.manifest)
+    assert policy is not None
+    assert {"id": "router-link", "cert_common_names": [router_cn]} in policy["subjects"]
