@@ -1,4 +1,6 @@
 import json
+import subprocess
+import sys
 import threading
 
 import pytest
@@ -6,7 +8,7 @@ import zenoh
 
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, local_client, open_session, zenoh_config
-from bbcs.testing import free_port
+from bbcs.testing import ROOT, Processes, child_env, free_port, start_router
 
 
 def _get(conf: zenoh.Config, key: str):
@@ -55,3 +57,41 @@ def test_two_clients_talk_through_the_router(sessions):
         pub.undeclare()
     finally:
         sub.undeclare()
+
+
+_RUNTIME_PROBE = """
+import glob, os, sys, time
+from bbcs.session import local_client, open_session
+s = open_session(local_client(int(sys.argv[1])))
+p = s.declare_publisher("probe/rx")
+sub = s.declare_subscriber("probe/rx", lambda _s: None)
+for _ in range(50):
+    p.put(b"1")
+time.sleep(0.3)
+comms = [open(f).read().strip() for f in glob.glob(f"/proc/{os.getpid()}/task/*/comm")]
+print(sum(1 for c in comms if c.startswith("rx-")), os.environ.get("ZENOH_RUNTIME", "-"))
+s.close()
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="thread names are read from /proc")
+@pytest.mark.parametrize("operator_setting, rx_threads", [(None, 1), ("(rx: (worker_threads: 3))", 3)])
+def test_a_client_process_receives_on_one_zenoh_thread_unless_the_operator_says_otherwise(
+        operator_setting: str | None, rx_threads: int) -> None:
+    """bbcs.session.MODULE_RUNTIME, by effect: the process's Zenoh receive threads (named ``rx-N``), and the
+    variable gone again after the open (a router this process starts must not inherit it)."""
+    procs = Processes()
+    try:
+        port = start_router(procs)
+        env = child_env()
+        env.pop("ZENOH_RUNTIME", None)
+        if operator_setting is not None:
+            env["ZENOH_RUNTIME"] = operator_setting
+        out = subprocess.run([sys.executable, "-c", _RUNTIME_PROBE, str(port)], env=env, capture_output=True,
+                             text=True, timeout=60, cwd=str(ROOT))
+        assert out.returncode == 0, out.stderr
+        count, left = out.stdout.strip().split(" ", 1)
+        assert int(count) == rx_threads
+        assert left == (operator_setting or "-")
+    finally:
+        procs.stop_all()
