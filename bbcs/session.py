@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 from typing import Any, Literal
 
 import msgspec
@@ -133,20 +134,41 @@ def open_session(cfg: SessionConfig) -> zenoh.Session:
     keeps the interpreter from exiting.
     """
     conf = zenoh_config(cfg)
-    # Zenoh reads its runtime settings once per process, when its first session starts them; set only for that
-    # call, so that the processes this one starts (a router among them) inherit nothing
-    scoped = cfg.mode != "router" and RUNTIME_ENV not in os.environ
+    if _runtime_pending and cfg.mode != "router":
+        with _runtime_lock:  # the process's first session: Zenoh reads its runtime settings as it starts them
+            if _runtime_pending:
+                return _open_first(cfg, conf)
+    return _open(cfg, conf)
+
+
+_runtime_lock = threading.Lock()
+_runtime_pending = True
+"""No session opened yet in this process (Zenoh's runtimes not started)."""
+
+
+def _open_first(cfg: SessionConfig, conf: zenoh.Config) -> zenoh.Session:
+    """Open with ``MODULE_RUNTIME`` in the environment for that call only, so that the processes this one starts
+    later (a router among them) inherit nothing; an operator's ``ZENOH_RUNTIME`` is left as it is."""
+    global _runtime_pending
+    scoped = RUNTIME_ENV not in os.environ
     if scoped:
         os.environ[RUNTIME_ENV] = MODULE_RUNTIME
+    try:
+        session = _open(cfg, conf)
+    finally:
+        if scoped:
+            os.environ.pop(RUNTIME_ENV, None)
+    _runtime_pending = False
+    return session
+
+
+def _open(cfg: SessionConfig, conf: zenoh.Config) -> zenoh.Session:
     try:
         return zenoh.open(conf)
     except Exception as exc:
         where = ", ".join(cfg.connect) or "(no connect endpoint)"
         raise SessionError(f"cannot open a Zenoh {cfg.mode} session (connect: {where}; "
                            f"listen: {', '.join(cfg.listen) or '-'}): {exc}") from exc
-    finally:
-        if scoped:
-            os.environ.pop(RUNTIME_ENV, None)
 
 
 def local_client(port: int, host: str = "127.0.0.1") -> SessionConfig:

@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -105,21 +106,36 @@ class Robot:
         return Gcs(cfg, **kw)  # type: ignore[arg-type]
 
 
+@contextmanager
+def launched(manifest: Path, pki: Path, folder: Path, port: int) -> Iterator[Robot]:
+    """``cromat launch`` of ``manifest`` (certificates already made) until every module is up; stopped and cleaned
+    up on every path."""
+    la = SecureLaunch(manifest, folder, port)
+    try:
+        la.wait_line(f"all {len(MODULES)} modules up", 90)
+        yield Robot(la, pki, folder)
+    finally:
+        try:
+            la.stop()
+        finally:
+            la.cleanup()
+
+
 @pytest.fixture(scope="module")
 def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     tmp = tmp_path_factory.mktemp("secure")
     port = free_port()
     manifest, pki = secure_manifest(tmp, port)
     assert certs.main(["--manifest", str(manifest)]) == 0
-    la = SecureLaunch(manifest, tmp, port)
-    try:
-        la.wait_line(f"all {len(MODULES)} modules up", 90)
-        yield Robot(la, pki, tmp)
-    finally:
-        try:
-            la.stop()
-        finally:
-            la.cleanup()
+    with launched(manifest, pki, tmp, port) as robot:
+        yield robot
+
+
+def sees_every_module(gcs: Gcs) -> None:
+    """Wait until the station lists the robot and its state shows every module up (the manager saw each token)."""
+    wait_until(lambda: gcs.robots(1.0) == [ROBOT], 30, "the robot in the GCS's robot list")
+    wait_until(lambda: {m.name: m.state for m in gcs.state(ROBOT).modules} == {n: "up" for n in MODULES}, 30,
+               "every module up in the robot state")
 
 
 def test_certificates_are_exactly_what_the_manifest_needs(robot: Robot) -> None:
@@ -134,9 +150,7 @@ def test_gcs_identity_sees_the_robot_and_gets_a_task_done(robot: Robot) -> None:
     # no GCS link held (``link=``): its end would start the link-loss failsafe 10 s later, a hold whose ABORT would
     # land in the middle of the tests that follow on this robot (the history-injection test counts ABORTs)
     with robot.client("gcs", name="gcs", timeout_s=10.0) as gcs:
-        wait_until(lambda: gcs.robots(1.0) == [ROBOT], 30, "the robot in the GCS's robot list")
-        wait_until(lambda: {m.name: m.state for m in gcs.state(ROBOT).modules} == {n: "up" for n in MODULES}, 30,
-                   "every module up in the robot state")
+        sees_every_module(gcs)
         reply = gcs.send(ROBOT, gri.SetPanTilt(pan=30.0, tilt=-20.0))
         assert reply.accepted and reply.task_type == "pan_tilt", reply.reason
         # the angles travel GCS → RAL slot → pan & tilt → DSP mailbox → simulator → telemetry → state

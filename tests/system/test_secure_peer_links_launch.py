@@ -31,7 +31,7 @@ from module_manager import links, secure
 from module_manager.manifest import load_manifest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_secure_launch import MODULES, ROBOT, Robot, SecureLaunch, secure_manifest  # noqa: E402
+from test_secure_launch import ROBOT, Robot, launched, secure_manifest, sees_every_module  # noqa: E402
 
 FORGED_PAN = -77.0
 
@@ -47,15 +47,8 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     manifest.write_text(text.replace(old, f'{old}\nlinks = "peers"'))
     assert certs.main(["--manifest", str(manifest)]) == 0
     assert links.links(load_manifest(manifest)) == "peers"
-    la = SecureLaunch(manifest, tmp, port)
-    try:
-        la.wait_line(f"all {len(MODULES)} modules up", 90)
-        yield Robot(la, pki, tmp)
-    finally:
-        try:
-            la.stop()
-        finally:
-            la.cleanup()
+    with launched(manifest, pki, tmp, port) as robot:
+        yield robot
 
 
 def _pans(robot: Robot) -> list[float]:
@@ -64,9 +57,7 @@ def _pans(robot: Robot) -> list[float]:
 
 def test_a_ground_station_task_reaches_the_dsp_over_the_peer_links(robot: Robot) -> None:
     with robot.client("gcs", name="gcs", timeout_s=10.0) as gcs:
-        wait_until(lambda: gcs.robots(1.0) == [ROBOT], 30, "the robot in the GCS's robot list")
-        wait_until(lambda: {m.name: m.state for m in gcs.state(ROBOT).modules} == {n: "up" for n in MODULES}, 30,
-                   "every module up in the robot state (the manager sees each peer module's token)")
+        sees_every_module(gcs)  # the manager sees each peer module's token through the router
         reply = gcs.send(ROBOT, gri.SetPanTilt(pan=33.0, tilt=-21.0))
         assert reply.accepted, reply.reason
         wait_until(lambda: any(abs(p - 33.0) < 0.01 for p in _pans(robot)), 60, "SET_PT_ANGLES pan 33 at the DSP "

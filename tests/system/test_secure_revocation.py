@@ -20,7 +20,7 @@ from cromat import certs
 from ral.fleet_gcs import FleetView
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_secure_launch import MODULES, ROBOT, Robot, SecureLaunch, secure_manifest  # noqa: E402
+from test_secure_launch import ROBOT, Robot, launched, secure_manifest  # noqa: E402
 
 
 @pytest.fixture
@@ -31,15 +31,8 @@ def robot(tmp_path: Path) -> Iterator[tuple[Robot, Path]]:
     assert text.count('gcs = ["gcs"]') == 1
     manifest.write_text(text.replace('gcs = ["gcs"]', 'gcs = ["gcs", "gcs2"]'))
     assert certs.main(["--manifest", str(manifest)]) == 0
-    la = SecureLaunch(manifest, tmp_path, port)
-    try:
-        la.wait_line(f"all {len(MODULES)} modules up", 90)
-        yield Robot(la, pki, tmp_path), manifest
-    finally:
-        try:
-            la.stop()
-        finally:
-            la.cleanup()
+    with launched(manifest, pki, tmp_path, port) as robot:
+        yield robot, manifest
 
 
 def _added(robot: Robot, mark: int) -> list[tuple[float, float]]:
