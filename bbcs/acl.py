@@ -274,6 +274,7 @@ def router_config(
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}},
         "transport": {
+            "shared_memory": {"enabled": False},  # no payload around the policy through /dev/shm (bbcs/session.py)
             "link": {
                 "protocols": ["tls"],
                 "tls": {
@@ -329,7 +330,7 @@ def hub_config(*, listen: list[str], ca: str, cert: str, key: str, gcs: list[str
         "mode": "router",
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"protocols": ["tls"], "tls": {
+        "transport": {"shared_memory": {"enabled": False}, "link": {"protocols": ["tls"], "tls": {
             "root_ca_certificate": ca, "listen_certificate": cert, "listen_private_key": key,
             "connect_certificate": cert, "connect_private_key": key, "enable_mtls": True,
             "verify_name_on_connect": True}}},

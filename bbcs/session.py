@@ -97,6 +97,9 @@ def zenoh_config(cfg: SessionConfig) -> zenoh.Config:
         timeout_ms = -1 if cfg.connect_timeout_s < 0 else int(cfg.connect_timeout_s * 1000)
         _set(conf, "connect/timeout_ms", timeout_ms)
     if cfg.tls is not None:
+        # Zenoh would move payloads of 3 KB and more through /dev/shm segments that any process of the same user can
+        # open: around the TLS link and the access policy (tests/security/test_shared_memory.py)
+        _set(conf, "transport/shared_memory/enabled", False)
         tls = cfg.tls
         _set(conf, "transport/link/tls/root_ca_certificate", tls.root_ca)
         _set(conf, "transport/link/tls/enable_mtls", tls.mtls)
