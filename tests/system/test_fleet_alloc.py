@@ -184,7 +184,8 @@ def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_r
         done = cli_post(robots["uav_a"].launch.port, "t2", [f"i0,{ins[0]},{ins[1]},{FLY_ALT},inspect"],
                         speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
-        dec = view.agreed("t2", set(names))
+        # the CLI's answer and the view's state events have no order between them: wait for the view
+        dec = view.wait(lambda: view.agreed("t2", set(names)), 10)
         assert dec is not None and dec.bidders == ["uav_c"] and dec.routes["uav_c"] == ["i0"], dec
         with view.lock:
             words = {r: next(b for b in view.states[r].bids if b.task == "t2") for r in names}
@@ -219,7 +220,8 @@ def test_fleet_allocates_over_the_bus_flies_by_effect_and_reallocates_a_killed_r
         before = {r: robots[r].count() for r in names}
         done = cli_post(robots["uav_a"].launch.port, "t3", spec, speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
-        first = view.agreed("t3", set(names))
+        # the CLI's answer and the view's state events have no order between them: wait for the view
+        first = view.wait(lambda: view.agreed("t3", set(names)), 10)
         assert first is not None and first.round == 0
         c_targets = first.routes["uav_c"]
         assert len(c_targets) == 3, first.routes

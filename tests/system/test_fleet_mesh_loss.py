@@ -59,7 +59,8 @@ def test_a_robot_that_loses_the_mesh_keeps_flying_its_task_under_its_own_failsaf
                 + [f"a{i},{lat},{lon},{FLY_ALT}" for i, (lat, lon) in enumerate(a_pts)])
         done = cli_post(hub, "patrol", spec, speed=FLEET_SPEED)
         assert done.returncode == 0, done.stdout + done.stderr
-        dec = view.agreed("patrol", {"uav_a", "uav_b"})
+        # the CLI's answer and the view's state events have no order between them: wait for the view
+        dec = view.wait(lambda: view.agreed("patrol", {"uav_a", "uav_b"}), 10)
         assert dec is not None and sorted(dec.routes["uav_b"]) == ["b0", "b1", "b2", "b3"], dec
         assert sorted(dec.routes["uav_a"]) == ["a0", "a1"], dec
         route_b = dec.routes["uav_b"]
