@@ -126,7 +126,7 @@ MODULE_RUNTIME = "(rx: (worker_threads: 1))"
 """Zenoh's receive runtime in every process but a router: one worker thread instead of Zenoh's two. On a loaded
 few-core robot computer a second worker hands each arriving datum from the thread that read it to another one;
 measured (docs/performance.md, "Zenoh's receive runtime"), a slot's one-way p50 over a peer link went from 65-70 to
-54-56 µs, through the router from 112 to 100 µs, with the same throughput. A router keeps Zenoh's default: it
+54-57 µs, through the router from 112-115 to 100-107 µs, with the same throughput. A router keeps Zenoh's default: it
 reads every link of the robot. A ``ZENOH_RUNTIME`` already in the environment (the operator's) is left alone."""
 
 

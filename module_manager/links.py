@@ -41,9 +41,10 @@ def links(manifest: Manifest) -> str:
 
 def peer_access_control(manifest: Manifest) -> dict[str, Any] | None:
     """The ingress policy every module's peer session enforces: the router's policy (bbcs/acl.py) plus the router
-    itself, allowed everything its own policy let through. None without ``[bus.tls]``/``acl``."""
+    itself, allowed everything its own policy let through. None without ``[bus.tls]``/``acl``, or with router
+    links (no module session enforces one: the router's certificate is then not read at all)."""
     tls = manifest.raw.bus.tls
-    if tls is None or not tls.acl:
+    if tls is None or not tls.acl or links(manifest) != "peers":
         return None
     return peer_policy(secure.router_config(manifest, [])["access_control"], secure.router_cn(manifest))
 

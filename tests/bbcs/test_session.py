@@ -74,7 +74,6 @@ s.close()
 """
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="thread names are read from /proc")
 @pytest.mark.parametrize("operator_setting, rx_threads", [(None, 1), ("(rx: (worker_threads: 3))", 3)])
 def test_a_client_process_receives_on_one_zenoh_thread_unless_the_operator_says_otherwise(
         operator_setting: str | None, rx_threads: int) -> None:

@@ -25,7 +25,6 @@ from bbcs.testing import free_port, wait_until
 from cromat import certs
 
 SHM = Path("/dev/shm")
-pytestmark = pytest.mark.skipif(not SHM.is_dir(), reason="no /dev/shm on this system")
 
 
 @pytest.fixture(scope="module")
