@@ -450,6 +450,8 @@ def main() -> None:
     p.add_argument("--count", type=int, help=argparse.SUPPRESS)
     p.add_argument("--tag", default="t", help=argparse.SUPPRESS)
     args = p.parse_args()
+    if args.role and os.environ.get("XPIN_" + args.role):
+        os.sched_setaffinity(0, {int(os.environ["XPIN_" + args.role])})
     if args.role in ("udp_echo", "udp_ping"):
         udp_role(args)
         return

@@ -39,7 +39,7 @@ from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import links, mesh, route_audit, secure
 from module_manager.lines import print_line
-from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, route_problem
+from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, cpu_list, route_problem
 from module_manager.process import Child, stop_children
 from module_manager.standby import context_line, standby_argv
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
@@ -95,6 +95,15 @@ class _Module:
         """A warm process that becomes this module at its next restart (policy ``standby``: standby.py)."""
         self.standby_failures = 0
         self.warm_starts = 0
+
+
+def _cpus(cpus: list[int] | None) -> frozenset[int] | None:
+    """A manifest ``cpus`` list as the affinity a child gets (None: the manager's own)."""
+    return frozenset(cpus) if cpus else None
+
+
+def _on(cpus: list[int] | None) -> str:
+    return f" on cpus {cpu_list(set(cpus))}" if cpus else ""
 
 
 def tcp_endpoint(endpoint: str) -> tuple[str, int] | None:
@@ -241,10 +250,11 @@ class Manager:
         for name, spec in self.m.raw.processes.items():
             argv = [self.expand(a) for a in spec.command]
             child = Child(name, argv, self.child_env(spec.env), cwd=str(self.m.dir), log_dir=self.log_dir,
-                          watch_stdout=spec.ready.kind == "stdout")
+                          watch_stdout=spec.ready.kind == "stdout", cpus=_cpus(spec.cpus))
             self.processes[name] = child
-            started.append((name, spec.ready, argv, child))
-        for name, ready, argv, child in started:
+            started.append((name, spec, argv, child))
+        for name, spec, argv, child in started:
+            ready = spec.ready
             left = max(0.2, ready.timeout_s - (self.clock() - t))
             if ready.kind == "tcp":
                 ok = wait_tcp(self.expand(ready.host), int(self.expand(ready.port)), left,
@@ -256,7 +266,7 @@ class Manager:
             if not ok:
                 raise LaunchError(f"process {name} ({' '.join(argv)}) not ready within {ready.timeout_s:g} s "
                                   f"(ready: {ready.kind}; exit {child.poll()})")
-            self.out(f"  {name:<11} ready, pid {child.pid} ({self.clock() - t:.2f} s)")
+            self.out(f"  {name:<11} ready, pid {child.pid}{_on(spec.cpus)} ({self.clock() - t:.2f} s)")
 
     def open_bus(self) -> None:
         s = self.session = open_session(self.bus)
@@ -395,20 +405,20 @@ class Manager:
         if self._take_standby(mod, encode_context(ctx)):
             mod.sup.spawned(now)
             if self.all_up_at is None and mod.child is not None:
-                self.out(f"  {info.name:<11} starting, pid {mod.child.pid} (imports done ahead)")
+                self.out(f"  {info.name:<11} starting, pid {mod.child.pid}{_on(info.spec.cpus)} (imports done ahead)")
             return
         env = self.child_env(info.spec.env)
         env[CONTEXT_ENV] = encode_context(ctx)
         try:
             mod.child = Child(info.name, [sys.executable, "-m", info.spec.entry], env, cwd=str(self.m.dir),
-                              log_dir=self.log_dir)
+                              log_dir=self.log_dir, cpus=_cpus(info.spec.cpus))
         except OSError as exc:
             mod.child = None
             mod.sup.spawn_failed(now, f"cannot start: {exc}")
             return
         mod.sup.spawned(now)
         if self.all_up_at is None:
-            self.out(f"  {info.name:<11} starting, pid {mod.child.pid}")
+            self.out(f"  {info.name:<11} starting, pid {mod.child.pid}{_on(info.spec.cpus)}")
 
     def prewarm_modules(self) -> None:
         """Before the router: one standby per module, so every module's interpreter start and imports overlap the
@@ -424,7 +434,8 @@ class Manager:
     def _start_standby(self, mod: _Module) -> Child:
         """A warm standby of ``mod`` (module_manager/standby.py): its interpreter and imports, waiting for a context."""
         return Child(mod.info.name, standby_argv(sys.executable, mod.info.spec.entry),
-                     self.child_env(mod.info.spec.env), cwd=str(self.m.dir), log_dir=self.log_dir, stdin_pipe=True)
+                     self.child_env(mod.info.spec.env), cwd=str(self.m.dir), log_dir=self.log_dir, stdin_pipe=True,
+                     cpus=_cpus(mod.info.spec.cpus))
 
     def _take_standby(self, mod: _Module, context: str) -> bool:
         """Hand the context to the module's warm standby, which becomes the module; False if there is none alive."""

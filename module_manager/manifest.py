@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
 import re
 import sys
 import tomllib
@@ -146,6 +147,10 @@ class ModuleDef(_Section):
     watchdog_s: NonNeg | None = None
     standby: bool | None = None
     """Keep a warm standby process for fast restarts (default: ``[supervision] standby``)."""
+    cpus: list[Annotated[int, msgspec.Meta(ge=0)]] | None = None
+    """Processors the module (every thread of it, its standbys too) may run on; None: any the manager may use.
+    Two modules that exchange latency-critical slots measure about twice as fast on one shared processor as on
+    two (docs/performance.md, "Placing modules on processors")."""
 
 
 class ReadyDef(_Section):
@@ -162,6 +167,8 @@ class ProcessDef(_Section):
     command: list[str]
     ready: ReadyDef = msgspec.field(default_factory=ReadyDef)
     env: dict[str, str] = msgspec.field(default_factory=dict)
+    cpus: list[Annotated[int, msgspec.Meta(ge=0)]] | None = None
+    """Processors the process may run on (as a module's ``cpus``)."""
 
 
 class ModeDef(_Section):
@@ -285,7 +292,7 @@ def parse_manifest(text: str, path: Path, *, check_pki: bool = True) -> Manifest
         text_exc = str(exc)
         where = text_exc.rpartition(" - at `")[2].rstrip("`") if " - at `" in text_exc else "$"
         msg = text_exc.partition(" - at `")[0]
-        key = where.removeprefix("$").lstrip(".")
+        key = _named_entry(data, where.removeprefix("$").lstrip("."))
         if msg.startswith("Object contains unknown field"):
             unknown = msg.split("`")[1]
             key = f"{key}.{unknown}" if key else unknown
@@ -296,6 +303,23 @@ def parse_manifest(text: str, path: Path, *, check_pki: bool = True) -> Manifest
             msg = "required key missing"
         raise ManifestError(msg, path=str(path), key=_dotted(key), line=_locate(text, _dotted(key))) from exc
     return _Checker(text, path, raw, check_pki).check()
+
+
+_NAMED_TABLES: dict[str, type[msgspec.Struct]] = {"modules": ModuleDef, "processes": ProcessDef, "tasks": TaskDef}
+
+
+def _named_entry(data: dict[str, Any], key: str) -> str:
+    """msgspec reports a bad entry of a named table as ``modules[...].cpus[0]``; put the name back in
+    (``modules.sink.cpus[0]``) by decoding that table's entries one by one."""
+    table, sep, rest = key.partition("[...]")
+    if not sep or table not in _NAMED_TABLES or not isinstance(data.get(table), dict):
+        return key
+    for name, entry in data[table].items():
+        try:
+            msgspec.convert(entry, _NAMED_TABLES[table])
+        except msgspec.ValidationError:
+            return f"{table}.{name}{rest}"
+    return key
 
 
 def _dotted(key: str) -> str:
@@ -359,6 +383,19 @@ class _Checker:
         except InvalidNameError as exc:
             raise self.fail(key, str(exc)) from None
 
+    def cpus(self, cpus: list[int] | None, key: str) -> None:
+        """A ``cpus`` list names processors this launch may use (checked here, on the machine that launches: a
+        child pinned to a processor that is not there could not start)."""
+        if cpus is None:
+            return
+        if not cpus:
+            raise self.fail(key, "an empty processor list: leave cpus out to let it run on any processor")
+        allowed = os.sched_getaffinity(0)
+        missing = sorted(set(cpus) - allowed)
+        if missing:
+            raise self.fail(key, f"processor{'s' if len(missing) > 1 else ''} {', '.join(map(str, missing))} not "
+                                 f"available here (this launch may use {cpu_list(allowed)})")
+
     def type_(self, name: str, key: str) -> type[msgspec.Struct]:
         try:
             return resolve_type(name)
@@ -406,6 +443,7 @@ class _Checker:
                 raise self.fail(f"processes.{name}.command", "empty command")
             if proc.ready.kind == "tcp" and not proc.ready.port:
                 raise self.fail(f"processes.{name}.ready.port", "ready kind 'tcp' needs a port")
+            self.cpus(proc.cpus, f"processes.{name}.cpus")
         self.start_order(modules)
         for mname, mode in modes.items():
             if mode.module not in modules:
@@ -572,6 +610,7 @@ class _Checker:
         if not (isinstance(cls, type) and issubclass(cls, Module)):
             raise self.fail(f"{key}.class", f"{spec.cls!r} is not a bbcs Module subclass")
         self.slot_publishers(name, cls)
+        self.cpus(spec.cpus, f"{key}.cpus")
         conf_errors = getattr(cls, "conf_errors", None)  # the module's check of its part of the robot .conf
         problems = conf_errors(self.conf_doc) if callable(conf_errors) and self.conf_doc is not None else []
         if problems:
@@ -659,6 +698,17 @@ class _Checker:
                 raise self.fail(f"{key}.modes.{slot}", f"unknown mode slot {slot!r}")
             self.convert(value, mode.type, f"{key}.modes.{slot}")
         return t
+
+
+def cpu_list(cpus: set[int] | frozenset[int]) -> str:
+    """``{0, 1, 2, 5}`` as ``0-2, 5`` (the kernel's notation, as in ``/proc/<pid>/status``)."""
+    runs: list[list[int]] = []
+    for n in sorted(cpus):
+        if runs and runs[-1][1] == n - 1:
+            runs[-1][1] = n
+        else:
+            runs.append([n, n])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
 
 
 def find_cycle(after: dict[str, list[str]]) -> list[str]:

@@ -26,8 +26,12 @@ except OSError:  # not Linux/glibc: no parent-death signal, the process group st
     _libc = None
 
 
-def _child_setup(parent: int) -> None:
-    """Runs in the child between fork and exec: die with the parent."""
+def _child_setup(parent: int, cpus: frozenset[int] | None = None) -> None:
+    """Runs in the child between fork and exec: die with the parent; run on ``cpus`` only (the manifest's
+    ``cpus``). The affinity is set before exec, so every thread the program starts later (Zenoh's included)
+    inherits it."""
+    if cpus:
+        os.sched_setaffinity(0, cpus)
     if _libc is not None:
         _libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     if os.getppid() != parent:  # the parent died before prctl took effect
@@ -39,8 +43,9 @@ class Child:
 
     def __init__(self, name: str, argv: list[str], env: dict[str, str], cwd: str | None = None,
                  log_dir: Path | None = None, watch_stdout: bool = False, stdin_pipe: bool = False,
-                 echo: Callable[[str], None] | None = None) -> None:
-        """``echo``: called with every stdout line (``watch_stdout``), besides the log: what the launch must show."""
+                 echo: Callable[[str], None] | None = None, cpus: frozenset[int] | None = None) -> None:
+        """``echo``: called with every stdout line (``watch_stdout``), besides the log: what the launch must show.
+        ``cpus``: the processors the child (all its threads) may run on; None: the manager's own."""
         self.name = name
         self._echo = echo
         self.argv = argv
@@ -56,7 +61,7 @@ class Child:
         stdin = subprocess.PIPE if stdin_pipe else subprocess.DEVNULL
         self.proc = subprocess.Popen(argv, env=env, cwd=cwd, stdin=stdin,
                                      stdout=subprocess.PIPE if watch_stdout else out,
-                                     stderr=out, preexec_fn=lambda: _child_setup(parent))
+                                     stderr=out, preexec_fn=lambda: _child_setup(parent, cpus))
         self.pid = self.proc.pid
         self.started = time.monotonic()
         self.pidfd: int | None = None

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from bbcs.testing import child_env
-from module_manager.manifest import ManifestError, load_manifest
+from module_manager.manifest import ManifestError, cpu_list, load_manifest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_support import ROOT, write_manifest  # noqa: E402
@@ -40,6 +40,8 @@ BAD = [
                  "tasks.follow_b.routes.sink.datos", "carries", None, id="task-route-type"),
     pytest.param(lambda t: t.replace('restart = "on-failure"', 'restart = "sometimes"'),
                  "supervision.restart", "Invalid enum value", 'restart = "sometimes"', id="bad-policy"),
+    pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\nrestart = "often"'),
+                 "modules.sink.restart", "Invalid enum value", 'restart = "often"', id="bad-module-policy"),
     pytest.param(lambda t: t.replace("backoff_s = 0.2", "backof_s = 0.2"),
                  "supervision.backof_s", "unknown key", "backof_s = 0.2", id="typo-key"),
     pytest.param(lambda t: t.replace('kind = "test"\n', ""), "robot.kind", "required key missing", None,
@@ -66,6 +68,15 @@ BAD = [
                  id="after-cycle"),
     pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\nafter = ["sink"]'),
                  "modules.sink.after", "cannot start after itself", 'after = ["sink"]', id="after-itself"),
+    pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\ncpus = [0, 4096]'),
+                 "modules.sink.cpus", "processor 4096 not available here (this launch may use ",
+                 "cpus = [0, 4096]", id="cpus-not-here"),
+    pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\ncpus = []'),
+                 "modules.sink.cpus", "an empty processor list", "cpus = []", id="cpus-empty"),
+    pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\ncpus = [-1]'),
+                 "modules.sink.cpus.0", "Expected `int` >= 0", "cpus = [-1]", id="cpus-negative"),
+    pytest.param(lambda t: t + '\n[processes.sim]\ncommand = ["sleep", "60"]\ncpus = [4096]\n',
+                 "processes.sim.cpus", "processor 4096 not available here", "cpus = [4096]", id="process-cpus"),
 ]
 
 
@@ -94,6 +105,12 @@ def test_launch_of_bad_manifest_exits_non_zero_and_starts_nothing(tmp_path, edit
     assert f"manifest error: {path}:" in proc.stderr
     assert "router" not in proc.stdout and proc.stdout == ""
     assert not (tmp_path / "logs").exists(), "no child process was started (none wrote a log)"
+
+
+def test_cpu_list_is_the_kernels_notation():
+    assert cpu_list({0, 1, 2, 5}) == "0-2, 5"
+    assert cpu_list({3}) == "3"
+    assert cpu_list({0, 2, 3}) == "0, 2-3"
 
 
 def test_good_manifest_loads_with_types_resolved(tmp_path):
