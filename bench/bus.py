@@ -7,7 +7,7 @@ Module's event loop → decode + validate → handler. Latency is ping-pong (RTT
 receiving handler. Throughput is a publisher blasting as fast as it can into a handler that counts.
 
     python bench/bus.py            # defaults: ~1-2 minutes; table on stdout, JSON in bench/results/bus.json
-    python bench/bus.py --peers    # + Cyclone DDS, dora-rs (loopback-only netns), UDP floor, same run
+    python bench/bus.py --peers    # + Cyclone DDS, dora-rs, UDP floor (loopback-only netns; any cpu and one cpu)
     python bench/bus.py --secure   # + slots under mTLS and the access policy, router vs peer links
 """
 
@@ -43,9 +43,13 @@ MODES = ("raw", "bbcs", "rawpeer", "bbcspeer")
 MODE_LABEL = {"raw": "zenoh clients via router", "bbcs": "slot, links = router", "rawpeer": "zenoh peers, direct",
               "bbcspeer": "slot, links = peers", "bbcs_tls": "slot, links = router, mTLS + policy on the router",
               "bbcspeer_tls": "slot, links = peers, mTLS + policy on each receiver"}
-DEFAULT_LINKS_MODE = "bbcspeer"  # links = "peers": the option this comparison is about (manifest default: router)
-"""The mode that stands for ``[bus] links``'s default (module_manager/manifest.py)."""
 ROBOT = "bench"
+ONE_CPU = max(os.sched_getaffinity(0))
+PLACEMENTS = (("", None), ("_1cpu", ONE_CPU))
+"""``--peers`` measures each stack (both its processes) twice: wherever the kernel places them, and both on one
+processor, as ``cpus = [n]`` in a manifest places two modules (docs/performance.md, "Placing modules on
+processors"). Suffix of the measurement's mode, processor (None: the kernel's choice)."""
+PLACEMENT_LABEL = {"": "kernel's placement", "_1cpu": f"both on cpu {ONE_CPU}"}
 
 
 class BenchMsg(msgspec.Struct, frozen=True, kw_only=True):
@@ -319,20 +323,41 @@ def udp_latency_run(count: int) -> list[float]:
         procs.stop_all()
 
 
-def in_netns(role: str, count: int) -> object:
+def in_netns(role: str, count: int, cpu: int | None = None) -> object:
     """Run ``--role role`` (which starts both sides of a peer's measurement) inside a fresh loopback-only network
     namespace, so that a peer that binds its sockets on every interface (Cyclone DDS does) still reaches nothing
     but loopback; its JSON result. Without a namespace (not permitted here) the role runs here, confined by its
-    own configuration only."""
-    from bus_peers import NETNS_SHELL, netns_usable, unshare_argv
+    own configuration only. ``cpu``: everything the role starts runs on that one processor (:func:`on_cpu`)."""
+    from bus_peers import NETNS_SHELL, netns_usable, on_cpu, unshare_argv
 
     argv = [sys.executable, str(Path(__file__).resolve()), "--role", role, "--count", str(count)]
     if netns_usable() is None:  # usable
         argv = [*unshare_argv(), "sh", "-c", NETNS_SHELL, "netns", *argv]
-    out = subprocess.run(argv, capture_output=True, text=True, timeout=300, env=child_env())
+    out = subprocess.run(argv, capture_output=True, text=True, timeout=300, env=child_env(),
+                         preexec_fn=on_cpu(cpu))
     if out.returncode != 0:
         raise SystemExit(f"{role} failed (exit {out.returncode}): {out.stderr[-800:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def netns_slot_throughput(count: int) -> float:
+    """Small-slot throughput over peer links with its own router, where the peers' throughput runs."""
+    procs = Processes()
+    try:
+        return throughput_run(start_router(procs), "bbcspeer", "small", count, "netns")
+    finally:
+        procs.stop_all()
+
+
+def netns_secure_slot_latency(count: int) -> list[float]:
+    """``netns_slot_latency`` on a secured robot: mutual TLS on every link, the access policy on the router and at
+    each receiving peer (``bbcspeer_tls``), its own certificates and router."""
+    procs = Processes()
+    with tempfile.TemporaryDirectory(prefix="cromat-bus-") as folder:
+        try:
+            return latency_run(start_secure_router(procs, Path(folder)), "bbcspeer_tls", "small", count, "netns")
+        finally:
+            procs.stop_all()
 
 
 def netns_slot_latency(count: int) -> list[float]:
@@ -381,18 +406,18 @@ def dds_throughput_run(count: int) -> float:
         procs.stop_all()
 
 
-def dora_latency_run(count: int) -> list[float]:
+def dora_latency_run(count: int, cpu: int | None = None) -> list[float]:
     from bus_peers import dora_run
 
-    samples = dora_run(("ping", "echo"), count, SIZES["small"])
+    samples = dora_run(("ping", "echo"), count, SIZES["small"], cpu=cpu)
     return samples[len(samples) // 10:]
 
 
-def dora_throughput_run(count: int) -> tuple[float, float]:
+def dora_throughput_run(count: int, cpu: int | None = None) -> tuple[float, float]:
     """Messages/s at the reader and the share of the sent messages it got (dora's queues drop the oldest)."""
     from bus_peers import dora_run
 
-    res = dora_run(("blast", "sink"), count, SIZES["small"])
+    res = dora_run(("blast", "sink"), count, SIZES["small"], cpu=cpu)
     return (res["n"] - 1) / res["seconds"] if res["seconds"] > 0 else 0.0, res["n"] / count
 
 
@@ -433,6 +458,58 @@ def throughput_run(port: int, mode: str, size: str, count: int, tag: str) -> flo
         procs.stop_all()
 
 
+PEER_LABEL = {"udp": "IPC floor: UDP ping-pong", "bbcspeer_netns": "slot, links = peers",
+              "bbcspeer_tls_netns": "slot, links = peers, mTLS + policy on each receiver",
+              "cyclonedds": "Cyclone DDS Python, reliable, keep-all", "dora": "dora-rs 1.1 Python nodes"}
+
+
+def peer_summary(lat: dict, thr: dict, get: dict, rows: list[dict], summary: dict, notes: dict,
+                 why_not: dict[str, str | None]) -> None:
+    """The ``--peers`` rows and keys. Every peer figure is compared with a slot over peer links measured the same
+    way: in a loopback-only netns, with the same placement of its two processes. The contract keys
+    (``peer_*_p50_ratio``: peer p50 over the slot's, above 1 = the slot is faster) are for both processes on one
+    processor, the placement a robot gives two modules whose slot must be fast (``cpus``); ``*_any_cpu`` the same
+    where the kernel places them."""
+    for sfx, _cpu in PLACEMENTS:
+        ksfx = "" if sfx else "_any_cpu"
+        here = lat[("bbcspeer_netns" + sfx, "small")]
+        bbcs_p50, bbcs_rate = pct(here, 50), statistics.median(thr[("bbcspeer_netns" + sfx, "small")])
+        summary[f"peer_link_netns{sfx}_p50_us"] = bbcs_p50
+        summary[f"ipc_floor{sfx}_p50_us"] = pct(lat[("udp" + sfx, "small")], 50)
+        for mode in ("udp", "bbcspeer_netns", "bbcspeer_tls_netns", "cyclonedds", "dora"):
+            if (mode + sfx, "small") not in lat and mode not in why_not:
+                continue  # the secured slot: only with --secure
+            if mode in why_not and why_not[mode] is not None:
+                summary[f"peer_{mode}_p50_ratio{ksfx}"] = None  # the contract key; why it has no value: "notes"
+                notes[f"peer_{mode}"] = why_not[mode]
+                if sfx:
+                    print(f"peer {mode}: not measured: {why_not[mode]}")
+                continue
+            s = lat[(mode + sfx, "small")]
+            rate = statistics.median(thr[(mode + sfx, "small")]) if (mode + sfx, "small") in thr else None
+            rows.append({"payload": "small", "mode": mode + sfx, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
+                         "samples": len(s), "msgs_per_s": rate})
+            print(f"{'small':8} {mode + sfx:24} {pct(s, 50):7.1f} {pct(s, 99):9.1f} "
+                  f"{'' if rate is None else f'{rate:11,.0f}':11}   ({PEER_LABEL[mode]}, loopback-only netns, "
+                  f"{PLACEMENT_LABEL[sfx]})")
+            if mode == "bbcspeer_tls_netns":
+                summary[f"secure_peer_link_netns{sfx}_p50_us"] = pct(s, 50)
+            if mode in why_not:
+                summary[f"peer_{mode}_p50_ratio{ksfx}"] = pct(s, 50) / bbcs_p50
+                if ("bbcspeer_tls_netns" + sfx, "small") in lat:  # the peer (unsecured) against a secured slot
+                    summary[f"secure_peer_{mode}_p50_ratio{ksfx}"] = (
+                        pct(s, 50) / pct(lat[("bbcspeer_tls_netns" + sfx, "small")], 50))
+                summary[f"peer_{mode}_throughput_ratio{ksfx}"] = (rate or 0.0) / bbcs_rate
+                if not sfx:
+                    summary[f"peer_{mode}_over_router_p50_ratio"] = pct(s, 50) / get[("bbcs", "small")]["p50_us"]
+    notes["bbcs_baseline"] = ("peer_*_p50_ratio / peer_*_throughput_ratio: the peer's p50 (rate) over a slot's over "
+                              "peer links, both measured in a fresh loopback-only netns with both processes on one "
+                              f"processor (cpu {ONE_CPU}, as a manifest's cpus places two modules; "
+                              "peer_link_netns_1cpu_p50_us); *_any_cpu: the same with the kernel placing the "
+                              "processes (peer_link_netns_p50_us); *_over_router_*: over a slot through the router "
+                              "(outside the netns, the kernel's placement)")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--rounds", type=int, default=3, help="interleaved rounds per configuration")
@@ -450,8 +527,6 @@ def main() -> None:
     p.add_argument("--count", type=int, help=argparse.SUPPRESS)
     p.add_argument("--tag", default="t", help=argparse.SUPPRESS)
     args = p.parse_args()
-    if args.role and os.environ.get("XPIN_" + args.role):
-        os.sched_setaffinity(0, {int(os.environ["XPIN_" + args.role])})
     if args.role in ("udp_echo", "udp_ping"):
         udp_role(args)
         return
@@ -459,9 +534,11 @@ def main() -> None:
         run = dds_latency_run if args.role.endswith("latency") else dds_throughput_run
         print(json.dumps(run(args.count)))
         return
-    if args.role in ("netns_slot_latency", "netns_udp_latency"):
-        print(json.dumps(netns_slot_latency(args.count) if args.role == "netns_slot_latency"
-                         else udp_latency_run(args.count)))
+    netns_roles = {"netns_slot_latency": netns_slot_latency, "netns_udp_latency": udp_latency_run,
+                   "netns_slot_throughput": netns_slot_throughput,
+                   "netns_secure_slot_latency": netns_secure_slot_latency}
+    if args.role in netns_roles:
+        print(json.dumps(netns_roles[args.role](args.count)))
         return
     if args.role and args.role.startswith("dds_"):
         from bus_peers import cyclone_role
@@ -483,17 +560,24 @@ def main() -> None:
         lat: dict[tuple[str, str], list[float]] = {}
         thr: dict[tuple[str, str], list[float]] = {}
         for rnd in range(args.rounds):
-            if args.peers:
-                lat.setdefault(("udp", "small"), []).extend(in_netns("netns_udp_latency", args.pings))
-                lat.setdefault(("bbcspeer_netns", "small"), []).extend(in_netns("netns_slot_latency", args.pings))
+            for sfx, cpu in PLACEMENTS if args.peers else ():
+                lat.setdefault(("udp" + sfx, "small"), []).extend(in_netns("netns_udp_latency", args.pings, cpu))
+                lat.setdefault(("bbcspeer_netns" + sfx, "small"), []).extend(
+                    in_netns("netns_slot_latency", args.pings, cpu))
+                if args.secure:
+                    lat.setdefault(("bbcspeer_tls_netns" + sfx, "small"), []).extend(
+                        in_netns("netns_secure_slot_latency", args.pings, cpu))
+                thr.setdefault(("bbcspeer_netns" + sfx, "small"), []).append(
+                    in_netns("netns_slot_throughput", args.messages, cpu))
                 if dds_why is None:
-                    lat.setdefault(("cyclonedds", "small"), []).extend(in_netns("netns_dds_latency", args.pings))
-                    thr.setdefault(("cyclonedds", "small"), []).append(
-                        in_netns("netns_dds_throughput", args.messages // 10))
+                    lat.setdefault(("cyclonedds" + sfx, "small"), []).extend(
+                        in_netns("netns_dds_latency", args.pings, cpu))
+                    thr.setdefault(("cyclonedds" + sfx, "small"), []).append(
+                        in_netns("netns_dds_throughput", args.messages // 10, cpu))
                 if dora_why is None:
-                    lat.setdefault(("dora", "small"), []).extend(dora_latency_run(args.pings))
-                    rate, got = dora_throughput_run(args.messages // 10)
-                    thr.setdefault(("dora", "small"), []).append(rate)
+                    lat.setdefault(("dora" + sfx, "small"), []).extend(dora_latency_run(args.pings, cpu))
+                    rate, got = dora_throughput_run(args.messages // 10, cpu)
+                    thr.setdefault(("dora" + sfx, "small"), []).append(rate)
                     dora_delivered.append(got)
             for size in SIZES:
                 for mode in MODES if size == "small" else ("raw", "bbcs"):
@@ -544,42 +628,10 @@ def main() -> None:
         summary["secure_peer_link_throughput_ratio"] = (get[("bbcspeer_tls", "small")]["msgs_per_s"]
                                                         / get[("bbcs_tls", "small")]["msgs_per_s"])
     if args.peers:
-        # "peer latency over bbcs latency" (above 1: the slot is faster); bbcs = a slot over peer links, measured
-        # in a loopback-only namespace like the peers (latency), and here (throughput: the peers' rates are far
-        # below it either way)
-        here = lat[(DEFAULT_LINKS_MODE + "_netns", "small")]
-        bbcs_p50 = pct(here, 50)
-        bbcs_rate = get[(DEFAULT_LINKS_MODE, "small")]["msgs_per_s"]
-        summary["peer_link_netns_p50_us"] = bbcs_p50
-        floor = lat[("udp", "small")]
-        summary["ipc_floor_p50_us"] = pct(floor, 50)
-        for mode, s, label in (("udp", floor, "IPC floor, loopback-only netns"),
-                               (DEFAULT_LINKS_MODE + "_netns", here, "slot, links = peers, loopback-only netns")):
-            rows.append({"payload": "small", "mode": mode, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
-                         "samples": len(s), "msgs_per_s": None})
-            print(f"{'small':8} {mode:14} {pct(s, 50):7.1f} {pct(s, 99):9.1f}             ({label})")
-        for peer, why, label in (("cyclonedds", dds_why, "Cyclone DDS Python, reliable, keep-all"),
-                                 ("dora", dora_why, "dora-rs 1.1 Python nodes, loopback-only netns")):
-            if why is not None:
-                summary[f"peer_{peer}_p50_ratio"] = None  # the contract key; why it has no value is in "notes"
-                summary_notes[f"peer_{peer}"] = why
-                print(f"peer {peer}: not measured: {why}")
-                continue
-            s = lat[(peer, "small")]
-            rate = statistics.median(thr[(peer, "small")])
-            summary[f"peer_{peer}_p50_ratio"] = pct(s, 50) / bbcs_p50
-            summary[f"peer_{peer}_throughput_ratio"] = rate / bbcs_rate
-            summary[f"peer_{peer}_over_router_p50_ratio"] = pct(s, 50) / get[("bbcs", "small")]["p50_us"]
-            rows.append({"payload": "small", "mode": peer, "p50_us": pct(s, 50), "p99_us": pct(s, 99),
-                         "samples": len(s), "msgs_per_s": rate})
-            print(f"{'small':8} {peer:12} {pct(s, 50):9.1f} {pct(s, 99):9.1f} {rate:11,.0f}   ({label})")
+        peer_summary(lat, thr, get, rows, summary, summary_notes, {"cyclonedds": dds_why, "dora": dora_why})
         if dora_delivered:
             summary["peer_dora_delivered_share"] = min(dora_delivered)
             summary_notes["peer_dora"] = "dora ran in a fresh network namespace with only loopback (unshare -n)"
-        summary_notes["bbcs_baseline"] = (f"peer_*_p50_ratio: peer p50 over a slot's p50 over peer links "
-                                          f"({DEFAULT_LINKS_MODE}) measured in a loopback-only netns like the peers "
-                                          "(peer_link_netns_p50_us); *_over_router_*: over a slot through the router "
-                                          "(outside the netns)")
     print("\n" + "\n".join(f"{k:34} {'n/a' if v is None else f'{v:.3f}'}" for k, v in summary.items()))
     write_results("bus", {"summary": summary, "rows": rows, "notes": summary_notes, "rounds": args.rounds,
                           "pings": args.pings,

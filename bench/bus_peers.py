@@ -152,6 +152,14 @@ the reader's input queue sized so that the daemon's drop-oldest policy does not 
 NETNS_SHELL = "ip link set lo up && exec \"$@\""
 
 
+def on_cpu(cpu: int | None) -> Any:
+    """A ``preexec_fn`` that puts the started process, and so everything it starts, on processor ``cpu`` alone:
+    what a manifest's ``cpus = [cpu]`` does to two modules (module_manager/process.py). None: no placement."""
+    if cpu is None:
+        return None
+    return lambda: os.sched_setaffinity(0, {cpu})
+
+
 def unshare_argv() -> list[str]:
     return ["unshare", "-n"] if os.geteuid() == 0 else ["unshare", "-rn"]
 
@@ -196,8 +204,10 @@ def dora_cli() -> str | None:
     return here if os.path.exists(here) else shutil.which("dora")
 
 
-def dora_run(role_pair: tuple[str, str], count: int, body_len: int, timeout_s: float = 240.0) -> Any:
-    """Run a two-node dataflow (``ping``/``echo`` or ``blast``/``sink``) in a loopback-only netns; its JSON result."""
+def dora_run(role_pair: tuple[str, str], count: int, body_len: int, timeout_s: float = 240.0,
+             cpu: int | None = None) -> Any:
+    """Run a two-node dataflow (``ping``/``echo`` or ``blast``/``sink``) in a loopback-only netns; its JSON result.
+    ``cpu``: the whole dataflow (``dora run``, its daemon and both nodes) on that one processor."""
     import subprocess
     import tempfile
 
@@ -222,7 +232,7 @@ def dora_run(role_pair: tuple[str, str], count: int, body_len: int, timeout_s: f
         with open(flow, "w") as f:
             json.dump({"nodes": nodes}, f)  # JSON is YAML
         proc = subprocess.run([*unshare_argv(), "sh", "-c", NETNS_SHELL, "netns", dora_cli() or "dora", "run", flow],
-                              cwd=tmp, capture_output=True, text=True, timeout=timeout_s)
+                              cwd=tmp, capture_output=True, text=True, timeout=timeout_s, preexec_fn=on_cpu(cpu))
         if not os.path.exists(out):
             raise RuntimeError(f"dora run left no result (exit {proc.returncode}): {proc.stderr[-800:]}")
         with open(out) as f:

@@ -216,12 +216,13 @@ class Manager:
         argv += ["--robot", self.m.robot]  # its Zenoh id from the name: the mesh refuses a second robot of it
         t = self.clock()
         self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir,
-                            watch_stdout=True, echo=self._router_line)
+                            watch_stdout=True, echo=self._router_line, cpus=_cpus(self.m.raw.bus.cpus))
         host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))
         if not wait_tcp(host, port, self.m.raw.bus.ready_timeout_s, lambda: self.router.poll() is None):
             raise LaunchError(f"the router did not listen on {host}:{port} within "
                               f"{self.m.raw.bus.ready_timeout_s:g} s (exit {self.router.poll()})")
-        self.out(f"  router      listening on {', '.join(self.listen)} ({self.clock() - t:.2f} s)")
+        self.out(f"  router      listening on {', '.join(self.listen)}{_on(self.m.raw.bus.cpus)} "
+                 f"({self.clock() - t:.2f} s)")
 
     def _router_line(self, line: str) -> None:
         """The router's word that the mesh refused it (another robot of this name is linked there): shown on the

@@ -98,6 +98,8 @@ class BusSection(_Section):
     peers: list[str] = msgspec.field(default_factory=list)
     """Other routers (robots', ground stations') this robot's router connects to: the fleet mesh, routed by Zenoh
     itself (docs/fleet.md). Before anything starts, the launch refuses a robot name already alive there."""
+    cpus: list[Annotated[int, msgspec.Meta(ge=0)]] | None = None
+    """Processors the robot's router runs on (as a module's ``cpus``); None: any the manager may use."""
     links: Literal["router", "peers"] | None = None
     """How modules reach each other: ``"peers"`` (linked directly, the access policy enforced by each receiver) or
     ``"router"`` (through the router). Default: ``links.DEFAULT_LINKS`` (router); router with ``zenoh_config``."""
@@ -421,6 +423,7 @@ class _Checker:
             raise self.fail("bus.zenoh_config", f"Zenoh config file {base / raw.bus.zenoh_config} does not exist")
         if not raw.bus.listen:
             raise self.fail("bus.listen", "the router needs at least one listen endpoint")
+        self.cpus(raw.bus.cpus, "bus.cpus")
         if raw.bus.links == "peers" and raw.bus.zenoh_config is not None:
             raise self.fail("bus.links", "links = \"peers\" cannot keep a hand-written router config's access rules "
                                          "(bus.zenoh_config) between modules: use [bus.tls] or links = \"router\"")

@@ -1,6 +1,6 @@
 """``cpus`` in a manifest: a module runs, every thread of it (Zenoh's included), on the processors it names; so do
 its warm standby and the process that replaces it after a SIGKILL; a module without ``cpus`` keeps the manager's
-own; a plain process is placed the same way."""
+own; a plain process and the router (``[bus] cpus``) are placed the same way."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from bbcs.contracts import mri
 from bbcs.testing import wait_until
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from launch_support import Launch, standbys, write_manifest  # noqa: E402
+from launch_support import Launch, group_members, standbys, write_manifest  # noqa: E402
 
 MRI_S = 20.0
 ALLOWED = os.sched_getaffinity(0)
@@ -40,6 +40,8 @@ def pinned_manifest(text: str) -> str:
     text = text.replace("period_s = 30.0", "period_s = 30.0\nstandby = true")
     text = text.replace("start_timeout_s = 20.0", "start_timeout_s = 60.0")
     text = text.replace('task_types = ["perception"]', f'task_types = ["perception"]\ncpus = [{PINNED}]')
+    text = text.replace('listen = ["tcp/127.0.0.1:{port:router}"]',
+                        f'listen = ["tcp/127.0.0.1:{{port:router}}"]\ncpus = [{PINNED}]')
     return text + f'\n[processes.idle]\ncommand = ["sleep", "600"]\ncpus = [{PINNED}]\n'
 
 
@@ -69,6 +71,9 @@ def test_a_module_and_its_replacements_run_on_the_processors_it_names(robot, cli
     assert set(threads.values()) == {str(PINNED)}, threads
     assert set(thread_cpus(source.pid).values()) == {kernel_list(ALLOWED)}, "src_a names no cpus: left alone"
     assert any(f"sink        starting, pid {sink.pid} on cpus {PINNED}" in line for line in robot.lines)
+    router = next(p for p in group_members(robot.pgid) if b"bbcs.router" in Path(f"/proc/{p}/cmdline").read_bytes())
+    assert set(thread_cpus(router).values()) == {str(PINNED)}, "[bus] cpus places the router"
+    assert any(line.startswith("  router      listening on") and f"on cpus {PINNED}" in line for line in robot.lines)
     idle = next(line for line in robot.lines if line.strip().startswith("idle") and "ready" in line)
     idle_pid = int(idle.split("pid ")[1].split()[0])
     assert set(thread_cpus(idle_pid).values()) == {str(PINNED)}, idle

@@ -75,6 +75,8 @@ BAD = [
                  "modules.sink.cpus", "an empty processor list", "cpus = []", id="cpus-empty"),
     pytest.param(lambda t: t.replace('task_types = ["perception"]', 'task_types = ["perception"]\ncpus = [-1]'),
                  "modules.sink.cpus.0", "Expected `int` >= 0", "cpus = [-1]", id="cpus-negative"),
+    pytest.param(lambda t: t.replace("[bus]\n", "[bus]\ncpus = [4096]\n"),
+                 "bus.cpus", "processor 4096 not available here", "cpus = [4096]", id="router-cpus"),
     pytest.param(lambda t: t + '\n[processes.sim]\ncommand = ["sleep", "60"]\ncpus = [4096]\n',
                  "processes.sim.cpus", "processor 4096 not available here", "cpus = [4096]", id="process-cpus"),
 ]
