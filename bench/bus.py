@@ -512,7 +512,7 @@ def peer_summary(lat: dict, thr: dict, get: dict, rows: list[dict], summary: dic
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--rounds", type=int, default=3, help="interleaved rounds per configuration")
+    p.add_argument("--rounds", type=int, default=5, help="interleaved rounds per configuration")
     p.add_argument("--pings", type=int, default=2000)
     p.add_argument("--messages", type=int, default=200_000, help="messages per throughput run (small)")
     p.add_argument("--peers", action="store_true",
