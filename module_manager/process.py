@@ -19,6 +19,8 @@ from pathlib import Path
 from typing import IO
 
 PR_SET_PDEATHSIG = 1
+CPUS_REFUSED = 126
+"""Exit status of a child that could not be placed on its ``cpus`` (said on its stderr, so in its log)."""
 
 try:
     _libc: ctypes.CDLL | None = ctypes.CDLL(None, use_errno=True)
@@ -31,7 +33,11 @@ def _child_setup(parent: int, cpus: frozenset[int] | None = None) -> None:
     ``cpus``). The affinity is set before exec, so every thread the program starts later (Zenoh's included)
     inherits it."""
     if cpus:
-        os.sched_setaffinity(0, cpus)
+        try:
+            os.sched_setaffinity(0, cpus)
+        except OSError as exc:  # the processors went away since the manifest was checked (a cpuset changed)
+            os.write(2, f"cannot run on cpus {sorted(cpus)}: {exc}\n".encode())
+            os._exit(CPUS_REFUSED)
     if _libc is not None:
         _libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     if os.getppid() != parent:  # the parent died before prctl took effect
