@@ -22,8 +22,9 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 import msgspec
 import zenoh
@@ -44,6 +45,7 @@ MODE_LABEL = {"raw": "zenoh clients via router", "bbcs": "slot, links = router",
               "bbcspeer": "slot, links = peers", "bbcs_tls": "slot, links = router, mTLS + policy on the router",
               "bbcspeer_tls": "slot, links = peers, mTLS + policy on each receiver"}
 ROBOT = "bench"
+R = TypeVar("R")
 ONE_CPU = max(os.sched_getaffinity(0))
 PLACEMENTS = (("", None), ("_1cpu", ONE_CPU))
 """``--peers`` measures each stack (both its processes) twice: wherever the kernel places them, and both on one
@@ -340,13 +342,18 @@ def in_netns(role: str, count: int, cpu: int | None = None) -> object:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def netns_slot_throughput(count: int) -> float:
-    """Small-slot throughput over peer links with its own router, where the peers' throughput runs."""
+def _own_router(run: Callable[[int], R]) -> R:
+    """``run(port)`` with a router of its own on ``port``, stopped afterwards."""
     procs = Processes()
     try:
-        return throughput_run(start_router(procs), "bbcspeer", "small", count, "netns")
+        return run(start_router(procs))
     finally:
         procs.stop_all()
+
+
+def netns_slot_throughput(count: int) -> float:
+    """Small-slot throughput over peer links with its own router, where the peers' throughput runs."""
+    return _own_router(lambda port: throughput_run(port, "bbcspeer", "small", count, "netns"))
 
 
 def netns_secure_slot_latency(count: int) -> list[float]:
@@ -364,11 +371,7 @@ def netns_slot_latency(count: int) -> list[float]:
     """A slot over peer links (``links = "peers"``) with its own router, run where the peers run (their loopback-only
     namespace): the like-for-like basis of the ``peer_*_p50_ratio`` keys (measured here, a fresh namespace's loopback
     was 3-8 % faster than this machine's own, about the gap being judged)."""
-    procs = Processes()
-    try:
-        return latency_run(start_router(procs), "bbcspeer", "small", count, "netns")
-    finally:
-        procs.stop_all()
+    return _own_router(lambda port: latency_run(port, "bbcspeer", "small", count, "netns"))
 
 
 def dds_latency_run(count: int) -> list[float]:
