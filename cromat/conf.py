@@ -3,7 +3,8 @@
 The file's syntax is checked by :mod:`bbcs.conf`; its values by the modules that read it: every module class
 with a ``conf_errors(doc) -> list[ConfError]`` attribute (e.g. ``modules.dsp.process:DspModule``). Which classes:
 those of ``--manifest`` (the same check ``cromat launch --check`` runs), those given with ``--class``, or by
-default the project's modules that read the UAV's .conf.
+default those of every manifest beside the file that names it as its ``robot.conf`` (``bbcs_conf/uquad1.conf`` is
+checked by ``uquad1_sim.toml``'s modules); with no such manifest, the UAV's modules (DSP and RAL).
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from typing import Any
 
 from bbcs.conf import ConfDocument, ConfError, load_conf
 
-DEFAULT_CLASSES = ("modules.dsp.process:DspModule",)
-"""The module classes whose .conf part ``cromat conf check FILE`` checks when no manifest names them."""
+DEFAULT_CLASSES = ("modules.dsp.process:DspModule", "ral.process:Ral")
+"""The module classes whose .conf part ``cromat conf check FILE`` checks when no manifest beside it names the file
+(the UAV's: its DSP and the RAL's limits)."""
 
 Checker = Callable[[ConfDocument], list[ConfError]]
 
@@ -46,6 +48,28 @@ def manifest_classes(path: Path) -> list[str]:
     return [spec["class"] for spec in raw.get("modules", {}).values() if "class" in spec]
 
 
+def neighbour_manifests(conf: Path) -> list[Path]:
+    """The manifests in the .conf's folder whose ``[robot] conf`` is that file (unreadable ones are skipped:
+    checking a .conf must not fail on another file)."""
+    found = []
+    for manifest in sorted(conf.parent.glob("*.toml")):
+        try:
+            named = tomllib.loads(manifest.read_text()).get("robot", {}).get("conf")
+        except (OSError, tomllib.TOMLDecodeError):
+            continue
+        if isinstance(named, str) and (manifest.parent / named).resolve() == conf.resolve():
+            found.append(manifest)
+    return found
+
+
+def default_classes(conf: Path) -> list[str]:
+    """The module classes of the manifests beside ``conf`` that name it; ``DEFAULT_CLASSES`` if none does."""
+    classes: list[str] = []
+    for manifest in neighbour_manifests(conf):
+        classes += [c for c in manifest_classes(manifest) if c not in classes]
+    return classes or list(DEFAULT_CLASSES)
+
+
 def checkers(classes: list[str] | tuple[str, ...]) -> dict[str, Checker]:
     """``class name → conf_errors`` of every class that declares one."""
     out: dict[str, Checker] = {}
@@ -66,14 +90,15 @@ def check_file(path: str | Path, classes: list[str] | tuple[str, ...] = DEFAULT_
         doc = load_conf(path)
     except ConfError as exc:
         return [exc]
-    errors = [e for check in checkers(classes).values() for e in check(doc)]
-    return sorted(errors, key=lambda e: (e.line or 0, e.column or 0))
+    errors = {str(e): e for check in checkers(classes).values() for e in check(doc)}  # two modules, one key: once
+    return sorted(errors.values(), key=lambda e: (e.line or 0, e.column or 0))
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        classes = (manifest_classes(Path(args.manifest)) if args.manifest else args.classes or list(DEFAULT_CLASSES))
+        classes = (manifest_classes(Path(args.manifest)) if args.manifest
+                   else args.classes or default_classes(Path(args.file)))
         found = checkers(classes)
     except (OSError, tomllib.TOMLDecodeError, ImportError, AttributeError) as exc:
         print(f"cromat conf: {exc}", file=sys.stderr)
@@ -82,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     for error in errors:
         print(error, file=sys.stderr)
     if errors:
-        print(f"{args.file}: {len(errors)} error(s)", file=sys.stderr)
+        print(f"{args.file}: {len(errors)} error(s) (checked by {', '.join(found) or 'syntax only'})", file=sys.stderr)
         return 1
     print(f"{args.file}: ok (checked by {', '.join(found) or 'syntax only'})")
     return 0

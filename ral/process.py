@@ -52,7 +52,18 @@ from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.fleet import FleetLink, can_do_from, goto_of, own_state_of
 from ral.fleet_protocol import Execute, FleetConfig, OwnState
-from ral.tasks import JudgeConfig, Limits, Plan, Progress, Rejected, admit, available_kinds, judge, load_limits
+from ral.tasks import (
+    JudgeConfig,
+    Limits,
+    Plan,
+    Progress,
+    Rejected,
+    admit,
+    available_kinds,
+    judge,
+    limits_conf_errors,
+    load_limits,
+)
 
 MAX_ERRORS = 20
 HARMLESS_CODES = frozenset({FORWARDED_DSP_ERROR_BASE + LinkErrorCode.FLUSHED})
@@ -160,6 +171,8 @@ class Ral(Module):
     )
     error_slot = "error"
     tick_period = 0.05
+    conf_errors = staticmethod(limits_conf_errors)
+    """The RAL's check of its limits in the robot .conf (``cromat launch --check``, ``cromat conf check``)."""
 
     def __init__(self, context: ModuleContext, clock: Any = time.time) -> None:
         super().__init__(context)

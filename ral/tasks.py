@@ -17,7 +17,7 @@ from typing import Annotated
 
 import msgspec
 
-from bbcs.conf import ConfError, load_conf
+from bbcs.conf import ConfDocument, ConfError, load_conf
 from bbcs.contracts import tasks as t
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 
@@ -313,21 +313,34 @@ class _ConfLimits(msgspec.Struct, kw_only=True):
     GEOFENCE: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
 
 
-def load_limits(conf_path: str) -> Limits:
-    """The RAL's :class:`Limits` from the robot .conf; ConfError (file, line) when a key is wrong."""
-    doc = load_conf(conf_path)
+def limits_conf_errors(doc: ConfDocument) -> list[ConfError]:
+    """Every mistake in the RAL's part of a parsed .conf (its limits), each with file:line: for ``cromat conf
+    check`` and ``cromat launch --check`` (``Ral.conf_errors``); empty when :func:`load_limits` would succeed."""
+    errors = doc.errors_for(_ConfLimits)
+    if errors:
+        return errors
     raw = doc.to_struct(_ConfLimits)
     if raw.CRUISE_SPEED is not None and raw.CRUISE_SPEED > raw.MAX_SPEED:
         entry = doc.entries["CRUISE_SPEED"]
-        raise ConfError(f"CRUISE_SPEED {raw.CRUISE_SPEED:g} is above MAX_SPEED {raw.MAX_SPEED:g}", path=doc.path,
-                        line=entry.line, column=entry.column)
-    fence = None
+        errors.append(ConfError(f"CRUISE_SPEED {raw.CRUISE_SPEED:g} is above MAX_SPEED {raw.MAX_SPEED:g}",
+                                path=doc.path, line=entry.line, column=entry.column))
     if raw.GEOFENCE is not None:
         lat, lon, radius = raw.GEOFENCE
         if not (-90 <= lat <= 90 and -180 <= lon <= 180 and radius > 0):
             entry = doc.entries["GEOFENCE"]
-            raise ConfError("GEOFENCE must be [latitude, longitude, radius in m > 0]", path=doc.path,
-                            line=entry.line, column=entry.column)
-        fence = Geofence(lat, lon, radius)
+            errors.append(ConfError("GEOFENCE must be [latitude, longitude, radius in m > 0]", path=doc.path,
+                                    line=entry.line, column=entry.column))
+    return errors
+
+
+def load_limits(conf_path: str) -> Limits:
+    """The RAL's :class:`Limits` from the robot .conf; ConfError (file, line) when a key is wrong (the first of
+    :func:`limits_conf_errors`, so the RAL and ``cromat conf check`` never disagree)."""
+    doc = load_conf(conf_path)
+    errors = limits_conf_errors(doc)
+    if errors:
+        raise errors[0]
+    raw = doc.to_struct(_ConfLimits)
+    fence = Geofence(*raw.GEOFENCE) if raw.GEOFENCE is not None else None
     return Limits(max_speed=raw.MAX_SPEED, cruise_speed=raw.CRUISE_SPEED, min_clearance_m=raw.MIN_CLEARANCE,
                   max_height_m=raw.MAX_HEIGHT, geofence=fence, takeoff_height_m=raw.TAKEOFF_HEIGHT)

@@ -8,7 +8,7 @@ from typing import Literal
 import msgspec
 import numpy as np
 
-from bbcs.conf import ConfError, load_conf
+from bbcs.conf import ConfDocument, ConfError, load_conf
 from modules.uquad.model import QuadParams
 
 
@@ -62,6 +62,50 @@ class UquadConfig(msgspec.Struct, frozen=True, kw_only=True):
     LOG_DIR: str = "runs/uquad"
 
 
+_GROUPS: tuple[tuple[str, str, type[msgspec.Struct], dict[str, int]], ...] = (
+    ("QUAD", "model", QuadParams, {}),
+    ("LQR", "weights", LqrConf, {"q": 12, "q_int": 4, "r": 4}),
+    ("ANTI_WINDUP", "integral", AntiWindupConf, {"th_dist": 4, "th_max": 4, "th_accum": 4}),
+)
+"""The groups the uQuad reads: type, name, struct, and the keys that must hold a given number of values."""
+
+
+def conf_errors(doc: ConfDocument) -> list[ConfError]:
+    """Every mistake in the uQuad's part of a parsed .conf, each with file:line: for ``cromat conf check`` and
+    ``cromat launch --check`` (``UquadModule.conf_errors``); empty when :class:`Config` would load it."""
+    errors = doc.errors_for(UquadConfig)
+    for gtype, gname, typ, lengths in _GROUPS:
+        try:
+            group = doc.group(gtype, gname)
+        except ConfError as exc:
+            errors.append(exc)
+            continue
+        found = group.errors_for(typ)
+        errors += found
+        if found:
+            continue
+        values = msgspec.structs.asdict(group.to_struct(typ))
+        for key, n in lengths.items():
+            if len(values[key]) != n:
+                entry = group.entries[key]
+                errors.append(ConfError(f"key {key!r} in group '{gtype}: {gname}' must have {n} values, has "
+                                        f"{len(values[key])}", path=doc.path, line=entry.line, column=entry.column))
+    if not doc.errors_for(UquadConfig):
+        v = doc.to_struct(UquadConfig)
+        if not 0 < v.MOTOR_MIN < v.MOTOR_MAX:
+            entry = doc.entries.get("MOTOR_MIN") or doc.entries.get("MOTOR_MAX")
+            errors.append(ConfError("MOTOR_MIN must be > 0 and below MOTOR_MAX", path=doc.path,
+                                    line=entry.line if entry else None))
+        if v.IMU_FIR and v.IMU_QUEUE_LEN <= len(v.IMU_FIR):
+            entry = doc.entries.get("IMU_QUEUE_LEN") or doc.entries["IMU_FIR"]
+            errors.append(ConfError(f"IMU_QUEUE_LEN ({v.IMU_QUEUE_LEN}) must be longer than the IMU_FIR filter "
+                                    f"({len(v.IMU_FIR)} coefficients)", path=doc.path, line=entry.line))
+        if v.CONTROL_EVERY < 1:
+            entry = doc.entries.get("CONTROL_EVERY")
+            errors.append(ConfError("CONTROL_EVERY must be ≥ 1", path=doc.path, line=entry.line if entry else None))
+    return sorted(errors, key=lambda e: (e.line or 0, e.column or 0))
+
+
 class Config:
     """The parsed .conf plus its groups and the paths it names (resolved next to the file)."""
 
@@ -69,28 +113,13 @@ class Config:
         self.path = path
         doc = load_conf(path)
         self.doc = doc
+        errors = conf_errors(doc)
+        if errors:  # the first of what ``cromat conf check`` reports: the module and the check never disagree
+            raise errors[0]
         self.values = doc.to_struct(UquadConfig)
         self.quad = doc.group("QUAD", "model").to_struct(QuadParams)
         self.lqr = doc.group("LQR", "weights").to_struct(LqrConf)
         self.anti_windup = doc.group("ANTI_WINDUP", "integral").to_struct(AntiWindupConf)
-        v = self.values
-        for key, n, got in (("q", 12, self.lqr.q), ("q_int", 4, self.lqr.q_int), ("r", 4, self.lqr.r),
-                            ("th_dist", 4, self.anti_windup.th_dist), ("th_max", 4, self.anti_windup.th_max),
-                            ("th_accum", 4, self.anti_windup.th_accum)):
-            if len(got) != n:
-                group = self.lqr_group if key in ("q", "q_int", "r") else self.aw_group
-                entry = group.entries[key]
-                raise ConfError(f"key {key!r} must have {n} values, has {len(got)}", path=str(path), line=entry.line)
-        if not 0 < v.MOTOR_MIN < v.MOTOR_MAX:
-            entry = doc.entries.get("MOTOR_MIN")
-            raise ConfError("MOTOR_MIN must be > 0 and below MOTOR_MAX", path=str(path),
-                            line=entry.line if entry else None)
-        if v.IMU_FIR and v.IMU_QUEUE_LEN <= len(v.IMU_FIR):
-            entry = doc.entries.get("IMU_QUEUE_LEN") or doc.entries["IMU_FIR"]
-            raise ConfError(f"IMU_QUEUE_LEN ({v.IMU_QUEUE_LEN}) must be longer than the IMU_FIR filter "
-                            f"({len(v.IMU_FIR)} coefficients)", path=str(path), line=entry.line)
-        if v.CONTROL_EVERY < 1:
-            raise ConfError("CONTROL_EVERY must be ≥ 1", path=str(path), line=doc.entries["CONTROL_EVERY"].line)
 
     @property
     def lqr_group(self):  # noqa: ANN201 - a ConfGroup

@@ -41,7 +41,7 @@ from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.uquad import model
 from modules.uquad.calibration import load_calibration
-from modules.uquad.config import load_config
+from modules.uquad.config import conf_errors, load_config
 from modules.uquad.core import FlightCore
 from modules.uquad.geo import Home
 from modules.uquad.gps import FakeGps, LocalGps, NmeaReader
@@ -76,6 +76,8 @@ class UquadModule(Module):
     control = Control(ControlEntradaUquad, {"slot_entrada_modo": "modo", "slot_entrada_path": "path",
                                             "slot_entrada_task": "task"})
     error_slot = "error"
+    conf_errors = staticmethod(conf_errors)
+    """The uQuad's check of its part of the robot .conf (``cromat launch --check``, ``cromat conf check``)."""
 
     def __init__(self, context: Any) -> None:
         super().__init__(context)

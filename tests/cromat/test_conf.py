@@ -1,4 +1,6 @@
-"""``cromat conf check FILE``: every bad value of the UAV's .conf is reported with its file:line, all at once."""
+"""``cromat conf check FILE``: every bad value of a robot's .conf is reported with its file:line, all at once: the
+UAV's DSP keys and the RAL's limits, the uQuad's keys and groups; by default with the modules of the manifests
+beside the file that name it."""
 
 from __future__ import annotations
 
@@ -38,6 +40,12 @@ def broken(tmp_path: Path, old: str, new: str) -> tuple[Path, int]:
     ("MAX_SPEED: 8.0", "MAX_SPED: 8.0", "missing required key 'MAX_SPEED': is 'MAX_SPED' a misspelling?"),
     ("    Kp=0.045", "    Kpp=0.045", "missing required key 'Kp' in group 'PID: ROLL': is 'Kpp' a misspelling?"),
     ("Kp=0.045", "Kp=much", "key 'Kp' in group 'PID: ROLL': invalid value 'much'"),
+    ("MAX_HEIGHT: 120.0", "MAX_HEIGHT: high", "key 'MAX_HEIGHT': invalid value 'high'"),
+    ("MAX_HEIGHT: 120.0", "MAX_HEIGHT: -5", "key 'MAX_HEIGHT': invalid value '-5': expected `float` > 0"),
+    ("CRUISE_SPEED: 5.0", "CRUISE_SPEED: 9.0", "CRUISE_SPEED 9 is above MAX_SPEED 8"),
+    ("GEOFENCE: [37.4117, -6.0025, 3000]", "GEOFENCE: [37.4117, -6.0025, 0]",
+     "GEOFENCE must be [latitude, longitude, radius in m > 0]"),
+    ("GEOFENCE: [37.4117, -6.0025, 3000]", "GEOFENCE: [37.4117, -6.0025]", "key 'GEOFENCE'"),
 ])
 def test_each_bad_value_is_reported_at_its_line(tmp_path, old, new, says):
     path, line = broken(tmp_path, old, new)
@@ -69,7 +77,7 @@ def test_the_shipped_conf_is_valid_through_the_cromat_command():
                           str(ROOT / "bbcs_conf" / "uav1_sim.toml")], cwd=ROOT, env=child_env(),
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
-    assert "ok (checked by modules.dsp.process:DspModule)" in out.stdout
+    assert "ok (checked by modules.dsp.process:DspModule, ral.process:Ral)" in out.stdout
 
 
 def test_the_cromat_command_exits_non_zero_on_a_bad_value(tmp_path):
@@ -78,3 +86,53 @@ def test_the_cromat_command_exits_non_zero_on_a_bad_value(tmp_path):
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 1
     assert f"{path}:{line}:1: key 'MAX_SPEED'" in out.stderr
+
+
+UQUAD1 = ROOT / "bbcs_conf" / "uquad1.conf"
+UQUAD = "modules.uquad.flight_module:UquadModule"
+
+
+def broken_uquad(tmp_path: Path, old: str, new: str) -> tuple[Path, int]:
+    """uquad1.conf (and the manifest that names it, beside it) with ``old`` replaced by ``new``."""
+    text = UQUAD1.read_text()
+    assert old in text
+    (tmp_path / "uquad1_sim.toml").write_text((ROOT / "bbcs_conf" / "uquad1_sim.toml").read_text()
+                                              .replace('pythonpath = [".."]', f'pythonpath = ["{ROOT}"]'))
+    path = tmp_path / "uquad1.conf"
+    path.write_text(text.replace(old, new, 1))
+    return path, text[: text.index(old)].count("\n") + 1
+
+
+def test_the_uquad_conf_is_checked_by_the_manifest_beside_it(capsys):
+    assert main(["check", str(UQUAD1)]) == 0
+    out = capsys.readouterr().out
+    assert f"ok (checked by {UQUAD}, ral.process:Ral)" in out, out
+
+
+@pytest.mark.parametrize("old,new,says", [
+    ("    q_int = [0.4 0.4 0.8 0.1]", "    q_int = [0.4 0.4 0.8]",
+     "key 'q_int' in group 'LQR: weights' must have 4 values, has 3"),
+    ("MOTOR_MIN: 300.0", "MOTOR_MIN: 900.0", "MOTOR_MIN must be > 0 and below MOTOR_MAX"),
+    ("MOTOR_MIN: 300.0", "MOTOR_MIN: slow", "key 'MOTOR_MIN': invalid value 'slow'"),
+    ("QUAD: model {", "QUAD: modle {", "missing group 'QUAD: model'"),
+    ("MAX_SPEED: 4.0", "MAX_SPEED: 0", "key 'MAX_SPEED': invalid value '0': expected `float` > 0"),
+])
+def test_each_bad_uquad_value_is_reported(tmp_path, capsys, old, new, says):
+    path, line = broken_uquad(tmp_path, old, new)
+    assert main(["check", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert says in err, err
+    if "group" not in says or "must have" in says:
+        assert f"{path}:{line}:" in err, err
+    assert f"(checked by {UQUAD}, ral.process:Ral)" in err
+    assert "DSP_PORT" not in err, "the UAV's DSP keys are not asked of a uQuad"
+
+
+def test_the_uquad_module_refuses_what_the_check_reports(tmp_path):
+    from bbcs.conf import ConfError
+    from modules.uquad.config import load_config
+
+    path, line = broken_uquad(tmp_path, "MOTOR_MIN: 300.0", "MOTOR_MIN: 900.0")
+    with pytest.raises(ConfError) as info:
+        load_config(path)
+    assert str(info.value) == str(check_file(path, [UQUAD])[0])
