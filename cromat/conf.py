@@ -4,7 +4,7 @@ The file's syntax is checked by :mod:`bbcs.conf`; its values by the modules that
 with a ``conf_errors(doc) -> list[ConfError]`` attribute (e.g. ``modules.dsp.process:DspModule``). Which classes:
 those of ``--manifest`` (the same check ``cromat launch --check`` runs), those given with ``--class``, or by
 default those of every manifest beside the file that names it as its ``robot.conf`` (``bbcs_conf/uquad1.conf`` is
-checked by ``uquad1_sim.toml``'s modules); with no such manifest, the UAV's modules (DSP and RAL).
+checked by ``uquad1_sim.toml``'s modules); with no such manifest, the UAV's modules (DSP, lidar logger, RAL).
 """
 
 from __future__ import annotations
@@ -19,9 +19,10 @@ from typing import Any
 
 from bbcs.conf import ConfDocument, ConfError, load_conf
 
-DEFAULT_CLASSES = ("modules.dsp.process:DspModule", "ral.process:Ral")
+DEFAULT_CLASSES = ("modules.dsp.process:DspModule", "modules.lidar_logger.module:LidarLoggerModule",
+                   "ral.process:Ral")
 """The module classes whose .conf part ``cromat conf check FILE`` checks when no manifest beside it names the file
-(the UAV's: its DSP and the RAL's limits)."""
+(the UAV's: its DSP, the lidar logger's group and the RAL's limits)."""
 
 Checker = Callable[[ConfDocument], list[ConfError]]
 

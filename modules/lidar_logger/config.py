@@ -24,7 +24,7 @@ from typing import Annotated
 
 import msgspec
 
-from bbcs.conf import ConfError, load_conf
+from bbcs.conf import ConfDocument, ConfError, load_conf
 from modules.lidar_logger.georef import Mounting
 from modules.lidar_logger.logger import LoggerSettings
 from modules.lidar_logger.vehicles import VEHICLES, vehicle_key
@@ -71,23 +71,36 @@ class LidarConf(msgspec.Struct, frozen=True, kw_only=True, rename="upper", forbi
             sync_scanner_clock=self.sync_scanner_clock, progress=progress)
 
 
+def conf_errors(doc: ConfDocument) -> list[ConfError]:
+    """Every mistake in the ``LIDAR: logger`` group of a parsed .conf, each with file:line, for ``cromat conf
+    check`` and ``cromat launch --check`` (``LidarLoggerModule.conf_errors``); a .conf without the group has none
+    (the module then takes everything from its params)."""
+    group = next((g for g in doc.groups_of(CONF_GROUP[0]) if g.name == CONF_GROUP[1]), None)
+    if group is None:
+        return []
+    errors = group.errors_for(LidarConf)
+    vehicle = group.entries.get("VEHICLE")
+    if vehicle is not None and isinstance(vehicle.value, str):
+        try:
+            vehicle_key(vehicle.value)
+        except ValueError as exc:
+            errors.append(ConfError(str(exc), path=doc.path, line=vehicle.line, column=vehicle.column))
+    return sorted(errors, key=lambda e: (e.line or 0, e.column or 0))
+
+
 def load_lidar_conf(path: str | os.PathLike[str], *, required: bool = True) -> LidarConf | None:
-    """Read the ``LIDAR: logger`` group; any problem is a ConfError with file and line. Without the group:
-    a ConfError, or None when not ``required``."""
+    """Read the ``LIDAR: logger`` group; any problem is a ConfError with file and line (the first of
+    :func:`conf_errors`). Without the group: a ConfError, or None when not ``required``."""
     doc = load_conf(path)
     groups = [g for g in doc.groups_of(CONF_GROUP[0]) if g.name == CONF_GROUP[1]]
     if not groups:
         if required:
             raise ConfError(f"missing group '{CONF_GROUP[0]}: {CONF_GROUP[1]}'", path=str(path))
         return None
-    group = groups[0]
-    conf = group.to_struct(LidarConf)
-    try:
-        vehicle_key(conf.vehicle)
-    except ValueError as exc:
-        entry = group.entries["VEHICLE"]
-        raise ConfError(str(exc), path=str(path), line=entry.line, column=entry.column) from None
-    return conf
+    errors = conf_errors(doc)
+    if errors:
+        raise errors[0]
+    return groups[0].to_struct(LidarConf)
 
 
 def merge_lidar_conf(base: LidarConf | None, overrides: dict[str, object]) -> LidarConf:

@@ -28,7 +28,7 @@ from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.lidar import LidarScan
 from bbcs.module import Module
 from bbcs.slots import OutputSlot, Safety
-from modules.lidar_logger.config import LidarConf, load_lidar_conf, merge_lidar_conf
+from modules.lidar_logger.config import LidarConf, conf_errors, load_lidar_conf, merge_lidar_conf
 from modules.lidar_logger.logdata import ScanRecord
 from modules.lidar_logger.logger import LidarLogger
 from modules.lidar_logger.mtdata import Pose
@@ -74,6 +74,9 @@ class LidarLoggerModule(Module):
     )
     error_slot = "error"
     tick_period = 1.0
+    conf_errors = staticmethod(conf_errors)
+    """The logger's check of the robot .conf's ``LIDAR: logger`` group (``cromat launch --check``, ``cromat conf
+    check``)."""
 
     def __init__(self, context: ModuleContext) -> None:
         super().__init__(context)

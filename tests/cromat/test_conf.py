@@ -46,6 +46,9 @@ def broken(tmp_path: Path, old: str, new: str) -> tuple[Path, int]:
     ("GEOFENCE: [37.4117, -6.0025, 3000]", "GEOFENCE: [37.4117, -6.0025, 0]",
      "GEOFENCE must be [latitude, longitude, radius in m > 0]"),
     ("GEOFENCE: [37.4117, -6.0025, 3000]", "GEOFENCE: [37.4117, -6.0025]", "key 'GEOFENCE'"),
+    ("VEHICLE: CB5000", "VEHICLE: ZEPPELIN", "ZEPPELIN"),
+    ("LDMRS_PORT: 12002", "LDMRS_PORT: 70000", "key 'LDMRS_PORT' in group 'LIDAR: logger': invalid value '70000'"),
+    ("BINARY_LOG: true", "BINARY_LOGS: true", "unknown key 'BINARY_LOGS' in group 'LIDAR: logger'"),
 ])
 def test_each_bad_value_is_reported_at_its_line(tmp_path, old, new, says):
     path, line = broken(tmp_path, old, new)
@@ -77,7 +80,7 @@ def test_the_shipped_conf_is_valid_through_the_cromat_command():
                           str(ROOT / "bbcs_conf" / "uav1_sim.toml")], cwd=ROOT, env=child_env(),
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
-    assert "ok (checked by modules.dsp.process:DspModule, ral.process:Ral)" in out.stdout
+    assert "ok (checked by modules.dsp.process:DspModule, ral.process:Ral)" in out.stdout  # uav1_sim has no lidar
 
 
 def test_the_cromat_command_exits_non_zero_on_a_bad_value(tmp_path):
@@ -136,3 +139,20 @@ def test_the_uquad_module_refuses_what_the_check_reports(tmp_path):
     with pytest.raises(ConfError) as info:
         load_config(path)
     assert str(info.value) == str(check_file(path, [UQUAD])[0])
+
+
+def test_the_uav_conf_is_checked_by_every_module_of_the_manifests_beside_it(capsys):
+    assert main(["check", str(UAV1)]) == 0
+    out = capsys.readouterr().out
+    assert ("ok (checked by modules.dsp.process:DspModule, modules.lidar_logger.module:LidarLoggerModule, "
+            "ral.process:Ral)") in out, out
+
+
+def test_the_lidar_logger_refuses_what_the_check_reports(tmp_path):
+    from bbcs.conf import ConfError
+    from modules.lidar_logger.config import load_lidar_conf
+
+    path, _ = broken(tmp_path, "LDMRS_PORT: 12002", "LDMRS_PORT: 70000")
+    with pytest.raises(ConfError) as info:
+        load_lidar_conf(path)
+    assert str(info.value) == str(check_file(path)[0])
