@@ -37,7 +37,7 @@ from bbcs.net import free_port, wait_tcp
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import links, mesh, route_audit, secure
+from module_manager import links, mesh, peer_mesh, route_audit, secure
 from module_manager.lines import print_line
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, cpu_list, route_problem
 from module_manager.process import Child, stop_children
@@ -48,6 +48,11 @@ from module_manager.tasks import Changes, TaskBook
 ROOT = Path(__file__).resolve().parents[1]
 ACK_TIMEOUT_S = mri.MANAGER_ACK_S
 MAX_ERRORS = 32
+MESH_POLL_S = 0.05
+"""How often the launch looks at the peer modules' links while it waits for them (``peer_mesh``)."""
+MESH_WAIT_S = 30.0
+"""How long "all modules up" waits for every pair of peer modules to link directly; then it is said with the pairs
+still apart (a launch that never says it is up would be worse)."""
 _decode_error = msgspec.msgpack.Decoder(ErrorReport).decode
 _PLACEHOLDER = re.compile(r"\{(port:[A-Za-z0-9_]+|python|manifest_dir|conf|robot)\}")
 
@@ -158,6 +163,9 @@ class Manager:
         self._waiting: set[str] = set()
         """Modules not started yet because a module they start ``after`` is not up yet."""
         self.all_up_at: float | None = None
+        self._mesh_since: float | None = None
+        """When every module was first seen up (``links = "peers"``: the wait for their direct links starts)."""
+        self._mesh_polled = 0.0
         self._ack_decode = msgspec.msgpack.Decoder(RouteAck).decode
         self.route_drifts = 0  # routes found differing from the manager's view (module_manager/route_audit.py)
         self._beat_decode = msgspec.msgpack.Decoder(Heartbeat).decode
@@ -539,9 +547,28 @@ class Manager:
                 self._keep_standby(mod)
             self._report_changes()
             if self.all_up_at is None and all(m.sup.phase is Phase.UP for m in self.modules.values()):
-                self.all_up_at = now
-                self.out(f"all {len(self.modules)} modules up in {now - self.t0:.2f} s")
-                self.print_status()
+                unlinked = self._unlinked(now)
+                if unlinked is not None:
+                    self.all_up_at = now
+                    apart = f" (not linked directly yet: {', '.join(f'{a}-{b}' for a, b in unlinked)})" if unlinked \
+                        else ""
+                    self.out(f"all {len(self.modules)} modules up in {now - self.t0:.2f} s{apart}")
+                    self.print_status()
+
+    def _unlinked(self, now: float) -> list[tuple[str, str]] | None:
+        """With ``links = "peers"``, once every module is up: None while some pair of modules has not linked
+        directly yet (looked at every ``MESH_POLL_S``, for at most ``MESH_WAIT_S``), then the pairs still apart
+        (empty: all linked). Router links: an empty list at once. A datum sent between two modules while their
+        link forms can be lost (docs/bus.md), so "all modules up" waits for the links."""
+        if links.links(self.m) != "peers":
+            return []
+        if self._mesh_since is None:
+            self._mesh_since = now
+        elif now < self._mesh_polled + MESH_POLL_S:
+            return None
+        self._mesh_polled = now
+        pids = {name: m.child.pid for name, m in self.modules.items() if m.child is not None}
+        return peer_mesh.verdict(peer_mesh.unlinked_pairs(pids), now - self._mesh_since, MESH_WAIT_S)
 
     def _fail_tasks_using(self, module: str, detail: str) -> None:
         """A module the running tasks rely on went down: those tasks end as failed (their routes/modes restored

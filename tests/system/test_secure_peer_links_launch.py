@@ -9,16 +9,14 @@ module (vision's real certificate, no policy of its own) writing pan & tilt's DS
 to the DSP process gets nothing to the simulator, while the same bytes do reach a policy-less witness of the DSP's
 identity, so the forgery really travelled a direct link.
 
-The launch says "all modules up" before every pair of peer modules has linked directly, and a datum sent between two
-modules while their link forms can be lost (docs/bus.md, "Joining a running stream over peer links"): a ground
-station's pan & tilt task sent at once lost its angles in one CI run. So the fixture first waits until the kernel's
-socket tables show a direct link between every pair of modules, which is the state the access rules are tested in.
+A datum sent between two modules while their direct link forms can be lost (docs/bus.md): a ground station's pan &
+tilt task sent right after "all modules up" once lost its angles in CI, when the launch said it before every pair
+of modules had linked. The launch now says it only once the kernel's socket tables show a direct link between every
+pair (module_manager/peer_mesh.py); the fixture checks that in the same tables before anything is sent.
 """
 
 from __future__ import annotations
 
-import itertools
-import os
 import re
 import sys
 import threading
@@ -37,6 +35,7 @@ from bbcs.testing import wait_until
 from cromat import certs
 from module_manager import links, secure
 from module_manager.manifest import load_manifest
+from module_manager.peer_mesh import unlinked_pairs
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_secure_launch import MODULES, ROBOT, Robot, launched, secure_manifest, sees_every_module  # noqa: E402
@@ -58,7 +57,8 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     with launched(manifest, pki, tmp, port) as robot:
         pids = module_pids(robot)
         assert set(pids) == MODULES, pids
-        wait_until(lambda: not unlinked_pairs(pids), 60, "a direct link between every pair of modules")
+        up = next(line for line in robot.launch.lines if f"all {len(MODULES)} modules up" in line)
+        assert "not linked directly" not in up and unlinked_pairs(pids) == [], up
         yield robot
 
 
@@ -66,35 +66,6 @@ def module_pids(robot: Robot) -> dict[str, int]:
     """Module name → pid, from the launch's "NAME starting, pid N" lines."""
     found = (re.match(r"\s+(\w+)\s+starting, pid (\d+)", line) for line in robot.launch.lines)
     return {m.group(1): int(m.group(2)) for m in found if m}
-
-
-def tcp_ports(pid: int) -> tuple[set[int], set[int]]:
-    """The ports ``pid`` listens on and the remote ports of its established TCP connections (its sockets, found
-    through ``/proc/PID/fd``, looked up in ``/proc/PID/net/tcp``)."""
-    inodes = set()
-    for fd in Path(f"/proc/{pid}/fd").iterdir():
-        try:
-            target = os.readlink(fd)
-        except OSError:
-            continue
-        if target.startswith("socket:["):
-            inodes.add(target[len("socket:["):-1])
-    listening, remote = set(), set()
-    for line in Path(f"/proc/{pid}/net/tcp").read_text().splitlines()[1:]:
-        f = line.split()
-        if f[9] in inodes:
-            if f[3] == "0A":  # LISTEN
-                listening.add(int(f[1].rsplit(":", 1)[1], 16))
-            elif f[3] == "01":  # ESTABLISHED
-                remote.add(int(f[2].rsplit(":", 1)[1], 16))
-    return listening, remote
-
-
-def unlinked_pairs(pids: dict[str, int]) -> list[tuple[str, str]]:
-    """Pairs of modules with no TCP connection from one to the other's listening port (no direct peer link)."""
-    ports = {name: tcp_ports(pid) for name, pid in pids.items()}
-    return [(a, b) for a, b in itertools.combinations(sorted(ports), 2)
-            if not (ports[a][1] & ports[b][0] or ports[b][1] & ports[a][0])]
 
 
 def _pans(robot: Robot) -> list[float]:
