@@ -50,9 +50,10 @@ ACK_TIMEOUT_S = mri.MANAGER_ACK_S
 MAX_ERRORS = 32
 MESH_POLL_S = 0.05
 """How often the launch looks at the peer modules' links while it waits for them (``peer_mesh``)."""
-MESH_WAIT_S = 30.0
-"""How long "all modules up" waits for every pair of peer modules to link directly; then it is said with the pairs
-still apart (a launch that never says it is up would be worse)."""
+MESH_WAIT_S = 10.0
+"""How long a peer module (and "all modules up") waits for its direct links; then it counts as up all the same, the
+launch naming what is still apart (a module that never comes up would be worse; links form in well under a second
+here). Less than a module's default ``start_timeout_s``, which would otherwise kill it first."""
 _decode_error = msgspec.msgpack.Decoder(ErrorReport).decode
 _PLACEHOLDER = re.compile(r"\{(port:[A-Za-z0-9_]+|python|manifest_dir|conf|robot)\}")
 
@@ -100,6 +101,9 @@ class _Module:
         """A warm process that becomes this module at its next restart (policy ``standby``: standby.py)."""
         self.standby_failures = 0
         self.warm_starts = 0
+        self.links_since: float | None = None
+        """When this run started waiting only for its direct links (``links = "peers"``)."""
+        self.links_polled = 0.0
 
 
 def _cpus(cpus: list[int] | None) -> frozenset[int] | None:
@@ -137,7 +141,8 @@ class Manager:
         self.lock = threading.RLock()
         self.changed = threading.Condition(self.lock)
         self.stop_event = threading.Event()
-        self.modules = {name: _Module(info, Supervisor(info.policy, needs_ack=bool(info.inputs)))
+        self.modules = {name: _Module(info, Supervisor(info.policy, needs_ack=bool(info.inputs),
+                                                           needs_links=links.links(manifest) == "peers"))
                         for name, info in manifest.modules.items()}
         self.tasks = TaskBook(manifest.tasks, frozenset(n for n, m in manifest.modes.items() if not m.restore))
         self.task_uses = task_modules(manifest)
@@ -526,7 +531,7 @@ class Manager:
         with self.lock:
             self._start_ready_modules()
             now = self.clock()
-            for mod in self.modules.values():
+            for name, mod in self.modules.items():
                 child = mod.child
                 if child is not None:
                     code = child.poll()
@@ -540,6 +545,7 @@ class Manager:
                     elif mod.kill_deadline is not None and now > mod.kill_deadline:
                         child.signal(signal.SIGKILL)
                         mod.kill_deadline = None
+                self._check_links(name, mod, now)
                 actions = mod.sup.tick(now)
                 if actions:
                     self._perform(mod, actions)
@@ -554,6 +560,30 @@ class Manager:
                         else ""
                     self.out(f"all {len(self.modules)} modules up in {now - self.t0:.2f} s{apart}")
                     self.print_status()
+
+    def _check_links(self, name: str, mod: _Module, now: float) -> None:
+        """A module waiting only for its direct links (``links = "peers"``) counts as up once the kernel's socket
+        tables show a link between it and every module already up (looked at every ``MESH_POLL_S``); after
+        ``MESH_WAIT_S`` it counts as up all the same, and the launch names the modules it has not linked to."""
+        if not mod.sup.awaiting_links or mod.child is None:
+            mod.links_since = None
+            return
+        if mod.links_since is None:
+            mod.links_since = now
+        elif now < mod.links_polled + MESH_POLL_S:
+            return
+        mod.links_polled = now
+        pids = {n: m.child.pid for n, m in self.modules.items() if m.child is not None and m.sup.phase is Phase.UP}
+        pids[name] = mod.child.pid
+        apart = [pair for pair in peer_mesh.unlinked_pairs(pids) if name in pair]
+        settled = peer_mesh.verdict(apart, now - mod.links_since, MESH_WAIT_S)
+        if settled is None:
+            return
+        if settled:
+            others = sorted(a if b == name else b for a, b in settled)
+            self.out(f"  {name:<11} up without a direct link to {', '.join(others)} after {MESH_WAIT_S:g} s")
+        mod.sup.links_formed(now)
+        self._touch()
 
     def _unlinked(self, now: float) -> list[tuple[str, str]] | None:
         """With ``links = "peers"``, once every module is up: None while some pair of modules has not linked

@@ -87,6 +87,9 @@ class Supervisor:
     policy: Policy
     needs_ack: bool = True
     """Whether the module must acknowledge its routes (it has routed inputs) before it counts as up."""
+    needs_links: bool = False
+    """Whether the module must have linked directly to every module already up before it counts as up (``[bus]
+    links = "peers"``: a datum sent between two modules while their link forms can be lost, docs/bus.md)."""
     phase: Phase = Phase.STOPPED
     restarts: int = 0
     """Restarts done by the supervisor (not the ones asked for through the MRI)."""
@@ -94,6 +97,7 @@ class Supervisor:
     reason: str = ""
     alive: bool = False
     routes_ok: bool = False
+    linked: bool = False
     unreachable: bool = False
     started_at: float = 0.0
     next_start_at: float | None = None
@@ -150,6 +154,7 @@ class Supervisor:
         self.started_at = now
         self.alive = False
         self.routes_ok = not self.needs_ack
+        self.linked = not self.needs_links
         self.unreachable = False
         self._deleted_at = None
         self._last_beat = None
@@ -181,6 +186,18 @@ class Supervisor:
         """The manager asked for new routes: a module still starting must acknowledge them again."""
         if self.phase is Phase.STARTING and self.needs_ack:
             self.routes_ok = False
+
+    @property
+    def awaiting_links(self) -> bool:
+        """Alive with its routes, starting, waiting only for its direct links (the manager looks at the kernel's
+        socket tables: module_manager/peer_mesh.py)."""
+        return self.phase is Phase.STARTING and self.alive and self.routes_ok and not self.linked
+
+    def links_formed(self, now: float) -> None:
+        """Every module already up has a direct link to this one (or the manager stopped waiting for them)."""
+        if self.phase is Phase.STARTING:
+            self.linked = True
+            self._promote(now)
 
     def heartbeat(self, now: float) -> None:
         self._last_beat = now
@@ -238,7 +255,7 @@ class Supervisor:
             self._spawns += 1
             return [Spawn(restart_count=count)]
         if self.phase is Phase.STARTING and now - self.started_at > self.policy.start_timeout_s:
-            what = "alive" if not self.alive else "route acknowledgement"
+            what = "alive" if not self.alive else "route acknowledgement" if not self.routes_ok else "direct links"
             return self._kill(f"start timeout: no {what} after {self.policy.start_timeout_s:g} s",
                               graceful=False, failure=True)
         if self.phase is Phase.UP:
@@ -265,7 +282,7 @@ class Supervisor:
         return str(self.phase)
 
     def _promote(self, now: float) -> None:
-        if self.phase is Phase.STARTING and self.alive and self.routes_ok:
+        if self.phase is Phase.STARTING and self.alive and self.routes_ok and self.linked:
             self.phase = Phase.UP
             self.reason = ""
             self._last_beat = now

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
 from pathlib import Path
 
+from bbcs.contracts import mri
+from bbcs.testing import wait_until
 from module_manager.peer_mesh import tcp_ports, unlinked_pairs, verdict
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -56,11 +59,18 @@ def test_the_launch_waits_for_unlinked_pairs_then_names_them():
     assert verdict([], 0.0, 30.0) == [], "every pair linked: said up at once"
 
 
-def test_a_peer_links_launch_is_up_only_once_every_module_is_linked(tmp_path):
-    def peers(text: str) -> str:
-        return text.replace('listen = ["tcp/127.0.0.1:{port:router}"]',
-                            'listen = ["tcp/127.0.0.1:{port:router}"]\nlinks = "peers"')
+def peers(text: str) -> str:
+    return text.replace('listen = ["tcp/127.0.0.1:{port:router}"]',
+                        'listen = ["tcp/127.0.0.1:{port:router}"]\nlinks = "peers"')
 
+
+def modules(session) -> dict[str, mri.ModuleStatus]:
+    reply = mri.call(session, "r1", "modules", mri.ListModules(), 20.0)
+    assert reply.ok
+    return {m.name: m for m in reply.data.modules}
+
+
+def test_a_peer_links_launch_is_up_only_once_every_module_is_linked(tmp_path):
     la = Launch(write_manifest(tmp_path, edit=peers), tmp_path)
     try:
         la.wait_line("all 3 modules up")
@@ -70,5 +80,28 @@ def test_a_peer_links_launch_is_up_only_once_every_module_is_linked(tmp_path):
         assert set(pids) == {"src_a", "src_b", "sink"}, la.lines
         assert unlinked_pairs(pids) == [], f"said up while modules were apart: {up}"
         assert "not linked directly" not in up
+    finally:
+        la.cleanup()
+
+
+def test_a_restarted_peer_module_is_up_only_once_linked_to_every_module_up(tmp_path, clients):
+    la = Launch(write_manifest(tmp_path, edit=peers), tmp_path)
+    try:
+        la.wait_line("all 3 modules up")
+        s = clients(la.port)
+        before = modules(s)["sink"]
+        os.kill(before.pid, signal.SIGKILL)
+        seen: dict[str, int] = {}
+
+        def sink_up_again() -> bool:
+            now = modules(s)
+            if now["sink"].state == "up" and now["sink"].pid != before.pid:
+                # the tables read at once: "up" must already mean linked
+                seen.update(apart=len(unlinked_pairs({n: m.pid for n, m in now.items()})))
+                return True
+            return False
+
+        wait_until(sink_up_again, 60, "the sink up again")
+        assert seen["apart"] == 0, "the restarted sink said up before linking to the others"
     finally:
         la.cleanup()

@@ -37,6 +37,37 @@ def test_up_needs_alive_and_matching_route_ack_in_any_order():
     assert other.phase is Phase.UP
 
 
+def test_a_peer_module_is_up_only_once_its_direct_links_formed_and_again_after_a_restart():
+    sup = Supervisor(Policy(), needs_ack=True, needs_links=True)
+    sup.start(0.0)
+    assert sup.tick(0.0) == [Spawn(restart_count=0)]
+    sup.spawned(0.0)
+    assert not sup.awaiting_links
+    sup.liveliness(0.1, True)
+    sup.routes_acknowledged(0.2, True)
+    assert sup.phase is Phase.STARTING and sup.awaiting_links, "alive and routed, its links not formed yet"
+    sup.links_formed(0.3)
+    assert sup.phase is Phase.UP and not sup.awaiting_links
+    sup.exited(1.0, -9)
+    assert sup.tick(1.0) == [Spawn(restart_count=1)]
+    sup.spawned(1.0)
+    sup.liveliness(1.1, True)
+    sup.routes_acknowledged(1.1, True)
+    assert sup.phase is Phase.STARTING and sup.awaiting_links, "a new run links again before it counts as up"
+    sup.links_formed(1.2)
+    assert sup.phase is Phase.UP
+
+
+def test_a_peer_module_that_never_links_is_killed_at_its_start_timeout_naming_the_links():
+    sup = Supervisor(Policy(start_timeout_s=5.0), needs_ack=False, needs_links=True)
+    sup.start(0.0)
+    sup.tick(0.0)
+    sup.spawned(0.0)
+    sup.liveliness(0.1, True)
+    [kill] = sup.tick(5.1)
+    assert isinstance(kill, Kill) and kill.reason == "start timeout: no direct links after 5 s"
+
+
 def test_module_without_routed_inputs_is_up_when_alive():
     sup = started(Policy(), needs_ack=False)
     sup.liveliness(0.1, True)
