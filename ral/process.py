@@ -63,6 +63,7 @@ from ral.tasks import (
     judge,
     limits_conf_errors,
     load_limits,
+    pan_tilt_check,
 )
 
 MAX_ERRORS = 20
@@ -227,6 +228,11 @@ class Ral(Module):
         self._traj_seen = threading.Condition()
         self._traj_next_id = int(time.time()) % 1_000_000 * 1000
         self._generated: dict[int, t.Waypoint] = {}
+        self._pt_sent: dict[int, float] = {}
+        """Pan & tilt tasks (id) whose angles have not been seen reached → when they were last sent
+        (``ral.tasks.pan_tilt_check``)."""
+        self.pt_resends = 0
+        """Pan & tilt angles sent again because the telemetry showed the gimbal elsewhere."""
         """Task id → last waypoint of the path the generator planned for it (what completes a survey/orbit)."""
         self._speed_acked = threading.Condition()
         self._fleet: FleetLink | None = None
@@ -515,12 +521,28 @@ class Ral(Module):
             if tel.airborne is False and tel.position is not None:
                 self.home = tel.position
             verdicts = []
+            resend = []
             for task_id, info in self._live.items():
                 v = judge(info, self._progress[task_id], tel, self.home, self.limits, self.judge_cfg, now,
                           generated=self._generated.get(task_id))
                 self._progress[task_id] = v.progress
                 if v.status != "running":
                     verdicts.append((info, v.status, v.detail))
+                elif task_id in self._pt_sent:
+                    check = pan_tilt_check(info.params, tel, self._pt_sent[task_id], now)
+                    if check == "there":
+                        del self._pt_sent[task_id]  # arrived: whatever moves the gimbal later is not fought
+                    elif check == "resend":
+                        self._pt_sent[task_id] = now
+                        resend.append(info.params)
+            for task_id in set(self._pt_sent) - set(self._live):
+                del self._pt_sent[task_id]
+        for req in resend:
+            assert isinstance(req, t.SetPanTilt)
+            self.pt_resends += 1
+            self.log.info("pan & tilt at %s/%s, not at the task's %g/%g: its angles sent again", tel.pan_deg,
+                          tel.tilt_deg, req.pan, req.tilt)
+            self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
         for info, status, detail in verdicts:
             self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status=status, detail=detail))
 
@@ -697,6 +719,8 @@ class Ral(Module):
             self.publish("pt_datos", DatosPT(latitud=req.lat, longitud=req.lon, altura=req.alt))
         elif isinstance(req, t.SetPanTilt):
             self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
+            with self.lock:
+                self._pt_sent[task_id] = self.clock()
         return None
 
     def _abort(self) -> gri.TaskReply:

@@ -301,6 +301,33 @@ def _stalled(pr: Progress, cfg: JudgeConfig, now: float) -> Verdict:
     return Verdict(pr)
 
 
+# ---------------------------------------------------------------- pan & tilt kept where the task put it
+
+PT_RESEND_S = 2.0
+"""A pan & tilt task's angles are sent again when, this long after they were last sent, the telemetry shows the
+gimbal elsewhere."""
+PT_TOLERANCE_DEG = 2.0
+"""How far the gimbal may be from the task's angles and count as there."""
+
+
+def pan_tilt_check(req: object, tel: RobotTelemetry | None, sent_at: float, now: float,
+                   resend_s: float = PT_RESEND_S, tolerance_deg: float = PT_TOLERANCE_DEG) -> str:
+    """Did a ``SetPanTilt`` task's angles arrive? ``"there"`` (the telemetry shows the gimbal at them: done
+    checking, whatever moves it later), ``"resend"`` (still away ``resend_s`` after they were sent) or ``"wait"``.
+
+    Pan & tilt's DATOS is an unsafe (best effort) state slot by the seed's contract, and the task runs until
+    replaced: one datum lost on its way (a peer link still settling, docs/bus.md) would leave the gimbal pointing away
+    while the ground station is told the task runs. Only until the angles are first seen reached: after that another
+    source (vision tracking, a route the station swapped) may move the gimbal, and must not be fought. No telemetry
+    of the gimbal: nothing to compare, ``"wait"``."""
+    if not isinstance(req, t.SetPanTilt) or tel is None or tel.pan_deg is None or tel.tilt_deg is None:
+        return "wait"
+    pan_off = abs((tel.pan_deg - req.pan + 180.0) % 360.0 - 180.0)
+    if pan_off <= tolerance_deg and abs(tel.tilt_deg - req.tilt) <= tolerance_deg:
+        return "there"
+    return "resend" if now - sent_at >= resend_s else "wait"
+
+
 # ---------------------------------------------------------------- limits from the robot's .conf
 
 

@@ -55,16 +55,16 @@ class StandIn:
             SlotSpec(SPEED_ACK_SLOT, SpeedAck, Direction.OUT, Kind.STATE, Safety.SAFE),
         )
         self.entities.append(self.session.declare_subscriber(keys.slot_key(ROBOT, "ral", "speed"), self._speed))
+        self.state_pub = Publisher(  # the manager's robot state, as the RAL reads it
+            self.session,
+            mri.mri_key(ROBOT, mri.STATE),
+            SlotSpec("state", mri.RobotState, Direction.OUT, Kind.STATE, Safety.SAFE),
+        )
 
     def _speed(self, sample: zenoh.Sample) -> None:
         if self.answer_speed and self.speed_ack_pub is not None:
             msg = msgspec.msgpack.decode(sample.payload.to_bytes(), type=SpeedSegCam)
             self.speed_ack_pub.publish(SpeedAck(speed=msg.speed, accepted=True))
-        self.state_pub = Publisher(
-            self.session,
-            mri.mri_key(ROBOT, mri.STATE),
-            SlotSpec("state", mri.RobotState, Direction.OUT, Kind.STATE, Safety.SAFE),
-        )
 
     def _answer(self, query: zenoh.Query) -> None:
         request = mri.decode_request(query.payload.to_bytes())

@@ -7,8 +7,10 @@ admission and rejection, MRI requests sent, data slots published, events, comple
 
 from __future__ import annotations
 
+import itertools
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -269,5 +271,47 @@ def test_a_path_whose_speed_the_path_follower_never_answers_is_not_sent(rig: Rig
         assert again.accepted, again.reason
         wait_until(lambda: len(paths) == 1, what="the answered task's path on ral/path")
         assert len(paths) == 1, "the unanswered task's path was never published"
+    finally:
+        sub.undeclare()
+
+
+def test_pan_tilt_angles_are_sent_again_while_the_telemetry_shows_the_gimbal_elsewhere(rig: Rig) -> None:
+    """DATOS is best effort: a lost datum must not leave the gimbal away while the station is told the task runs; once
+    the gimbal was seen there, another source moving it is not fought."""
+    from bbcs.contracts.pan_tilt import DatosPT
+    from ral.tasks import PT_RESEND_S
+
+    sent: list[DatosPT] = []
+    sub = rig.gcs.session.declare_subscriber(
+        keys.slot_key(ROBOT, "ral", "pt_datos"),
+        lambda s: sent.append(msgspec.msgpack.decode(s.payload.to_bytes(), type=DatosPT)),
+    )
+    try:
+        reply = rig.gcs.send(ROBOT, gri.SetPanTilt(pan=33.0, tilt=-21.0))
+        assert reply.accepted, reply.reason
+        wait_until(lambda: len(sent) == 1, what="the angles on ral/pt_datos")
+        stamp = itertools.count(100)
+
+        def gimbal_at(pan: float, tilt: float) -> None:
+            rig.manager.telemetry(RobotTelemetry(stamp=float(next(stamp)), pan_deg=pan, tilt_deg=tilt))
+
+        gimbal_at(0.0, 0.0)  # the first datum was lost: the gimbal did not move
+        assert len(sent) == 1, "not at once: the gimbal is given time to get there"
+
+        def resent() -> bool:
+            gimbal_at(0.0, 0.0)
+            return len(sent) >= 2
+
+        wait_until(resent, 3 * PT_RESEND_S + 10, "the angles sent again")
+        assert sent[1].ref_pan == 33.0 and sent[1].ref_tilt == -21.0
+        assert rig.ral.pt_resends >= 1
+        gimbal_at(33.2, -21.1)  # there now: checked once, the RAL stops watching
+        count = len(sent)
+        wait_until(lambda: not rig.ral._pt_sent, 10, "the angles seen reached")
+        deadline = rig.ral.clock() + PT_RESEND_S + 1.0
+        while rig.ral.clock() < deadline:  # an absence is checked over a time: telemetry at 10 Hz through it
+            gimbal_at(0.0, 0.0)  # vision (or a swapped route) moves the gimbal away: not fought
+            time.sleep(0.1)
+        assert len(sent) == count, "once the angles were reached, nothing more is sent"
     finally:
         sub.undeclare()

@@ -247,3 +247,26 @@ def test_a_survey_completes_at_the_generated_paths_last_waypoint_only() -> None:
     assert v.status == "running", "not at the generated path's end"
     v = judge(task, v.progress, at_end, HOME, LIMITS, CFG, 6.0, generated=end)
     assert v.status == "completed"
+
+
+# ---------------------------------------------------------------- pan & tilt angles sent again
+
+
+def gimbal(pan: float | None, tilt: float | None) -> RobotTelemetry:
+    return RobotTelemetry(stamp=0.0, pan_deg=pan, tilt_deg=tilt)
+
+
+def test_pan_tilt_angles_are_sent_again_only_until_the_gimbal_is_seen_there():
+    from ral.tasks import PT_RESEND_S, pan_tilt_check
+
+    req = t.SetPanTilt(pan=33.0, tilt=-21.0)
+    away = gimbal(0.0, 0.0)
+    assert pan_tilt_check(req, away, sent_at=10.0, now=10.0 + PT_RESEND_S - 0.01) == "wait", "give it time first"
+    assert pan_tilt_check(req, away, sent_at=10.0, now=10.0 + PT_RESEND_S) == "resend"
+    assert pan_tilt_check(req, gimbal(33.5, -20.0), 10.0, 10.1) == "there", "within the tolerance, at once"
+    assert pan_tilt_check(req, gimbal(33.0, -25.0), 10.0, 20.0) == "resend", "the tilt alone away"
+    wrap = t.SetPanTilt(pan=179.5, tilt=0.0)
+    assert pan_tilt_check(wrap, gimbal(-179.5, 0.0), 10.0, 20.0) == "there", "1 degree apart across ±180"
+    assert pan_tilt_check(req, gimbal(None, None), 10.0, 20.0) == "wait", "no gimbal telemetry: nothing to compare"
+    assert pan_tilt_check(req, None, 10.0, 20.0) == "wait"
+    assert pan_tilt_check(t.LookAt(lat=37.4, lon=-6.0, alt=0.0), away, 10.0, 20.0) == "wait", "angles tasks only"
