@@ -178,9 +178,13 @@ def test_record_holds_the_scans(lidar_robot, tmp_path):
             assert rep.returncode == 0, rep.stderr
             try:
                 wait_until(lambda: len(replayed) >= len(recorded), 30, "every recorded scan replayed")
-            except AssertionError as exc:  # say how many came, and what the replay said it sent
-                raise AssertionError(f"{exc}: {len(replayed)} of {len(recorded)} on the bus; replay said "
-                                     f"{rep.stdout.strip()!r} {rep.stderr.strip()[-500:]!r}") from None
+            except AssertionError as exc:  # say which came (a prefix: the link went; gaps: drops), what the replay said
+                with lock:
+                    came = [scan.index for scan in replayed]
+                positions = [i for i, scan in enumerate(recorded) if scan.index in set(came)]
+                raise AssertionError(f"{exc}: {len(replayed)} of {len(recorded)} on the bus (positions in the "
+                                     f"recording: {positions}); replay said {rep.stdout.strip()!r} "
+                                     f"{rep.stderr.strip()[-500:]!r}") from None
             with lock:
                 assert replayed == recorded
         finally:
