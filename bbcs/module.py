@@ -299,7 +299,7 @@ class Module:
 
     def run(self) -> None:
         """Join the bus, run the event loop until ``request_stop()``, then undeclare everything and close."""
-        self.session = open_session(self.context.bus)
+        self.session = open_session(self.context.bus, module=True)
         try:
             self._declare()
             with self.lock:

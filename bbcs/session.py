@@ -123,21 +123,28 @@ def zenoh_config(cfg: SessionConfig) -> zenoh.Config:
 
 RUNTIME_ENV = "ZENOH_RUNTIME"
 MODULE_RUNTIME = "(rx: (worker_threads: 1))"
-"""Zenoh's receive runtime in every process but a router: one worker thread instead of Zenoh's two. On a loaded
+"""Zenoh's receive runtime in a module process (``open_session(..., module=True)``): one worker thread instead of
+Zenoh's two. On a loaded
 few-core robot computer a second worker hands each arriving datum from the thread that read it to another one;
 measured (docs/performance.md, "Zenoh's receive runtime"), a slot's one-way p50 over a peer link went from 65-70 to
 54-57 µs, through the router from 112-115 to 100-107 µs, with the same throughput. A router keeps Zenoh's default: it
-reads every link of the robot. A ``ZENOH_RUNTIME`` already in the environment (the operator's) is left alone."""
+reads every link of the robot; so does every process that is not a module (several sessions, or callbacks that may
+block). A ``ZENOH_RUNTIME`` already in the environment (the operator's) is left alone."""
 
 
-def open_session(cfg: SessionConfig) -> zenoh.Session:
+def open_session(cfg: SessionConfig, *, module: bool = False) -> zenoh.Session:
     """Open a session; SessionError says which endpoint could not be reached and why.
+
+    ``module``: this is a module process's session (``bbcs.module.Module``, a bench role standing for one): if it is
+    the process's first, Zenoh's receive runtime gets ``MODULE_RUNTIME``. Other processes (tools, ground stations,
+    the manager, test harnesses holding many sessions) keep Zenoh's default, where a callback that blocks does not
+    stop every other link of the process.
 
     The caller must ``close()`` it on every path: a session with callback subscribers that is never closed
     keeps the interpreter from exiting.
     """
     conf = zenoh_config(cfg)
-    if _runtime_pending and cfg.mode != "router":
+    if module and _runtime_pending and cfg.mode != "router":
         with _runtime_lock:  # the process's first session: Zenoh reads its runtime settings as it starts them
             if _runtime_pending:
                 return _open_first(cfg, conf)

@@ -189,7 +189,7 @@ def role_main(args: argparse.Namespace) -> None:
         threading.Thread(target=lambda: (sys.stdin.read(), echo.request_stop()), daemon=True).start()
         echo.run()
     elif args.role == "echo":
-        s = open_session(_cfg(port, args.mode))
+        s = open_session(_cfg(port, args.mode), module=True)
         pub = s.declare_publisher(raw_pong_key, **qos)
         sub = s.declare_subscriber(raw_ping_key, lambda smp: pub.put(smp.payload.to_bytes()))
         token = s.liveliness().declare_token(keys.alive_key(ROBOT, "echo"))
@@ -202,7 +202,7 @@ def role_main(args: argparse.Namespace) -> None:
         pinger = Pinger(ctx("pinger"))
 
         def kick() -> None:
-            probe = open_session(_cfg(port, "bbcs_tls" if args.mode.endswith("_tls") else "raw"))
+            probe = open_session(_cfg(port, "bbcs_tls" if args.mode.endswith("_tls") else "raw"), module=True)
             _wait_alive(probe, "echo")
             _wait_alive(probe, "pinger")
             probe.close()
@@ -214,7 +214,7 @@ def role_main(args: argparse.Namespace) -> None:
         pinger.run()
         print(json.dumps(pinger.samples))
     elif args.role == "ping":
-        s = open_session(_cfg(port, args.mode))
+        s = open_session(_cfg(port, args.mode), module=True)
         samples: list[float] = []
         done = threading.Event()
         pub = s.declare_publisher(raw_ping_key, **qos)
@@ -242,7 +242,7 @@ def role_main(args: argparse.Namespace) -> None:
         counter.run()
         print(json.dumps({"n": counter.n, "seconds": counter.last - counter.first}))
     elif args.role == "sink":
-        s = open_session(_cfg(port, args.mode))
+        s = open_session(_cfg(port, args.mode), module=True)
         state = {"n": 0, "first": 0.0, "last": 0.0}
         done = threading.Event()
 
@@ -262,7 +262,7 @@ def role_main(args: argparse.Namespace) -> None:
         s.close()
         print(json.dumps({"n": state["n"], "seconds": state["last"] - state["first"]}))
     elif args.role == "blast":
-        s = open_session(_cfg(port, args.mode, IDENTITY["blast"]))
+        s = open_session(_cfg(port, args.mode, IDENTITY["blast"]), module=True)
         _wait_alive(s, "counter")
         time.sleep(0.2)
         if args.mode.startswith("bbcs"):

@@ -62,7 +62,7 @@ def test_two_clients_talk_through_the_router(sessions):
 _RUNTIME_PROBE = """
 import glob, os, sys, time
 from bbcs.session import local_client, open_session
-s = open_session(local_client(int(sys.argv[1])))
+s = open_session(local_client(int(sys.argv[1])), module=sys.argv[2] == "module")
 p = s.declare_publisher("probe/rx")
 sub = s.declare_subscriber("probe/rx", lambda _s: None)
 for _ in range(50):
@@ -74,11 +74,13 @@ s.close()
 """
 
 
-@pytest.mark.parametrize("operator_setting, rx_threads", [(None, 1), ("(rx: (worker_threads: 3))", 3)])
-def test_a_client_process_receives_on_one_zenoh_thread_unless_the_operator_says_otherwise(
-        operator_setting: str | None, rx_threads: int) -> None:
+@pytest.mark.parametrize("kind, operator_setting, rx_threads", [
+    ("module", None, 1), ("module", "(rx: (worker_threads: 3))", 3), ("tool", None, 2)])
+def test_a_module_process_receives_on_one_zenoh_thread_unless_the_operator_says_otherwise(
+        kind: str, operator_setting: str | None, rx_threads: int) -> None:
     """bbcs.session.MODULE_RUNTIME, by effect: the process's Zenoh receive threads (named ``rx-N``), and the
-    variable gone again after the open (a router this process starts must not inherit it)."""
+    variable gone again after the open (a router this process starts must not inherit it). A process that is not a
+    module (a tool, a ground station, a test harness with many sessions) keeps Zenoh's default of two."""
     procs = Processes()
     try:
         port = start_router(procs)
@@ -86,7 +88,7 @@ def test_a_client_process_receives_on_one_zenoh_thread_unless_the_operator_says_
         env.pop("ZENOH_RUNTIME", None)
         if operator_setting is not None:
             env["ZENOH_RUNTIME"] = operator_setting
-        out = subprocess.run([sys.executable, "-c", _RUNTIME_PROBE, str(port)], env=env, capture_output=True,
+        out = subprocess.run([sys.executable, "-c", _RUNTIME_PROBE, str(port), kind], env=env, capture_output=True,
                              text=True, timeout=60, cwd=str(ROOT))
         assert out.returncode == 0, out.stderr
         count, left = out.stdout.strip().split(" ", 1)
