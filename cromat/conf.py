@@ -39,9 +39,11 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def manifest_classes(path: Path) -> list[str]:
-    """The ``class`` of every module of a manifest (its ``pythonpath`` folders go on ``sys.path``)."""
-    raw = tomllib.loads(path.read_text())
+def manifest_classes(path: Path, raw: dict[str, Any] | None = None) -> list[str]:
+    """The ``class`` of every module of a manifest (``raw``: its TOML already read); its ``pythonpath`` folders go on
+    ``sys.path``."""
+    if raw is None:
+        raw = tomllib.loads(path.read_text())
     for folder in raw.get("pythonpath", []):
         entry = str((path.parent / folder).resolve())
         if entry not in sys.path:
@@ -49,25 +51,26 @@ def manifest_classes(path: Path) -> list[str]:
     return [spec["class"] for spec in raw.get("modules", {}).values() if "class" in spec]
 
 
-def neighbour_manifests(conf: Path) -> list[Path]:
-    """The manifests in the .conf's folder whose ``[robot] conf`` is that file (unreadable ones are skipped:
-    checking a .conf must not fail on another file)."""
+def neighbour_manifests(conf: Path) -> list[tuple[Path, dict[str, Any]]]:
+    """The manifests in the .conf's folder whose ``[robot] conf`` is that file, each with its TOML (unreadable ones
+    are skipped: checking a .conf must not fail on another file)."""
     found = []
     for manifest in sorted(conf.parent.glob("*.toml")):
         try:
-            named = tomllib.loads(manifest.read_text()).get("robot", {}).get("conf")
+            raw = tomllib.loads(manifest.read_text())
         except (OSError, tomllib.TOMLDecodeError):
             continue
+        named = raw.get("robot", {}).get("conf")
         if isinstance(named, str) and (manifest.parent / named).resolve() == conf.resolve():
-            found.append(manifest)
+            found.append((manifest, raw))
     return found
 
 
 def default_classes(conf: Path) -> list[str]:
     """The module classes of the manifests beside ``conf`` that name it; ``DEFAULT_CLASSES`` if none does."""
     classes: list[str] = []
-    for manifest in neighbour_manifests(conf):
-        classes += [c for c in manifest_classes(manifest) if c not in classes]
+    for manifest, raw in neighbour_manifests(conf):
+        classes += [c for c in manifest_classes(manifest, raw) if c not in classes]
     return classes or list(DEFAULT_CLASSES)
 
 

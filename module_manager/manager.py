@@ -51,7 +51,7 @@ MAX_ERRORS = 32
 MESH_POLL_S = 0.05
 """How often the launch looks at the peer modules' links while it waits for them (``peer_mesh``)."""
 MESH_WAIT_S = 10.0
-"""How long a peer module (and "all modules up") waits for its direct links; then it counts as up all the same, the
+"""How long a peer module waits for its direct links; then it counts as up all the same, the
 launch naming what is still apart (a module that never comes up would be worse; links form in well under a second
 here). Less than a module's default ``start_timeout_s``, which would otherwise kill it first."""
 _decode_error = msgspec.msgpack.Decoder(ErrorReport).decode
@@ -168,9 +168,6 @@ class Manager:
         self._waiting: set[str] = set()
         """Modules not started yet because a module they start ``after`` is not up yet."""
         self.all_up_at: float | None = None
-        self._mesh_since: float | None = None
-        """When every module was first seen up (``links = "peers"``: the wait for their direct links starts)."""
-        self._mesh_polled = 0.0
         self._ack_decode = msgspec.msgpack.Decoder(RouteAck).decode
         self.route_drifts = 0  # routes found differing from the manager's view (module_manager/route_audit.py)
         self._beat_decode = msgspec.msgpack.Decoder(Heartbeat).decode
@@ -553,13 +550,9 @@ class Manager:
                 self._keep_standby(mod)
             self._report_changes()
             if self.all_up_at is None and all(m.sup.phase is Phase.UP for m in self.modules.values()):
-                unlinked = self._unlinked(now)
-                if unlinked is not None:
-                    self.all_up_at = now
-                    apart = f" (not linked directly yet: {', '.join(f'{a}-{b}' for a, b in unlinked)})" if unlinked \
-                        else ""
-                    self.out(f"all {len(self.modules)} modules up in {now - self.t0:.2f} s{apart}")
-                    self.print_status()
+                self.all_up_at = now
+                self.out(f"all {len(self.modules)} modules up in {now - self.t0:.2f} s")
+                self.print_status()
 
     def _check_links(self, name: str, mod: _Module, now: float) -> None:
         """A module waiting only for its direct links (``links = "peers"``) counts as up once the kernel's socket
@@ -584,21 +577,6 @@ class Manager:
             self.out(f"  {name:<11} up without a direct link to {', '.join(others)} after {MESH_WAIT_S:g} s")
         mod.sup.links_formed(now)
         self._touch()
-
-    def _unlinked(self, now: float) -> list[tuple[str, str]] | None:
-        """With ``links = "peers"``, once every module is up: None while some pair of modules has not linked
-        directly yet (looked at every ``MESH_POLL_S``, for at most ``MESH_WAIT_S``), then the pairs still apart
-        (empty: all linked). Router links: an empty list at once. A datum sent between two modules while their
-        link forms can be lost (docs/bus.md), so "all modules up" waits for the links."""
-        if links.links(self.m) != "peers":
-            return []
-        if self._mesh_since is None:
-            self._mesh_since = now
-        elif now < self._mesh_polled + MESH_POLL_S:
-            return None
-        self._mesh_polled = now
-        pids = {name: m.child.pid for name, m in self.modules.items() if m.child is not None}
-        return peer_mesh.verdict(peer_mesh.unlinked_pairs(pids), now - self._mesh_since, MESH_WAIT_S)
 
     def _fail_tasks_using(self, module: str, detail: str) -> None:
         """A module the running tasks rely on went down: those tasks end as failed (their routes/modes restored

@@ -52,6 +52,6 @@ def unlinked_pairs(pids: dict[str, int]) -> list[tuple[str, str]]:
 
 
 def verdict(unlinked: list[tuple[str, str]], waited_s: float, wait_s: float) -> list[tuple[str, str]] | None:
-    """What the launch does with the pairs still apart after waiting ``waited_s`` of at most ``wait_s``: None, keep
-    waiting; else say "all modules up", naming those pairs (empty: every pair linked)."""
+    """What the manager does with the pairs still apart after waiting ``waited_s`` of at most ``wait_s``: None, keep
+    waiting; else count the module up, naming those pairs (empty: every pair linked)."""
     return None if unlinked and waited_s < wait_s else unlinked

@@ -73,7 +73,8 @@ _GROUPS: tuple[tuple[str, str, type[msgspec.Struct], dict[str, int]], ...] = (
 def conf_errors(doc: ConfDocument) -> list[ConfError]:
     """Every mistake in the uQuad's part of a parsed .conf, each with file:line: for ``cromat conf check`` and
     ``cromat launch --check`` (``UquadModule.conf_errors``); empty when :class:`Config` would load it."""
-    errors = doc.errors_for(UquadConfig)
+    top_level = doc.errors_for(UquadConfig)
+    errors = list(top_level)
     for gtype, gname, typ, lengths in _GROUPS:
         try:
             group = doc.group(gtype, gname)
@@ -90,7 +91,7 @@ def conf_errors(doc: ConfDocument) -> list[ConfError]:
                 entry = group.entries[key]
                 errors.append(ConfError(f"key {key!r} in group '{gtype}: {gname}' must have {n} values, has "
                                         f"{len(values[key])}", path=doc.path, line=entry.line, column=entry.column))
-    if not doc.errors_for(UquadConfig):
+    if not top_level:
         v = doc.to_struct(UquadConfig)
         if not 0 < v.MOTOR_MIN < v.MOTOR_MAX:
             entry = doc.entries.get("MOTOR_MIN") or doc.entries.get("MOTOR_MAX")

@@ -55,7 +55,7 @@ def test_the_launch_waits_for_unlinked_pairs_then_names_them():
     apart = [("ral", "pan_tilt")]
     assert verdict(apart, 0.0, 30.0) is None
     assert verdict(apart, 29.9, 30.0) is None
-    assert verdict(apart, 30.0, 30.0) == apart, "said up at last, naming the pair still apart"
+    assert verdict(apart, 30.0, 30.0) == apart, "up at last, naming the pair still apart"
     assert verdict([], 0.0, 30.0) == [], "every pair linked: said up at once"
 
 
