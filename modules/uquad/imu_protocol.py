@@ -3,7 +3,8 @@
 A frame every 10 ms: ``A``, loop time (µs), accelerometer xyz, gyro xyz, magnetometer xyz (ADC counts, the
 average of two samples), temperature (°C × 10), pressure (Pa), ``Z``.
 
-- ASCII: the fields as decimal integers separated by ``\\t``, the line ended by ``\\n``.
+- ASCII: the fields as decimal integers separated by ``\\t``, the line ended by ``\\n`` (or ``\\r\\n``, as
+  Arduino's ``println`` ends it).
 - Binary: the same fields with no separators, little-endian, fixed widths (docs/uquad.md §2):
   ``A`` (1) · loop_us u16 · 9 × i16 · temp i16 · pressure u32 · ``Z`` (1) = 28 bytes.
 
@@ -148,9 +149,11 @@ class ImuParser:
             end = buf.find(b"\n")
             if end < 0:
                 if len(buf) > MAX_ASCII_LINE:
-                    self._drop(len(buf))
+                    self._drop(ascii_garbage(buf))
                 return out
             line = bytes(buf[:end])
+            if line.endswith(b"\r"):  # CR LF (Arduino println) ends a line as LF does
+                line = line[:-1]
             # a frame may start mid-line after garbage: take the last "A\t" in the line
             start = line.rfind(b"A\t")
             frame = decode_ascii_line(line[start:]) if start >= 0 else None
@@ -160,3 +163,14 @@ class ImuParser:
             if start > 0:
                 self._drop(start)
             self._deliver(frame, end + 1 - start, out)
+
+
+def ascii_garbage(buf: bytes | bytearray) -> int:
+    """How many leading bytes of a run longer than MAX_ASCII_LINE without ``\\n`` cannot belong to a frame: all
+    but the last ``A\\t`` (or a final ``A``) within the newest MAX_ASCII_LINE bytes, where a frame may have begun
+    (dropping the whole run lost a frame whose first bytes it held when bytes arrive in small reads)."""
+    floor = max(0, len(buf) - MAX_ASCII_LINE)
+    start = buf.rfind(b"A\t", floor)
+    if start >= 0:
+        return start
+    return len(buf) - 1 if buf.endswith(b"A") else len(buf)

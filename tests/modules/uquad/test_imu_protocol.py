@@ -77,3 +77,52 @@ def test_ascii_overlong_line_dropped():
 def test_unknown_mode_refused():
     with pytest.raises(ValueError, match="ascii"):
         ImuParser("hex")
+
+
+# Frames written by hand from seed 002 §1.3 (not by the project's encoder): "A", loop time, acc xyz, gyro xyz,
+# mag xyz, temperature x10, pressure, "Z", tab-separated, one line.
+HAND_LINE = b"A\t9876\t12\t-34\t1000\t-5\t6\t7\t300\t-200\t100\t235\t101325\tZ"
+
+
+def _byte_by_byte(parser: ImuParser, data: bytes) -> list[ImuFrame]:
+    out: list[ImuFrame] = []
+    for i in range(len(data)):
+        out += parser.feed(data[i:i + 1])
+    return out
+
+
+@pytest.mark.parametrize("junk", [b"x", b"A\t1\t2\t", b"\x00\xff?", b"AAAA"])
+def test_ascii_frame_after_long_run_without_newline_found_byte_by_byte(junk):
+    """A good line after more than 128 characters without a newline is found whatever the reads' sizes."""
+    missed = []
+    for n in range(100, 340, 3):
+        garbage = (junk * n)[:n]
+        for chunk in (1, 7):
+            parser = ImuParser("ascii")
+            data = garbage + HAND_LINE + b"\n"
+            out: list[ImuFrame] = []
+            for i in range(0, len(data), chunk):
+                out += parser.feed(data[i:i + chunk])
+            if out != [FRAME]:
+                missed.append((n, chunk))
+            elif n > 128 and parser.stats.bad_frames < 1:
+                missed.append((n, chunk, "garbage not counted"))
+    assert missed == []
+
+
+def test_ascii_crlf_line_ending():
+    """Arduino's println ends a line with CR LF: the frame is delivered, nothing counted as bad."""
+    data = (HAND_LINE + b"\r\n") * 3
+    parser = ImuParser("ascii")
+    assert _byte_by_byte(parser, data) == [FRAME] * 3
+    assert parser.stats.bad_frames == 0 and parser.stats.bytes_discarded == 0
+    parser = ImuParser("ascii")
+    assert parser.feed(b"junk\r\n" + data) == [FRAME] * 3
+    assert parser.stats.bad_frames == 1
+
+
+def test_ascii_lone_cr_is_not_a_line_end():
+    """A CR inside the line (not before the LF) is still a malformed frame."""
+    parser = ImuParser("ascii")
+    assert parser.feed(HAND_LINE.replace(b"\t235", b"\r235") + b"\n" + HAND_LINE + b"\n") == [FRAME]
+    assert parser.stats.bad_frames == 1
