@@ -7,7 +7,11 @@ Decision logic is :class:`DriverLogic` (pure, injected clock). Rules (seed 002 �
   below the ramp (what made the real motors start), then follow the commands;
 - every command gets an ack carrying its sequence number, so the sender knows the driver is alive;
 - the last set-point is sent to the ESCs every MOTOR_SEND_PERIOD (they stop when set-points stop);
-- no command for MOTOR_CMD_TIMEOUT → the motors are stopped.
+- no command for MOTOR_CMD_TIMEOUT → the motors are stopped. A refused command is a command: it keeps the
+  motors at the last good set-point. The timeout is for a controller gone silent (the seed: the motors stop when
+  commands stop); a refusal is reported in its ack, an error the seed says stops the flight, and the controller's
+  MOTOR_ERROR_ACTION stops it (``land`` needs the motors: stopping them 0.5 s into a stream of refusals dropped
+  the aircraft instead).
 
 Process: ``python -m modules.uquad.motor_driver --conf C --listen 127.0.0.1:P --esc HOST:PORT``.
 """
@@ -59,6 +63,7 @@ class DriverLogic:
             return AckStatus.STOPPED
         if any(not self.min_speed <= s <= self.max_speed for s in speeds):
             self.refused += 1
+            self._last_cmd = now  # the controller is alive: the refusal is its error to act on, not a silence
             return AckStatus.OUT_OF_RANGE
         self._last_cmd = now
         self.target = list(speeds)

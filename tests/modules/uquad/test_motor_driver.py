@@ -142,3 +142,23 @@ def test_missing_ack_is_a_driver_error():
     assert "no ack" in client.check(10.2)
     b.close()
     a.close()
+
+
+def test_refused_commands_keep_the_motors_running_silence_stops_them():
+    """A 50 Hz stream of refused commands (2 s, four times the timeout) keeps the last good set-point: the
+    controller is alive and acts on the refusal itself (MOTOR_ERROR_ACTION); only silence stops the motors."""
+    d = logic()  # cmd_timeout_s 0.2
+    t = 0.0
+    while t < 1.2:  # ramp (1 s), then running at 400
+        d.on_command(t, (400,) * 4)
+        t += 0.02
+    assert d.state is DriverState.RUNNING and d.output(t) == [400] * 4
+    statuses = set()
+    for i in range(100):
+        now = t + 0.02 * (i + 1)
+        statuses.add(d.on_command(now, (400, 400, 9000, 400)))
+        assert d.output(now) == [400] * 4, f"motors changed {now - t:.2f} s into the refusals"
+    assert statuses == {AckStatus.OUT_OF_RANGE} and d.refused == 100 and d.timeouts == 0
+    last = t + 2.0
+    assert d.output(last + 0.19) == [400] * 4
+    assert d.output(last + 0.21) == [0.0] * 4 and d.timeouts == 1
