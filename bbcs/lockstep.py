@@ -1,0 +1,404 @@
+"""Lockstep simulation: the simulator advances only once every module has handled what the last step produced.
+
+The parts (docs/simulation.md, "Lockstep"):
+
+- **Settings** reach every process of a lockstep launch in the ``CROMAT_SIM`` environment variable (JSON of
+  :class:`SimSettings`), set by the Module Manager from the manifest's ``[sim]`` table and ``cromat launch
+  --speed``. Without it a process runs on the wall clock and takes no part: real hardware is untouched.
+- **The stepper** (a simulator; :class:`Stepper`) publishes simulated time on ``cromat/<robot>/@clock`` and,
+  after each step, *asks* the members on ``@lockstep/ask``; each member answers on ``@lockstep/done/<name>``.
+- **A member** (every bbcs Module, the manager; :class:`Member`) holds a liveliness token under
+  ``@lockstep/member/<name>`` while it takes part. A Module answers from its event loop only when the loop is idle
+  (queue and channel empty, due timers run, no handler running), with a count of what it has handled
+  (``activity``), what its own threads still hold (``busy``, e.g. a DSP batch not yet sent) and device counters
+  (``counts``, e.g. bytes on the DSP line).
+- **The barrier** (:class:`Barrier`, pure, with an injected wall time): a step is handled once every member has
+  answered a round not busy, the stepper's own check passes (the DSP line carried every byte both ways), and two
+  consecutive rounds show the same activity everywhere (nothing was still travelling between members). A member
+  that does not answer within ``deadline_s`` wall seconds is left behind (named in the log) until it answers
+  again: its heartbeat then stops in simulated time, and the manager's watchdog, on simulated time, restarts it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+import msgspec
+import zenoh
+
+from bbcs import keys
+from bbcs.clock import SimTime
+
+log = logging.getLogger(__name__)
+
+SIM_ENV = "CROMAT_SIM"
+MANAGER_MEMBER = "@manager"
+"""The manager's member name (a module name never starts with ``@``)."""
+DEFAULT_STEP_S = 0.1
+DEFAULT_DEADLINE_S = 5.0
+
+
+class SimSettings(msgspec.Struct, frozen=True, kw_only=True):
+    """How a lockstep simulation runs (manifest ``[sim]``, ``cromat launch --speed``)."""
+
+    robot: str
+    connect: list[str] = msgspec.field(default_factory=list)
+    """The robot router's endpoints, for the simulators (modules get theirs from their context)."""
+    speed: float | None = 1.0
+    """Simulated seconds per wall second at most; None: as fast as every member allows (``--speed max``)."""
+    step_s: float = DEFAULT_STEP_S
+    """Simulated seconds between two barriers (the simulators sub-step their physics inside it)."""
+    deadline_s: float = DEFAULT_DEADLINE_S
+    """Wall seconds a step waits for a member before leaving it behind."""
+
+
+def settings_from_env(environ: Mapping[str, str] | None = None) -> SimSettings | None:
+    """The lockstep settings this process was started with, or None (wall clock, no lockstep)."""
+    text = (os.environ if environ is None else environ).get(SIM_ENV)
+    if not text:
+        return None
+    try:
+        return msgspec.json.decode(text, type=SimSettings)
+    except msgspec.MsgspecError as exc:
+        raise ValueError(f"{SIM_ENV} is not valid lockstep settings: {exc}") from None
+
+
+def settings_env(settings: SimSettings) -> dict[str, str]:
+    return {SIM_ENV: msgspec.json.encode(settings).decode()}
+
+
+# --- keys ------------------------------------------------------------------------------------------------------
+
+
+def _robot_key(robot: str, *parts: str) -> str:
+    keys.validate_name(robot, "robot name")
+    return "/".join((keys.ROOT, robot, *parts))
+
+
+def clock_key(robot: str) -> str:
+    """Where the stepper publishes ``SimTime`` (any tool may read the simulation's time here)."""
+    return _robot_key(robot, "@clock")
+
+
+def ask_key(robot: str) -> str:
+    return _robot_key(robot, "@lockstep", "ask")
+
+
+def done_key(robot: str, member: str) -> str:
+    return _robot_key(robot, "@lockstep", "done", member)
+
+
+def member_key(robot: str, member: str) -> str:
+    return _robot_key(robot, "@lockstep", "member", member)
+
+
+def member_of(key: str) -> str:
+    return key.rsplit("/", 1)[-1]
+
+
+# --- messages --------------------------------------------------------------------------------------------------
+
+
+class Ask(msgspec.Struct, frozen=True, kw_only=True):
+    """The stepper's question after a step: have you handled everything? (``now``: the time after the step)."""
+
+    step: int
+    round: int
+    now: SimTime
+
+
+class Done(msgspec.Struct, frozen=True, kw_only=True):
+    """A member's answer to one round, given when it had nothing left to do."""
+
+    member: str
+    step: int
+    round: int
+    activity: int
+    """Data handled so far (any count that grows with every datum, timer and call the member handles)."""
+    busy: str = ""
+    """Why the member is not finished although its loop is idle (its own threads' work); '' when finished."""
+    counts: dict[str, int] = msgspec.field(default_factory=dict)
+    """Device counters the stepper compares with its own (e.g. bytes on the DSP line)."""
+
+
+_encode = msgspec.msgpack.Encoder().encode
+_decode_ask = msgspec.msgpack.Decoder(Ask).decode
+_decode_done = msgspec.msgpack.Decoder(Done).decode
+_decode_time = msgspec.msgpack.Decoder(SimTime).decode
+
+
+def decode_time(payload: bytes) -> SimTime:
+    return _decode_time(payload)
+
+
+# --- the member's side -----------------------------------------------------------------------------------------
+
+
+class Member:
+    """One process's part in the barrier: its token, the asks it receives, the answers it gives.
+
+    ``on_ask`` runs on Zenoh's thread: it hands the ask to whoever answers (a Module's loop), which calls
+    ``answer`` once it has handled everything that came before the ask."""
+
+    def __init__(self, session: zenoh.Session, robot: str, name: str, on_ask: Callable[[Ask], None]) -> None:
+        self.robot = robot
+        self.name = name
+        self._on_ask = on_ask
+        self._pub = session.declare_publisher(done_key(robot, name), congestion_control=zenoh.CongestionControl.BLOCK,
+                                              reliability=zenoh.Reliability.RELIABLE)
+        self._sub = session.declare_subscriber(ask_key(robot), self._received)
+        self._token = session.liveliness().declare_token(member_key(robot, name))
+        self.answered = 0
+
+    def _received(self, sample: zenoh.Sample) -> None:
+        try:
+            ask = _decode_ask(sample.payload.to_bytes())
+        except msgspec.MsgspecError as exc:
+            log.warning("lockstep: unreadable ask dropped: %s", exc)
+            return
+        self._on_ask(ask)
+
+    def answer(self, ask: Ask, activity: int, busy: str = "", counts: dict[str, int] | None = None) -> None:
+        self.answered += 1
+        self._pub.put(_encode(Done(member=self.name, step=ask.step, round=ask.round, activity=activity, busy=busy,
+                                   counts=counts or {})))
+
+    def close(self) -> None:
+        for entity in (self._token, self._sub, self._pub):
+            try:
+                entity.undeclare()
+            except Exception as exc:  # the session may already be closing
+                log.debug("lockstep member close: %s", exc)
+
+
+# --- the barrier (pure) ----------------------------------------------------------------------------------------
+
+
+class Verdict(Enum):
+    WAIT = "wait"
+    ASK = "ask"
+    STEP = "step"
+
+
+@dataclass
+class Decision:
+    verdict: Verdict
+    round: int = 0
+    left_behind: list[str] = field(default_factory=list)
+    why: str = ""
+
+
+@dataclass
+class Barrier:
+    """When the step's effects are handled: the rules of the module docstring, on an injected wall time.
+
+    ``check`` is the stepper's own condition on the answers ('' when met): e.g. the DSP simulator's byte counts
+    against the DSP module's. ``required`` members are waited for however long it takes (the manager: it says
+    busy until every module is up)."""
+
+    deadline_s: float = DEFAULT_DEADLINE_S
+    required: frozenset[str] = frozenset()
+    check: Callable[[Mapping[str, Done]], str] | None = None
+    step: int = -1
+    round: int = 0
+    started: float = 0.0
+    members: set[str] = field(default_factory=set)
+    behind: dict[str, int] = field(default_factory=dict)
+    """Members left behind → the step they were left at."""
+    answers: dict[str, Done] = field(default_factory=dict)
+    previous: dict[str, tuple[int, tuple[tuple[str, int], ...]]] | None = None
+    warned_at: float = 0.0
+
+    def begin(self, step: int, now: float) -> None:
+        self.step, self.round, self.started, self.warned_at = step, 0, now, now
+        self.answers.clear()
+        self.previous = None
+
+    def joined(self, member: str) -> None:
+        self.members.add(member)
+
+    def left(self, member: str) -> None:
+        self.members.discard(member)
+        self.behind.pop(member, None)
+        self.answers.pop(member, None)
+
+    def answer(self, done: Done) -> None:
+        if done.member in self.behind and done.step >= self.behind[done.member]:
+            del self.behind[done.member]  # it caught up: waited for again from the next round
+            log.warning("lockstep: %s answers again (step %d)", done.member, done.step)
+            return
+        if done.step == self.step and done.round == self.round:
+            self.answers[done.member] = done
+
+    def expected(self) -> set[str]:
+        return (self.members | set(self.required)) - set(self.behind)
+
+    def decide(self, now: float) -> Decision:
+        expected = self.expected()
+        absent = set(self.required) - self.members
+        if absent:
+            return self._wait(now, f"required member(s) {sorted(absent)} not present")
+        answers = {m: d for m, d in self.answers.items() if m in expected}
+        missing = sorted(expected - set(answers))
+        late = now - self.started > self.deadline_s
+        if missing:
+            if late and not set(missing) & set(self.required):
+                return self._leave(missing, f"no answer within {self.deadline_s:g} s")
+            return self._wait(now, f"waiting for {missing}")
+        busy = {m: d.busy for m, d in answers.items() if d.busy}
+        unmet = self.check(answers) if self.check is not None else ""
+        vector = {m: (d.activity, tuple(sorted(d.counts.items()))) for m, d in answers.items()}
+        if not busy and not unmet and vector == self.previous:
+            return Decision(Verdict.STEP)
+        if late and not set(busy) & set(self.required):
+            why = "; ".join([*(f"{m}: {w}" for m, w in sorted(busy.items())), *([unmet] if unmet else [])])
+            return self._leave(sorted(busy), f"not settled after {self.deadline_s:g} s ({why or 'still active'})")
+        self.previous = None if busy or unmet else vector
+        self.round += 1
+        self.answers.clear()
+        return Decision(Verdict.ASK, self.round,
+                        why="; ".join([*(f"{m}: {w}" for m, w in busy.items()), *([unmet] if unmet else [])]))
+
+    def _wait(self, now: float, why: str) -> Decision:
+        if now - self.warned_at > self.deadline_s:
+            self.warned_at = now
+            log.warning("lockstep: step %d still %s", self.step + 1, why)
+        return Decision(Verdict.WAIT, self.round, why=why)
+
+    def _leave(self, members: list[str], why: str) -> Decision:
+        for m in members:
+            self.behind[m] = self.step
+        if members:
+            log.warning("lockstep: step %d goes on without %s (%s)", self.step, members, why)
+        else:
+            log.warning("lockstep: step %d goes on (%s)", self.step, why)
+        return Decision(Verdict.STEP, left_behind=members, why=why)
+
+
+# --- the stepper's side ----------------------------------------------------------------------------------------
+
+
+class Stepper:
+    """A simulator's end of the barrier, on its own Zenoh session; made for a ``select`` loop.
+
+    ``begin(t)`` publishes the new time and the first round; ``poll()`` answers True once the step is handled
+    (asking further rounds as needed). Answers and membership changes arrive on Zenoh's threads and are handed
+    over through a pipe: ``wake_fd`` turns readable (call ``drain_wake()`` then ``poll()``)."""
+
+    def __init__(self, session: zenoh.Session, robot: str, *, deadline_s: float = DEFAULT_DEADLINE_S,
+                 required: frozenset[str] = frozenset({MANAGER_MEMBER}),
+                 check: Callable[[Mapping[str, Done]], str] | None = None,
+                 wall: Callable[[], float] = time.monotonic, epoch: float | None = None) -> None:
+        self.robot = robot
+        self.barrier = Barrier(deadline_s=deadline_s, required=required, check=check)
+        self.epoch = time.time() if epoch is None else epoch
+        self.step = -1
+        self.t = 0.0
+        self.rounds = 0
+        self._wall = wall
+        self._lock = threading.Lock()
+        self._inbox: list[Any] = []
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        self._clock_pub = session.declare_publisher(clock_key(robot), congestion_control=zenoh.CongestionControl.BLOCK,
+                                                    reliability=zenoh.Reliability.RELIABLE)
+        self._ask_pub = session.declare_publisher(ask_key(robot), congestion_control=zenoh.CongestionControl.BLOCK,
+                                                  reliability=zenoh.Reliability.RELIABLE,
+                                                  priority=zenoh.Priority.DATA)
+        self._entities = [
+            session.declare_subscriber(done_key(robot, "*"), self._on_done),
+            session.liveliness().declare_subscriber(member_key(robot, "*"), self._on_member, history=True),
+        ]
+
+    @property
+    def wake_fd(self) -> int:
+        return self._wake_r
+
+    @property
+    def members(self) -> set[str]:
+        with self._lock:
+            self._take()
+            return set(self.barrier.members)
+
+    def _on_done(self, sample: zenoh.Sample) -> None:
+        try:
+            done = _decode_done(sample.payload.to_bytes())
+        except msgspec.MsgspecError:
+            return
+        self._hand_over(done)
+
+    def _on_member(self, sample: zenoh.Sample) -> None:
+        self._hand_over((member_of(str(sample.key_expr)), sample.kind == zenoh.SampleKind.PUT))
+
+    def _hand_over(self, item: Any) -> None:
+        with self._lock:
+            self._inbox.append(item)
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:  # the pipe is full (the loop will look anyway) or closed
+            pass
+
+    def drain_wake(self) -> None:
+        try:
+            while os.read(self._wake_r, 4096):
+                pass
+        except (BlockingIOError, OSError):
+            pass
+
+    def _take(self) -> None:
+        items, self._inbox = self._inbox, []
+        for item in items:
+            if isinstance(item, Done):
+                self.barrier.answer(item)
+            else:
+                name, present = item
+                (self.barrier.joined if present else self.barrier.left)(name)
+
+    def publish_time(self) -> SimTime:
+        now = SimTime(step=max(self.step, 0), t=self.t, epoch=self.epoch)
+        self._clock_pub.put(_encode(now))
+        return now
+
+    def begin(self, t: float) -> None:
+        """Simulated time is now ``t`` (the step's physics is done): tell everyone and ask the first round."""
+        self.step += 1
+        self.t = t
+        with self._lock:
+            self._take()
+            self.barrier.begin(self.step, self._wall())
+        now = self.publish_time()
+        self._ask(Ask(step=self.step, round=0, now=now))
+
+    def _ask(self, ask: Ask) -> None:
+        self.rounds += 1
+        self._ask_pub.put(_encode(ask))
+
+    def poll(self) -> bool:
+        """True once the current step is handled; otherwise asks the next round when one is due."""
+        with self._lock:
+            self._take()
+            decision = self.barrier.decide(self._wall())
+        if decision.verdict is Verdict.ASK:
+            self._ask(Ask(step=self.step, round=decision.round,
+                          now=SimTime(step=self.step, t=self.t, epoch=self.epoch)))
+            return False
+        return decision.verdict is Verdict.STEP
+
+    def close(self) -> None:
+        for entity in [*self._entities, self._clock_pub, self._ask_pub]:
+            try:
+                entity.undeclare()
+            except Exception as exc:
+                log.debug("lockstep stepper close: %s", exc)
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass

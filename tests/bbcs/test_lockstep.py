@@ -1,0 +1,151 @@
+"""The lockstep barrier's rules, with an injected wall time, and one step over a real Zenoh router."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Mapping
+
+import pytest
+
+from bbcs.clock import SimClock
+from bbcs.lockstep import (
+    MANAGER_MEMBER,
+    Ask,
+    Barrier,
+    Done,
+    Member,
+    SimSettings,
+    Stepper,
+    Verdict,
+    settings_env,
+    settings_from_env,
+)
+from bbcs.session import local_client, open_session
+from bbcs.testing import Processes, start_router, wait_until
+
+
+def done(member: str, step: int, rnd: int, activity: int, busy: str = "", **counts: int) -> Done:
+    return Done(member=member, step=step, round=rnd, activity=activity, busy=busy, counts=counts)
+
+
+def barrier(*members: str, **kw) -> Barrier:
+    b = Barrier(deadline_s=5.0, **kw)
+    for m in members:
+        b.joined(m)
+    b.begin(0, now=0.0)
+    return b
+
+
+def test_a_step_is_handled_after_two_rounds_with_the_same_activity() -> None:
+    b = barrier("a", "b")
+    b.answer(done("a", 0, 0, 10))
+    assert b.decide(0.1).verdict is Verdict.WAIT  # b has not answered
+    b.answer(done("b", 0, 0, 4))
+    d = b.decide(0.1)
+    assert (d.verdict, d.round) == (Verdict.ASK, 1)  # one quiet round proves nothing was still travelling
+    b.answer(done("a", 0, 1, 10))
+    b.answer(done("b", 0, 1, 5))  # b handled something between the rounds
+    assert b.decide(0.2).verdict is Verdict.ASK
+    b.answer(done("a", 0, 2, 10))
+    b.answer(done("b", 0, 2, 5))
+    assert b.decide(0.3).verdict is Verdict.STEP
+
+
+def test_answers_to_an_older_round_or_step_do_not_count() -> None:
+    b = barrier("a")
+    b.answer(done("a", 0, 0, 1))
+    assert b.decide(0.0).verdict is Verdict.ASK
+    b.answer(done("a", 0, 0, 1))  # a late duplicate of round 0
+    assert b.decide(0.0).verdict is Verdict.WAIT
+
+
+def test_a_busy_member_or_an_unmet_check_keeps_the_step() -> None:
+    state = {"sim_tx": 100}
+
+    def check(answers: Mapping[str, Done]) -> str:
+        got = answers["dsp"].counts.get("rx", 0)
+        return "" if got == state["sim_tx"] else f"dsp read {got} of {state['sim_tx']} bytes"
+
+    b = barrier("dsp", check=check)
+    for rnd, (busy, rx) in enumerate([("batch queued", 100), ("", 90), ("", 100)]):
+        b.answer(done("dsp", 0, rnd, 7, busy, rx=rx))
+        assert b.decide(0.1).verdict is Verdict.ASK
+    b.answer(done("dsp", 0, 3, 7, rx=100))
+    assert b.decide(0.1).verdict is Verdict.STEP
+
+
+def test_a_required_member_is_waited_for_without_a_deadline() -> None:
+    b = barrier(required=frozenset({MANAGER_MEMBER}))
+    assert b.decide(100.0).verdict is Verdict.WAIT  # not even present yet
+    b.joined(MANAGER_MEMBER)
+    b.answer(done(MANAGER_MEMBER, 0, 0, 1, "modules starting"))
+    assert b.decide(100.0).verdict is Verdict.ASK  # busy, far past the deadline: still waited for
+
+
+def test_a_silent_member_is_left_behind_at_the_deadline_and_waited_for_again_once_it_answers() -> None:
+    b = barrier("a", "hung")
+    b.answer(done("a", 0, 0, 1))
+    assert b.decide(4.9).verdict is Verdict.WAIT
+    d = b.decide(5.1)
+    assert (d.verdict, d.left_behind) == (Verdict.STEP, ["hung"])
+    b.begin(1, now=6.0)
+    assert b.expected() == {"a"}
+    b.answer(done("a", 1, 0, 1))
+    assert b.decide(6.0).verdict is Verdict.ASK
+    b.answer(done("hung", 0, 7, 3))  # its answer to an old step: it is back
+    assert b.expected() == {"a", "hung"}
+
+
+def test_a_member_that_leaves_is_no_longer_waited_for() -> None:
+    b = barrier("a", "dead")
+    b.answer(done("a", 0, 0, 1))
+    b.left("dead")
+    assert b.decide(0.1).verdict is Verdict.ASK
+
+
+def test_settings_travel_in_the_environment() -> None:
+    s = SimSettings(robot="uav1", connect=["tcp/127.0.0.1:1"], speed=None, step_s=0.1)
+    assert settings_from_env(settings_env(s)) == s
+    assert settings_from_env({}) is None
+    with pytest.raises(ValueError, match="CROMAT_SIM"):
+        settings_from_env({"CROMAT_SIM": "{"})
+
+
+def test_a_step_over_the_bus_waits_for_every_member() -> None:
+    """A real router: the stepper's step is handled only after both members answered two quiet rounds."""
+    procs = Processes()
+    sessions = []
+    try:
+        cfg = local_client(start_router(procs))
+        sessions = [open_session(cfg) for _ in range(3)]
+        clocks = {"m1": SimClock(), "m2": SimClock()}
+        held: list[Ask] = []
+        members: dict[str, Member] = {}
+
+        def on_ask(name: str, ask: Ask) -> None:
+            clocks[name].advance(ask.now)
+            if name == "m2" and ask.round == 0:
+                held.append(ask)  # m2 answers round 0 only when the test says so
+                return
+            members[name].answer(ask, activity=1)
+
+        for s, name in zip(sessions[1:], clocks, strict=True):
+            members[name] = Member(s, "r1", name, lambda ask, n=name: on_ask(n, ask))
+        stepper = Stepper(sessions[0], "r1", required=frozenset())
+        wait_until(lambda: stepper.members == {"m1", "m2"}, 10, "both members' tokens")
+        stepper.begin(0.1)
+        wait_until(lambda: held, 10, "m2 asked")
+        for _ in range(20):
+            assert not stepper.poll()
+            threading.Event().wait(0.01)
+        members["m2"].answer(held[0], activity=1)
+        wait_until(stepper.poll, 10, "the step handled")
+        assert clocks["m1"].monotonic() == clocks["m2"].monotonic() == 0.1
+        assert stepper.rounds >= 2
+        stepper.close()
+        for m in members.values():
+            m.close()
+    finally:
+        for s in sessions:
+            s.close()
+        procs.stop_all()
