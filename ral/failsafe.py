@@ -7,10 +7,15 @@ left cleanly). After ``loss_timeout_s`` of continuous loss the configured action
 as regained only after ``regain_s`` of continuous link (hysteresis), and regaining never resumes the mission:
 the failsafe action stays in force until a ground station sends a new task.
 
+An operator's new task ends the failsafe (:meth:`LinkMonitor.clear_failsafe`): the machine goes back to
+``no_gcs`` (the operator who sent it holds no link, or the regain would already have ended it), so nothing is armed
+until a station links again, and the robot counts as available to the fleet again.
+
 ```
 no_gcs ──link──▶ up ──loss──▶ lost ──loss_timeout──▶ failsafe
                   ▲             │ link for regain_s      │ link for regain_s
                   └─────────────┴────────────────────────┘  (event link_regained)
+failsafe ──operator's new task──▶ no_gcs
 ```
 Nothing is armed before the first GCS link: a robot started with no ground station does not trigger it.
 """
@@ -78,6 +83,20 @@ class LinkMonitor:
             and self.last_heartbeat is not None
             and now - self.last_heartbeat <= self.config.heartbeat_timeout_s
         )
+
+    @property
+    def in_force(self) -> bool:
+        """The failsafe ran and no operator task has replaced it since (the fleet counts the robot unavailable)."""
+        return self.state == "failsafe"
+
+    def clear_failsafe(self) -> bool:
+        """An operator's task was accepted: a failsafe in force ends (True); otherwise nothing changes."""
+        if self.state != "failsafe":
+            return False
+        self.state = "no_gcs"
+        self.lost_since = None
+        self.ok_since = None
+        return True
 
     def update(self, now: float) -> list[LinkEvent]:
         """Advance the machine to ``now``; the returned events are what the RAL reports (and does)."""

@@ -691,6 +691,11 @@ class Ral(Module):
                 self._end(mri.EndTask(task_type=plan.task_type, task_id=task_id, status="failed", detail=problem))
             self.emit("task_rejected", task_type=plan.task_type, detail=problem)
             return gri.TaskReply(accepted=False, reason=problem, task_id=task_id, task_type=plan.task_type)
+        if origin == "gcs":
+            with self.lock:  # an operator's task replaces the failsafe: fleet bids resume (ral/failsafe.py)
+                cleared = self.link.clear_failsafe()
+            if cleared:
+                self.log.info("failsafe cleared by the operator's task %d", task_id)
         return gri.TaskReply(accepted=True, task_id=task_id, task_type=plan.task_type)
 
     def _publish_data(self, plan: Plan, task_id: int = 0) -> str | None:
@@ -824,7 +829,7 @@ class Ral(Module):
             speed = self.limits.cruise_speed or min(5.0, self.limits.max_speed)
             pack = (self.cfg.battery_empty_v, self.cfg.battery_full_v) if self.cfg.battery_full_v else None
             return own_state_of(self.telemetry, speed, can_do_from(self.cfg.fleet_can_do, kinds),
-                                list(self._live.values()), available=self.link.state != "failsafe", pack_v=pack)
+                                list(self._live.values()), available=not self.link.in_force, pack_v=pack)
 
     def _fleet_fly(self, job: Execute) -> None:
         reply = self.handle(goto_of(job), origin="fleet")

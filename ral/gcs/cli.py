@@ -52,10 +52,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for answers (default 5)")
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("robots", help="list live robots")
-    w = sub.add_parser("watch", help="live robot state, refreshed in place; holds a GCS link")
+    w = sub.add_parser("watch", help="live robot state, refreshed in place; a passive observer: no GCS link")
     w.add_argument("robot", help="robot name, or '*' for every robot behind the router")
     w.add_argument("--count", type=int, default=0, help="stop after this many states (0: until Ctrl-C)")
     w.add_argument("--events", action="store_true", help="piped: also print events (a terminal shows the last ones)")
+    w.add_argument("--link", action="store_true",
+                   help="also hold a GCS link with ROBOT (its link-loss failsafe then counts this station, and runs "
+                        "when it goes away)")
+    lk = sub.add_parser("link", help="hold a GCS link with these robots until Ctrl-C: their link-loss failsafe "
+                                     "counts this station (and runs once it is gone for failsafe_timeout_s)")
+    lk.add_argument("robots", nargs="+", metavar="ROBOT")
+    lk.add_argument("--seconds", type=float, default=0.0, help="let go after this long (0: until Ctrl-C)")
     t = sub.add_parser("task", help="submit a task")
     t.add_argument("robot")
     kinds = t.add_subparsers(dest="kind", required=True)
@@ -239,12 +246,11 @@ def _watch(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
     gcs.session.declare_subscriber(watch_view.vision_key(args.robot), lambda smp: screen.vision_status(
         str(smp.key_expr).split("/")[1], msgspec.msgpack.decode(smp.payload.to_bytes())))
 
-    try:  # a robot that does not answer is not linked: its failsafe (or another robot's) never counts this station
-        gcs.state(args.robot, args.timeout)
-    except NoReply:
-        known = ", ".join(gcs.robots(1.0)) or "none"
-        raise NoReply(f"no robot {args.robot!r} answered within {args.timeout:g} s (robots seen: {known})") from None
-    gcs.hold_link(args.robot)
+    if args.link and args.robot == "*":
+        raise UsageError("watch --link needs one robot name: a link is per robot")
+    _answering(gcs, args.robot, args.timeout)
+    if args.link:  # only on request: a passive watch never arms the robot's link-loss failsafe
+        gcs.hold_link(args.robot)
     gcs.watch(args.robot, show)
     gcs.events(args.robot, event)  # the last ones stay on screen
     try:
@@ -253,6 +259,46 @@ def _watch(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
     except KeyboardInterrupt:
         pass
     return 0
+
+
+def _answering(gcs: Gcs, robot: str, timeout_s: float) -> None:
+    """A robot that does not answer is never linked: its failsafe (or another robot's) never counts this station."""
+    try:
+        gcs.state(robot, timeout_s)
+    except NoReply:
+        known = ", ".join(gcs.robots(1.0)) or "none"
+        raise NoReply(f"no robot {robot!r} answered within {timeout_s:g} s (robots seen: {known})") from None
+
+
+def _link(gcs: Gcs, args: argparse.Namespace, out: TextIO) -> int:
+    """Hold a link (liveliness token + heartbeats naming the robots) and print the robots' link events."""
+    for robot in args.robots:
+        _answering(gcs, robot, args.timeout)
+    lock = threading.Lock()
+
+    def event(ev: gri.GriEvent) -> None:
+        if ev.kind in LINK_EVENTS:
+            with lock:
+                out.write(watch_view.event_line(ev) + "\n")
+                out.flush()
+
+    for robot in args.robots:
+        gcs.hold_link(robot)
+        gcs.events(robot, event)
+    print(f"holding a GCS link with {', '.join(args.robots)} as {gcs.name}"
+          + (f" for {args.seconds:g} s" if args.seconds > 0 else " (Ctrl-C lets go; the robots' failsafe then "
+                                                                   "runs after their failsafe_timeout_s)"), file=out)
+    out.flush()
+    end = time.monotonic() + args.seconds if args.seconds > 0 else math.inf
+    try:
+        while time.monotonic() < end:
+            time.sleep(min(0.2, max(0.0, end - time.monotonic())))
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+LINK_EVENTS = frozenset({"link_up", "link_lost", "failsafe", "link_regained"})
 
 
 def run(args: argparse.Namespace, out: TextIO) -> int:
@@ -272,6 +318,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             return 0
         if args.command == "watch":
             return _watch(gcs, args, out)
+        if args.command == "link":
+            return _link(gcs, args, out)
         if args.command == "task":
             assert request is not None
             return _print_reply(gcs.send(args.robot, request), out)

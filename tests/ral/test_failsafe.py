@@ -118,3 +118,25 @@ def test_negative_times_are_refused(field: str) -> None:
 def test_unknown_action_is_refused() -> None:
     with pytest.raises(ValueError):
         FailsafeConfig(action="explode")  # type: ignore[arg-type]
+
+
+def test_an_operator_task_ends_the_failsafe_and_nothing_is_armed_until_a_new_link() -> None:
+    m = linked()
+    m.token("gcs", False)
+    m.update(1.0)
+    assert kinds(m.update(11.0)) == ["failsafe"] and m.in_force
+    assert m.clear_failsafe() and not m.in_force and m.state == "no_gcs"
+    for t in range(12, 100, 5):  # the operator holds no link: no second failsafe
+        assert m.update(float(t)) == []
+    m.token("pilot", True)
+    m.heartbeat(100.0)
+    assert kinds(m.update(100.0)) == ["link_up"]  # a new link arms it again
+
+
+def test_clearing_changes_nothing_outside_a_failsafe() -> None:
+    m = linked()
+    assert not m.clear_failsafe() and m.state == "up"
+    m.token("gcs", False)
+    m.update(1.0)
+    assert not m.clear_failsafe() and m.state == "lost"  # a loss still counts towards its failsafe
+    assert kinds(m.update(11.0)) == ["failsafe"]

@@ -223,6 +223,21 @@ def test_link_loss_runs_the_failsafe_and_regain_does_not_resume(rig: Rig) -> Non
         back.close()
 
 
+def test_an_operator_task_after_the_failsafe_clears_it_for_fleet_bids_too(rig: Rig) -> None:  # issue 30 case 6
+    link = Gcs(local_client(rig.port), name="pilot", link=[ROBOT])
+    try:
+        wait_until(lambda: "link_up" in rig.kinds(), what="link_up")
+    finally:
+        link.close()
+    wait_until(lambda: rig.states[-1].link == "failsafe", what="the failsafe in force")
+    assert not rig.ral._fleet_own().available  # a fleet task now: "its own failsafe is in force"
+    assert rig.gcs.send(ROBOT, gri.SetPanTilt(pan=1.0, tilt=2.0)).accepted  # one-shot: no link held
+    wait_until(lambda: rig.states[-1].link == "no_gcs", what="the failsafe cleared in the state")
+    assert rig.ral._fleet_own().available
+    time.sleep(1.0)  # failsafe_timeout_s is 0.6 s: nothing armed again without a new link
+    assert rig.states[-1].link == "no_gcs" and rig.kinds().count("failsafe") == 1
+
+
 def test_robots_lists_the_ral(rig: Rig) -> None:
     assert rig.gcs.robots() == [ROBOT]
     assert rig.gcs.state(ROBOT).robot == ROBOT

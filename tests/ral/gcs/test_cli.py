@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from bbcs.context import ModuleContext
+from bbcs.contracts import gri
 from bbcs.session import local_client, open_session
 from bbcs.testing import free_port, wait_until
 from ral.gcs import cli
@@ -105,6 +106,33 @@ def test_watch_of_a_robot_that_does_not_exist_exits_3_and_links_nobody(
             wait_until(lambda: any(e.kind == "link_up" for e in events), 15, "link_up from a real uav1 link")
         up = [e for e in events if e.kind == "link_up"]
         assert len(up) == 1 and "pilot" in up[0].detail and "gcs" not in up[0].detail.replace("pilot", "")
+
+
+def test_watch_is_a_passive_observer_and_link_holds_a_link(robot: int, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 30 case 6: a watch makes no link (the robot's failsafe never counts it); ``link`` and ``watch --link``
+    do, and the link goes when they end."""
+    events: list = []
+    base = ["--connect", f"tcp/127.0.0.1:{robot}"]
+    with Gcs(local_client(robot)) as observer:
+        observer.events(ROBOT, events.append)
+        assert cli.main([*base, "watch", ROBOT, "--count", "1"]) == 0
+        assert cli.main([*base, "watch", "*", "--count", "1"]) == 0
+        time.sleep(3.0)  # heartbeat_timeout_s (2 s) and regain_s: a link would have been seen by now
+        assert [e.kind for e in events if e.kind.startswith("link")] == []
+        assert observer.state(ROBOT).link == "no_gcs"
+        assert cli.main([*base, "--name", "pilot", "link", ROBOT, "--seconds", "1.5"]) == 0
+        assert "holding a GCS link with uav1 as pilot for 1.5 s" in capsys.readouterr().out
+        wait_until(lambda: [e.kind for e in events] == ["link_up", "link_lost"], 15, "link_up, then link_lost")
+        assert "pilot" in events[0].detail
+        beats: list[gri.GcsHeartbeat] = []
+        observer.session.declare_subscriber(gri.gcs_heartbeat_key("*"), lambda smp: beats.append(
+            gri.decode_heartbeat(smp.payload.to_bytes())))
+        assert cli.main([*base, "--name", "watcher", "watch", ROBOT, "--count", "1"]) == 0
+        assert cli.main([*base, "--name", "pilot2", "watch", ROBOT, "--count", "1", "--link"]) == 0
+        wait_until(lambda: any(b.gcs == "pilot2" for b in beats), 5, "the watch --link's heartbeat")
+        assert {b.gcs for b in beats} == {"pilot2"} and all(b.robots == [ROBOT] for b in beats)
+    assert cli.main([*base, "watch", "*", "--link", "--count", "1"]) == 2
+    assert "one robot name" in capsys.readouterr().err
 
 
 def test_a_station_linked_to_another_robot_is_not_a_link_here(robot: int) -> None:
