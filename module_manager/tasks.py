@@ -1,9 +1,18 @@
 """The task book: the one record of the running task of each type, with its typed parameters and how tasks ended.
 
 Pure bookkeeping (no bus, no clock of its own): ``start`` returns the route and mode changes to apply, ending the
-running task of the same type first (its saved values are restored, then the new task's are applied over them);
-``end`` returns the values saved when the task started. Every change bumps ``version`` so a reader can tell a newer
-list from an older one; ended tasks are kept (bounded) with their status and reason.
+running task of the same type first (what its end changes, then the new task's values over them); ``end`` returns
+what ending a task changes (:func:`ending`). Every change bumps ``version`` so a reader can tell a newer list from
+an older one; ended tasks are kept (bounded) with their status and reason.
+
+What ending a task does depends on its type (docs/gcs.md, "When a task ends"). A ``movement`` task moves the
+robot: the mode it set is never re-published at its end, because the value before it belongs to a task that has
+already ended (the take-off before a landing) and would fly again. Completed or replaced, nothing is sent (the
+robot holds where the task left it, or the new task takes over); failed, cancelled or aborted, the modes of the
+manifest's stop task (``hold``, else ``abort``) are sent: the robot stops flying the rest of its path and
+station-keeps. Its routes go back to what they were (an input reads its usual slot again; a
+route sends nothing by itself). Any other type (pan & tilt, perception) restores its saved routes and modes: the
+gimbal goes back to its rest mode, or to the task of another type still running under it.
 """
 
 from __future__ import annotations
@@ -19,6 +28,28 @@ from module_manager.manifest import TaskDef
 RouteKey = tuple[str, str]
 """(module, input slot)."""
 MAX_ENDED = 32
+MOVING_TYPE = "movement"
+"""The task type whose tasks move the robot (every robot manifest's; docs/manifest.md)."""
+STOP_TASKS = ("hold", "abort")
+"""Manifest tasks that stop the robot where it is, in order of preference."""
+STOPPING = frozenset({"failed", "cancelled", "aborted"})
+"""How a moving task may end that leaves the robot flying the rest of it unless it is told to stop."""
+
+
+def stop_task(tasks: dict[str, TaskDef]) -> str | None:
+    """The manifest task that stops the robot's movement (``hold``, else ``abort``), or None."""
+    return next((n for n in STOP_TASKS if n in tasks and tasks[n].type == MOVING_TYPE), None)
+
+
+def ending(task_name: str, task_type: str, status: str, stop: str | None) -> str:
+    """What ending task ``task_name`` of ``task_type`` with ``status`` does: ``"restore"`` (its saved routes and
+    modes), ``"stop"`` (routes restored, the modes of the stop task ``stop`` sent) or ``"leave"`` (routes restored,
+    no mode sent)."""
+    if task_type != MOVING_TYPE:
+        return "restore"
+    if status in STOPPING and stop is not None and task_name not in STOP_TASKS:
+        return "stop"
+    return "leave"
 
 
 @dataclass(frozen=True)
@@ -40,9 +71,10 @@ class TaskBook:
 
     def __init__(self, tasks: dict[str, TaskDef], no_restore: frozenset[str] = frozenset()) -> None:
         """``no_restore``: mode slots whose old value is never re-published when a task ends (manifest
-        ``restore = false``: one-shot movement commands)."""
+        ``restore = false``); a moving type's modes are never re-published whatever it says (:func:`ending`)."""
         self.tasks = tasks
         self.no_restore = no_restore
+        self.stop = stop_task(tasks)
         self._running: dict[str, _Running] = {}
         self.ended: deque[TaskInfo] = deque(maxlen=MAX_ENDED)
         self.next_id = 1
@@ -76,11 +108,16 @@ class TaskBook:
                        modes={**restore.modes, **{slot: dict(v) for slot, v in t.modes.items()}})
 
     def end(self, task_type: str, now: float = 0.0, status: str = "cancelled", detail: str = "") -> Changes:
-        """Changes that end the running task of ``task_type``; KeyError if none runs."""
+        """Changes that end the running task of ``task_type`` (:func:`ending`); KeyError if none runs."""
         running = self._running.pop(task_type)
         self.ended.append(msgspec.structs.replace(running.task, status=status, ended=now, detail=detail))
         self.version += 1
-        return Changes(routes=dict(running.saved_routes), modes=dict(running.saved_modes))
+        effect = ending(running.task.name, task_type, status, self.stop)
+        if effect == "restore":
+            return Changes(routes=dict(running.saved_routes), modes=dict(running.saved_modes))
+        stop = self.tasks[self.stop].modes if effect == "stop" and self.stop is not None else {}
+        modes: dict[str, dict[str, int] | None] = {slot: dict(v) for slot, v in stop.items()}
+        return Changes(routes=dict(running.saved_routes), modes=modes)
 
     def fail_needing(self, modules: set[str], uses: dict[str, set[str]], now: float, detail: str) -> list[Changes]:
         """End (failed) every running task whose manifest task uses one of ``modules``; the changes to apply."""

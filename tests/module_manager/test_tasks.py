@@ -1,10 +1,12 @@
-"""One task per type: starting replaces the running task of the type, ending restores what was before."""
+"""One task per type: starting replaces the running task of the type; ending a pan & tilt or perception task
+restores what was before, ending a movement task never brings back the task before it (it stops, or leaves the
+robot where the task put it)."""
 
 from __future__ import annotations
 
 from bbcs.contracts import tasks as t
 from module_manager.manifest import TaskDef
-from module_manager.tasks import TaskBook
+from module_manager.tasks import TaskBook, ending, stop_task
 
 TASKS = {
     "track": TaskDef(type="pan_tilt", routes={"pt.datos": 5}, modes={"pt_mode": {"m": 1}}),
@@ -77,6 +79,135 @@ def test_a_mode_slot_without_restore_is_left_as_the_module_reached_it():
     ch = book.start("take_off", t.TakeOff(height=2.0), 4.0, {}, modes)
     assert ch.modes == {"quad": {"modo": 2}}, "replacing sends only the new command, not the old one restored"
     assert book.end("movement", 5.0, "completed").modes == {}
-    restoring = TaskBook(tasks)  # the default: the value before is restored
-    restoring.start("take_off", t.TakeOff(), 1.0, {}, {"quad": {"modo": 3}})
-    assert restoring.end("movement").modes == {"quad": {"modo": 3}}
+    by_rule = TaskBook(tasks)  # without restore = false: a movement task's mode is never restored all the same
+    by_rule.start("take_off", t.TakeOff(), 1.0, {}, {"quad": {"modo": 3}})
+    assert by_rule.end("movement").modes == {}
+    panning = TaskBook({"look": TaskDef(type="pan_tilt", modes={"pt": {"m": 1}})})  # other types: restored
+    panning.start("look", None, 1.0, {}, {"pt": {"m": 2}})
+    assert panning.end("pan_tilt").modes == {"pt": {"m": 2}}
+
+
+# ------------------------------------------------------------------ ending a movement task (issue 30, case 1)
+
+PF = {"modo_o_comando": 0}
+UAV = {  # as bbcs_conf/uav1_sim.toml: every movement task drives the path follower's mode slot
+    "take_off": TaskDef(type="movement", modes={"pf_mode": {**PF, "modo_de_funcionamiento": 4}}),
+    "land": TaskDef(type="movement", modes={"pf_mode": {**PF, "modo_de_funcionamiento": 5}}),
+    "goto": TaskDef(type="movement", routes={"pf.datos": 11}, modes={"pf_mode": {**PF, "modo_de_funcionamiento": 0}}),
+    "survey": TaskDef(type="movement", routes={"pf.datos": 30}, modes={"pf_mode": {**PF, "modo_de_funcionamiento": 0}}),
+    "hold": TaskDef(type="movement", modes={"pf_mode": {"modo_o_comando": 1, "numero_de_comando": 0}}),
+    "abort": TaskDef(type="movement", modes={"pf_mode": {"modo_o_comando": 1, "numero_de_comando": 0}}),
+    "look_at": TaskDef(type="pan_tilt", routes={"pt.datos": 10}, modes={"pt_mode": {"m": 1}}),
+    "track": TaskDef(type="perception", routes={"pt.datos": 20}, modes={"pt_mode": {"m": 1}}),
+}
+HOLD = {"pf_mode": {"modo_o_comando": 1, "numero_de_comando": 0}}
+GOTO = t.Goto(waypoints=[t.Waypoint(lat=37.41, lon=-6.0, alt=40.0)], speed=5.0)
+
+
+class Robot:
+    """The manager's side of the book: the routes and modes as they stand, changed by what the book returns."""
+
+    def __init__(self, tasks: dict[str, TaskDef] = UAV) -> None:
+        self.book = TaskBook(tasks)
+        self.routes = {("pf", "datos"): 11, ("pt", "datos"): 10}
+        self.modes: dict = {"pf_mode": None, "pt_mode": {"m": 2}}
+        self.sent: list[dict] = []
+
+    def apply(self, ch) -> None:  # noqa: ANN001
+        self.routes.update(ch.routes)
+        for slot, value in ch.modes.items():
+            if value is not None:
+                self.modes[slot] = value
+                self.sent.append({slot: value})
+
+    def start(self, name: str, params=None, replaced_as: str = "replaced") -> None:  # noqa: ANN001
+        self.apply(self.book.start(name, params, 0.0, dict(self.routes), dict(self.modes), replaced_as=replaced_as))
+
+    def end(self, task_type: str, status: str) -> list[dict]:
+        before = len(self.sent)
+        self.apply(self.book.end(task_type, 1.0, status))
+        return self.sent[before:]
+
+
+def test_the_rule_per_type_and_status():
+    assert stop_task(UAV) == "hold", "hold is preferred to abort as the stop"
+    assert stop_task({"abort": UAV["abort"]}) == "abort"
+    assert stop_task({"look_at": UAV["look_at"]}) is None
+    assert stop_task(TASKS) is None, "a pan & tilt task named hold does not stop the movement"
+    for status in ("completed", "replaced"):
+        assert ending("goto", "movement", status, "hold") == "leave"
+    for status in ("failed", "cancelled", "aborted"):
+        assert ending("goto", "movement", status, "hold") == "stop"
+        assert ending("goto", "movement", status, None) == "leave", "no stop task: still never the task before"
+        assert ending("hold", "movement", status, "hold") == "leave", "a stopped robot is not told to stop again"
+        assert ending("abort", "movement", status, "hold") == "leave"
+        assert ending("look_at", "pan_tilt", status, "hold") == "restore"
+    assert ending("track", "perception", "completed", "hold") == "restore"
+
+
+def test_a_completed_land_never_sends_the_take_off_again():
+    robot = Robot()
+    robot.start("take_off", t.TakeOff(height=10.0))
+    assert robot.end("movement", "completed") == [], "a completed take-off leaves the aircraft hovering there"
+    robot.start("land", t.Land())
+    assert robot.sent[-1] == {"pf_mode": {**PF, "modo_de_funcionamiento": 5}}
+    assert robot.end("movement", "completed") == [], "after touchdown nothing is sent: no SET_MODE 4"
+
+
+def test_a_completed_goto_leaves_the_aircraft_where_it_arrived():
+    robot = Robot()
+    robot.start("take_off", t.TakeOff(height=10.0))
+    robot.start("goto", GOTO)
+    assert robot.end("movement", "completed") == [], "no drop back into take-off mode"
+    assert robot.routes[("pf", "datos")] == 11
+
+
+def test_a_failed_or_cancelled_path_stops_where_it_is_never_in_the_task_before():
+    for status in ("failed", "cancelled", "aborted"):
+        robot = Robot()
+        robot.start("take_off", t.TakeOff(height=10.0))
+        robot.start("survey", t.Survey(polygon=[t.Vertex(lat=37.41, lon=-6.0), t.Vertex(lat=37.411, lon=-6.0),
+                                                t.Vertex(lat=37.411, lon=-6.001)], height=30.0))
+        assert robot.routes[("pf", "datos")] == 30
+        assert robot.end("movement", status) == [HOLD], f"{status}: an explicit hold, no mode of its own"
+        assert robot.routes[("pf", "datos")] == 11, "the follower reads the RAL's path slot again"
+
+
+def test_abort_and_its_completion_leave_the_aircraft_holding():
+    robot = Robot()
+    robot.start("take_off", t.TakeOff(height=10.0))
+    robot.start("goto", GOTO)
+    robot.start("abort", None, replaced_as="aborted")
+    assert robot.sent[-1] == HOLD and robot.book.ended[-1].status == "aborted"
+    assert robot.end("movement", "completed") == [], "the abort done: no take-off mode afterwards"
+    robot.start("hold", t.Hold())
+    assert robot.end("movement", "cancelled") == [], "cancelling a hold sends nothing: it already holds"
+
+
+def test_a_replacing_task_sends_only_its_own_mode():
+    robot = Robot()
+    robot.start("goto", GOTO)
+    robot.start("land", t.Land())
+    assert robot.sent[-1] == {"pf_mode": {**PF, "modo_de_funcionamiento": 5}} and len(robot.sent) == 2
+
+
+def test_a_module_failure_stops_the_movement_and_restores_the_gimbal():
+    robot = Robot()
+    robot.start("goto", GOTO)
+    robot.start("look_at", t.LookAt(lat=37.41, lon=-6.0, alt=12.0))
+    changes = robot.book.fail_needing({"dsp"}, {"goto": {"dsp"}, "look_at": {"dsp"}}, 2.0, "module dsp exited")
+    for ch in changes:
+        robot.apply(ch)
+    assert robot.sent[-2:] == [HOLD, {"pt_mode": {"m": 2}}] or robot.sent[-2:] == [{"pt_mode": {"m": 2}}, HOLD]
+    assert robot.routes[("pt", "datos")] == 10
+
+
+def test_continuous_pan_tilt_and_perception_tasks_restore_what_was_under_them():
+    robot = Robot()
+    robot.start("track", t.Track())
+    assert robot.routes[("pt", "datos")] == 20
+    robot.start("look_at", t.LookAt(lat=37.41, lon=-6.0, alt=12.0))
+    assert robot.end("pan_tilt", "completed") == [{"pt_mode": {"m": 1}}], "back to the track still running"
+    assert robot.routes[("pt", "datos")] == 20
+    assert robot.end("perception", "cancelled") == [{"pt_mode": {"m": 2}}], "back to the gimbal's rest mode"
+    assert robot.routes[("pt", "datos")] == 10
