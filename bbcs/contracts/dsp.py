@@ -677,3 +677,20 @@ class LinkStats(msgspec.Struct, frozen=True, kw_only=True):
     @property
     def frames_dropped(self) -> int:
         return self.bad_crc + self.unknown_id + self.bad_length + self.oversize + self.truncated
+
+
+SENT_SLOT = "sent"
+"""The DSP process's record of what it put on the serial line (``cromat/<robot>/dsp/sent``, safe stream)."""
+
+
+class DspSent(msgspec.Struct, frozen=True, kw_only=True):
+    """One command of a batch that the DSP acknowledged: what really reached the aircraft, and when. Watchers (the
+    flight-safety monitor) trace every command to the task behind it from this stream; a refused or flushed
+    command never appears here."""
+
+    sender: str
+    """The command key's sender (``commands_<sender>``), or the batch's own ``sender`` on the shared key."""
+    batch_id: int
+    command: DspCommand
+    stamp: float
+    """When the DSP acknowledged it (the DSP process's clock, seconds)."""

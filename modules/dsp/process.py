@@ -20,6 +20,7 @@ process stops with exit code 3 and the manager restarts it (which runs the start
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
 from typing import ClassVar, NoReturn
 
@@ -54,6 +55,7 @@ class DspModule(Module):
         OutputSlot(contract.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
         OutputSlot(contract.ERRORS_SLOT, contract.DspErrorReport, kind=Kind.STREAM),
         OutputSlot(contract.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
+        OutputSlot(contract.SENT_SLOT, contract.DspSent, kind=Kind.STREAM),  # acknowledged commands (watchers)
         OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
@@ -210,6 +212,8 @@ class DspModule(Module):
                 self._publish_report(LinkErrorCode.LINK_DOWN if isinstance(exc, DspLinkError)
                                      else BusErrorCode.OUT_OF_RANGE, str(exc), batch, name)
                 return
+            self.publish(contract.SENT_SLOT, contract.DspSent(sender=batch.sender, batch_id=batch.batch_id,
+                                                              command=cmd, stamp=time.time()))
 
     # --- DSP → bus ---------------------------------------------------------------------------------------
 

@@ -1,0 +1,191 @@
+"""The flight-safety monitor process: what the robot does, watched against the invariants of issue 31.
+
+The decisions are in :mod:`modules.safety_monitor.logic`; this class feeds it. Inputs: the DSP's ``sent`` stream
+(every acknowledged command) and telemetry (slots), the Module Manager's robot state (its task book), the GRI
+state and events (the RAL's keys), and in simulation the DSP simulator's truth datagrams on a loopback UDP port
+(``--param truth_udp=PORT``; the simulator is started with ``--truth-udp 127.0.0.1:PORT``). Outputs: every breach
+on ``breach`` (:class:`bbcs.contracts.safety.Breach`, its code on ``error`` too), what it has watched on ``status``.
+
+It commands nothing and serves no task type: a breach is reported, never acted on.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Callable
+from typing import Annotated, Any, ClassVar
+
+import msgspec
+import zenoh
+import zenoh.ext
+
+from bbcs import dsp_client
+from bbcs.conf import ConfError, load_conf
+from bbcs.context import ModuleContext
+from bbcs.contracts import dsp as p
+from bbcs.contracts import gri, mri
+from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.safety import BREACH_SLOT, CODE_OF, STATUS_SLOT, Breach, MonitorStatus
+from bbcs.contracts.vehicle_truth import decode_truth
+from bbcs.module import Module
+from bbcs.slots import InputSlot, Kind, OutputSlot
+from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor
+
+STATUS_PERIOD_S = 1.0
+TRUTH_EVERY_S = 0.05
+"""Simulated seconds between the truth samples kept (the simulator sends one per physics step)."""
+
+
+class _Limits(msgspec.Struct, kw_only=True):
+    """The robot .conf keys the monitor reads (the RAL's own limits: docs/conf_format.md)."""
+
+    MIN_CLEARANCE: float | None = None
+    GEOFENCE: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
+
+
+def load_config(context: ModuleContext) -> MonitorConfig:
+    """The monitor's configuration from the robot .conf (limits) and its params; ConfError names file and line."""
+    fence = clearance = None
+    if context.conf:
+        doc = load_conf(context.conf)
+        errors = doc.errors_for(_Limits)
+        if errors:
+            raise errors[0]
+        raw = doc.to_struct(_Limits)
+        clearance = raw.MIN_CLEARANCE
+        fence = (raw.GEOFENCE[0], raw.GEOFENCE[1], raw.GEOFENCE[2]) if raw.GEOFENCE is not None else None
+    kw: dict[str, Any] = {}
+    for name in ("goal_tolerance_m", "gri_position_m", "abort_latency_s", "loc_attitude_deg"):
+        if name in context.params:
+            try:
+                kw[name] = float(context.params[name])
+            except ValueError:
+                raise ConfError(f"safety_monitor param {name}={context.params[name]!r} is not a number") from None
+    return MonitorConfig(robot=context.robot, geofence=fence, min_clearance_m=clearance,
+                         monitor_name=context.module, **kw)
+
+
+def truth_port(context: ModuleContext) -> int | None:
+    raw = context.params.get("truth_udp", "")
+    if not raw:
+        return None
+    host, _, port = raw.rpartition(":")
+    if host not in ("", "127.0.0.1", "localhost") or not port.isdigit():
+        raise ConfError(f"safety_monitor param truth_udp={raw!r}: a port (or 127.0.0.1:PORT) on this machine")
+    return int(port)
+
+
+class SafetyMonitorModule(Module):
+    name: ClassVar[str] = "safety_monitor"
+    slots = (
+        InputSlot("dsp_sent", p.DspSent, kind=Kind.STREAM, peer=f"{p.MODULE}/{p.SENT_SLOT}", queue=100_000),
+        dsp_client.telemetry_input(),
+        OutputSlot(BREACH_SLOT, Breach, kind=Kind.STREAM),
+        OutputSlot(STATUS_SLOT, MonitorStatus),
+        OutputSlot("error", ErrorReport),
+    )
+    error_slot = "error"
+    tick_period = 0.1
+
+    def __init__(self, context: ModuleContext, clock: Callable[[], float] = time.time) -> None:
+        super().__init__(context)
+        self.clock = clock
+        self.monitor = SafetyMonitor(load_config(context))
+        self._truth_port = truth_port(context)
+        self._truth_sock: socket.socket | None = None
+        self._truth_thread: threading.Thread | None = None
+        self._watching: list[Any] = []
+        self._next_status = 0.0
+        self.breaches: list[Breach] = []
+
+    def on_start(self) -> None:
+        s = self.session
+        assert s is not None
+        robot = self.robot
+        self._watching += [
+            zenoh.ext.declare_advanced_subscriber(
+                s, mri.mri_key(robot, mri.STATE), self._decoded(mri.RobotState, self._on_book),
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)),
+            zenoh.ext.declare_advanced_subscriber(
+                s, gri.state_key(robot), self._decoded(gri.GriState, self.monitor.on_gri_state),
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)),
+            s.declare_subscriber(gri.events_key(robot), self._decoded(gri.GriEvent, self.monitor.on_gri_event)),
+        ]
+        if self._truth_port is not None:
+            self._truth_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self._truth_sock.bind(("127.0.0.1", self._truth_port))
+            self._truth_sock.settimeout(0.2)
+            self._truth_thread = threading.Thread(target=self._read_truth, name="safety-truth", daemon=True)
+            self._truth_thread.start()
+        self.log.info("watching %s (truth %s)", robot,
+                      f"on udp 127.0.0.1:{self._truth_port}" if self._truth_port else "none: not a simulation")
+
+    def on_stop(self) -> None:
+        for entity in self._watching:
+            entity.undeclare()
+        self._watching.clear()
+        if self._truth_sock is not None:
+            if self._truth_thread is not None:
+                self._truth_thread.join(1.0)
+            self._truth_sock.close()
+
+    def _decoded(self, typ: type, handler: Callable[[float, Any], None]) -> Callable[[zenoh.Sample], None]:
+        decoder = msgspec.msgpack.Decoder(typ)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                value = decoder.decode(sample.payload.to_bytes())
+            except msgspec.MsgspecError as exc:
+                self.log.warning("unreadable %s dropped: %s", typ.__name__, exc)
+                return
+            self.call_soon(lambda: handler(self.clock(), value))
+
+        return on_sample
+
+    def _on_book(self, now: float, state: mri.RobotState) -> None:
+        self.monitor.on_book(now, state.stamp, state.tasks, state.ended)
+
+    def _read_truth(self) -> None:
+        assert self._truth_sock is not None
+        last = -1.0
+        while not self.stopping:
+            try:
+                data = self._truth_sock.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            try:
+                truth = decode_truth(data)
+            except msgspec.MsgspecError as exc:
+                self.log.warning("bad truth datagram dropped: %s", exc)
+                continue
+            if truth.time_s - last < TRUTH_EVERY_S and truth.time_s >= last:
+                continue
+            last = truth.time_s
+            now = self.clock()
+            self.call_soon(lambda t=truth, n=now: self.monitor.on_truth(n, t))
+
+    def on_dsp_sent(self, msg: p.DspSent) -> None:
+        self.monitor.on_sent(self.clock(), msg)
+
+    def on_dsp_telemetry(self, t: p.Telemetry) -> None:
+        self.monitor.on_telemetry(self.clock(), t)
+
+    def on_tick(self) -> None:
+        now = self.clock()
+        for breach in self.monitor.tick(now):
+            self.breaches.append(breach)
+            self.log.warning("%s", breach.describe())
+            self.publish(BREACH_SLOT, breach)
+            self.report_error(int(CODE_OF[breach.invariant]), breach.summary)
+        if now >= self._next_status:
+            self._next_status = now + STATUS_PERIOD_S
+            self.publish(STATUS_SLOT, self.status(now))
+
+    def status(self, now: float) -> MonitorStatus:
+        m = self.monitor
+        return MonitorStatus(robot=self.robot, stamp=now, tasks=len(m.tasks), breaches=dict(m.breach_counts),
+                             **m.counts)

@@ -1,0 +1,317 @@
+"""The flight-safety monitor's decisions, with its clock in the test's hands: for every invariant a flight that
+breaches it and one that does not."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from bbcs.contracts import dsp as p
+from bbcs.contracts.dsp import DspSent
+from bbcs.contracts.gri import GriEvent, GriState
+from bbcs.contracts.mri import ErrorEvent
+from bbcs.contracts.robot import GeoPoint, RobotTelemetry
+from bbcs.contracts.safety import Breach, Invariant, Severity
+from bbcs.contracts.tasks import Goto, TakeOff, TaskInfo, Waypoint
+from bbcs.contracts.vehicle_truth import VehicleTruth
+from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor, ground_distance_m, is_stop
+
+HOME = (37.4117, -6.0025, 12.0)
+M = 1 / 111_320.0  # degrees of latitude per metre
+
+
+def monitor(**kw: object) -> SafetyMonitor:
+    return SafetyMonitor(MonitorConfig(robot="uav1", geofence=(HOME[0], HOME[1], 3000.0), min_clearance_m=5.0,
+                                       **kw))  # type: ignore[arg-type]
+
+
+def task(id: int, name: str, started: float, ended: float | None = None, *, task_type: str = "movement",
+         status: str = "running", params: object = None, kind: str | None = None, detail: str = "",
+         origin: str = "gcs") -> TaskInfo:
+    return TaskInfo(id=id, name=name, task_type=task_type, kind=name if kind is None else kind, params=params,
+                    status=status if ended is None or status != "running" else "completed", started=started,
+                    ended=ended, detail=detail, origin=origin)  # type: ignore[arg-type]
+
+
+def book(m: SafetyMonitor, now: float, *tasks: TaskInfo) -> None:
+    m.on_book(now, now, [t for t in tasks if t.ended is None], [t for t in tasks if t.ended is not None])
+
+
+def sent(m: SafetyMonitor, stamp: float, cmd: object, sender: str = "path_follower") -> None:
+    m.on_sent(stamp, DspSent(sender=sender, batch_id=1, command=cmd, stamp=stamp))  # type: ignore[arg-type]
+
+
+def truth(m: SafetyMonitor, now: float, north_m: float = 0.0, height: float = 10.0, *, roll: float = 0.0,
+          heading: float = 0.0, vup: float = 0.0, east_m: float = 0.0) -> None:
+    m.on_truth(now, VehicleTruth(seq=int(now * 20), time_s=now, time_scale=1.0, home=HOME,
+                                 lat=HOME[0] + north_m * M, lon=HOME[1] + east_m * M / math.cos(math.radians(HOME[0])),
+                                 alt=HOME[2] + height, vel_neu=(0.0, 0.0, vup), roll=roll, pitch=0.0, heading=heading))
+
+
+def telemetry(m: SafetyMonitor, now: float, *, north_m: float = 0.0, height: float = 10.0, queue: int = 0,
+              nav_m: float | None = None, airborne: bool = True) -> None:
+    lat = HOME[0] + north_m * M
+    nav = p.NavTarget(lat=HOME[0] + 200 * M, lon=HOME[1], alt=HOME[2] + height, distance=nav_m) if nav_m else None
+    m.on_telemetry(now, p.Telemetry(time_ms=int(now * 1000), position=p.Position(lat=lat, lon=HOME[1],
+                                                                                  alt=HOME[2] + height),
+                                    status=p.DspStatus(mode=0, tracking=True, path_valid=True, airborne=airborne,
+                                                       queue_length=queue), nav=nav))
+
+
+def run(m: SafetyMonitor, until: float, step: float = 0.5) -> list[Breach]:
+    out: list[Breach] = []
+    t = 0.0
+    while t <= until:
+        out += m.tick(t)
+        t += step
+    return out
+
+
+def kinds(breaches: list[Breach]) -> list[str]:
+    return [b.kind for b in breaches]
+
+
+# ---------------------------------------------------------------- 1. every command traced
+
+
+def test_a_command_inside_its_task_is_traced() -> None:
+    m = monitor()
+    sent(m, 10.2, p.SetMode(mode=p.Mode.TAKE_OFF))
+    book(m, 10.5, task(1, "take_off", 10.0))
+    assert run(m, 20) == []
+    assert m.counts["commands_judged"] == 1
+
+
+def test_a_command_after_its_task_ended_is_a_critical_breach() -> None:
+    """Issue 30 case 1: the task ends, then the previous mode is flown again."""
+    m = monitor()
+    book(m, 30.0, task(1, "land", 10.0, 25.0, status="completed"))
+    sent(m, 25.3, p.SetMode(mode=p.Mode.TAKE_OFF))
+    (b,) = run(m, 40)
+    assert (b.invariant, b.kind, b.severity) == (Invariant.COMMAND_TRACED, "untraced_command", Severity.CRITICAL)
+    assert "SetMode" in b.summary and any("1 land completed" in line for line in b.evidence)
+
+
+def test_a_stop_command_at_a_task_end_is_traced_but_not_a_motion_command() -> None:
+    m = monitor()
+    book(m, 30.0, task(1, "goto", 10.0, 25.0, status="completed"))
+    sent(m, 25.4, p.InvalidatePath())
+    sent(m, 25.5, p.SetTracking(enable=False))
+    assert run(m, 40) == []
+    sent(m, 25.6, p.SetTracking(enable=True))
+    assert kinds(run(m, 40)) == ["untraced_command"]
+
+
+def test_a_command_from_a_sender_that_serves_no_running_task_is_untraced() -> None:
+    m = monitor()
+    book(m, 5.0, task(1, "goto", 1.0))  # a movement task runs: it is behind no pan & tilt command
+    sent(m, 6.0, p.SetPanTiltAngles(pan_deg=10.0, tilt_deg=-10.0), sender="pan_tilt")
+    sent(m, 6.0, p.SetMode(mode=p.Mode.TAKE_OFF), sender="bench")  # the shared key's self-named sender
+    assert kinds(run(m, 20)) == ["untraced_command", "untraced_command"]
+
+
+def test_start_up_holds_are_traced_only_before_the_first_task() -> None:
+    m = monitor()
+    sent(m, 1.0, p.SetPanTiltMode(mode=p.PanTiltMode.HOLD), sender="pan_tilt")
+    book(m, 12.0, task(1, "take_off", 10.0))
+    assert run(m, 20) == []
+    sent(m, 13.0, p.SetPanTiltMode(mode=p.PanTiltMode.HOLD), sender="pan_tilt")
+    (b,) = run(m, 30)
+    assert b.severity is Severity.WARNING  # a hold nothing asked for: wrong, but it moves nothing
+
+
+def test_a_command_is_judged_only_once_the_task_book_could_show_its_task() -> None:
+    m = monitor()
+    sent(m, 10.1, p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
+    assert m.tick(10.2) == []  # the book has not caught up: nothing decided yet
+    book(m, 10.2, task(7, "goto", 10.0))  # the book is older than the command + lag: still waiting
+    assert m.tick(10.3) == [] and m.counts["commands_judged"] == 0
+    book(m, 10.5, task(7, "goto", 10.0))
+    assert m.tick(10.5) == [] and m.counts["commands_judged"] == 1
+
+
+# ---------------------------------------------------------------- 2. verdicts
+
+
+def goto_task(ended: float | None, status: str = "completed", detail: str = "") -> TaskInfo:
+    wp = Waypoint(lat=HOME[0] + 100 * M, lon=HOME[1], alt=HOME[2] + 20)
+    return task(3, "goto", 10.0, ended, status=status, params=Goto(waypoints=[wp]), detail=detail)
+
+
+def test_a_goto_completed_at_its_goal_is_right() -> None:
+    m = monitor()
+    sent(m, 10.1, p.AddWaypoint(lat=HOME[0] + 100 * M, lon=HOME[1], alt=HOME[2] + 20))
+    truth(m, 30.0, north_m=98.0, height=20.5)
+    book(m, 30.0, goto_task(30.0))
+    assert run(m, 40) == []
+    assert m.counts["verdicts"] == 1
+
+
+def test_a_goto_completed_away_from_its_goal_is_a_breach() -> None:
+    m = monitor()
+    sent(m, 10.1, p.AddWaypoint(lat=HOME[0] + 100 * M, lon=HOME[1], alt=HOME[2] + 20))
+    truth(m, 30.0, north_m=40.0, height=20.0)
+    book(m, 30.0, goto_task(30.0))
+    (b,) = run(m, 40)
+    assert (b.invariant, b.kind, b.task_id) == (Invariant.TASK_VERDICT, "completed_away_from_goal", 3)
+    assert "60.0 m from its goal" in b.summary
+
+
+def test_take_off_and_land_verdicts() -> None:
+    m = monitor()
+    truth(m, 20.0, height=4.0)
+    book(m, 20.0, task(1, "take_off", 10.0, 20.0, params=TakeOff(height=10.0)))
+    truth(m, 50.0, height=0.0)
+    book(m, 50.0, task(2, "land", 30.0, 50.0))
+    assert kinds(run(m, 60)) == ["completed_away_from_goal"]  # the take-off at 4 m of 10; the landing is right
+    m2 = monitor()
+    truth(m2, 50.0, height=6.0)
+    book(m2, 50.0, task(2, "land", 30.0, 50.0))
+    assert [b.summary for b in run(m2, 60)] == ["task 2 land: land completed while airborne"]
+
+
+def test_a_task_failed_while_waypoints_are_being_reached_is_a_breach() -> None:
+    """Issue 30 case 2: 'no progress' while flying at 5 m/s with waypoints queued."""
+    m = monitor()
+    for i in range(21):  # 10 s: the nav distance shrinks, a waypoint is reached
+        telemetry(m, 20.0 + i / 2, queue=3 if i < 10 else 2, nav_m=100.0 - 2.5 * i)
+    book(m, 30.0, goto_task(30.0, status="failed", detail="no progress for 30 s"))
+    (b,) = run(m, 40)
+    assert (b.kind, b.severity) == ("failed_while_progressing", Severity.ERROR)
+    assert any("waypoint queue 3 -> 2" in line for line in b.evidence)
+
+
+def test_a_task_failed_while_hovering_in_place_is_not_a_breach() -> None:
+    m = monitor()
+    for i in range(21):
+        telemetry(m, 20.0 + i / 2, queue=3, nav_m=100.0)
+    book(m, 30.0, goto_task(30.0, status="failed", detail="no progress for 30 s"))
+    assert run(m, 40) == []
+
+
+# ---------------------------------------------------------------- 3. the GRI against the truth
+
+
+def gri(stamp: float, north_m: float, height: float = 10.0, airborne: bool = True,
+        errors: list[ErrorEvent] | None = None) -> GriState:
+    tel = RobotTelemetry(stamp=stamp, position=GeoPoint(lat=HOME[0] + north_m * M, lon=HOME[1], alt=HOME[2] + height),
+                         airborne=airborne)
+    return GriState(robot="uav1", stamp=stamp + 0.5, telemetry=tel, errors=errors or [])
+
+
+def test_the_gri_where_the_truth_is_agrees() -> None:
+    m = monitor()
+    for i in range(60):
+        truth(m, i / 10, north_m=i / 10)
+    m.on_gri_state(6.0, gri(5.0, north_m=5.0 + 3.0))
+    assert run(m, 10) == []
+
+
+def test_the_gri_more_than_5_m_off_the_truth_or_wrong_about_airborne_is_a_breach() -> None:
+    m = monitor()
+    for i in range(60):
+        truth(m, i / 10, north_m=i / 10)
+    m.on_gri_state(6.0, gri(5.0, north_m=5.0 + 7.0, airborne=False))
+    assert kinds(run(m, 10)) == ["gri_position", "gri_airborne"]
+
+
+def test_a_loss_of_control_reported_within_1_s_is_right() -> None:
+    m = monitor()
+    truth(m, 10.0)
+    truth(m, 10.05, roll=70.0)
+    m.on_gri_event(11.0, GriEvent(robot="uav1", stamp=10.8, kind="task_failed", task_id=2, detail="attitude 70 deg"))
+    assert run(m, 20) == []
+
+
+def test_a_loss_of_control_unreported_or_reported_late_is_a_critical_breach() -> None:
+    m = monitor()
+    truth(m, 10.0, heading=0.0)
+    truth(m, 10.05, heading=30.0)  # 600 deg/s: spinning
+    m.on_gri_state(12.5, gri(12.0, 0.0, errors=[ErrorEvent(module="ral", code=603, stamp=11.6, detail="late")]))
+    m.on_gri_state(12.6, gri(12.1, 0.0, errors=[ErrorEvent(module="safety_monitor", code=903, stamp=10.5)]))
+    (b,) = [b for b in run(m, 20) if b.kind == "loss_of_control_unreported"]
+    assert b.severity is Severity.CRITICAL and "heading turning" in b.evidence[0]
+    assert any("reported later" in line for line in b.evidence)
+
+
+# ---------------------------------------------------------------- 4. abort within 100 ms
+
+
+def test_an_abort_acknowledged_within_100_ms_is_right() -> None:
+    m = monitor()
+    book(m, 10.1, task(4, "abort", 10.0, 10.02, kind=""))
+    sent(m, 10.08, p.Abort())
+    assert run(m, 20) == []
+
+
+@pytest.mark.parametrize(("ack_at", "kind"), [(10.25, "abort_late"), (None, "abort_missing")])
+def test_an_abort_late_or_never_is_a_breach(ack_at: float | None, kind: str) -> None:
+    m = monitor()
+    book(m, 10.1, task(4, "abort", 10.0, 10.02, kind=""))
+    if ack_at is not None:
+        sent(m, ack_at, p.Abort())
+    (b,) = run(m, 20)
+    assert (b.invariant, b.kind) == (Invariant.ABORT_LATENCY, kind)
+    if ack_at is not None:
+        assert "250 ms" in b.summary
+
+
+# ---------------------------------------------------------------- 5. geofence and clearance
+
+
+def test_inside_the_fence_and_above_the_clearance_is_right() -> None:
+    m = monitor()
+    book(m, 0.0, task(1, "take_off", 0.0, 5.0, params=TakeOff(height=10.0)))
+    for i in range(50):  # climbs through the clearance during take-off, then holds at 10 m
+        truth(m, i / 10, height=min(10.0, i / 2))
+    for i in range(50, 100):
+        truth(m, i / 10, height=10.0, north_m=(i - 50) * 10)
+    assert [b for b in run(m, 10) if b.invariant is Invariant.ENVELOPE] == []
+
+
+def test_outside_the_fence_for_a_second_is_one_critical_breach() -> None:
+    m = monitor()
+    for i in range(30):
+        truth(m, i / 10, north_m=3000.0 + i)
+    (b,) = run(m, 5)
+    assert (b.kind, b.severity) == ("outside_geofence", Severity.CRITICAL)
+    m2 = monitor()
+    for i in range(5):  # out for 0.4 s only: a glitch, not an excursion
+        truth(m2, i / 10, north_m=3001.0)
+    assert run(m2, 5) == []
+
+
+def test_hovering_below_the_clearance_with_no_landing_is_a_breach_and_landing_is_not() -> None:
+    m = monitor()
+    for i in range(30):
+        truth(m, i / 10, height=3.0)
+    assert kinds(run(m, 5)) == ["below_clearance"]
+    m2 = monitor()
+    book(m2, 0.0, task(2, "land", 0.0))
+    for i in range(30):
+        truth(m2, i / 10, height=3.0 - i / 10)
+    assert run(m2, 5) == []
+
+
+def test_without_truth_the_dsp_telemetry_is_the_position() -> None:
+    m = monitor()
+    telemetry(m, 0.0, height=0.0, airborne=False)  # on the ground: home
+    for i in range(1, 30):
+        telemetry(m, i / 10, height=3.0)
+    assert kinds(run(m, 5)) == ["below_clearance"]
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def test_stop_commands_and_distances() -> None:
+    assert is_stop(p.Abort()) and is_stop(p.SetSpeed(speed=0.0)) and not is_stop(p.SetSpeed(speed=1.0))
+    assert not is_stop(p.SetPanTiltMode(mode=p.PanTiltMode.TARGET))
+    assert ground_distance_m(HOME[0], HOME[1], HOME[0] + 100 * M, HOME[1]) == pytest.approx(100.0, rel=1e-6)
+
+
+def test_a_breach_describes_itself_with_its_evidence() -> None:
+    b = Breach(robot="uav1", invariant=Invariant.ENVELOPE, kind="below_clearance", severity=Severity.CRITICAL,
+               stamp=1.0, summary="low", evidence=["truth at 1.0", "MIN_CLEARANCE 5"])
+    assert b.describe() == "[CRITICAL invariant 5 below_clearance] low\n    truth at 1.0\n    MIN_CLEARANCE 5"
