@@ -2,6 +2,9 @@
 
 A receiving thread owns the socket's input: it cuts the stream into messages, hands scans to ``on_scan``
 (called in that thread, the seed's messageHandler) and routes command replies to whoever waits for them.
+Every message it refuses (a damaged header, a scan cut short, a scan whose content is impossible) is counted and
+reported to ``on_refused``, coalesced (modules/lidar_logger/refusals.py: the first at once, then at most one report
+a second with the count).
 Commands can be awaited (``command``) or only sent (``send_command``) so the logger can keep writing scans
 while StopMeasure is on its way.
 """
@@ -12,6 +15,7 @@ import logging
 import socket
 import struct
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -32,6 +36,7 @@ from modules.lidar_logger.ldmrs_proto import (
     parse_reply,
 )
 from modules.lidar_logger.ldmrs_scan import TICKS_PER_DEGREE, Scan, decode_scan, posix_to_ntp
+from modules.lidar_logger.refusals import Refusals
 
 log = logging.getLogger("lidar_logger.ldmrs")
 
@@ -123,15 +128,19 @@ class LdmrsClient:
     """One LD-MRS at ``host:port``."""
 
     def __init__(self, host: str, port: int = DEFAULT_PORT, *, connect_timeout: float = 5.0,
-                 reply_timeout: float = 2.0) -> None:
+                 reply_timeout: float = 2.0, clock: Callable[[], float] = time.monotonic) -> None:
         self.host = host
         self.port = port
         self.connect_timeout = connect_timeout
         self.reply_timeout = reply_timeout
         self.on_scan: Callable[[Scan], None] | None = None
         self.on_refused: Callable[[str], None] | None = None
-        """Called (receiver thread) with the reason of every scan refused by ``decode_scan``."""
+        """Called (receiver thread) with a report of the messages refused (cut short, damaged, impossible content),
+        coalesced: the first at once, then at most one a second."""
         self.parser = MessageParser()
+        self.refusals = Refusals("LD-MRS")
+        self.clock = clock
+        self._damaged_seen = 0
         self.scans = 0
         self.scans_ignored = 0
         self.bad_scans = 0
@@ -175,6 +184,7 @@ class LdmrsClient:
             try:
                 chunk = sock.recv(65536)
             except TimeoutError:
+                self._note_damaged()  # a quiet link still reports what is pending
                 continue
             except OSError as exc:
                 self.disconnected = f"connection to LD-MRS lost: {exc}"
@@ -184,7 +194,28 @@ class LdmrsClient:
                 break
             for msg in self.parser.feed(chunk):
                 self._dispatch(msg.data_type, msg.payload)
+            self._note_damaged()
+        self._note_damaged()
+        self._report(self.refusals.poll(float("inf")))
         self._fail_waiters()
+
+    def _note_damaged(self) -> None:
+        """Messages the stream parser refused since the last look, and any report left pending."""
+        p = self.parser
+        new = p.damaged - self._damaged_seen
+        self._damaged_seen = p.damaged
+        now = self.clock()
+        if new:
+            self.bad_scans += new
+            self._report(self.refusals.note(now, f"message dropped (cut short {p.cut_short}, size disagreeing with "
+                                                 f"its content {p.size_mismatch}, impossible size {p.bad_size})",
+                                            new))
+        else:
+            self._report(self.refusals.poll(now))
+
+    def _report(self, text: str | None) -> None:
+        if text is not None and self.on_refused is not None:
+            self.on_refused(text)
 
     def _dispatch(self, data_type: int, payload: bytes) -> None:
         if data_type == DataType.SCAN:
@@ -193,8 +224,7 @@ class LdmrsClient:
             except LdmrsProtocolError as exc:
                 self.bad_scans += 1
                 log.warning("dropped a scan: %s", exc)
-                if self.on_refused is not None:
-                    self.on_refused(f"LD-MRS scan dropped ({self.bad_scans} so far): {exc}")
+                self._report(self.refusals.note(self.clock(), f"scan dropped: {exc}"))
                 return
             self.scans += 1
             handler = self.on_scan

@@ -4,7 +4,10 @@ Every message is ``magic 0xAFFEC0C2 | size of previous message | payload size | 
 data type | NTP time`` (big-endian) followed by a little-endian payload (reference/protocols.md §2).
 The stream parser resynchronises on the magic word: garbage before it is dropped and counted; a header whose
 size is impossible, or whose payload disagrees with its own content (a scan's point count), costs only the
-four magic bytes, so a good message hidden inside a bogus size is still found.
+four magic bytes, so a good message hidden inside a bogus size is still found. A message cut short (its header
+and its scan header promise N points, the bytes stop early and the next message follows) is recognised by the
+next message's header inside what its size claims: it is dropped and counted (``cut_short``) and the next message
+is parsed from its own magic word, so the good scan after a cut one is not swallowed.
 """
 
 from __future__ import annotations
@@ -140,6 +143,24 @@ def reply_payload(cmd: int, data: bytes = b"", *, ok: bool = True) -> bytes:
     return struct.pack("<H", cmd | (0 if ok else REPLY_ERROR_BIT)) + data
 
 
+_KNOWN_TYPES = frozenset(int(t) for t in DataType)
+
+
+def _next_header(buf: bytearray, lo: int, hi: int, device_id: int, max_payload: int) -> int | None:
+    """Where, in ``buf[lo:hi]``, the header of another message from the same device begins (its magic word, a
+    known data type, a possible size): -1 while a magic word there lacks the bytes to tell; None when there is none.
+    Four magic bytes and a matching device id and type inside a payload by chance: about 2**-40 per byte."""
+    k = buf.find(MAGIC_BYTES, lo, hi + 3)
+    while 0 <= k < hi:
+        if len(buf) - k < HEADER_SIZE:
+            return -1
+        _, _, size, _, dev, data_type, _ = HEADER.unpack_from(buf, k)
+        if dev == device_id and data_type in _KNOWN_TYPES and size <= max_payload:
+            return k
+        k = buf.find(MAGIC_BYTES, k + 1, hi + 3)
+    return None
+
+
 def _payload_consistent(data_type: int, payload: memoryview) -> bool:
     """Content checks that catch a header whose size field lies."""
     if data_type == DataType.SCAN:
@@ -164,6 +185,12 @@ class MessageParser:
         self.discarded_bytes = 0
         self.bad_size = 0
         self.size_mismatch = 0
+        self.cut_short = 0
+
+    @property
+    def damaged(self) -> int:
+        """Messages refused so far: impossible size, size disagreeing with the content, cut short."""
+        return self.bad_size + self.size_mismatch + self.cut_short
 
     @property
     def pending(self) -> int:
@@ -194,6 +221,14 @@ class MessageParser:
                 pos += 4
                 continue
             end = pos + HEADER_SIZE + size
+            nxt = _next_header(buf, pos + HEADER_SIZE, min(n, end), device_id, self._max)
+            if nxt == -1:
+                break  # a magic word inside the claimed payload: wait for the bytes that say what it starts
+            if nxt is not None:  # the next message starts inside this one's claimed size: this one was cut short
+                self.cut_short += 1
+                self.discarded_bytes += nxt - pos
+                pos = nxt
+                continue
             if n < end:
                 break
             payload = memoryview(buf)[pos + HEADER_SIZE:end]

@@ -19,6 +19,7 @@ import serial
 
 from modules.lidar_logger.clock import SYSTEM_CLOCK, Clock
 from modules.lidar_logger.mtdata import POSE_MODE, POSE_SETTINGS, MTDataError, Pose, decode_pose, layout
+from modules.lidar_logger.refusals import Refusals
 from modules.lidar_logger.xbus import ERROR_CODES, MID, Frame, FrameParser, ack_of, build_frame
 
 SCENARIO_AEROSPACE = 3
@@ -186,8 +187,13 @@ class PoseSource:
         self.max_failures = max_failures
         self.on_pose = on_pose
         self.on_refused = on_refused
-        """Called with the reason of every MTData refused by ``decode_pose`` (corrupt or out of range)."""
+        """Called with a report of the data refused (frames with a bad checksum or length, MTData that
+        ``decode_pose`` refuses: corrupt or out of range), coalesced: the first at once, then at most one a
+        second with the count (modules/lidar_logger/refusals.py)."""
         self.refused = 0
+        """MTData refused by ``decode_pose``."""
+        self.refusals = Refusals("MTi-G")
+        self._damaged_seen = 0
         self._latest: PoseSample | None = None
         self._cond = threading.Condition()
         self._stop = threading.Event()
@@ -220,7 +226,31 @@ class PoseSource:
                 self._cond.wait(timeout=poll)
         return None
 
+    def _note_damaged(self) -> None:
+        """Frames the Xbus parser refused since the last look (a bad checksum or length: corrupt on the line),
+        and any report left pending."""
+        parser = self.device.parser
+        new = parser.damaged - self._damaged_seen
+        self._damaged_seen = parser.damaged
+        now = self.clock.now()
+        if new:
+            self._report(self.refusals.note(now, f"frame dropped (bad checksum {parser.bad_checksum}, impossible "
+                                                 f"length {parser.bad_length})", new))
+        else:
+            self._report(self.refusals.poll(now))
+
+    def _report(self, text: str | None) -> None:
+        if text is not None and self.on_refused is not None:
+            self.on_refused(text)
+
     def _run(self) -> None:
+        try:
+            self._poll()
+        finally:  # stopping or failed: what is still pending is reported
+            self._note_damaged()
+            self._report(self.refusals.poll(float("inf")))
+
+    def _poll(self) -> None:
         consecutive = 0
         next_t = self.clock.now()
         reply_timeout = max(0.2, min(1.0, self.clock.wall(10 * self.period)))
@@ -232,8 +262,7 @@ class PoseSource:
                 self.failures += 1
                 if isinstance(exc, MTDataError):
                     self.refused += 1
-                    if self.on_refused is not None:
-                        self.on_refused(f"MTi-G sample dropped ({self.refused} so far): {exc}")
+                    self._report(self.refusals.note(self.clock.now(), f"sample dropped: {exc}"))
                 if consecutive >= self.max_failures:
                     with self._cond:
                         self.failed = f"MTi-G stopped answering: {exc}"
@@ -252,6 +281,7 @@ class PoseSource:
                         self.on_pose(pose)
                     except Exception:  # a subscriber's failure must not stop the polling
                         self.callback_errors += 1
+            self._note_damaged()
             next_t += self.period
             now = self.clock.now()
             if next_t < now:

@@ -101,6 +101,11 @@ class FrameParser:
         """Bytes held while waiting for the rest of a frame."""
         return len(self._buf)
 
+    @property
+    def damaged(self) -> int:
+        """Candidate frames refused so far (bad checksum, impossible length)."""
+        return self.bad_checksum + self.bad_length
+
     def feed(self, chunk: bytes) -> list[Frame]:
         buf = self._buf
         buf += chunk

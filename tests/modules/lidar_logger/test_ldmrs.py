@@ -163,3 +163,40 @@ def test_set_time_puts_the_scanner_clock_on_the_given_utc(make_world, start_ldmr
     # the scanner takes the time when SET_NTP_FRAC arrives, between the two readings: the offset is 1234.5 s
     # minus that latency, whatever it was (1e-5 s: float and NTP-fraction rounding)
     assert 1234.5 - (after - before) - 1e-5 <= sim.device.clock_offset <= 1234.5 + 1e-5
+
+
+def test_cut_scans_are_reported_coalesced_and_the_next_scan_arrives() -> None:
+    """A far end on 127.0.0.1 sends ten scans cut short, then a good one (all written by hand from the protocol,
+    tests/modules/lidar_logger/test_ldmrs_proto.py::hand_scan): the good scan reaches on_scan, the cut ones are
+    counted and reported to on_refused, the first at once and the other nine together about a second later."""
+    from tests.modules.lidar_logger.test_ldmrs_proto import hand_scan
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    scans: list[Scan] = []
+    reports: list[tuple[float, str]] = []
+    client = LdmrsClient("127.0.0.1", port)
+    client.on_scan = scans.append
+    client.on_refused = lambda text: reports.append((time.monotonic(), text))
+    conn = None
+    try:
+        client.connect()
+        conn, _ = server.accept()
+        conn.sendall(hand_scan(1, 60)[:24 + 44 + 10 * 20])  # cut: known once the next header arrives
+        conn.sendall(hand_scan(2, 60)[:24 + 44 + 10 * 20])
+        wait_for(lambda: reports)
+        conn.sendall(b"".join(hand_scan(k, 60)[:24 + 44 + 10 * 20] for k in range(3, 11)) + hand_scan(11, 60))
+        wait_for(lambda: scans)
+        assert [s.scan_number for s in scans] == [11]
+        wait_for(lambda: len(reports) >= 2, 5.0)
+        time.sleep(1.5)  # nothing more is pending: no further report
+    finally:
+        client.close()
+        if conn is not None:
+            conn.close()
+        server.close()
+    assert client.parser.cut_short == 10 and client.refusals.total == 10 and client.bad_scans == 10
+    assert len(reports) == 2, reports
+    assert "LD-MRS: message dropped (cut short" in reports[0][1]
+    assert "9 refused in the last" in reports[1][1] and "(10 so far)" in reports[1][1]
+    assert reports[1][0] - reports[0][0] >= 0.9

@@ -101,7 +101,7 @@ def test_size_field_too_large_swallows_nothing_once_more_data_arrives() -> None:
     for f in following:
         msgs += parser.feed(f)
     assert [int.from_bytes(m.payload[:2], "little") for m in msgs] == [2, 3, 4, 5]
-    assert parser.size_mismatch == 1
+    assert parser.damaged == 1  # cut short: the next header inside its claimed size, seen as soon as it arrives
 
 
 def test_impossible_size_is_rejected_at_once() -> None:
@@ -128,3 +128,50 @@ def test_any_mix_of_scans_and_garbage_in_any_chunking(items, chunk) -> None:
     for i in range(0, len(stream), chunk):
         got += parser.feed(stream[i : i + chunk])
     assert [m.payload for m in got] == expected
+
+
+# A scan written by hand from the protocol (reference/protocols.md §2): the 24-byte big-endian header, then the
+# 44-byte little-endian scan header and 10-byte points; not built with the project's encoder.
+def hand_scan(number: int, points: int) -> bytes:
+    scan_header = (
+        number.to_bytes(2, "little") + (0).to_bytes(2, "little") + (0).to_bytes(2, "little")  # number, status, sync
+        + (1 << 32).to_bytes(8, "little") + ((1 << 32) + 80_000).to_bytes(8, "little")  # start, end NTP
+        + (11520).to_bytes(2, "little") + (1600).to_bytes(2, "little", signed=True)  # ticks/rot, start angle
+        + (-1600).to_bytes(2, "little", signed=True) + points.to_bytes(2, "little")  # end angle, point count
+        + bytes(12) + (0).to_bytes(2, "little")  # mounting yaw pitch roll x y z, flags
+    )
+    assert len(scan_header) == 44
+    body = b"".join(
+        bytes((k % 4, 0)) + (1600 - 8 * k).to_bytes(2, "little", signed=True) + (1234).to_bytes(2, "little")
+        + (100).to_bytes(2, "little") + bytes(2) for k in range(points))
+    payload = scan_header + body
+    header = bytes.fromhex("AFFEC0C2") + bytes(4) + len(payload).to_bytes(4, "big") + bytes((0, 7)) \
+        + bytes.fromhex("2202") + bytes(8)
+    return header + payload
+
+
+def test_hand_scan_is_what_the_parser_reads() -> None:
+    msgs = MessageParser().feed(hand_scan(3, 20))
+    assert len(msgs) == 1 and msgs[0].data_type == DataType.SCAN and msgs[0].payload[:2] == b"\x03\x00"
+
+
+def test_scan_cut_short_is_refused_counted_and_the_next_scan_found_at_any_split() -> None:
+    """A scan whose bytes stop early (its sizes are those of the whole scan): the scan after it is delivered,
+    byte by byte and in any two reads, and the cut one is counted."""
+    cut = hand_scan(1, 100)[: 24 + 44 + 10 * 37]
+    wire = cut + hand_scan(2, 100) + hand_scan(3, 5)
+    for split in [*range(1, len(wire), 97), len(cut) + 3, len(cut) + 23, len(cut) + 24]:
+        parser = MessageParser()
+        msgs = parser.feed(wire[:split]) + parser.feed(wire[split:])
+        assert [m.payload[:2] for m in msgs] == [b"\x02\x00", b"\x03\x00"], split
+        assert parser.cut_short == 1 and parser.damaged == 1 and parser.pending == 0
+    parser = MessageParser()
+    msgs = [m for b in wire for m in parser.feed(bytes((b,)))]
+    assert [m.payload[:2] for m in msgs] == [b"\x02\x00", b"\x03\x00"] and parser.cut_short == 1
+
+
+def test_a_scan_cut_inside_its_scan_header_is_refused_too() -> None:
+    wire = hand_scan(1, 50)[:24 + 30] + hand_scan(2, 50)
+    parser = MessageParser()
+    msgs = [m for b in wire for m in parser.feed(bytes((b,)))]
+    assert [m.payload[:2] for m in msgs] == [b"\x02\x00"] and parser.damaged == 1

@@ -123,3 +123,35 @@ def test_bad_settings_stop_the_module_before_it_starts(processes, router) -> Non
         processes, router, "vehicle=CB5000", "mtig_port=/dev/null", "ldmrs_host=x", "wingspan=12"
     )
     assert proc2.wait(30) == 2
+
+
+def test_corrupt_mtig_frames_are_reported_coalesced_on_the_error_slot(
+    processes, router, sessions, make_world, start_mtig, start_ldmrs, tmp_path
+) -> None:
+    """A burst of MTData with bad checksums (written by hand) on the MTi-G line while the module runs: reported on
+    its ERROR slot as POSE_REFUSED, a few reports for forty frames (coalesced), and the poses go on."""
+    from bbcs.contracts.error_codes import LidarLoggerError
+
+    world = make_world(6.0, gps_fix_at=0.0, xkf_valid_at=0.0)
+    imu = start_mtig(world)
+    lidar = start_ldmrs(world, LdmrsOptions(return_fraction=0.1))
+    s = sessions()
+    errors: list[ErrorReport] = []
+    poses: list[Pose] = []
+    subs = [subscribe(s, "error", ErrorReport, errors), subscribe(s, "pose", Pose, poses)]
+    proc = start_module(processes, router, f"mtig_port={imu.port}", "ldmrs_host=127.0.0.1",
+                        f"ldmrs_port={lidar.port}", "vehicle=CB5000", f"out_dir={tmp_path}")
+    try:
+        wait_until(lambda: len(poses) >= 5, 60, "poses on the bus")
+        corrupt = bytes((0xFA, 0xFF, 0x32, 3, 1, 2, 3, 0x00))  # the checksum should be 0xC6
+        for _ in range(4):
+            imu.inject(corrupt * 10)
+        wait_until(lambda: errors, 10, "the first report")
+        seen = len(poses)
+        wait_until(lambda: len(poses) > seen + 5, 10, "poses after the burst")
+    finally:
+        stop_process(proc, grace_s=20)
+        for sub in subs:
+            sub.undeclare()
+    refused = [e for e in errors if e.code == LidarLoggerError.POSE_REFUSED]
+    assert refused and len(refused) <= 4, errors

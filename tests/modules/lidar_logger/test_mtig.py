@@ -156,3 +156,30 @@ def test_pose_source_reports_a_device_that_stops_answering(make_world, start_mti
         source.stop()
     assert source.failed is not None and "stopped answering" in source.failed
     assert source.wait_valid(threading.Event()) is None
+
+
+def test_pose_source_reports_corrupt_frames_coalesced(make_world, start_mtig, driver_factory) -> None:
+    """MTData with bad checksums on the line (written by hand, not by build_frame) are dropped and reported to
+    on_refused: the first at once, a burst in one later report with its count; the poses go on."""
+    world = make_world(10.0, gps_fix_at=0.0, xkf_valid_at=0.0)
+    sim = start_mtig(world)
+    dev = driver_factory(sim.port)
+    dev.configure(VEHICLES["CB5000"])
+    reports: list[str] = []
+    source = PoseSource(dev, period=0.02, clock=world.clock, on_refused=reports.append)
+    source.start()
+    try:
+        assert source.wait_valid(threading.Event()) is not None
+        corrupt = bytes((0xFA, 0xFF, 0x32, 3, 1, 2, 3, 0x00))  # checksum 0x00, should be 0xC6
+        sim.inject(corrupt)
+        wait_until(lambda: reports, 10, "the first report")
+        sim.inject(corrupt * 30)
+        wait_until(lambda: source.refusals.total >= 31, 10, "the burst counted")
+        wait_until(lambda: len(reports) >= 2, 10, "the burst's report")
+        samples = source.samples
+        wait_until(lambda: source.samples > samples + 5, 10, "poses after the burst")
+    finally:
+        source.stop()
+    assert "MTi-G: frame dropped (bad checksum" in reports[0]
+    assert len(reports) <= 3 and "refused in the last" in reports[1]
+    assert source.refusals.total == dev.parser.damaged >= 31

@@ -99,3 +99,16 @@ def test_frames_between_garbage_without_preambles_are_all_recovered(items, chunk
         out += parser.feed(stream[i : i + chunk])
     assert [(f.mid, f.data) for f in out] == [(mid, data) for mid, data, _ in items]
     assert parser.bad_checksum == 0
+
+
+def test_hand_written_mtdata_with_a_bad_checksum_then_a_good_one() -> None:
+    """Frames written by hand from the Xbus description (FA, BID FF, MID 32, LEN, data, CS with the sum of
+    BID..CS ≡ 0 mod 256), not by build_frame: the corrupt one is counted as damaged, the good one after it found."""
+    data = bytes(range(1, 11))
+    cs = (-(0xFF + 0x32 + 10 + sum(data))) & 0xFF
+    good = bytes((0xFA, 0xFF, 0x32, 10)) + data + bytes((cs,))
+    bad = bytes((0xFA, 0xFF, 0x32, 10)) + data + bytes(((cs + 1) & 0xFF,))
+    parser = FrameParser()
+    frames = [f for b in bad + bad + good for f in parser.feed(bytes((b,)))]
+    assert frames == [Frame(0x32, data)]
+    assert parser.bad_checksum == 2 and parser.damaged == 2
