@@ -52,6 +52,7 @@ from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.fleet import FleetLink, can_do_from, goto_of, own_state_of
 from ral.fleet_protocol import Execute, FleetConfig, OwnState
+from ral.params import raise_first, struct_param_errors
 from ral.tasks import (
     JudgeConfig,
     Limits,
@@ -124,28 +125,31 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     """Tests only: and drifts this much (parts per million)."""
 
     @classmethod
+    def param_errors(cls, params: dict[str, str]) -> list[tuple[str, str]]:
+        """Every problem of the manifest's RAL ``params``, (key, reason) (``cromat launch --check``: file:line)."""
+        plain = {k: v for k, v in params.items() if not k.startswith("task.")}
+        errors = struct_param_errors(cls, plain, what="RAL")
+        if errors:
+            return errors
+        cfg = msgspec.convert(plain, cls, strict=False)
+        if (cfg.battery_full_v or cfg.battery_empty_v) and not 0.0 <= cfg.battery_empty_v < cfg.battery_full_v <= 100.0:
+            errors.append(("battery_full_v" if "battery_full_v" in plain else "battery_empty_v", (
+                f"bad RAL parameter: battery_empty_v = {cfg.battery_empty_v:g} and battery_full_v = "
+                f"{cfg.battery_full_v:g} must be volts with 0 <= empty < full <= 100 (both, or neither)")))
+        if cfg.mri_timeout_s <= mri.MANAGER_ACK_S:
+            errors.append(("mri_timeout_s", (
+                f"bad RAL parameter: mri_timeout_s = {cfg.mri_timeout_s:g} must exceed the manager's ack wait "
+                f"({mri.MANAGER_ACK_S:g} s), or a task could be applied after the ground station was told it failed")))
+        return errors
+
+    @classmethod
     def from_params(cls, params: dict[str, str]) -> tuple[RalConfig, dict[str, str]]:
+        """The RAL's configuration; a :class:`ral.params.ParamError` (exit ``EXIT_CONFIG``: not restarted) naming
+        every problem :meth:`param_errors` finds."""
+        raise_first(cls.param_errors(params), source="manifest params of the RAL")
         plain = {k: v for k, v in params.items() if not k.startswith("task.")}
         names = {k.removeprefix("task."): v for k, v in params.items() if k.startswith("task.")}
-        unknown = set(plain) - set(cls.__struct_fields__)
-        if unknown:
-            raise ValueError(
-                f"unknown RAL parameter(s) {sorted(unknown)}; known: {', '.join(cls.__struct_fields__)}"
-            )
-        try:
-            cfg = msgspec.convert(plain, cls, strict=False)
-        except msgspec.ValidationError as exc:
-            raise ValueError(f"bad RAL parameter: {exc}") from exc
-        if (cfg.battery_full_v or cfg.battery_empty_v) and not 0.0 <= cfg.battery_empty_v < cfg.battery_full_v <= 100.0:
-            raise ValueError(
-                f"bad RAL parameter: battery_empty_v = {cfg.battery_empty_v:g} and battery_full_v = "
-                f"{cfg.battery_full_v:g} must be volts with 0 <= empty < full <= 100 (both, or neither)"
-            )
-        if cfg.mri_timeout_s <= mri.MANAGER_ACK_S:
-            raise ValueError(
-                f"bad RAL parameter: mri_timeout_s = {cfg.mri_timeout_s:g} must exceed the manager's ack wait "
-                f"({mri.MANAGER_ACK_S:g} s), or a task could be applied after the ground station was told it failed"
-            )
+        cfg = msgspec.convert(plain, cls, strict=False)
         return cfg, names
 
 
@@ -174,12 +178,18 @@ class Ral(Module):
     tick_period = 0.05
     conf_errors = staticmethod(limits_conf_errors)
     """The RAL's check of its limits in the robot .conf (``cromat launch --check``, ``cromat conf check``)."""
+    param_errors = staticmethod(RalConfig.param_errors)
+    """The RAL's check of its manifest params (``cromat launch --check``, with the manifest's file:line)."""
 
-    def __init__(self, context: ModuleContext, clock: Any = time.time) -> None:
+    def __init__(self, context: ModuleContext, clock: Any = None) -> None:
         super().__init__(context)
         self.cfg, self.task_names = RalConfig.from_params(context.params)
         self.limits = load_limits(context.conf) if context.conf else Limits(max_speed=p_max_speed())
-        self.clock = clock
+        self.clock = clock if clock is not None else self.bbcs_clock.time
+        """The robot's clock (simulated time in lockstep, bbcs/clock.py): the task judge, stamps, state period."""
+        self.link_clock = clock if clock is not None else time.time
+        """The ground-station link is judged on the wall clock: a ground station is outside any simulation."""
+        self._working = False
         self.judge_cfg = JudgeConfig(
             position_tolerance_m=self.cfg.position_tolerance_m,
             altitude_tolerance_m=self.cfg.altitude_tolerance_m,
@@ -223,17 +233,17 @@ class Ral(Module):
         self._speed_acks: list[SpeedAck] = []
         self._traj_pub: Publisher[TrajectoryRequest] | None = None
         self._traj_status: dict[int, TrajectoryStatus] = {}
-        self._traj_paths: dict[str, tuple[int, t.Waypoint]] = {}
-        """Generator output kind → (how many paths seen, the last path's last waypoint)."""
+        self._traj_paths: dict[str, tuple[int, tuple[t.Waypoint, ...]]] = {}
+        """Generator output kind → (how many paths seen, the last path)."""
         self._traj_seen = threading.Condition()
         self._traj_next_id = int(time.time()) % 1_000_000 * 1000
-        self._generated: dict[int, t.Waypoint] = {}
+        self._generated: dict[int, tuple[t.Waypoint, ...]] = {}
+        """Task id → the path the generator planned for it (what a survey/orbit is judged on, ``ral.tasks.judge``)."""
         self._pt_sent: dict[int, float] = {}
         """Pan & tilt tasks (id) whose angles have not been seen reached → when they were last sent
         (``ral.tasks.pan_tilt_check``)."""
         self.pt_resends = 0
         """Pan & tilt angles sent again because the telemetry showed the gimbal elsewhere."""
-        """Task id → last waypoint of the path the generator planned for it (what completes a survey/orbit)."""
         self._speed_acked = threading.Condition()
         self._fleet: FleetLink | None = None
 
@@ -337,10 +347,10 @@ class Ral(Module):
             path = msgspec.msgpack.decode(sample.payload.to_bytes(), type=DatosSegCam)
         except msgspec.MsgspecError:
             return
-        last = path.puntos[-1]
+        points = tuple(t.Waypoint(lat=p.latitud, lon=p.longitud, alt=p.altura) for p in path.puntos)
         with self._traj_seen:
-            count = self._traj_paths.get(kind, (0, None))[0] + 1
-            self._traj_paths[kind] = (count, t.Waypoint(lat=last.latitud, lon=last.longitud, alt=last.altura))
+            count = self._traj_paths.get(kind, (0, ()))[0] + 1
+            self._traj_paths[kind] = (count, points)
             self._traj_seen.notify_all()
 
     def _request_path(self, req: t.Survey | t.Orbit, task_id: int) -> str | None:
@@ -353,7 +363,7 @@ class Ral(Module):
         with self._traj_seen:
             self._traj_next_id = (self._traj_next_id + 1) % 2**31
             request_id = self._traj_next_id
-            paths_before = self._traj_paths.get(kind, (0, None))[0]
+            paths_before = self._traj_paths.get(kind, (0, ()))[0]
         if isinstance(req, t.Survey):
             request = TrajectoryRequest(request_id=request_id, survey=SurveyRequest(
                 polygon=[TrajPoint(lat=v.lat, lon=v.lon) for v in req.polygon], height=req.height,
@@ -372,13 +382,11 @@ class Ral(Module):
             status = self._traj_status[request_id]
             if not status.accepted:
                 return f"the trajectory generator refused the {kind}: {status.reason}"
-            got = self._traj_seen.wait_for(lambda: self._traj_paths.get(kind, (0, None))[0] > paths_before,
+            got = self._traj_seen.wait_for(lambda: self._traj_paths.get(kind, (0, ()))[0] > paths_before,
                                            timeout=max(0.0, deadline - time.monotonic()))
             if not got:
                 return f"the trajectory generator accepted the {kind} but its path did not arrive"
-            last = self._traj_paths[kind][1]
-            assert last is not None
-            self._generated[task_id] = last
+            self._generated[task_id] = self._traj_paths[kind][1]
         return None
 
     def _send_speed(self, speed: float) -> str | None:
@@ -423,7 +431,7 @@ class Ral(Module):
             return
         with self.lock:
             self.link.token(beat.gcs, True)
-            self.link.heartbeat(self.clock())
+            self.link.heartbeat(self.link_clock())
 
     def emit(self, kind: str, *, task_id: int = 0, task_type: str = "", detail: str = "") -> None:
         event = gri.GriEvent(
@@ -504,7 +512,7 @@ class Ral(Module):
         if not self.available and now - self._tasks_fetched >= TASKS_REFRESH_S:
             self._tasks_fetched = now
             self._jobs.put("refresh_tasks")
-        for event in self.link.update(now):
+        for event in self.link.update(self.link_clock()):
             self.emit(event.kind, detail=event.detail)
             if event.action is not None:
                 self._jobs.put(event)
@@ -593,6 +601,7 @@ class Ral(Module):
             job = self._jobs.get()
             if job is None:
                 return
+            self._working = True
             try:
                 if job == "refresh_tasks":
                     self._refresh_tasks()
@@ -608,6 +617,11 @@ class Ral(Module):
                     self._answer(job)
             except Exception:
                 self.log.exception("RAL job failed")
+            self._working = False
+
+    def lockstep_busy(self) -> str:
+        """Lockstep (docs/simulation.md): a task job queued or running (admission, MRI calls) holds the step."""
+        return "task job" if self._working or not self._jobs.empty() else ""
 
     def _mri(self, verb: str, request: msgspec.Struct) -> mri.MriReply | None:
         assert self.session is not None

@@ -4,7 +4,8 @@
   speed (the task's, else the cruise speed; never above MAX_SPEED), clearance above the take-off point,
   geofence, ceiling, take-off height. A refusal says why; nothing is sent.
 - :func:`judge`: one running task (as the Module Manager's task book lists it) against new telemetry: completed,
-  failed (no progress for ``stall_s``), or still running. Its per-task memory is a :class:`Progress`.
+  failed (no progress for ``stall_s``: the distance still to fly along its path did not shrink), or still running.
+  Its per-task memory is a :class:`Progress`.
 
 The RAL keeps no task book: the Module Manager's is the only record of the running task of each type.
 """
@@ -12,6 +13,7 @@ The RAL keeps no task book: the Module Manager's is the only record of the runni
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Annotated
 
@@ -243,6 +245,10 @@ class Progress:
     best: float | None = None
     """Best (smallest) distance-to-go seen so far, metres."""
     progress_at: float = 0.0
+    next_wp: int = 0
+    """Index in the task's path of the waypoint the robot flies to (:func:`next_waypoint`)."""
+    origin: GeoPoint | None = None
+    """Where the robot was when first judged: the start of the path's first leg."""
 
 
 @dataclass(frozen=True)
@@ -253,10 +259,67 @@ class Verdict:
     detail: str = ""
 
 
+def _local(ref: GeoPoint | t.Waypoint, lat: float, lon: float) -> tuple[float, float]:
+    """North, east metres of (lat, lon) from ``ref`` (equirectangular, as :func:`distance_m`)."""
+    north = math.radians(lat - ref.lat) * EARTH_RADIUS_M
+    east = math.radians(lon - ref.lon) * EARTH_RADIUS_M * math.cos(math.radians(ref.lat))
+    return north, east
+
+
+def _to_segment(p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+    """Horizontal distance from ``p`` to the segment ``a``-``b`` (metres, local frame)."""
+    dn, de = b[0] - a[0], b[1] - a[1]
+    length2 = dn * dn + de * de
+    u = 0.0 if length2 == 0.0 else max(0.0, min(1.0, ((p[0] - a[0]) * dn + (p[1] - a[1]) * de) / length2))
+    return math.hypot(p[0] - a[0] - u * dn, p[1] - a[1] - u * de)
+
+
+def next_waypoint(path: Sequence[t.Waypoint], pos: GeoPoint, queued: int | None, previous: int,
+                  origin: GeoPoint | None, tolerance_m: float) -> int:
+    """Index of the waypoint the robot flies to now.
+
+    The robot's own queue says it when it holds part of this path (``0 < queued <= len(path)``: the last
+    ``queued`` waypoints are still to fly). Otherwise (no queue, an empty one, such as the onboard follower's, or
+    one longer than the path, still the previous path's) the legs tell it: from ``previous``, a waypoint is passed
+    once the robot is within ``tolerance_m`` of it, or nearer the leg after it than the leg before it (the first
+    leg starts at ``origin``)."""
+    n = len(path)
+    if queued is not None and 0 < queued <= n:
+        return n - queued
+    i = min(max(previous, 0), n - 1)
+    ref = path[0]
+    here = _local(ref, pos.lat, pos.lon)
+    while i < n - 1:
+        at = _local(ref, path[i].lat, path[i].lon)
+        before = _local(ref, path[i - 1].lat, path[i - 1].lon) if i > 0 else (
+            _local(ref, origin.lat, origin.lon) if origin is not None else at)
+        after = _local(ref, path[i + 1].lat, path[i + 1].lon)
+        reached = math.hypot(here[0] - at[0], here[1] - at[1]) <= tolerance_m
+        if not (reached or _to_segment(here, at, after) < _to_segment(here, before, at)):
+            break
+        i += 1
+    return i
+
+
+def path_to_go(path: Sequence[t.Waypoint], pos: GeoPoint, index: int) -> float:
+    """Distance still to fly along ``path`` from ``pos`` through waypoint ``index`` to the end (metres; horizontal
+    plus vertical, leg by leg)."""
+    w = path[index]
+    togo = distance_m(pos.lat, pos.lon, w.lat, w.lon) + abs(pos.alt - w.alt)
+    for a, b in zip(path[index:], path[index + 1:], strict=False):
+        togo += distance_m(a.lat, a.lon, b.lat, b.lon) + abs(b.alt - a.alt)
+    return togo
+
+
 def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPoint | None, limits: Limits,
-          cfg: JudgeConfig, now: float, generated: t.Waypoint | None = None) -> Verdict:
-    """Has ``task`` completed, stalled, or is it still running, given ``tel`` at ``now``? ``generated``: the last
-    waypoint of the path the trajectory generator planned for a survey/orbit (None until it published it)."""
+          cfg: JudgeConfig, now: float, generated: Sequence[t.Waypoint] | None = None) -> Verdict:
+    """Has ``task`` completed, stalled, or is it still running, given ``tel`` at ``now``? ``generated``: the path
+    the trajectory generator planned for a survey/orbit (None until it published it).
+
+    A path task progresses while the distance still to fly along its path (:func:`path_to_go`, from the waypoint
+    the robot flies to, :func:`next_waypoint`) shrinks: a path of any length flown at any speed never stalls, a
+    robot that hovers fails after ``stall_s``. When the queue grows (the path is still being loaded) the best
+    distance starts again from there."""
     req = task.params
     if req is None or isinstance(req, t.LookAt | t.SetPanTilt | t.Hold | t.Track | t.FollowVisionPath | t.Bridge
                                  | t.Manual):
@@ -266,17 +329,24 @@ def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPo
     pos = tel.position
     if pos is None:
         return _stalled(pr, cfg, now)
+    if pr.origin is None:
+        pr = replace(pr, origin=pos)
     settled = now - pr.started >= cfg.settle_s
-    if isinstance(req, t.Survey | t.Orbit) and generated is None:
+    if isinstance(req, t.Survey | t.Orbit) and not generated:
         return _stalled(pr, cfg, now)  # no path yet: the generator's answer is awaited by the RAL
     if isinstance(req, t.Goto | t.FollowPath | t.Survey | t.Orbit):
-        last = req.waypoints[-1] if isinstance(req, t.Goto | t.FollowPath) else generated
-        assert last is not None
+        path = req.waypoints if isinstance(req, t.Goto | t.FollowPath) else generated
+        assert path
+        last = path[-1]
         horiz = distance_m(pos.lat, pos.lon, last.lat, last.lon)
-        togo = horiz + abs(pos.alt - last.alt) + 50.0 * (tel.waypoints_queued or 0)
         near = horiz <= cfg.position_tolerance_m and abs(pos.alt - last.alt) <= cfg.altitude_tolerance_m
         if near and tel.waypoints_queued in (0, None) and (pr.seen_queue or settled):
             return Verdict(pr, "completed")
+        index = next_waypoint(path, pos, tel.waypoints_queued, pr.next_wp, pr.origin, cfg.position_tolerance_m)
+        togo = path_to_go(path, pos, index)
+        if index < pr.next_wp:  # the queue grew: a path being loaded, not a robot going backwards
+            pr = replace(pr, next_wp=index, best=togo)
+        pr = replace(pr, next_wp=index)
     elif isinstance(req, t.TakeOff):
         base = home.alt if home is not None else None
         if base is None:

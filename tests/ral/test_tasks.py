@@ -3,6 +3,8 @@ judge (completed / failed for lack of progress / running) with an injected clock
 
 from __future__ import annotations
 
+import math
+
 import msgspec
 import pytest
 
@@ -10,6 +12,7 @@ from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from ral.tasks import (
+    EARTH_RADIUS_M,
     Geofence,
     JudgeConfig,
     Limits,
@@ -21,6 +24,8 @@ from ral.tasks import (
     distance_m,
     judge,
     load_limits,
+    next_waypoint,
+    path_to_go,
 )
 
 AVAILABLE = {
@@ -170,7 +175,7 @@ def test_a_path_that_makes_no_progress_fails_after_stall_s() -> None:  # issue 1
 
 def test_progress_keeps_a_path_running() -> None:
     task = path(3)
-    steps = [(float(s), tel(lat=37.41 + 0.00001 * s, alt=30.0, queued=3)) for s in range(0, 60, 5)]
+    steps = [(float(s), tel(lat=37.409 + 0.00001 * s, alt=30.0, queued=3)) for s in range(0, 60, 5)]
     assert set(run(running(task), steps)) == {"running"}
 
 
@@ -243,10 +248,157 @@ def test_a_survey_completes_at_the_generated_paths_last_waypoint_only() -> None:
     at_end = tel(end.lat, end.lon, 52.0, queued=0)
     v = judge(task, Progress(started=0.0), at_end, HOME, LIMITS, CFG, 5.0)
     assert v.status == "running", "no generated path yet: nothing to complete"
-    v = judge(task, Progress(started=0.0), tel(37.41, -6.0, 52.0, queued=0), HOME, LIMITS, CFG, 5.0, generated=end)
+    generated = [t.Waypoint(lat=37.41, lon=-6.0, alt=52.0), end]
+    v = judge(task, Progress(started=0.0), tel(37.41, -6.0, 52.0, queued=0), HOME, LIMITS, CFG, 5.0,
+              generated=generated)
     assert v.status == "running", "not at the generated path's end"
-    v = judge(task, v.progress, at_end, HOME, LIMITS, CFG, 6.0, generated=end)
+    v = judge(task, v.progress, at_end, HOME, LIMITS, CFG, 6.0, generated=generated)
     assert v.status == "completed"
+
+
+# ---------------------------------------------------------------- progress along the path (issue 30, case 2)
+
+M_PER_DEG_LAT = math.radians(1.0) * EARTH_RADIUS_M
+
+
+def at(north: float, east: float, alt: float = 32.0) -> t.Waypoint:
+    """A point ``north``/``east`` metres from HOME, ``alt`` m above sea level."""
+    return t.Waypoint(lat=HOME.lat + north / M_PER_DEG_LAT,
+                      lon=HOME.lon + east / (M_PER_DEG_LAT * math.cos(math.radians(HOME.lat))), alt=alt)
+
+
+def fly(path: list[t.Waypoint], speed: float, start: t.Waypoint, *, queue: bool = True, dt: float = 1.0,
+        t0: float = 0.0, load_s: float = 0.0) -> list[tuple[float, RobotTelemetry]]:
+    """Telemetry of a robot flying ``path`` from ``start`` at ``speed`` (straight legs, every ``dt`` s), its queue
+    holding the waypoints still to reach (``queue=False``: an onboard follower, the DSP queue always empty). For
+    ``load_s`` first it hovers at ``start`` while the queue fills one waypoint a second."""
+    out = []
+    now = t0
+    for k in range(int(load_s)):
+        out.append((now, tel(start.lat, start.lon, start.alt, queued=min(k, len(path)) if queue else 0)))
+        now += dt
+    here = (0.0, 0.0, start.alt)
+    ref = start
+
+    def local(w: t.Waypoint) -> tuple[float, float, float]:
+        n = (w.lat - ref.lat) * M_PER_DEG_LAT
+        e = (w.lon - ref.lon) * M_PER_DEG_LAT * math.cos(math.radians(ref.lat))
+        return n, e, w.alt
+
+    for i, w in enumerate(path):
+        goal = local(w)
+        while True:
+            d = [g - h for g, h in zip(goal, here, strict=True)]
+            dist = math.sqrt(sum(x * x for x in d))
+            step = speed * dt
+            here = goal if dist <= step else tuple(h + x * step / dist for h, x in zip(here, d, strict=True))
+            now += dt
+            left = len(path) - i - (1 if here == goal else 0)
+            lat = ref.lat + here[0] / M_PER_DEG_LAT
+            lon = ref.lon + here[1] / (M_PER_DEG_LAT * math.cos(math.radians(ref.lat)))
+            out.append((now, tel(lat, lon, here[2], queued=left if queue else 0)))
+            if here == goal:
+                break
+    return out
+
+
+def judged(task: t.TaskInfo, steps: list[tuple[float, RobotTelemetry]], generated=None,  # noqa: ANN001
+           cfg: JudgeConfig = CFG) -> list[tuple[float, str, str]]:
+    """(time, status, detail) of every verdict, up to the first that is not ``running``."""
+    progress = Progress(started=steps[0][0])
+    out = []
+    for now, telemetry in steps:
+        v = judge(task, progress, telemetry, HOME, LIMITS, cfg, now, generated=generated)
+        progress = v.progress
+        out.append((now, v.status, v.detail))
+        if v.status != "running":
+            break
+    return out
+
+
+def lawnmower(lines: int, length: float, spacing: float, alt: float = 42.0) -> list[t.Waypoint]:
+    """A survey-like path: ``lines`` parallel lines ``length`` m long, ``spacing`` m apart, flown back and forth."""
+    out = []
+    for k in range(lines):
+        ends = (0.0, length) if k % 2 == 0 else (length, 0.0)
+        out += [at(ends[0], k * spacing, alt), at(ends[1], k * spacing, alt)]
+    return out
+
+
+def test_a_four_waypoint_goto_111_m_apart_completes_at_cruise_speed() -> None:
+    """The issue's case: hovering at home, 4 waypoints 111 m apart, 20 m above home, at 5 m/s; the old judge
+    (distance to the last waypoint + 50 m per queued one) failed it at +30 s with 3 waypoints queued."""
+    hover = at(0.0, 0.0, HOME.alt + 10.0)
+    square = [at(111.0, 0.0), at(111.0, 111.0), at(0.0, 111.0), at(0.0, 0.0)]
+    verdicts = judged(running(t.Goto(waypoints=square, speed=5.0)), fly(square, 5.0, hover, load_s=3))
+    assert verdicts[-1][1] == "completed", verdicts[-1]
+    assert verdicts[-1][0] > 80.0, "the whole square was flown"
+
+
+def test_a_long_survey_flown_at_cruise_speed_never_stalls() -> None:
+    path = lawnmower(lines=12, length=400.0, spacing=25.0)  # ~5 km, ~17 min at 5 m/s
+    start = at(-30.0, -30.0, HOME.alt + 10.0)
+    task = running(t.Survey(polygon=SQUARE, height=30.0, speed=5.0))
+    verdicts = judged(task, fly(path, 5.0, start, load_s=10), generated=path)
+    assert [v for v in verdicts if v[1] == "failed"] == []
+    assert verdicts[-1][1] == "completed" and verdicts[-1][0] > 900.0
+
+
+def test_an_orbit_flown_slowly_never_stalls() -> None:
+    circle = [at(100.0 * math.cos(a), 100.0 * math.sin(a)) for a in (2 * math.pi * k / 36 for k in range(37))]
+    task = running(t.Orbit(lat=HOME.lat, lon=HOME.lon, radius=100.0, speed=1.0))
+    verdicts = judged(task, fly(circle, 1.0, at(0.0, 0.0, HOME.alt + 10.0)), generated=circle)
+    assert verdicts[-1][1] == "completed", verdicts[-1]
+
+
+def test_the_onboard_follower_with_an_empty_dsp_queue_is_judged_by_the_legs_it_passed() -> None:
+    path = lawnmower(lines=6, length=300.0, spacing=30.0)
+    task = running(t.FollowPath(waypoints=path, speed=5.0, follower="onboard"))
+    verdicts = judged(task, fly(path, 5.0, at(0.0, -20.0, 42.0), queue=False))
+    assert verdicts[-1][1] == "completed", verdicts[-1]
+
+
+def test_a_hovering_aircraft_fails_after_stall_s_and_not_before() -> None:
+    square = [at(111.0, 0.0), at(111.0, 111.0), at(0.0, 111.0), at(0.0, 0.0)]
+    hover = at(0.0, 0.0, HOME.alt + 10.0)
+    still = [(float(s), tel(hover.lat, hover.lon, hover.alt, queued=4)) for s in range(0, 40)]
+    verdicts = judged(running(t.Goto(waypoints=square)), still)
+    assert verdicts[-1][1] == "failed" and verdicts[-1][0] == 30.0, verdicts[-1]
+    assert "no progress for 30 s" in verdicts[-1][2]
+
+
+def test_an_aircraft_that_stops_half_way_fails_stall_s_after_it_stopped() -> None:
+    path = lawnmower(lines=4, length=200.0, spacing=25.0)
+    flown = fly(path, 5.0, at(0.0, -10.0, 42.0))[:100]  # 100 s of flight, then it hovers there
+    stop_t, last = flown[-1]
+    hover = [(stop_t + s, last) for s in range(1, 60)]
+    verdicts = judged(running(t.Goto(waypoints=path)), flown + hover)
+    assert verdicts[-1][1] == "failed"
+    assert stop_t + 29.0 <= verdicts[-1][0] <= stop_t + 31.0, (stop_t, verdicts[-1])
+
+
+def test_the_waypoint_flown_to_comes_from_the_queue_or_from_the_legs() -> None:
+    path = [at(100.0, 0.0), at(100.0, 100.0), at(0.0, 100.0)]
+    origin = GeoPoint(lat=HOME.lat, lon=HOME.lon, alt=32.0)
+    mid_second_leg = GeoPoint(lat=at(100.0, 50.0).lat, lon=at(100.0, 50.0).lon, alt=32.0)
+    assert next_waypoint(path, mid_second_leg, 2, 0, origin, 3.0) == 1, "the queue says it"
+    assert next_waypoint(path, mid_second_leg, 7, 0, origin, 3.0) == 1, "a queue longer than the path: the legs"
+    assert next_waypoint(path, mid_second_leg, 0, 0, origin, 3.0) == 1, "an empty queue: the legs"
+    assert next_waypoint(path, mid_second_leg, None, 2, origin, 3.0) == 2, "never back along the legs"
+    start_between = GeoPoint(lat=at(50.0, 0.0).lat, lon=HOME.lon, alt=32.0)
+    assert next_waypoint(path, start_between, None, 0, start_between, 3.0) == 0, "on the first leg until reached"
+    assert path_to_go(path, mid_second_leg, 1) == pytest.approx(150.0, abs=0.5)
+    assert path_to_go(path, origin, 0) == pytest.approx(300.0, abs=0.5)
+
+
+def test_a_path_still_being_loaded_is_not_progress_nor_a_stall() -> None:
+    square = [at(111.0, 0.0), at(111.0, 111.0), at(0.0, 111.0), at(0.0, 0.0)]
+    hover = at(0.0, 0.0, 32.0)
+    loading = [(float(s), tel(hover.lat, hover.lon, 32.0, queued=q)) for s, q in enumerate((0, 1, 2, 3, 4))]
+    verdicts = judged(running(t.Goto(waypoints=square)), loading + [(float(s), loading[-1][1]) for s in range(5, 40)])
+    assert verdicts[-1][1] == "failed" and verdicts[-1][0] <= 31.0, "a queue filling at a hovering aircraft"
+    verdicts = judged(running(t.Goto(waypoints=square)), loading + fly(square, 5.0, hover, t0=5.0))
+    assert verdicts[-1][1] == "completed"
 
 
 # ---------------------------------------------------------------- pan & tilt angles sent again
