@@ -118,6 +118,20 @@ class SupervisionSection(_Section):
     standby: bool = False
 
 
+class SimSection(_Section):
+    """``[sim]``: how a robot on simulators runs (docs/simulation.md, "Lockstep")."""
+
+    lockstep: bool = False
+    """The simulators step only once every module has handled the last step; everyone reads simulated time."""
+    speed: Positive | Literal["max"] | None = None
+    """Simulated seconds per wall second at most, or "max"; unset: each simulator's own ``--time-scale``
+    (``cromat launch --speed`` overrides both)."""
+    step_s: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.1
+    """Simulated seconds between two barriers."""
+    deadline_s: Positive = 5.0
+    """Wall seconds a step waits for a module before it goes on without it."""
+
+
 class SlotDef(_Section):
     number: Annotated[int, msgspec.Meta(ge=0)]
     module: str
@@ -200,6 +214,7 @@ class ManifestFile(_Section):
     robot: RobotSection
     bus: BusSection = msgspec.field(default_factory=BusSection)
     supervision: SupervisionSection = msgspec.field(default_factory=SupervisionSection)
+    sim: SimSection = msgspec.field(default_factory=SimSection)
     pythonpath: list[str] = msgspec.field(default_factory=list)
     slot: list[SlotDef] = msgspec.field(default_factory=list)
     modules: dict[str, ModuleDef] = msgspec.field(default_factory=dict)
@@ -427,6 +442,9 @@ class _Checker:
         if raw.bus.links == "peers" and raw.bus.zenoh_config is not None:
             raise self.fail("bus.links", "links = \"peers\" cannot keep a hand-written router config's access rules "
                                          "(bus.zenoh_config) between modules: use [bus.tls] or links = \"router\"")
+        if raw.sim.lockstep and (raw.bus.tls is not None or raw.bus.zenoh_config is not None):
+            raise self.fail("sim.lockstep", "lockstep under access control is not built: the router's rules do not "
+                                            "grant the @clock and @lockstep keys (docs/simulation.md)")
         for i, endpoint in enumerate(raw.bus.peers):
             if raw.bus.tls is None and not endpoint.startswith("tcp/"):
                 raise self.fail(f"bus.peers.{i}", f"{endpoint!r}: without [bus.tls] the fleet mesh is built over tcp/ "
@@ -619,6 +637,7 @@ class _Checker:
         if problems:
             raise self.fail("robot.conf", f"module {name} refuses the robot .conf ({len(problems)} errors):\n"
                                           + "\n".join(f"  {p}" for p in problems))
+        self.params(name, cls, spec.params)
         for i, t in enumerate(spec.task_types):
             if t not in task_types:
                 raise self.fail(f"{key}.task_types.{i}", f"unknown task type {t!r}; robot.task_types: "
@@ -655,6 +674,21 @@ class _Checker:
                           control_slot=control.slot if control is not None else "control_entrada",
                           control_fields=fields, inputs=inputs, routes=routes, error_slot=error_slot,
                           error_type=error_type)
+
+    def params(self, name: str, cls: Any, params: dict[str, str]) -> None:
+        """The module's check of its ``params`` (its class's ``param_errors`` hook, e.g. the RAL's): every problem,
+        each at its manifest file:line (a module without the hook reads its params itself, unchecked here)."""
+        param_errors = getattr(cls, "param_errors", None)
+        problems = list(param_errors(dict(params))) if callable(param_errors) else []
+        if not problems:
+            return
+        where = [(f"modules.{name}.params.{key}", reason) for key, reason in problems]
+        first = self.fail(*where[0])
+        if len(where) > 1:
+            rest = [str(self.fail(key, reason)) for key, reason in where[1:]]
+            first = ManifestError(first.message + f"\n  ({len(where)} parameter errors of module {name}; also:)\n  "
+                                  + "\n  ".join(rest), path=first.path, key=first.key, line=first.line)
+        raise first
 
     def _class(self, name: str, key: str) -> Any:
         module_name, sep, qualname = name.partition(":")

@@ -40,7 +40,8 @@ class SinkMode(msgspec.Struct, frozen=True, kw_only=True):
 class Sink(Module):
     """Records every datum and route switch as JSON lines to ``params['record']``.
 
-    ``params['crash']``: ``always`` exits with status 3 right after joining the bus (a module that always crashes).
+    ``params['crash']``: ``always`` exits with status 3 right after joining the bus (a module that always crashes);
+    ``config`` exits with ``EXIT_CONFIG`` (its configuration refused), ``config_on_restart`` only when restarted.
     """
 
     name = "sink"
@@ -55,7 +56,9 @@ class Sink(Module):
     def on_start(self) -> None:
         if self.context.params.get("crash") == "always":
             os._exit(3)
-        if self.context.params.get("crash") == "config":  # what a module does when its configuration is invalid
+        crash = self.context.params.get("crash")
+        if crash == "config" or (crash == "config_on_restart" and self.is_restart):
+            # what a module does when its configuration is invalid (on a restart only: a .conf edited meanwhile)
             print("mm_modules: invalid configuration (test)", file=sys.stderr, flush=True)
             os._exit(EXIT_CONFIG)
         record = self.context.params.get("record")

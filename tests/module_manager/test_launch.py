@@ -208,17 +208,36 @@ def test_always_crashing_module_is_failed_others_keep_running(launch, clients, t
     assert la.stop() == 0
 
 
-def test_module_exiting_on_a_configuration_error_is_failed_and_not_retried(launch, clients, tmp_path):
+def test_a_module_refusing_its_configuration_at_launch_stops_the_whole_launch(launch, tmp_path):
+    """Issue 30 case 8: no half-started robot. The crasher exits EXIT_CONFIG on its first start: the launch says
+    which module and why (its log's last line) and stops every module, exit 1, nothing left running."""
     la = launch(edit=lambda text: add_crasher(text).replace('crash = "always"', 'crash = "config"')
                 .replace("intensity = 2", "intensity = 5"))
-    la.wait_line("configuration error", 60)
-    s = clients(la.port)
-    wait_until(lambda: all(m.state == "up" for n, m in modules(s).items() if n != "crasher"), 30, "the others up")
-    status = modules(s)["crasher"]
-    assert status.state == "failed" and status.restarts == 0 and status.last_exit == EXIT_CONFIG
-    assert "configuration error" in status.reason and "not restarted" in status.reason
+    assert la.proc.wait(60) == 1
+    la.reader.join(10)
+    out = "\n".join(la.lines)
+    assert "module crasher exited 78: configuration error (mm_modules: invalid configuration (test))" in out, out
+    assert "the robot is not started half-way, every module is stopped" in out
+    assert "all 4 modules up" not in out
+    assert group_members(la.pgid) == [], "processes of the launch left running"
     log = (tmp_path / "logs" / "crasher.log").read_text()
     assert log.count("invalid configuration (test)") == 1, "started exactly once"
+
+
+def test_a_module_refusing_its_configuration_once_up_is_failed_and_not_retried(launch, clients, tmp_path):
+    """Once the robot is up, a module whose restart refuses its configuration is failed, never retried, and the
+    others keep running (a robot in flight is not stopped for it)."""
+    la = launch(edit=lambda text: add_crasher(text).replace('crash = "always"', 'crash = "config_on_restart"')
+                .replace("intensity = 2", "intensity = 5"))
+    la.wait_line("all 4 modules up", 60)
+    s = clients(la.port)
+    os.kill(modules(s)["crasher"].pid, signal.SIGKILL)
+    la.wait_line("configuration error", 30)
+    wait_until(lambda: modules(s)["crasher"].state == "failed", 10, "the crasher failed")
+    status = modules(s)
+    assert status["crasher"].restarts == 1 and status["crasher"].last_exit == EXIT_CONFIG
+    assert "configuration error" in status["crasher"].reason and "not restarted" in status["crasher"].reason
+    assert all(status[n].state == "up" for n in ("src_a", "src_b", "sink")) and la.proc.poll() is None
     assert la.stop() == 0
 
 
@@ -347,3 +366,12 @@ def test_sigterm_after_the_reader_of_its_output_went_away_still_stops_everything
             proc.wait(10)
         for pid in group_members(proc.pid):
             os.kill(pid, signal.SIGKILL)
+
+
+def test_config_refusals_are_the_modules_failed_on_their_configuration() -> None:
+    from module_manager.manager import config_refusals
+    from module_manager.supervision import Phase
+
+    assert config_refusals({"a": (Phase.UP, None), "b": (Phase.FAILED, 3), "c": (Phase.STARTING, EXIT_CONFIG)}) == []
+    assert config_refusals({"a": (Phase.FAILED, EXIT_CONFIG), "b": (Phase.FAILED, 1), "c": (Phase.UP, EXIT_CONFIG),
+                            "d": (Phase.FAILED, EXIT_CONFIG)}) == ["a", "d"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from bbcs.conf import ConfError
 from bbcs.contracts import mri
 from ral.process import RalConfig
 
@@ -22,8 +23,24 @@ def test_mri_timeout_not_above_the_manager_ack_wait_is_refused() -> None:
 
 
 def test_unknown_parameter_is_named() -> None:
-    with pytest.raises(ValueError, match="unknown RAL parameter.*'mri_timeuot_s'"):
+    with pytest.raises(ValueError, match="mri_timeuot_s: unknown RAL parameter .did you mean mri_timeout_s"):
         RalConfig.from_params({"mri_timeuot_s": "8"})
+
+
+def test_every_bad_parameter_is_named_at_once_and_is_a_configuration_error() -> None:  # issue 30 case 8
+    params = {"failsafe_action": "retrun", "stal_s": "30", "settle_s": "soon", "task.goto": "goto", "kind": "uav"}
+    assert RalConfig.param_errors(params) == [
+        ("failsafe_action", "bad value 'retrun': Invalid enum value 'retrun' (one of: hold, return, land)"),
+        ("stal_s", "unknown RAL parameter (did you mean stall_s? known: " + ", ".join(RalConfig.__struct_fields__)
+         + ")"),
+        ("settle_s", "bad value 'soon': Expected `float`, got `str`"),
+    ]
+    with pytest.raises(ConfError) as exc:  # the RAL exits EXIT_CONFIG: the manager does not restart it
+        RalConfig.from_params(params)
+    assert "failsafe_action" in str(exc.value) and "stal_s" in str(exc.value) and "settle_s" in str(exc.value)
+    assert RalConfig.param_errors({"failsafe_action": "land", "stall_s": "30", "zzz": "1"}) == [
+        ("zzz", "unknown RAL parameter (known: " + ", ".join(RalConfig.__struct_fields__) + ")")]
+    assert RalConfig.param_errors({"mri_timeout_s": "1"})[0][0] == "mri_timeout_s"
 
 
 def test_battery_voltages_come_in_a_pair_with_empty_below_full() -> None:
