@@ -37,6 +37,7 @@ Neither may write this robot's keys. :func:`hub_config` is the hub router's own 
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,9 @@ from bbcs.contracts.dsp import COMMAND_RIGHTS, commands_slot
 from bbcs.contracts.dsp import MODULE as DSP_MODULE
 from bbcs.contracts.sync import clock_key, sync_key
 from bbcs.contracts.world import world_model_key, world_request_key
+
+OLD_COMMANDS_SLOT = "commands"
+"""The DSP's old shared command mailbox (``dsp/commands``): gone; nobody may write it, not even the DSP."""
 
 ALL_MESSAGES = [
     "put",
@@ -245,10 +249,17 @@ def router_config(
             # ... and presence as its publisher; its advanced subscriber's token (``@adv/sub``) stays allowed
             _rule(f"m-{name}-no-control-pub", ["liveliness_token"], [ctl, f"{ctl}/@adv/pub/**"], permission="deny"),
         ]
+        own_rules = [f"m-{name}-write", f"m-{name}-token", f"m-{name}-no-control", f"m-{name}-no-control-pub"]
+        if name == DSP_MODULE:  # its cromat/r/dsp/* covers every sender's command key: those stay the senders'
+            mailboxes = [keys.slot_pattern(r, DSP_MODULE, s) for s in (*map(commands_slot, COMMAND_RIGHTS),
+                                                                          OLD_COMMANDS_SLOT)]
+            rules += [_rule(f"m-{name}-no-commands", [*WRITE, "declare_queryable"], [*mailboxes, *_adv(mailboxes)],
+                            permission="deny"),
+                      _rule(f"m-{name}-no-commands-pub", ["liveliness_token"],
+                            [*mailboxes, *(f"{k}/@adv/pub/**" for k in mailboxes)], permission="deny")]
+            own_rules += [f"m-{name}-no-commands", f"m-{name}-no-commands-pub"]
         subjects.append({"id": f"m-{name}", "cert_common_names": [cn.get(name, name)]})
-        policies.append({"id": f"m-{name}", "subjects": [f"m-{name}"],
-                         "rules": [f"m-{name}-write", f"m-{name}-token", f"m-{name}-no-control",
-                                   f"m-{name}-no-control-pub"]})
+        policies.append({"id": f"m-{name}", "subjects": [f"m-{name}"], "rules": own_rules})
     for name in peers:
         rules += _robot_write_rules(f"peer-{name}", name)
         subjects.append({"id": f"peer-{name}", "cert_common_names": [mesh_router_cn(name)]})
@@ -297,6 +308,45 @@ def router_config(
     if peers or hub_cns:  # it dials other routers ([bus] peers): it presents its own certificate there too
         config["transport"]["link"]["tls"].update({"connect_certificate": cert, "connect_private_key": key})
     return config
+
+
+ROUTER_LINK = "router-link"
+"""The subject id of the robot router's link in a peer module's ingress policy (:func:`peer_ingress_policy`)."""
+_THROUGH_ROUTER = ("gcs", "manager", "everyone")
+"""Policies of the identities whose traffic reaches a peer module only through the robot's router."""
+
+
+def peer_ingress_policy(router_access_control: dict[str, Any], router_cn: str, *,
+                        ral_is_peer: bool = True) -> dict[str, Any]:
+    """The router's ``access_control`` made a peer module's ingress policy (``[bus] links = "peers"``).
+
+    The router's link (certificate CN ``router_cn``) is let in with the rights of what it forwards and nothing
+    more: the manager, the ground stations, the named mesh robots (and the RAL when it is not a peer module
+    itself). Module identities link to each other directly, so their rights are never the router link's: whoever
+    reads ``router.key`` on the robot and dials a module directly gets no module's writes, no DSP command key.
+    A hub forwards robots it does not name, so with ``hubs`` the link also gets every robot's writes, with a deny
+    on this robot's DSP command keys and RAL keys (docs/security.md, issue 32 item 4)."""
+    ac = copy.deepcopy(router_access_control)
+    granted: list[str] = []
+    hub = False
+    for policy in ac["policies"]:
+        pid = policy["id"]
+        if pid in _THROUGH_ROUTER or pid.startswith("peer-") or (pid == "ral" and not ral_is_peer):
+            granted += policy["rules"]
+        elif pid == "hub":
+            hub = True
+            granted += [r for r in policy["rules"] if not r.startswith("hub-not-this-robot")]
+    if hub:
+        rules = {r["id"]: r for r in ac["rules"]}
+        guarded = [k for rid, r in rules.items() if rid.startswith("m-") and rid.endswith("-write")
+                   for k in r["key_exprs"] if f"/{DSP_MODULE}/" in k]
+        if ral_is_peer:
+            guarded += [k for rid in ("ral-write", "ral-requests") if rid in rules for k in rules[rid]["key_exprs"]]
+        ac["rules"].append(_rule("router-link-not-modules", [*WRITE, "declare_queryable"], guarded, "deny"))
+        granted.append("router-link-not-modules")
+    ac["subjects"].append({"id": ROUTER_LINK, "cert_common_names": [router_cn]})
+    ac["policies"].append({"id": ROUTER_LINK, "subjects": [ROUTER_LINK], "rules": list(dict.fromkeys(granted))})
+    return ac
 
 
 def hub_config(*, listen: list[str], ca: str, cert: str, key: str, gcs: list[str],

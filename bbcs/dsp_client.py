@@ -10,7 +10,6 @@ from collections.abc import Sequence
 from typing import Any
 
 from bbcs.contracts.dsp import (
-    COMMANDS_SLOT,
     ERRORS_SLOT,
     MODULE,
     TELEMETRY_SLOT,
@@ -33,12 +32,11 @@ def errors_input() -> Any:
     return InputSlot("dsp_errors", DspErrorReport, kind=Kind.STREAM, peer=f"{MODULE}/{ERRORS_SLOT}")
 
 
-def commands_output(sender: str | None = None) -> Any:
+def commands_output(sender: str) -> Any:
     """Output ``dsp_commands``: writes into the DSP process's command input for ``sender``
     (``dsp/commands_<sender>``, the key only that identity may write under access control, see
-    bbcs.contracts.dsp); without a sender, the shared ``dsp/commands`` mailbox no identity may write under it."""
-    slot = COMMANDS_SLOT if sender is None else commands_slot(sender)
-    return OutputSlot("dsp_commands", DspCommands, kind=Kind.STREAM, peer=f"{MODULE}/{slot}")
+    bbcs.contracts.dsp). There is no shared mailbox."""
+    return OutputSlot("dsp_commands", DspCommands, kind=Kind.STREAM, peer=f"{MODULE}/{commands_slot(sender)}")
 
 
 class DspCommander:

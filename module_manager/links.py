@@ -8,17 +8,17 @@
   ``[bus.tls]`` each module presents its own certificate on its peer links too, and its session enforces the
   robot's access policy on everything that *arrives* at it (ingress): the receiver decides who may write to it, by
   the certificate CN of the link it came on, so a compromised module that drops its own policy still cannot write
-  a slot it does not own. What comes from the router (whose own policy already filtered it) is accepted as the
-  router forwards it.
+  a slot it does not own. What comes from the router's link gets only the rights of what the router forwards (the
+  manager, ground stations, mesh robots), never a module's: modules reach each other directly.
 """
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 import msgspec
 
+from bbcs import acl
 from bbcs.session import SessionConfig
 from module_manager import secure
 from module_manager.manifest import Manifest
@@ -46,19 +46,17 @@ def peer_access_control(manifest: Manifest) -> dict[str, Any] | None:
     tls = manifest.raw.bus.tls
     if tls is None or not tls.acl or links(manifest) != "peers":
         return None
-    return peer_policy(secure.router_config(manifest, [])["access_control"], secure.router_cn(manifest))
+    return peer_policy(secure.router_config(manifest, [])["access_control"], secure.router_cn(manifest),
+                       ral_is_peer=tls.ral in manifest.modules)
 
 
-def peer_policy(router_access_control: dict[str, Any], router_cn: str) -> dict[str, Any]:
+def peer_policy(router_access_control: dict[str, Any], router_cn: str, *, ral_is_peer: bool = True) -> dict[str, Any]:
     """The router's ``access_control`` section made a peer's: the same subjects and rules, plus the router's link
-    (certificate CN ``router_cn``, as its certificate says: :func:`module_manager.secure.router_cn`) allowed every
-    rule that allows, so that what the router forwards gets in. A wrong CN here silently cuts a peer module off
-    from everything that comes through the router (the manager's routes, ground stations, other robots)."""
-    ac = copy.deepcopy(router_access_control)
-    allowed = [rule["id"] for rule in ac["rules"] if rule["permission"] == "allow"]
-    ac["subjects"].append({"id": "router-link", "cert_common_names": [router_cn]})
-    ac["policies"].append({"id": "router-link", "subjects": ["router-link"], "rules": allowed})
-    return ac
+    (certificate CN ``router_cn``, as its certificate says: :func:`module_manager.secure.router_cn`) with the rights
+    of what it forwards and no module's (:func:`bbcs.acl.peer_ingress_policy`: router.key on the robot is no master
+    key). A wrong CN here silently cuts a peer module off from everything that comes through the router (the
+    manager's routes, ground stations, other robots)."""
+    return acl.peer_ingress_policy(router_access_control, router_cn, ral_is_peer=ral_is_peer)
 
 
 def module_bus(manifest: Manifest, client: SessionConfig, access_control: dict[str, Any] | None) -> SessionConfig:

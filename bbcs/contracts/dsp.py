@@ -325,26 +325,34 @@ class DspError(Message, frozen=True, kw_only=True):
     related_id: U8 = 0
 
 
-def _sensor(lo: float, hi: float) -> Any:
-    """A decoded telemetry float with its physical range; a value outside it (NaN and ±inf included) means
-    a fault the CRC let through or a faulty sensor, so the declaration names DSP error SENSOR_FAULT."""
-    return Annotated[float, Meta(ge=lo, le=hi, extra={"error_code": 9})]  # ErrorCode.SENSOR_FAULT
+def _reading(lo: float, hi: float, *, hi_open: bool = False) -> Any:
+    """A decoded telemetry float with its physical range. A value outside it (NaN and ±inf included) is a fault
+    the CRC let through, or a faulty sensor: the DSP process refuses the whole frame (TELEMETRY_REFUSED,
+    docs/dsp_protocol.md §5.4)."""
+    return Annotated[float, Meta(ge=lo, lt=hi) if hi_open else Meta(ge=lo, le=hi)]
 
 
 # Physical ranges of what the DSP reports (degrees, metres, m/s, deg/s, rpm, volts). Wide enough for any
 # attitude a helicopter can report and any place it can fly; narrow enough that a corrupted float is caught.
-TelLat = _sensor(-90.0, 90.0)
-TelLon = _sensor(-180.0, 180.0)
-TelAlt = _sensor(-500.0, 10_000.0)  # m MSL: Dead Sea shore to above any helicopter's ceiling
-Angle180 = _sensor(-180.0, 180.0)  # roll, yaw, heading, pan (binary32 may round 179.99999 up to 180)
-Angle90 = _sensor(-90.0, 90.0)  # pitch, tilt
-TelSpeed = _sensor(-150.0, 150.0)  # m/s per axis
-TelRate = _sensor(-2000.0, 2000.0)  # deg/s: full scale of the MEMS gyros such DSPs use
-TelDistance = _sensor(-1.0, 20_100_000.0)  # m; -1 = no target; half the Earth's circumference at most
-TelGroundSpeed = _sensor(0.0, 150.0)
-TelCommandedSpeed = _sensor(0.0, MAX_SPEED_LIMIT)
-TelRpm = _sensor(0.0, 5_000.0)
-TelVolts = _sensor(0.0, 100.0)
+# Declared once, here: the DSP process (modules/dsp/link.py), the simulator and the fuzz tests all check against
+# these types; docs/dsp_protocol.md §5.4 lists them.
+TelLat = _reading(-90.0, 90.0)
+TelLon = _reading(-180.0, 180.0)
+TelAlt = _reading(-500.0, 10_000.0)  # m MSL: Dead Sea shore to above any helicopter's ceiling
+TelHeading = _reading(-180.0, 180.0, hi_open=True)  # heading and yaw, as SET_HEADING: 180 is written -180
+Angle180 = _reading(-180.0, 180.0)  # roll, pan (a roll of ±180° is one attitude; pan's stop is at 180)
+Angle90 = _reading(-90.0, 90.0)  # pitch, tilt
+TelSpeed = _reading(-150.0, 150.0)  # m/s per axis
+TelRate = _reading(-2000.0, 2000.0)  # deg/s: full scale of the MEMS gyros such DSPs use
+TelDistance = _reading(-1.0, 20_100_000.0)  # m; -1 = no target; half the Earth's circumference at most
+TelGroundSpeed = _reading(0.0, 150.0)
+TelCommandedSpeed = _reading(0.0, MAX_SPEED_LIMIT)
+TelRpm = _reading(0.0, 5_000.0)
+TelVolts = _reading(0.0, 100.0)
+TelMode = Annotated[int, Meta(ge=0, le=int(max(Mode)))]  # STATUS mode: the operating modes of §4.2
+TelQueueLength = Annotated[int, Meta(ge=0, le=WAYPOINT_QUEUE_CAPACITY)]  # the DSP's queue holds 512 at most
+TelReservedFlags = Annotated[int, Meta(ge=0, le=0)]  # STATUS flag bits 3-7: reserved, always 0
+TelPanTiltMode = Annotated[int, Meta(ge=0, le=int(max(PanTiltMode)))]
 
 
 class Position(msgspec.Struct, frozen=True, kw_only=True):
@@ -356,7 +364,7 @@ class Position(msgspec.Struct, frozen=True, kw_only=True):
 class Attitude(msgspec.Struct, frozen=True, kw_only=True):
     roll: Angle180
     pitch: Angle90
-    yaw: Angle180
+    yaw: TelHeading
 
 
 class Velocity(msgspec.Struct, frozen=True, kw_only=True):
@@ -372,11 +380,14 @@ class AngularRate(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class DspStatus(msgspec.Struct, frozen=True, kw_only=True):
-    mode: Annotated[int, Meta(ge=0, le=6)]
+    mode: TelMode
     tracking: bool
     path_valid: bool
     airborne: bool
-    queue_length: U16
+    queue_length: TelQueueLength
+    reserved_flags: TelReservedFlags = 0
+    """The flags byte's bits 3-7 as received (``flags & 0xF8``); the protocol reserves them, so any set bit
+    refuses the frame."""
 
 
 class NavTarget(msgspec.Struct, frozen=True, kw_only=True):
@@ -398,7 +409,7 @@ class SpeedInfo(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class PanTiltState(msgspec.Struct, frozen=True, kw_only=True):
-    mode: Annotated[int, Meta(ge=0, le=2)]
+    mode: TelPanTiltMode
     pan: Angle180
     tilt: Angle90
 
@@ -417,7 +428,7 @@ class Telemetry(Message, frozen=True, kw_only=True):
     attitude: Attitude | None = None
     velocity: Velocity | None = None
     angular_rate: AngularRate | None = None
-    heading: Angle180 | None = None
+    heading: TelHeading | None = None
     status: DspStatus | None = None
     nav: NavTarget | None = None
     speed: SpeedInfo | None = None
@@ -558,11 +569,12 @@ def check(msg: Message) -> None:
 COMMANDS_SLOT_PREFIX = "commands_"
 
 COMMAND_RIGHTS: dict[str, frozenset[str]] = {
-    "pan_tilt": frozenset({"SetPanTiltMode", "SetPanTiltAngles", "SetPanTiltTarget"}),
+    "pan_tilt": frozenset({"SetPanTiltMode", "SetPanTiltAngles", "SetPanTiltTarget", "Ping"}),
     "path_follower": frozenset({"SetMode", "SetSpeed", "SetHeading", "AddWaypoint", "SetRefs", "SetTracking",
-                                "InvalidatePath", "Abort"}),
+                                "InvalidatePath", "Abort", "Ping"}),
 }
-"""Sending module (instance name) → DSP command classes (struct names) it owns."""
+"""Sending module (instance name) → DSP command classes (struct names) it owns. ``Ping`` (a link check that
+changes nothing aboard) is every sender's. There is no shared mailbox: the old ``dsp/commands`` key is gone."""
 
 
 def commands_slot(sender: str) -> str:
@@ -592,7 +604,6 @@ def refused_classes(sender: str, class_names: list[str]) -> list[str]:
 
 MODULE = "dsp"
 """The DSP process's module name (the ``<module>`` chunk of its keys)."""
-COMMANDS_SLOT = "commands"
 TELEMETRY_SLOT = "telemetry"
 ERRORS_SLOT = "errors"
 LINK_SLOT = "link"
@@ -635,6 +646,10 @@ class LinkErrorCode(IntEnum):
     OVER_MAX_SPEED = 102  # SET_SPEED above the .conf MAX_SPEED: the batch was not sent
     FLUSHED = 103  # commands of a batch were dropped, unsent, by an ABORT
     NOT_OWNER = 104  # a sender's batch holds a command class it does not own (COMMAND_RIGHTS): not sent
+    TELEMETRY_REFUSED = 105
+    """A telemetry frame that passed the CRC was malformed or had a field outside its declared range: dropped,
+    counted (``LinkStats.telemetry_refused``) and reported on the DSP process's ERROR slot, at most once per
+    second for a run of them (modules/dsp/refusals.py). Not a DSP fault: SENSOR_FAULT (9) is the DSP's own."""
 
 
 class DspErrorReport(msgspec.Struct, frozen=True, kw_only=True):
@@ -673,6 +688,8 @@ class LinkStats(msgspec.Struct, frozen=True, kw_only=True):
     dsp_errors: int = 0
     dsp_frames_lost: int = 0  # gaps in the DSP's frame counter
     callback_errors: int = 0
+    telemetry_refused: int = 0  # telemetry frames that passed the CRC but were malformed or out of range
+    last_refused: str = ""  # why the last of them was refused (field, value, range)
 
     @property
     def frames_dropped(self) -> int:

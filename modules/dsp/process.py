@@ -8,13 +8,18 @@ is still going out: only the liveliness token, or the first ``link`` statistics,
 Reports on ``errors`` are not in batch order: DSP errors go out as the reader thread receives them, NACK and
 FLUSHED reports when the sender thread reaches them.
 
-Then: command batches arriving on ``commands`` are queued and sent by one sender thread, in order, each
+Then: command batches arriving on ``commands_<sender>`` are queued and sent by one sender thread, in order, each
 acknowledged before the next; the first failure stops the rest of its batch and is reported on ``errors``
 with the sender's name and batch id. A batch holding ABORT jumps the queue: the batch being sent stops after
 its current command, every queued batch is dropped (reported as FLUSHED), then the ABORT goes out — SPEC's
 abort empties the waypoint queues of both the onboard computer and the DSP. DSP telemetry goes out on
 ``telemetry``, DSP errors on ``errors``, link counters on ``link`` every second. If the port fails later the
 process stops with exit code 3 and the manager restarts it (which runs the start-up sequence again).
+
+A telemetry frame the link refuses (it passed the CRC but is malformed or has a field outside its declared range)
+is never published; it is counted (``link``: ``telemetry_refused``) and reported on ``error`` as
+TELEMETRY_REFUSED (105), one report for a run of them, at most one a second (modules/dsp/refusals.py). It is not
+a DSP fault: it goes on no other slot, so no module forwards it and no task fails because of one frame.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from modules.dsp import protocol as p
 from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
 from modules.dsp.link import DspLink, open_link, startup
+from modules.dsp.refusals import Refusal, RefusalCounter, RefusalReport
 
 EXIT_LINK_FAILED = 3
 
@@ -50,7 +56,6 @@ class DspConfigError(DspStartupError):
 class DspModule(Module):
     name: ClassVar[str] = contract.MODULE
     slots = (
-        InputSlot(contract.COMMANDS_SLOT, contract.DspCommands, kind=Kind.STREAM),
         *(InputSlot(commands_slot(sender), contract.DspCommands, kind=Kind.STREAM) for sender in COMMAND_RIGHTS),
         OutputSlot(contract.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
         OutputSlot(contract.ERRORS_SLOT, contract.DspErrorReport, kind=Kind.STREAM),
@@ -72,11 +77,14 @@ class DspModule(Module):
         self._cond = threading.Condition()
         self._abort_generation = 0
         self._sender_stop = False
+        self.refusals = RefusalCounter()
+        self._refusals_lock = threading.Lock()
         try:
             self.link: DspLink = open_link(self.conf, on_telemetry=self._on_telemetry,
-                                           on_error=self._on_dsp_error)
+                                           on_error=self._on_dsp_error, on_refused=self._on_refused)
         except DspLinkError as exc:
             self._fatal(LinkErrorCode.LINK_DOWN, str(exc))
+        self.link.clock = self.bbcs_clock  # ACK timeouts on the robot's clock (simulated time in lockstep)
         try:
             acks = startup(self.link, self.conf)
         except (DspLinkError, p.DspValueError) as exc:
@@ -102,6 +110,10 @@ class DspModule(Module):
             sender.join(timeout=2.0)
 
     def on_tick(self) -> None:
+        with self._refusals_lock:
+            due = self.refusals.flush(time.monotonic())
+        if due is not None:
+            self._report_refusals(due)
         self.publish(contract.LINK_SLOT, self.link.stats())
         failure = self.link.failure
         if failure is not None and not self.stopping:
@@ -156,9 +168,9 @@ class DspModule(Module):
             self.report_error(LinkErrorCode.NOT_OWNER, detail)
             self._publish_report(LinkErrorCode.NOT_OWNER, detail, batch, refused[0])
             return
-        self.on_commands(batch)
+        self._queue(batch)
 
-    def on_commands(self, batch: contract.DspCommands) -> None:
+    def _queue(self, batch: contract.DspCommands) -> None:
         """Check run-time limits, then queue the batch; an ABORT flushes what is queued and goes first."""
         for cmd in batch.commands:
             if isinstance(cmd, p.SetSpeed) and cmd.speed > self.conf.max_speed:
@@ -191,7 +203,26 @@ class DspModule(Module):
                     return
                 batch = self._batches.popleft()
                 generation = self._abort_generation
-            self._send_batch(batch, generation)
+                self._sending = True
+            try:
+                self._send_batch(batch, generation)
+            finally:
+                self._sending = False
+
+    def lockstep_busy(self) -> str:
+        """Lockstep (docs/simulation.md): a batch waiting or being sent is work the step must wait for."""
+        cond = getattr(self, "_cond", None)
+        if cond is None:
+            return ""
+        with cond:
+            return "command batch to send" if self._batches or getattr(self, "_sending", False) else ""
+
+    def lockstep_counts(self) -> dict[str, int]:
+        """Bytes on the DSP line both ways: the simulator steps only once both ends agree."""
+        link = getattr(self, "link", None)
+        if link is None:
+            return {}
+        return {"dsp_bytes_tx": link.stats().bytes_tx, "dsp_bytes_rx": link.bytes_handled}
 
     def _send_batch(self, batch: contract.DspCommands, generation: int) -> None:
         for i, cmd in enumerate(batch.commands):
@@ -218,15 +249,18 @@ class DspModule(Module):
     # --- DSP → bus ---------------------------------------------------------------------------------------
 
     def _on_telemetry(self, telemetry: p.Telemetry) -> None:
-        try:  # a frame the CRC let through with a value outside its physical range is never published
-            p.check(telemetry)
-        except p.DspValueError as exc:
-            self.telemetry_dropped = getattr(self, "telemetry_dropped", 0) + 1
-            detail = f"telemetry frame dropped ({self.telemetry_dropped} so far): {exc}"
-            self.report_error(BusErrorCode.OUT_OF_RANGE, detail)
-            self._publish_report(exc.code, detail)
-            return
-        self.publish(contract.TELEMETRY_SLOT, telemetry)
+        self.publish(contract.TELEMETRY_SLOT, telemetry)  # the link checked its ranges (refused ones never come)
+
+    def _on_refused(self, refusal: Refusal) -> None:
+        with self._refusals_lock:
+            due = self.refusals.refuse(refusal, time.monotonic())
+        if due is not None:
+            self._report_refusals(due)
+
+    def _report_refusals(self, report: RefusalReport) -> None:
+        """One code on the ERROR slot for a run of refused frames; their count and reason in the log and on
+        ``link`` (the ERROR slot carries a code only)."""
+        self.report_error(LinkErrorCode.TELEMETRY_REFUSED, report.text())
 
     def _on_dsp_error(self, error: p.DspError) -> None:
         self._publish_report(error.code, f"the DSP reported {p.error_name(error.code)} at {error.time_ms} ms")

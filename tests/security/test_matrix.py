@@ -156,6 +156,9 @@ WRITES = [
     (f"{R}/dsp/commands_path_follower", "vision", "path_follower"),  # another sender's DSP command key
     (f"{R}/dsp/commands_path_follower", "pan_tilt", "path_follower"),
     (f"{R}/dsp/commands_pan_tilt", "gcs", "pan_tilt"),
+    (f"{R}/dsp/commands_path_follower", "dsp", "path_follower"),  # issue 32 item 5: the DSP's own rule dsp/* ...
+    (f"{R}/dsp/commands_pan_tilt", "dsp", "pan_tilt"),  # ... covers no sender's key
+    (f"{R}/dsp/commands", "dsp", None),  # ... nor the old mailbox
     (f"{R}/trajectory/request", "vision", "ral"),  # a request the RAL makes of a module, on the module's key
     (f"{R}/trajectory/request", "gcs", "ral"),
     (f"{R}/trajectory/request", "path_follower", "trajectory"),  # ... which the module itself may also write
@@ -369,6 +372,9 @@ def test_dsp_commands_reach_the_simulator_only_from_their_owner(rig: Rig, who: S
             # the pan & tilt identity sending a class it does not own on its own key (DSP, reported)
             who("vision").put(f"{R}/dsp/commands_path_follower", _batch("path_follower", p.Abort()))
             who("vision").put(f"{R}/dsp/commands", _batch("path_follower", p.Abort()))
+            # the dsp identity itself (issue 32 item 5): its rule dsp/* no longer covers the senders' keys
+            who("dsp").put(f"{R}/dsp/commands_path_follower", _batch("path_follower", p.SetMode(mode=p.Mode(4))))
+            who("dsp").put(f"{R}/dsp/commands", _batch("nobody", p.SetMode(mode=p.Mode(4))))
             who("pan_tilt").put(f"{R}/dsp/commands_pan_tilt", _batch("path_follower", p.SetMode(mode=p.Mode.LANDING)))
             wait_until(lambda: any(b"NOT_OWNER" in v or b"does not own" in v
                                    for v in observer.values(f"{R}/dsp/errors")), 30, "the DSP's NOT_OWNER report")

@@ -238,3 +238,88 @@ def test_the_peer_policy_names_the_routers_certificate(rig: Rig) -> None:
     policy = links.peer_access_control(rig.manifest)
     assert policy is not None
     assert {"id": "router-link", "cert_common_names": [router_cn]} in policy["subjects"]
+
+
+# --- issue 32 item 4: the router's key, read on the robot, is no master key over a direct link ----------------
+
+def _start_peer_dsp(rig: Rig, tmp: Path) -> tuple[Path, Processes]:
+    """The real DSP process as the manager starts it under ``links = "peers"`` (its peer session enforcing the
+    policy), on a simulator that records what reached the aircraft."""
+    import select
+
+    record = tmp / "dsp.jsonl"
+    procs = Processes()
+    sim = procs.start(["-m", "modules.dsp.sim", "--pty", "--record", str(record)], stdout=subprocess.PIPE, text=True)
+    assert select.select([sim.stdout], [], [], 15.0)[0], "the simulator printed nothing"
+    pty = sim.stdout.readline().strip()
+    bus = links.module_bus(rig.manifest, secure.client_bus(rig.manifest, rig.connect, "dsp"),
+                           links.peer_access_control(rig.manifest))
+    procs.start(["-m", "modules.dsp", "--robot", ROBOT, "--bus", msgspec.json.encode(bus).decode(),
+                 "--conf", str(ROOT / "bbcs_conf" / "uav1.conf"), "--param", f"port={pty}"],
+                stderr=subprocess.DEVNULL)
+    return record, procs
+
+
+def _router_key_session(rig: Rig) -> zenoh.Session:
+    """Whoever read ``router.pem``/``router.key`` from the robot folder: a peer without any policy of its own."""
+    pki = rig.manifest.pki
+    assert pki is not None
+    cfg = links.peer_session(secure.client_bus(rig.manifest, rig.connect, secure.ROUTER), None)
+    s = open_session(cfg)
+    rig.sessions.append(s)
+    return s
+
+
+def test_the_routers_key_cannot_command_the_dsp_over_a_direct_link(rig: Rig, tmp_path: Path) -> None:
+    """Issue 32 item 4: ADD_WAYPOINT and SET_MODE 4 written with the router's certificate straight to the DSP
+    process reach no aircraft (the simulator's record), while the path follower's own command on its own key does;
+    a policy-less witness of the DSP's identity gets the forgery, so it did travel a direct link."""
+    from bbcs.contracts import dsp as bus
+    from modules.dsp import protocol as p
+    from modules.dsp.sim.record import read_record
+
+    record, procs = _start_peer_dsp(rig, tmp_path)
+    try:
+        attacker = _router_key_session(rig)
+        witness = rig.module("dsp", policy=False)
+        owner = rig.module("path_follower")
+        key = keys.slot_key(ROBOT, "dsp", bus.commands_slot("path_follower"))
+        link = keys.slot_key(ROBOT, "dsp", bus.LINK_SLOT)
+        seen = Inbox(witness, key, link)
+        wait_until(lambda: seen.values(link), 60, "the DSP process started up")
+        startup = len(read_record(record))
+        forged = msgspec.msgpack.encode(bus.DspCommands(sender="path_follower", batch_id=66, commands=[
+            p.AddWaypoint(lat=37.5, lon=-6.0, alt=80.0), p.SetMode(mode=p.Mode(4))]))
+        pub = attacker.declare_publisher(key)
+        wait_until(lambda: pub.matching_status.matching, 30, "the attacker sees the DSP's command subscription")
+        for _ in range(40):
+            pub.put(forged)
+            if seen.wait_for(key, forged, 0.5):
+                break
+        else:
+            raise AssertionError("the forgery never reached the witness over a direct link: the attack was not made")
+        ours = {str(s.zid()) for s in rig.sessions}
+        wait_until(lambda: {str(z) for z in attacker.info.peers_zid()} - ours, 30,
+                   "the attacker never linked directly to the DSP process")
+        for _ in range(5):  # now over the direct link to the DSP process itself
+            pub.put(forged)
+        real = owner.declare_publisher(key)
+        wait_until(lambda: real.matching_status.matching, 30, "the path follower sees the DSP's subscription")
+        real.put(msgspec.msgpack.encode(bus.DspCommands(sender="path_follower", batch_id=1, commands=[
+            p.SetSpeed(speed=3.0)])))
+        wait_until(lambda: "SET_SPEED" in [c["name"] for c in read_record(record)[startup:]], 30,
+                   "the path follower's own command at the simulator")
+        assert [c["name"] for c in read_record(record)[startup:]] == ["SET_SPEED"], "the forgery reached the DSP"
+        seen.close()
+        pub.undeclare()
+        real.undeclare()
+    finally:
+        procs.stop_all()
+
+
+def test_the_router_link_gets_what_the_router_forwards_and_no_module_rights(rig: Rig) -> None:
+    policy = links.peer_access_control(rig.manifest)
+    assert policy is not None
+    granted = next(p for p in policy["policies"] if p["id"] == "router-link")["rules"]
+    assert "manager-write" in granted and "gcs-command" in granted
+    assert not [r for r in granted if r.startswith("m-") or r.startswith("ral-")], granted

@@ -161,8 +161,8 @@ class Stack:
             )
         self._pubs["ping"] = Publisher(
             self.session,
-            keys.slot_key(ROBOT, bus.MODULE, bus.COMMANDS_SLOT),
-            OutputSlot(bus.COMMANDS_SLOT, bus.DspCommands, kind=Kind.STREAM),
+            keys.slot_key(ROBOT, bus.MODULE, bus.commands_slot("path_follower")),  # PING is every sender's
+            OutputSlot(bus.commands_slot("path_follower"), bus.DspCommands, kind=Kind.STREAM),
         )
         sim = self.procs.start(
             [
@@ -313,7 +313,7 @@ class Stack:
         return [r for r in self.all_received()[start:] if r["name"] != "PING"]
 
     def barrier(self) -> None:
-        """A PING through the DSP process's mailbox: whatever a module published before is now at the DSP."""
+        """A PING on the DSP process's path follower input: whatever a module published before is now at the DSP."""
         self._pings += 1
         self._pubs["ping"].publish(bus.DspCommands(sender=TESTER, commands=[p.Ping()], batch_id=self._pings))
         wait_until(

@@ -60,21 +60,24 @@ class Bus:
             subs.append(session.declare_subscriber(
                 key, lambda s, d=decode, k=sink: self._add(k, d(s.payload.to_bytes()))))
         self.subs = subs
-        self.pub = Publisher(session, keys.slot_key(ROBOT, bus.MODULE, bus.COMMANDS_SLOT),
-                             OutputSlot(bus.COMMANDS_SLOT, bus.DspCommands, kind=Kind.STREAM))
+        self.pubs = {s: Publisher(session, keys.slot_key(ROBOT, bus.MODULE, bus.commands_slot(s)),
+                                  OutputSlot(bus.commands_slot(s), bus.DspCommands, kind=Kind.STREAM))
+                     for s in bus.COMMAND_RIGHTS}
         self.batches = 0
 
     def _add(self, sink: list, value: object) -> None:
         with self.lock:
             sink.append(value)
 
-    def send(self, *commands: bus.DspCommand, sender: str = "tester") -> int:
+    def send(self, *commands: bus.DspCommand, sender: str = "path_follower") -> int:
+        """A batch on ``sender``'s own key (there is no shared mailbox)."""
         self.batches += 1
-        self.pub.publish(bus.DspCommands(sender=sender, commands=list(commands), batch_id=self.batches))
+        self.pubs[sender].publish(bus.DspCommands(sender="field", commands=list(commands), batch_id=self.batches))
         return self.batches
 
     def close(self) -> None:
-        self.pub.close()
+        for pub in self.pubs.values():
+            pub.close()
         for sub in self.subs:
             sub.undeclare()
 
@@ -110,7 +113,10 @@ def test_startup_first_then_batches_in_order(rig) -> None:
     startup = [c.MSG_ID.name for c in startup_commands(load_dsp_config(UAV1))]
     assert names(record) == startup  # nothing else before the start-up sequence, and all of it
     view.send(p.SetSpeed(speed=3.0), p.SetMode(mode=p.Mode.TAKE_OFF))
-    view.send(p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES), p.SetPanTiltAngles(pan_deg=20, tilt_deg=-10))
+    # two senders' keys have no order between them: the second batch once the first is at the DSP
+    wait_until(lambda: len(names(record)) == len(startup) + 2, what="the first batch at the DSP")
+    view.send(p.SetPanTiltMode(mode=p.PanTiltMode.ANGLES), p.SetPanTiltAngles(pan_deg=20, tilt_deg=-10),
+              sender="pan_tilt")
     wait_until(lambda: len(names(record)) == len(startup) + 4, what="both batches at the DSP")
     assert names(record)[len(startup):] == ["SET_SPEED", "SET_MODE", "SET_PT_MODE", "SET_PT_ANGLES"]
     wait_until(lambda: view.telemetry[-1].status.mode == p.Mode.TAKE_OFF and view.telemetry[-1].status.airborne,
@@ -129,13 +135,13 @@ def test_limits_and_refusals_are_reported_with_the_sender(rig) -> None:
     assert (r.code, r.sender, r.batch_id, r.command) == (LinkErrorCode.OVER_MAX_SPEED, "path_follower", batch,
                                                          "SetSpeed")
     refs = p.SetRefs(ref_altura=30, error_longitudinal=1, error_lateral=0, ref_heading=0, ref_rpm_motor=1500)
-    batch = view.send(refs, p.SetMode(mode=p.Mode.TAKE_OFF), sender="pan_tilt")  # REFS outside bridge mode
+    batch = view.send(refs, p.SetMode(mode=p.Mode.TAKE_OFF))  # REFS outside bridge mode
     wait_until(lambda: len(batch_reports(view)) == 2, what="the refusal report")
     r = batch_reports(view)[1]
-    expected = (p.ErrorCode.WRONG_MODE, "WRONG_MODE", "pan_tilt", batch, "SetRefs")
+    expected = (p.ErrorCode.WRONG_MODE, "WRONG_MODE", "path_follower", batch, "SetRefs")
     assert (r.code, r.name, r.sender, r.batch_id, r.command) == expected
     # one sender thread, one line: a later batch's command at the DSP shows nothing else of these is coming
-    view.send(p.SetSpeed(speed=3.0), sender="marker")
+    view.send(p.SetSpeed(speed=3.0))
     wait_until(lambda: len(names(record)) >= before + 2, what="the marker batch at the DSP")
     assert names(record)[before:] == ["SET_REFS", "SET_SPEED"]  # nothing after the refused command, nothing of batch 1
 
@@ -144,8 +150,8 @@ def test_abort_flushes_queued_batches_and_the_dsp_queue(rig) -> None:
     _, view, record = rig
     home = (37.4117, -6.0025)
     wps = [p.AddWaypoint(lat=home[0] + (i % 50) * 1e-4, lon=home[1], alt=40.0) for i in range(300)]
-    first, _, third = (view.send(*wps, sender="planner") for _ in range(3))
-    view.send(p.Abort(), sender="gcs")
+    first, _, third = (view.send(*wps) for _ in range(3))
+    view.send(p.Abort())
     wait_until(lambda: "ABORT" in names(record), what="the ABORT at the DSP")
     wait_until(lambda: any(r.batch_id == third and r.code == LinkErrorCode.FLUSHED for r in view.reports),
                what="the third batch reported flushed")
@@ -155,10 +161,10 @@ def test_abort_flushes_queued_batches_and_the_dsp_queue(rig) -> None:
     wait_until(lambda: view.telemetry[-1].status.queue_length == 0 and not view.telemetry[-1].status.path_valid,
                what="the DSP's queue empty")
     # one sender thread, one line: a later batch's command at the DSP shows nothing more of the path is coming
-    view.send(p.SetSpeed(speed=3.0), sender="marker")
+    view.send(p.SetSpeed(speed=3.0))
     wait_until(lambda: len(names(record)) > len(sent), what="the marker batch at the DSP")
     assert names(record)[len(sent) - 1:] == ["ABORT", "SET_SPEED"]
-    assert {r.sender for r in batch_reports(view)} == {"planner"} and first < third
+    assert {r.sender for r in batch_reports(view)} == {"path_follower"} and first < third
 
 
 def test_dsp_errors_are_forwarded(rig) -> None:

@@ -1,6 +1,6 @@
 """Test harness for the UAV modules: start one as a process on a real router and watch the bus around it.
 
-``Watch`` records, from the bus, every DSP command batch sent to ``cromat/<robot>/dsp/commands``, every code
+``Watch`` records, from the bus, every DSP command batch sent to ``cromat/<robot>/dsp/commands_<sender>``, every code
 on
 the module's ERROR slot and every route acknowledgement. ``Source`` publishes what another module would.
 """
