@@ -701,13 +701,13 @@ SENT_SLOT = "sent"
 
 
 class DspSent(msgspec.Struct, frozen=True, kw_only=True):
-    """One command of a batch that the DSP acknowledged: what really reached the aircraft, and when. Watchers (the
-    flight-safety monitor) trace every command to the task behind it from this stream; a refused or flushed
-    command never appears here."""
+    """One command of a batch as the DSP process puts it on the serial line: what reached the aircraft, and when.
+    Watchers (the flight-safety monitor) trace every command to the task behind it from this stream. The DSP may
+    still refuse it (``errors`` says so); a command flushed by an ABORT or refused by ownership never appears."""
 
     sender: str
     """The command key's sender (``commands_<sender>``), or the batch's own ``sender`` on the shared key."""
     batch_id: int
     command: DspCommand
     stamp: float
-    """When the DSP acknowledged it (the DSP process's clock, seconds)."""
+    """When it went on the line (the DSP process's clock, seconds)."""

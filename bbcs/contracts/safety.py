@@ -98,5 +98,9 @@ class MonitorStatus(msgspec.Struct, frozen=True, kw_only=True):
     verdicts: int = 0
     """Ended tasks whose verdict was judged."""
     gri_states: int = 0
+    gri_compared: int = 0
+    """GRI states whose telemetry was compared with the truth at its stamp."""
+    books: int = 0
+    """Task books (Module Manager robot states) seen."""
     breaches: dict[str, int] = msgspec.field(default_factory=dict)
     """Breach kind → how many."""

@@ -60,7 +60,7 @@ class DspModule(Module):
         OutputSlot(contract.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
         OutputSlot(contract.ERRORS_SLOT, contract.DspErrorReport, kind=Kind.STREAM),
         OutputSlot(contract.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
-        OutputSlot(contract.SENT_SLOT, contract.DspSent, kind=Kind.STREAM),  # acknowledged commands (watchers)
+        OutputSlot(contract.SENT_SLOT, contract.DspSent, kind=Kind.STREAM),  # each command put on the line
         OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
@@ -231,6 +231,8 @@ class DspModule(Module):
                                                             f"flushed by an ABORT", batch, type(cmd).__name__)
                 return
             name = type(cmd).__name__
+            self.publish(contract.SENT_SLOT, contract.DspSent(sender=batch.sender, batch_id=batch.batch_id,
+                                                              command=cmd, stamp=time.time()))
             try:
                 self.link.send(cmd)
             except DspRejected as exc:
@@ -243,8 +245,6 @@ class DspModule(Module):
                 self._publish_report(LinkErrorCode.LINK_DOWN if isinstance(exc, DspLinkError)
                                      else BusErrorCode.OUT_OF_RANGE, str(exc), batch, name)
                 return
-            self.publish(contract.SENT_SLOT, contract.DspSent(sender=batch.sender, batch_id=batch.batch_id,
-                                                              command=cmd, stamp=time.time()))
 
     # --- DSP → bus ---------------------------------------------------------------------------------------
 

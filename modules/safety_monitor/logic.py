@@ -48,6 +48,16 @@ def is_stop(cmd: object) -> bool:
             or (isinstance(cmd, p.SetPanTiltMode) and cmd.mode == p.PanTiltMode.HOLD))
 
 
+def command_severity(cmd: object) -> Severity:
+    """An untraced command that moves the aircraft is critical, one that moves the gimbal an error, a stop a
+    warning."""
+    if is_stop(cmd):
+        return Severity.WARNING
+    if isinstance(cmd, p.SetPanTiltMode | p.SetPanTiltAngles | p.SetPanTiltTarget | p.Ping | p.ClearError):
+        return Severity.ERROR
+    return Severity.CRITICAL
+
+
 def describe_command(cmd: object) -> str:
     fields = ", ".join(f"{k}={getattr(cmd, k)!r}" for k in getattr(cmd, "__struct_fields__", ()))
     return f"{type(cmd).__name__}({fields})"
@@ -152,7 +162,7 @@ class SafetyMonitor:
         self._clear: _Episode | None = None
         self._out: list[Breach] = []
         self.counts: dict[str, int] = {"commands": 0, "commands_judged": 0, "telemetry": 0, "truth": 0,
-                                       "verdicts": 0, "gri_states": 0}
+                                       "verdicts": 0, "gri_states": 0, "books": 0, "gri_compared": 0}
         self.breach_counts: dict[str, int] = {}
 
     # ------------------------------------------------------------------ observations
@@ -165,6 +175,7 @@ class SafetyMonitor:
 
     def on_book(self, now: float, stamp: float, active: Iterable[TaskInfo], ended: Iterable[TaskInfo]) -> None:
         """The Module Manager's task book (running tasks and the recently ended ones)."""
+        self.counts["books"] += 1
         self.book_stamp = stamp if self.book_stamp is None else max(self.book_stamp, stamp)
         for info in [*active, *ended]:
             old = self.tasks.get(info.id)
@@ -220,6 +231,7 @@ class SafetyMonitor:
         truth = self._truth_at(tel.stamp)
         if truth is None:
             return
+        self.counts["gri_compared"] += 1
         d = math.hypot(ground_distance_m(tel.position.lat, tel.position.lon, truth.lat, truth.lon),
                        tel.position.alt - truth.alt)
         ev = [f"GRI telemetry at {tel.stamp:.2f}: {tel.position.lat:.7f}, {tel.position.lon:.7f}, "
@@ -298,16 +310,15 @@ class SafetyMonitor:
         before = [i for i in self.tasks.values() if i.ended is not None and i.ended <= msg.stamp]
         last = max(before, key=lambda i: i.ended or 0.0, default=None)
         live = [i for i in self.tasks.values() if i.ended is None or i.ended >= msg.stamp]
-        ev = [f"DSP acknowledged {cmd} from {msg.sender!r} (batch {msg.batch_id}) at {msg.stamp:.3f}",
+        ev = [f"DSP sent {cmd} from {msg.sender!r} (batch {msg.batch_id}) at {msg.stamp:.3f}",
               f"{msg.sender!r} serves task types: {', '.join(types) or 'none'}",
               "tasks running then: " + (", ".join(f"{i.id} {i.name} ({i.task_type})" for i in live
                                                  if i.started <= msg.stamp) or "none")]
         if last is not None:
             ev.append(f"last task ended before it: {last.id} {last.name} {last.status} at {last.ended:.3f} "
                       f"({msg.stamp - (last.ended or 0.0):.2f} s before): {last.detail}")
-        stop = is_stop(msg.command)
-        self._breach(Invariant.COMMAND_TRACED, "untraced_command", Severity.WARNING if stop else Severity.CRITICAL,
-                     msg.stamp, f"{cmd} reached the DSP with no task, failsafe or start-up behind it", ev)
+        self._breach(Invariant.COMMAND_TRACED, "untraced_command", command_severity(msg.command), msg.stamp,
+                     f"{cmd} reached the DSP with no task, failsafe or start-up behind it", ev)
 
     # 2. a task completes only at its goal, and is never failed while the aircraft progresses
     def _judge_verdicts(self, now: float) -> None:
@@ -417,13 +428,13 @@ class SafetyMonitor:
             ev = [f"abort task {info.id} started at {r:.3f} ({info.origin})"]
             if first is not None:
                 late = first.stamp - r
-                ev.append(f"first Abort acknowledged by the DSP at {first.stamp:.3f} (batch {first.batch_id} of "
+                ev.append(f"first Abort sent to the DSP at {first.stamp:.3f} (batch {first.batch_id} of "
                           f"{first.sender!r}): {late * 1000:.0f} ms")
                 self._breach(Invariant.ABORT_LATENCY, "abort_late", Severity.ERROR, r,
                              f"abort reached the DSP after {late * 1000:.0f} ms (limit "
                              f"{self.cfg.abort_latency_s * 1000:.0f} ms)", ev, info.id)
             else:
-                ev.append(f"no Abort acknowledged by the DSP within {self.cfg.abort_wait_s:g} s")
+                ev.append(f"no Abort sent to the DSP within {self.cfg.abort_wait_s:g} s")
                 self._breach(Invariant.ABORT_LATENCY, "abort_missing", Severity.CRITICAL, r,
                              "abort never reached the DSP", ev, info.id)
 

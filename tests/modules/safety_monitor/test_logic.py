@@ -108,7 +108,8 @@ def test_a_command_from_a_sender_that_serves_no_running_task_is_untraced() -> No
     book(m, 5.0, task(1, "goto", 1.0))  # a movement task runs: it is behind no pan & tilt command
     sent(m, 6.0, p.SetPanTiltAngles(pan_deg=10.0, tilt_deg=-10.0), sender="pan_tilt")
     sent(m, 6.0, p.SetMode(mode=p.Mode.TAKE_OFF), sender="bench")  # the shared key's self-named sender
-    assert kinds(run(m, 20)) == ["untraced_command", "untraced_command"]
+    assert [(b.kind, b.severity) for b in run(m, 20)] == [("untraced_command", Severity.ERROR),  # the gimbal
+                                                           ("untraced_command", Severity.CRITICAL)]  # the aircraft
 
 
 def test_start_up_holds_are_traced_only_before_the_first_task() -> None:
@@ -205,7 +206,7 @@ def test_the_gri_where_the_truth_is_agrees() -> None:
     for i in range(60):
         truth(m, i / 10, north_m=i / 10)
     m.on_gri_state(6.0, gri(5.0, north_m=5.0 + 3.0))
-    assert run(m, 10) == []
+    assert run(m, 10) == [] and m.counts["gri_compared"] == 1
 
 
 def test_the_gri_more_than_5_m_off_the_truth_or_wrong_about_airborne_is_a_breach() -> None:

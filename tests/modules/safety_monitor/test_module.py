@@ -1,0 +1,35 @@
+"""The monitor process's configuration: its limits from the robot .conf, its params refused with a reason."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bbcs.conf import ConfError
+from bbcs.context import ModuleContext
+from modules.safety_monitor.module import load_config, truth_port
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def context(conf: str | None = None, **params: str) -> ModuleContext:
+    return ModuleContext(robot="uav1", module="safety_monitor", conf=conf, params=params)
+
+
+def test_limits_come_from_the_robot_conf() -> None:
+    cfg = load_config(context(conf=str(ROOT / "bbcs_conf" / "uav1.conf"), goal_tolerance_m="12"))
+    assert cfg.geofence == (37.4117, -6.0025, 3000.0) and cfg.min_clearance_m == 5.0
+    assert cfg.goal_tolerance_m == 12.0 and cfg.monitor_name == "safety_monitor"
+
+
+def test_a_bad_conf_or_param_is_refused_naming_it(tmp_path: Path) -> None:
+    bad = tmp_path / "r.conf"
+    bad.write_text("ROBOT: r\nGEOFENCE: [1, 2]\n")
+    with pytest.raises(ConfError, match=r"r.conf.*2|GEOFENCE"):
+        load_config(context(conf=str(bad)))
+    with pytest.raises(ConfError, match="abort_latency_s"):
+        load_config(context(abort_latency_s="soon"))
+    with pytest.raises(ConfError, match="on this machine"):
+        truth_port(context(truth_udp="10.0.0.1:9000"))
+    assert truth_port(context(truth_udp="127.0.0.1:9000")) == 9000 and truth_port(context()) is None
