@@ -164,39 +164,38 @@ def _nav_out(v: p.NavTarget) -> tuple:
 
 
 def _status_out(v: p.DspStatus) -> tuple:
-    flags = (1 if v.tracking else 0) | (2 if v.path_valid else 0) | (4 if v.airborne else 0)
+    flags = (1 if v.tracking else 0) | (2 if v.path_valid else 0) | (4 if v.airborne else 0) | v.reserved_flags
     return int(v.mode), flags, v.queue_length
 
 
 def _status_in(mode: int, flags: int, queue: int) -> p.DspStatus:
-    if flags & 0xF8:
-        raise DspDecodeError(f"telemetry STATUS: reserved flag bits set ({flags:#04x})")
-    if mode > 6:
-        raise DspDecodeError(f"telemetry STATUS: mode {mode} is not 0..6")
+    """As received: a mode, queue length or reserved bit outside the declared ranges is refused by ``check()``
+    with the others (one rule for every field, bbcs/contracts/dsp.py), not here."""
     return p.DspStatus(mode=mode, tracking=bool(flags & 1), path_valid=bool(flags & 2),
-                       airborne=bool(flags & 4), queue_length=queue)
+                       airborne=bool(flags & 4), queue_length=queue, reserved_flags=flags & 0xF8)
 
 
-def _pt_in(mode: int, pan: float, tilt: float) -> p.PanTiltState:
-    if mode > 2:
-        raise DspDecodeError(f"telemetry PAN_TILT: mode {mode} is not 0..2")
-    return p.PanTiltState(mode=mode, pan=pan, tilt=tilt)
+def _heading_out(deg: float) -> float:
+    """Heading and yaw are [-180, 180): a double just below 180 must not round up to 180.0 in binary32. A value
+    already outside goes out as it is (the simulator's fault injection frames one on purpose)."""
+    return _f32_inside(deg, -180.0, 180.0, False, True) if -180.0 <= deg < 180.0 else deg
 
 
 # (attribute, struct format, values-out, object-in); in mask bit order
 _TELEMETRY_FIELDS: tuple[tuple[str, str, Callable[[Any], tuple], Callable[..., Any]], ...] = (
     ("position", "iif", _pos_out,
      lambda la, lo, al: p.Position(lat=la / _E7, lon=lo / _E7, alt=al)),
-    ("attitude", "fff", lambda v: (v.roll, v.pitch, v.yaw),
+    ("attitude", "fff", lambda v: (v.roll, v.pitch, _heading_out(v.yaw)),
      lambda r, pi, y: p.Attitude(roll=r, pitch=pi, yaw=y)),
     ("velocity", "fff", lambda v: (v.vn, v.ve, v.vd), lambda a, b, c: p.Velocity(vn=a, ve=b, vd=c)),
     ("angular_rate", "fff", lambda v: (v.p, v.q, v.r), lambda a, b, c: p.AngularRate(p=a, q=b, r=c)),
-    ("heading", "f", lambda v: (v,), lambda h: h),
+    ("heading", "f", lambda v: (_heading_out(v),), lambda h: h),
     ("status", "BBH", _status_out, _status_in),
     ("nav", "iiff", _nav_out,
      lambda la, lo, al, d: p.NavTarget(lat=la / _E4, lon=lo / _E4, alt=al, distance=d)),
     ("speed", "ff", lambda v: (v.commanded, v.ground), lambda c, g: p.SpeedInfo(commanded=c, ground=g)),
-    ("pan_tilt", "Bff", lambda v: (int(v.mode), v.pan, v.tilt), _pt_in),
+    ("pan_tilt", "Bff", lambda v: (int(v.mode), v.pan, v.tilt),
+     lambda m, pan, tilt: p.PanTiltState(mode=m, pan=pan, tilt=tilt)),
     ("error_code", "H", lambda v: (v,), lambda c: c),
     ("engine", "ff", lambda v: (v.rotor_rpm, v.battery_v), lambda r, b: p.Engine(rotor_rpm=r, battery_v=b)),
 )

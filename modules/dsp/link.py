@@ -26,6 +26,7 @@ from modules.dsp import protocol as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS, DspDecodeError, decode, encode_payload
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
 from modules.dsp.framing import Frame, FrameParser, build_frame
+from modules.dsp.refusals import Refusal
 
 if TYPE_CHECKING:
     from modules.dsp.config import DspConfig
@@ -35,7 +36,7 @@ log = logging.getLogger(__name__)
 
 _COUNTERS = tuple(f for f in LinkStats.__struct_fields__ if f not in (
     "frames_ok", "bytes_rx", "bytes_discarded", "bad_crc", "unknown_id", "bad_length", "oversize",
-    "truncated"))
+    "truncated", "last_refused"))
 
 
 def open_port(url: str, baudrate: int, *, read_timeout: float = 0.02,
@@ -69,6 +70,7 @@ class DspLink:
     def __init__(self, url: str, baudrate: int = 921_600, *, ack_timeout: float = 0.25, retries: int = 3,
                  on_telemetry: Callable[[p.Telemetry], None] | None = None,
                  on_error: Callable[[p.DspError], None] | None = None,
+                 on_refused: Callable[[Refusal], None] | None = None,
                  read_timeout: float = 0.02, exclusive: bool = True) -> None:
         if ack_timeout <= 0 or retries < 0:
             raise ValueError("ack_timeout must be > 0 and retries >= 0")
@@ -78,6 +80,9 @@ class DspLink:
         self.retries = retries
         self.on_telemetry = on_telemetry
         self.on_error = on_error
+        self.on_refused = on_refused
+        """Called (on the reader thread) for each telemetry frame refused: malformed, or a field out of range."""
+        self._last_refused = ""
         self._serial = open_port(url, baudrate, read_timeout=read_timeout, exclusive=exclusive)
         self._parser = FrameParser(DSP_TO_PC_LENGTHS)
         self._idle_s = max(0.05, 2 * p.MAX_FRAME * 10 / baudrate)
@@ -216,7 +221,7 @@ class DspLink:
             counts = dict(self._counts)
         return LinkStats(frames_ok=st.frames, bytes_rx=st.bytes_in, bytes_discarded=st.bytes_discarded,
                          bad_crc=st.bad_crc, unknown_id=st.unknown_id, bad_length=st.bad_length,
-                         oversize=st.oversize, truncated=st.truncated, **counts)
+                         oversize=st.oversize, truncated=st.truncated, last_refused=self._last_refused, **counts)
 
     # --- internals ---------------------------------------------------------------------------------------
 
@@ -273,6 +278,8 @@ class DspLink:
         except DspDecodeError as exc:
             self._count("decode_errors")
             log.debug("dropped undecodable frame: %s", exc)
+            if frame.msg_id == p.MsgId.TELEMETRY:
+                self._refuse(Refusal("frame", str(exc)))
             return
         if isinstance(msg, p.Ack):
             with self._cond:
@@ -282,6 +289,11 @@ class DspLink:
                     return
             self._count("stray_acks")
         elif isinstance(msg, p.Telemetry):
+            try:  # every field against the range its type declares (bbcs/contracts/dsp.py): one rule for all
+                p.check(msg)
+            except p.DspValueError as exc:
+                self._refuse(Refusal(exc.field or "frame", str(exc)))
+                return
             self._latest = msg
             self._count("telemetry_frames")
             self._callback(self.on_telemetry, msg)
@@ -289,7 +301,13 @@ class DspLink:
             self._count("dsp_errors")
             self._callback(self.on_error, msg)
 
-    def _callback(self, fn: Callable | None, msg: p.Message) -> None:
+    def _refuse(self, refusal: Refusal) -> None:
+        """A telemetry frame that passed the CRC but cannot be used: dropped, counted, handed to ``on_refused``."""
+        self._count("telemetry_refused")
+        self._last_refused = refusal.detail
+        self._callback(self.on_refused, refusal)
+
+    def _callback(self, fn: Callable | None, msg: object) -> None:
         if fn is None:
             return
         try:

@@ -1,6 +1,7 @@
 """Issue 12 item 6, by effect: the DSP simulator sends telemetry frames with a good CRC and latitude 200°, roll
-+inf or heading NaN; the real DSP process drops each one (never on ``dsp/telemetry``), counts it and reports it
-on its ERROR slot and its ``errors`` stream, and keeps publishing the good frames."""
++inf or heading NaN; the real DSP process drops each one (never on ``dsp/telemetry``), counts it (``dsp/link``) and
+reports it on its ERROR slot as TELEMETRY_REFUSED, a run of them at most once a second (issue 30 case 3), and
+keeps publishing the good frames."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import math
 import select
 import subprocess
 import threading
+import time
 from pathlib import Path
 
 import msgspec
@@ -15,7 +17,6 @@ import msgspec
 from bbcs import keys
 from bbcs.contracts import dsp as bus
 from bbcs.contracts.errors import ErrorReport
-from bbcs.errors import BusErrorCode
 from bbcs.testing import wait_until
 from modules.dsp import protocol as p
 
@@ -37,17 +38,19 @@ def start_dsp(processes, router: int, port: str) -> subprocess.Popen:
 
 
 class Seen:
-    """Everything the DSP process publishes on telemetry, errors and its ERROR slot, as raw decoded values."""
+    """Everything the DSP process publishes on telemetry, errors, link and its ERROR slot, as raw decoded values."""
 
     def __init__(self, session) -> None:
         self.lock = threading.Lock()
         self.telemetry: list[p.Telemetry] = []
         self.reports: list[bus.DspErrorReport] = []
-        self.codes: list[int] = []
+        self.links: list[bus.LinkStats] = []
+        self.codes: list[tuple[float, int]] = []
         self.subs = [
             self._sub(session, bus.TELEMETRY_SLOT, p.Telemetry, self.telemetry),
             self._sub(session, bus.ERRORS_SLOT, bus.DspErrorReport, self.reports),
-            self._sub(session, "error", ErrorReport, self.codes, lambda e: e.code),
+            self._sub(session, bus.LINK_SLOT, bus.LinkStats, self.links),
+            self._sub(session, "error", ErrorReport, self.codes, lambda e: (time.monotonic(), e.code)),
         ]
 
     def _sub(self, session, slot, typ, sink, pick=lambda v: v):
@@ -76,28 +79,30 @@ def test_out_of_range_telemetry_is_dropped_counted_and_reported(processes, route
     seen = Seen(sessions())
     try:
         start_dsp(processes, router, pty)
+        kinds = ("=200.0 is out of range [-90.0, 90.0]", "roll=inf must be finite", "heading=nan must be finite")
 
-        def faults() -> list[bus.DspErrorReport]:
+        def reasons() -> set[str]:
             with seen.lock:
-                return [r for r in seen.reports if "telemetry frame dropped" in r.detail]
+                return {k for s in seen.links for k in kinds if k in s.last_refused}
 
-        # all three spoilt kinds reported (they come in turn), with the code their field's declaration names
-        wait_until(lambda: {"position.lat", "attitude.roll", "heading"} <= {
-            f for r in faults() for f in ("position.lat", "attitude.roll", "heading") if f"Telemetry.{f}=" in r.detail},
-            what="the three kinds of out-of-range frames reported", deadline_s=60)
-        reports = faults()
-        assert all(r.code == p.ErrorCode.SENSOR_FAULT and r.name == "SENSOR_FAULT" for r in reports)
-        assert any("=200.0 is out of range [-90.0, 90.0]" in r.detail for r in reports)
-        assert any("roll=inf must be finite" in r.detail for r in reports)
-        assert any("heading=nan must be finite" in r.detail for r in reports)
-        counts = sorted(int(r.detail.split("(")[1].split()[0]) for r in reports)
-        assert counts == list(range(1, len(counts) + 1))  # counted, one by one
-        wait_until(lambda: BusErrorCode.OUT_OF_RANGE in seen.codes, what="OUT_OF_RANGE on the ERROR slot",
-                   deadline_s=30)
+        # all three spoilt kinds refused (they come in turn), each naming field, value and range
+        wait_until(lambda: reasons() == set(kinds), what="the three kinds of out-of-range frames refused",
+                   deadline_s=60)
+        wait_until(lambda: len(seen.codes) >= 3, what="three reports on the ERROR slot", deadline_s=30)
         with seen.lock:
             published = list(seen.telemetry)
+            codes = list(seen.codes)
+            refused = max(s.telemetry_refused for s in seen.links)
+            telemetry_reports = [r for r in seen.reports if "telemetry" in r.detail]
+        # one code, on one slot: nothing on the errors stream (no module forwards it, no task fails on it)
+        assert {code for _, code in codes} == {bus.LinkErrorCode.TELEMETRY_REFUSED}
+        assert not telemetry_reports
+        # coalesced: about 25 bad frames a second, at most one report a second
+        assert refused > 3 * len(codes)
+        span = codes[-1][0] - codes[0][0]
+        assert len(codes) <= span / 1.0 + 2, (len(codes), span)
         # good frames still flow, and not one spoilt frame reached the bus
-        assert len(published) > 3 * len(reports) // 2
+        assert len(published) > 2 * refused
         assert not [t for t in published if _bad(t)]
         assert all(t.position is None or abs(t.position.lat) <= 90 for t in published)
         assert all(t.attitude is None or math.isfinite(t.attitude.roll) for t in published)

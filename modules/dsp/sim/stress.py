@@ -40,7 +40,8 @@ def random_telemetry(rng: np.random.Generator, mask: int) -> p.Telemetry:
                                         lon=int(rng.integers(-18e8, 18e8)) / 1e7,
                                         alt=f(p.TelAlt))
     if mask & F.ATTITUDE:
-        fields["attitude"] = p.Attitude(roll=f(p.Angle180), pitch=f(p.Angle90), yaw=f(p.Angle180))
+        roll, pitch, yaw = f(p.Angle180), f(p.Angle90), f(p.Angle180)
+        fields["attitude"] = p.Attitude(roll=roll, pitch=pitch, yaw=-180.0 if yaw >= 180.0 else yaw)  # [-180, 180)
     if mask & F.VELOCITY:
         fields["velocity"] = p.Velocity(vn=f(), ve=f(), vd=f())
     if mask & F.ANGULAR_RATE:
