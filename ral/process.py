@@ -49,10 +49,10 @@ from bbcs.contracts.trajectory import OrbitRequest, SurveyRequest, TrajectoryReq
 from bbcs.module import Module
 from bbcs.signing import FleetTrust
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
-from ral import faults as telemetry_faults
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.fleet import FleetLink, can_do_from, goto_of, own_state_of
 from ral.fleet_protocol import Execute, FleetConfig, OwnState
+from ral.health import HealthConfig, HealthFault, HealthMonitor, load_health, ral_conf_errors
 from ral.params import raise_first, struct_param_errors
 from ral.tasks import (
     JudgeConfig,
@@ -63,7 +63,6 @@ from ral.tasks import (
     admit,
     available_kinds,
     judge,
-    limits_conf_errors,
     load_limits,
     pan_tilt_check,
 )
@@ -177,7 +176,7 @@ class Ral(Module):
     )
     error_slot = "error"
     tick_period = 0.05
-    conf_errors = staticmethod(limits_conf_errors)
+    conf_errors = staticmethod(ral_conf_errors)
     """The RAL's check of its limits in the robot .conf (``cromat launch --check``, ``cromat conf check``)."""
     param_errors = staticmethod(RalConfig.param_errors)
     """The RAL's check of its manifest params (``cromat launch --check``, with the manifest's file:line)."""
@@ -186,6 +185,8 @@ class Ral(Module):
         super().__init__(context)
         self.cfg, self.task_names = RalConfig.from_params(context.params)
         self.limits = load_limits(context.conf) if context.conf else Limits(max_speed=p_max_speed())
+        self.health = HealthMonitor(load_health(context.conf) if context.conf else HealthConfig())
+        """Loss of control seen in the robot's own telemetry (ral/health.py)."""
         self.clock = clock
         self.judge_cfg = JudgeConfig(
             position_tolerance_m=self.cfg.position_tolerance_m,
@@ -213,8 +214,6 @@ class Ral(Module):
         self._finished: set[int] = set()
         self._progress: dict[int, Progress] = {}
         self._seen_errors = 0.0
-        self._telemetry_fault = telemetry_faults.TelemetryFault()
-        """Refused DSP telemetry frames: they fail a task only when the fault persists (ral/faults.py)."""
         self._jobs: queue.Queue[Any] = queue.Queue()
         self._bus_lock = threading.Lock()
         self._manager_state: mri.RobotState | None = None
@@ -502,11 +501,6 @@ class Ral(Module):
             if ms.telemetry is not None:
                 self._fold_telemetry(ms.telemetry, now)
             self._check_errors(ms)
-            with self.lock:
-                running = list(self._live.values())
-            self._telemetry_fault, ends = telemetry_faults.judge(self._telemetry_fault, ms, running, now)
-            for end in ends:
-                self._jobs.put(end)
         up = ms is not None and now - self._manager_seen <= MANAGER_STALE_S
         if up != self._manager_up:
             self._manager_up = up
@@ -549,6 +543,7 @@ class Ral(Module):
                         resend.append(info.params)
             for task_id in set(self._pt_sent) - set(self._live):
                 del self._pt_sent[task_id]
+            faults = self.health.update(tel, list(self._live.values()), self.home)
         for req in resend:
             assert isinstance(req, t.SetPanTilt)
             self.pt_resends += 1
@@ -557,12 +552,30 @@ class Ral(Module):
             self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
         for info, status, detail in verdicts:
             self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status=status, detail=detail))
+        for fault in faults:
+            self._health_fault(fault)
+
+    def _health_fault(self, fault: HealthFault) -> None:
+        """A loss of control in the robot's own telemetry (ral/health.py): an error with its severity on the GRI
+        (published now), the running movement tasks failed with the reason, the robot's health action run as a
+        failsafe."""
+        code = RalErrorCode.LOSS_OF_CONTROL
+        with self.lock:
+            self._error_log.append(mri.ErrorEvent(module="ral", code=int(code), name=code.name, stamp=self.clock(),
+                                                  detail=fault.detail, severity=fault.severity))
+            self._next_state = 0.0
+        self.report_error(int(code), fault.detail)
+        for info in fault.fail:
+            self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status="failed",
+                                       detail=fault.detail))
+        if fault.action is not None:
+            self.emit("failsafe", detail=f"{fault.detail}: {fault.action}")
+            self._jobs.put(LinkEvent("failsafe", fault.detail, action=fault.action))
 
     def _check_errors(self, ms: mri.RobotState) -> None:
         """A module error after a task started fails the running tasks of the types that module serves."""
         serves = {m.name: set(m.task_types) for m in ms.modules}
-        fresh = [e for e in ms.errors if e.stamp > self._seen_errors and e.code not in HARMLESS_CODES
-                 and not telemetry_faults.is_telemetry_refusal(e)]  # not fatal alone: ral/faults.py
+        fresh = [e for e in ms.errors if e.stamp > self._seen_errors and e.code not in HARMLESS_CODES]
         if not fresh:
             return
         self._seen_errors = max(e.stamp for e in fresh)

@@ -104,6 +104,9 @@ class RalErrorCode(IntEnum):
     """The Module Manager refused a request the RAL had admitted."""
     TASK_FAILED = 603
     """A running task's effect was lost (module restart or error, no progress, manager restart)."""
+    LOSS_OF_CONTROL = 604
+    """The robot's own telemetry shows a loss of control (attitude, ground contact in flight, far off its task's
+    path, heading spinning: ral/health.py); the running movement tasks fail and the health action runs."""
 
 
 class RouterErrorCode(IntEnum):
@@ -127,6 +130,8 @@ class UquadErrorCode(IntEnum):
     """A path whose count does not match its points was refused."""
     TASK_REFUSED = 705
     """A task's parameters (take-off height, speed, manual step) the planner refused; nothing changed."""
+    LOSS_OF_CONTROL = 706
+    """The estimate shows the quadrotor tumbling (tilt beyond CUT_TILT_DEG for CUT_TILT_S): the motors were cut."""
 
 
 class LidarLoggerError(IntEnum):

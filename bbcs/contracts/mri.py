@@ -24,6 +24,7 @@ import zenoh
 
 from bbcs import keys
 from bbcs.contracts.robot import RobotTelemetry
+from bbcs.contracts.safety import Severity
 from bbcs.contracts.tasks import Origin, TaskInfo, TaskParams
 
 ModuleState = Literal["starting", "up", "restarting", "failed", "stopped"]
@@ -147,6 +148,9 @@ class ErrorEvent(msgspec.Struct, frozen=True, kw_only=True):
     name: str = ""
     """The code's name (``SPEED_ABOVE_MAX``) when the reporter knows it."""
     detail: str = ""
+    severity: Severity | None = None
+    """How grave (``bbcs.contracts.safety.Severity``: 1 warning, 2 error, 3 critical) when the reporter grades it
+    (the RAL's loss-of-control errors do, ral/health.py); None: not graded."""
 
 
 class RobotState(msgspec.Struct, frozen=True, kw_only=True):
