@@ -35,7 +35,9 @@ ABORT = 0
 FORWARDED_FAULTS = frozenset(
     {p.ErrorCode.GPS_LOST, p.ErrorCode.LOW_BATTERY, p.ErrorCode.ROTOR_RPM, p.ErrorCode.SENSOR_FAULT}
 )
-"""DSP faults (not answers to a command) that directly affect the tasks ordered from above: forwarded."""
+"""DSP faults (not answers to a command) that directly affect the tasks ordered from above: forwarded. They are the
+DSP's own ERROR messages; a telemetry frame the DSP process refused (TELEMETRY_REFUSED, 105) is not one of them and
+never reaches this module (docs/error_codes.md)."""
 
 
 FIELD_CODES: dict[tuple[str, str], FollowerError] = {

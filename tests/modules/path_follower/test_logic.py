@@ -8,7 +8,7 @@ import msgspec
 import pytest
 
 from bbcs.codec import field_of
-from bbcs.contracts.dsp import DspErrorReport
+from bbcs.contracts.dsp import DspErrorReport, LinkErrorCode
 from bbcs.contracts.error_codes import FollowerError
 from bbcs.contracts.path_follower import (
     ControlEntradaSegCam,
@@ -201,6 +201,20 @@ def test_dsp_errors_forwarded_and_refused_mode_undone():
     assert logic.on_dsp_error(s, rx, "path_follower").errors == ()
     other = DspErrorReport(code=2, name="WRONG_MODE", detail="", sender="pan_tilt")
     assert logic.on_dsp_error(s, other, "path_follower").errors == ()
+
+
+def test_a_refused_telemetry_frame_is_no_dsp_fault_but_the_dsps_own_sensor_fault_is() -> None:
+    """Issue 30 case 3: 1009 is the DSP's own SENSOR_FAULT (an IMU failure it reports in an ERROR message), forwarded
+    because it stops ordered tasks. A telemetry frame the DSP process refused is not a DSP fault: it is reported on
+    the DSP process's ERROR slot only (TELEMETRY_REFUSED), and were it ever on ``dsp/errors`` it would not be
+    forwarded."""
+    s = FollowerState(mode=0, mode_from_command=True)
+    sensor = DspErrorReport(code=int(p.ErrorCode.SENSOR_FAULT), name="SENSOR_FAULT", detail="the DSP reported it")
+    assert logic.on_dsp_error(s, sensor, "path_follower").errors == (1009,)
+    refused = DspErrorReport(code=int(LinkErrorCode.TELEMETRY_REFUSED), name="TELEMETRY_REFUSED",
+                             detail="Telemetry.position.lat=200.0 is out of range [-90.0, 90.0]")
+    decision = logic.on_dsp_error(s, refused, "path_follower")
+    assert decision.errors == () and decision.commands == () and decision.state == s
 
 
 # every range bound: (slot, struct, base, field path, in-range bound, just outside, code)
