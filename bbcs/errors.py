@@ -61,3 +61,6 @@ class BusErrorCode(IntEnum):
     """The module's own handler raised while processing a valid datum (a bug; see the log)."""
     LIMIT_EXCEEDED = 6
     """A datum exceeds a limit known only at run time (e.g. MAX_SPEED from the robot .conf)."""
+    KEY_REFUSED = 7
+    """Data put on a key expression with wildcards reached an input only its exact key may feed (CONTROL_ENTRADA,
+    the DSP's command inputs): dropped, counted, reported at most once a second (bbcs/ingress.py)."""

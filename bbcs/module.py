@@ -49,6 +49,7 @@ from bbcs.conf import ConfError
 from bbcs.context import ModuleContext, load_context
 from bbcs.errors import EXIT_CONFIG, BusErrorCode, RouteError, SessionError, SlotError
 from bbcs.events import Event, Input, RouteChange, Stop, Tick
+from bbcs.ingress import ExactKeyGuard
 from bbcs.routing import IGNORE, RouteAck
 from bbcs.session import open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec, declare_reader
@@ -134,6 +135,9 @@ class Module:
     """Per-field codes for out-of-range data: ``(slot, field)`` → code (others get OUT_OF_RANGE)."""
     tick_period: float | None = None
     """Call ``on_tick`` this often from the event loop (None: never)."""
+    exact_key_inputs: ClassVar[frozenset[str]] = frozenset()
+    """Inputs fed only by a put on their exact key (CONTROL_ENTRADA always is): a wildcard put that intersects
+    them is dropped and counted (:mod:`bbcs.ingress`, KEY_REFUSED once a second at most)."""
 
     _inputs: ClassVar[dict[str, SlotSpec[Any]]]
     _outputs: ClassVar[dict[str, SlotSpec[Any]]]
@@ -593,9 +597,14 @@ class Module:
         reader = _Reader(spec, key, number, self._handler_for(spec), is_control)
         if self.session is not None:
             shared = any(r.key == key for r in self._readers.values() if r.spec.name != spec.name)
-            if spec.name == self._channel_slot and not shared:
+            exact = is_control or spec.name in self.exact_key_inputs
+            if spec.name == self._channel_slot and not shared and not exact:
                 reader.sub = declare_reader(self.session, key, spec, zenoh.handlers.FifoChannel(spec.queue))
                 reader.chan = reader.sub.handler
+            elif exact:  # a wildcard put on a denied key gets no further than here (issue 32 item 6)
+                guard = ExactKeyGuard(key, lambda n, k, name=spec.name: self.report_error(
+                    BusErrorCode.KEY_REFUSED, f"input {name}: {n} datum(s) put on {k}, not on {key}: dropped"))
+                reader.sub = declare_reader(self.session, key, spec, guard.wrap(self._enqueuer(reader)))
             else:
                 reader.sub = declare_reader(self.session, key, spec, self._enqueuer(reader))
         return reader

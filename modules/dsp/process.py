@@ -64,6 +64,8 @@ class DspModule(Module):
         OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
+    exact_key_inputs = frozenset(commands_slot(sender) for sender in COMMAND_RIGHTS)
+    """A wildcard put by the dsp identity (``dsp/*``) would reach every sender's input: refused (bbcs/ingress.py)."""
     conf_errors = staticmethod(conf_errors)
     """Checks the robot .conf's DSP part at ``cromat launch --check`` / ``cromat conf check``."""
     tick_period = 1.0
