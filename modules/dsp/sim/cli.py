@@ -14,6 +14,7 @@ import threading
 
 from modules.dsp import protocol as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS
+from modules.dsp.sim.control import ControlPort
 from modules.dsp.sim.faults import BadTelemetry, FaultInjector
 from modules.dsp.sim.machine import DspParams
 from modules.dsp.sim.server import DspSimulator
@@ -81,6 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--bad-telemetry", type=int, default=0, metavar="N",
                     help="every Nth telemetry frame carries an out-of-range value with a good CRC (0: never)")
     ap.add_argument("--seed", type=int, help="random seed for faults")
+    ap.add_argument("--control", type=_host_port, metavar="HOST:PORT",
+                    help="fault injection at run time: a UDP port on loopback taking 'spoil FIELD=VALUE [COUNT]' "
+                         "(modules/dsp/sim/control.py), e.g. one frame with position.lat=200")
     ap.add_argument("--truth-udp", type=_host_port, metavar="HOST:PORT",
                     help="send the aircraft's true state every physics step to this loopback UDP port, for the "
                          "lidar simulators (modules.lidar_logger.sim --follow-udp)")
@@ -95,6 +99,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.time_scale <= 0 or args.rate <= 0 or args.max_speed <= 0:
         print("dsp-sim: --time-scale, --rate and --max-speed must be positive", file=sys.stderr)
         return 2
+    spoiling = args.bad_telemetry > 0 or args.control is not None
+    bad_telemetry = BadTelemetry(every=max(0, args.bad_telemetry)) if spoiling else None
+    try:  # bound first: a busy or non-loopback control port stops the simulator before it offers a line
+        control = ControlPort(*args.control, bad_telemetry) if args.control and bad_telemetry else None
+    except (OSError, ValueError) as exc:
+        print(f"dsp-sim: --control: {exc}", file=sys.stderr)
+        return 2
+    if control is not None:
+        print(f"dsp-sim: control port udp://{control.host}:{control.port}", file=sys.stderr)
     try:
         endpoint = TcpEndpoint(*args.tcp) if args.tcp else PtyEndpoint(args.baud)
     except OSError as exc:
@@ -122,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         rate_hz=args.rate, time_scale=args.time_scale,
         baud=args.baud, tx_faults=faults.get("tx"), rx_faults=faults.get("rx"), record_path=args.record,
         fail_at=args.fail, seed=args.seed,
-        bad_telemetry=BadTelemetry(every=args.bad_telemetry) if args.bad_telemetry > 0 else None, truth=truth)
+        bad_telemetry=bad_telemetry, truth=truth)
 
     def on_signal(signum: int, frame: object) -> None:
         sim.stop()
@@ -139,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sim.run()
     finally:
+        if control is not None:
+            control.close()
         if timer is not None:
             timer.cancel()
     return 0

@@ -8,6 +8,7 @@ whole claimed frame on a bad CRC loses the real one; ours must not (docs/dsp_pro
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -111,33 +112,73 @@ OUT_OF_RANGE_VALUES: tuple[tuple[str, str | None, float], ...] = (
 
 @dataclass
 class BadTelemetry:
-    """Every ``every``-th telemetry frame carries one out-of-range value (latitude 200°, roll +inf, heading NaN in
-    turn, among the fields the mask selects) and is then framed with a good CRC: what the receiver's range check
-    must catch, since the CRC cannot. ``sent`` counts the frames spoiled."""
+    """Telemetry frames spoilt on purpose, then framed with a good CRC: what the receiver's range check must catch,
+    since the CRC cannot.
+
+    Every ``every``-th frame (0: none) carries one out-of-range value (latitude 200°, roll +inf, heading NaN in
+    turn, among the fields the mask selects). :meth:`inject` asks, at run time (the simulator's control port,
+    modules/dsp/sim/control.py), for the next ``count`` frames that carry a field to carry a given value instead.
+    ``sent`` counts the frames spoilt either way, ``injected`` those of :meth:`inject`."""
 
     every: int = 5
     sent: int = 0
+    injected: int = 0
     _frames: int = 0
+    _asked: list[list] = field(default_factory=list)  # [path, value, frames still to spoil]
+    _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __post_init__(self) -> None:
-        if self.every < 1:
-            raise ValueError("every must be >= 1")
+        if self.every < 0:
+            raise ValueError("every must be >= 0 (0: no periodic spoiling)")
+
+    def inject(self, path: str, value: float, count: int = 1) -> None:
+        """Spoil the next ``count`` frames carrying ``path`` (``position.lat``, ``heading``, ``status.mode``...)
+        with ``value`` (thread-safe: the control port calls it while the simulator sends)."""
+        if count < 1:
+            raise ValueError("count must be >= 1")
+        with self._lock:
+            self._asked.append([path, value, count])
+
+    @property
+    def pending(self) -> int:
+        """Frames asked for by :meth:`inject` and not spoilt yet."""
+        with self._lock:
+            return sum(ask[2] for ask in self._asked)
 
     def spoil(self, msg: p.Telemetry) -> p.Telemetry | None:
-        """The spoiled frame when this one is due and a spoilable field is present, else None."""
+        """The spoiled frame when one is asked for or due and its field is present, else None."""
+        with self._lock:
+            for ask in self._asked:
+                bad = _replace_path(msg, ask[0], ask[1])
+                if bad is not None:
+                    ask[2] -= 1
+                    if not ask[2]:
+                        self._asked.remove(ask)
+                    self.sent += 1
+                    self.injected += 1
+                    return bad
         self._frames += 1
-        if self._frames % self.every:
+        if not self.every or self._frames % self.every:
             return None
         start = self.sent
         for i in range(len(OUT_OF_RANGE_VALUES)):
             name, member, value = OUT_OF_RANGE_VALUES[(start + i) % len(OUT_OF_RANGE_VALUES)]
-            current = getattr(msg, name)
-            if current is None:
-                continue
-            bad = value if member is None else msgspec.structs.replace(current, **{member: value})
-            self.sent += 1
-            return msgspec.structs.replace(msg, **{name: bad})  # replace() does not validate: on purpose
+            bad = _replace_path(msg, name if member is None else f"{name}.{member}", value)
+            if bad is not None:
+                self.sent += 1
+                return bad
         return None
+
+
+def _replace_path(msg: p.Telemetry, path: str, value: float) -> p.Telemetry | None:
+    """``msg`` with the field at ``path`` replaced, unchecked (replace() does not validate: on purpose); None when
+    the frame does not carry that field (its mask)."""
+    name, _, member = path.partition(".")
+    current = getattr(msg, name)
+    if current is None:
+        return None
+    bad = value if not member else msgspec.structs.replace(current, **{member: value})
+    return msgspec.structs.replace(msg, **{name: bad})
 
 
 def garble(data: bytes, rng: np.random.Generator, ratio: float) -> bytes:
