@@ -42,6 +42,7 @@ from typing import Any, ClassVar
 
 import msgspec
 import zenoh
+import zenoh.ext
 
 from bbcs import keys
 from bbcs.codec import encode, field_of, leaf_field, type_name, violates_constraint
@@ -88,6 +89,23 @@ WAKE = b"bbcs-wake"
 a datum is never empty msgpack)."""
 CHANNEL_BATCH = 256
 """Samples the loop takes from its channel input in one go before it looks at timers and other inputs."""
+
+
+def rereads(spec: SlotSpec[Any]) -> bool:
+    """Whether an input routed to a new source while the module runs asks that source for its current value: an
+    unsafe **state** input (newest only, best effort), which otherwise would see nothing until the source next
+    publishes; a safe state input gets it from its history anyway, a stream has no current value (docs/bus.md,
+    "Routing inputs at run time")."""
+    return spec.safety is Safety.UNSAFE and spec.kind is Kind.STATE
+
+
+def declare_rereading(session: zenoh.Session, key: str, spec: SlotSpec[Any], handler: Any) -> Any:
+    """The subscriber of an input just routed to ``key``: live samples as a plain one, and first the source's
+    current value if its publisher keeps one (a safe state slot's advanced publisher cache; a best-effort publisher
+    keeps none and its next datum is the first). zenoh.ext orders the cached value and live samples of one
+    publisher by their sequence numbers, so an older value never follows a newer one."""
+    return zenoh.ext.declare_advanced_subscriber(
+        session, key, handler, history=zenoh.ext.HistoryConfig(detect_late_publishers=False, max_samples=1))
 
 
 class _Reader:
@@ -587,8 +605,9 @@ class Module:
         reader = self._readers.get(spec.name)
         return reader.key if reader is not None else spec.key(self.robot, self.module)
 
-    def _make_reader(self, spec: SlotSpec[Any], key: str, number: int) -> _Reader:
+    def _make_reader(self, spec: SlotSpec[Any], key: str, number: int, reread: bool = False) -> _Reader:
         """Subscribe; the reader holds what it receives until ``_release`` (running, or past a switch point).
+        ``reread``: also ask the source's cache for its current value (:func:`declare_rereading`).
 
         The module's first stream input gets a Zenoh FIFO channel of ``queue`` samples (a full channel blocks
         Zenoh's thread: back-pressure, nothing dropped), unless another input reads the same key (the wake sample
@@ -596,17 +615,18 @@ class Module:
         is_control = self.control is not None and spec.name == self.control.slot
         reader = _Reader(spec, key, number, self._handler_for(spec), is_control)
         if self.session is not None:
+            declare = declare_rereading if reread else declare_reader
             shared = any(r.key == key for r in self._readers.values() if r.spec.name != spec.name)
             exact = is_control or spec.name in self.exact_key_inputs
             if spec.name == self._channel_slot and not shared and not exact:
-                reader.sub = declare_reader(self.session, key, spec, zenoh.handlers.FifoChannel(spec.queue))
+                reader.sub = declare(self.session, key, spec, zenoh.handlers.FifoChannel(spec.queue))
                 reader.chan = reader.sub.handler
             elif exact:  # a wildcard put on a denied key gets no further than here (issue 32 item 6)
                 guard = ExactKeyGuard(key, lambda n, k, name=spec.name: self.report_error(
                     BusErrorCode.KEY_REFUSED, f"input {name}: {n} datum(s) put on {k}, not on {key}: dropped"))
-                reader.sub = declare_reader(self.session, key, spec, guard.wrap(self._enqueuer(reader)))
+                reader.sub = declare(self.session, key, spec, guard.wrap(self._enqueuer(reader)))
             else:
-                reader.sub = declare_reader(self.session, key, spec, self._enqueuer(reader))
+                reader.sub = declare(self.session, key, spec, self._enqueuer(reader))
         return reader
 
     def _enqueuer(self, reader: _Reader) -> Callable[[zenoh.Sample], None]:
@@ -770,8 +790,8 @@ class Module:
             return
         changed = [slot for slot, number in wanted.items()
                    if slot not in self._routes or self._routes[slot] != number]
-        fresh = {slot: self._make_reader(self._inputs[slot], key, wanted[slot])
-                 for slot in changed if (key := resolved[slot]) is not None}
+        fresh = {slot: self._make_reader(self._inputs[slot], key, wanted[slot], reread=self._running and rereads(
+                     self._inputs[slot])) for slot in changed if (key := resolved[slot]) is not None}
         old = [r for slot in changed if (r := self._readers.pop(slot, None)) is not None]
         for reader in old:
             reader.state = _DRAINING

@@ -598,7 +598,8 @@ class Manager:
         """A module the running tasks rely on went down: those tasks end as failed (their routes/modes restored
         off the main thread, which must not wait for acknowledgements)."""
         for changes in self.tasks.fail_needing({module}, self.task_uses, time.time(), detail):
-            threading.Thread(target=self.apply_changes, args=(changes,), name="task-fail", daemon=True).start()
+            threading.Thread(target=self.apply_changes, args=(changes,), kwargs={"ending": True}, name="task-fail",
+                             daemon=True).start()
         self._touch()
 
     def _report_changes(self) -> None:
@@ -861,14 +862,20 @@ class Manager:
                     return False, f"module {mode.module} did not answer mode {wanted} within {ACK_TIMEOUT_S:g} s", None
                 self.changed.wait(min(left, 0.1))
 
-    def apply_changes(self, changes: Changes) -> tuple[bool, str, int | None]:
-        ok, why = self.apply_routes(dict(changes.routes))
-        code = None
+    def apply_changes(self, changes: Changes, *, ending: bool = False) -> tuple[bool, str, int | None]:
+        """A task's routes and modes. Starting (``ending`` False): routes first, so that the mode acts on the
+        task's data; ending: modes first, so that a module stops acting before an input is routed back (a routed
+        unsafe state input reads its source's current value at once: bbcs.module.rereads, docs/bus.md)."""
+        ok, why, code = (True, "", None) if ending else (*self.apply_routes(dict(changes.routes)), None)
         for slot, value in changes.modes.items():
             if value is not None:  # always sent: what the mode set up below (the DSP) may have been lost since
                 mode_ok, mode_why, mode_code = self.publish_mode(slot, value)
                 if not mode_ok:
                     ok, why, code = False, "; ".join(w for w in (why, mode_why) if w), mode_code
+        if ending:
+            routes_ok, routes_why = self.apply_routes(dict(changes.routes))
+            if not routes_ok:
+                ok, why = False, "; ".join(w for w in (why, routes_why) if w)
         return ok, why, code
 
     # ------------------------------------------------------------------------------------------ MRI
@@ -990,14 +997,14 @@ class Manager:
                     return mri.MriReply(ok=False, reason=f"no {what} is running", data=self.task_list())
                 changes = self.tasks.end(req.task_type, now, req.status, req.detail)
             self._touch()
-        ok, why, code = self.apply_changes(changes)
+        ok, why, code = self.apply_changes(changes, ending=isinstance(req, mri.EndTask))
         if not ok and isinstance(req, mri.SetTask):
             with self.lock:  # refused: the task never ran; what it changed is put back
                 task = self.tasks.running(self.m.tasks[req.name].type)
                 undo = self.tasks.end(task.task_type, time.time(), "failed", why) if task is not None else None
                 self._touch()
             if undo is not None:
-                self.apply_changes(undo)
+                self.apply_changes(undo, ending=True)
         return mri.MriReply(ok=ok, reason=why, code=code, data=self.task_list())
 
 
