@@ -1,0 +1,91 @@
+"""Issue 30 case 3 on the shipped ``bbcs_conf/uav1_sim.toml``: one DSP telemetry frame with latitude 200° and a good
+CRC, injected through the simulator's control port during a goto, does not end the mission. The frame is refused and
+reported once, as TELEMETRY_REFUSED on the DSP process's ERROR slot; no other module reports anything (no 1009 from
+the path follower, no 603 from the RAL); the goto completes where it was asked to; the DSP received nothing because
+of the bad frame; and nothing fails in the seconds after, when the RAL's persistence window has long passed."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from monitor_support import free_udp_port  # noqa: E402
+from test_gcs_mission import ROBOT, TIME_SCALE, SimRobot, connect, grid_path, launch_robot  # noqa: E402
+
+from bbcs.contracts import gri
+from bbcs.contracts.dsp import LinkErrorCode
+from bbcs.testing import wait_until
+from modules.dsp.sim.control import send_command
+from ral.faults import TELEMETRY_FAULT_WINDOW_S
+
+REFUSED = ("dsp", int(LinkErrorCode.TELEMETRY_REFUSED))
+WATCH_AFTER_S = 20.0
+"""Simulated seconds watched after the goto ends (5 s of wall time: past the RAL's 3 s window and a state or two)."""
+
+
+def with_control_port(port: int):
+    def edit(text: str) -> str:
+        old = '"--record"'
+        assert text.count(old) == 1, "the test manifest's simulator command line changed"
+        return text.replace(old, f'"--control", "127.0.0.1:{port}", "--record"')
+    return edit
+
+
+def errors_since(robot: SimRobot, since: float) -> list[tuple[str, int, float]]:
+    """Every error the ground station was shown with a stamp from ``since`` on, once each (states repeat them)."""
+    with robot.lock:
+        states = list(robot.states)
+    return sorted({(e.module, e.code, e.stamp) for s in states for e in s.errors if e.stamp >= since},
+                  key=lambda e: e[2])
+
+
+def test_one_bad_telemetry_frame_during_a_goto_does_not_end_it(tmp_path: Path) -> None:
+    control = free_udp_port()
+    la, record = launch_robot(tmp_path, edit=with_control_port(control))
+    gcs = None
+    try:
+        gcs = connect(la.port, "ground1")
+        robot = SimRobot(la, gcs, record)
+        up = robot.ensure_airborne()
+        assert up.position is not None and up.home is not None
+        goal = grid_path(up.position, steps=[(6, 0)])[0]  # 6 grid cells north: about 67 m, 13 s at 5 m/s
+        goal = gri.Waypoint(lat=goal.lat, lon=goal.lon, alt=up.home.alt + 15.0)
+
+        since = time.time()
+        start = len(robot.events)
+        reply = gcs.send(ROBOT, gri.Goto(waypoints=[goal], speed=5.0))
+        assert reply.accepted, reply.reason
+        robot.wait_state(lambda s: any(t.kind == "goto" for t in s.tasks) and bool(s.waypoints_queued), 20,
+                         "the goto flying")
+        n_before = len(robot.commands())
+        assert send_command("127.0.0.1", control, "spoil position.lat=200") == "ok spoil position.lat=200.0 x1"
+        wait_until(lambda: REFUSED in [(m, c) for m, c, _ in errors_since(robot, since)], 15,
+                   "the refused frame reported on the GRI state")
+
+        done = robot.wait_event(lambda e: e.task_id == reply.task_id and e.kind != "task_accepted", 60,
+                                "the goto ended", after=start)
+        assert done.kind == "task_completed", done
+        assert send_command("127.0.0.1", control, "pending") == "ok pending 0 injected 1"
+        # nothing reached the DSP because of the bad frame: no hold, no abort, no mode change while the goto flew
+        during = [c["name"] for c in robot.commands()[n_before:]]
+        assert not {"ABORT", "INVALIDATE_PATH", "SET_MODE", "SET_TRACKING"} & set(during), during
+        end = robot.wait_state(lambda s: s.position is not None and not any(t.kind == "goto" for t in s.tasks),
+                               15, "the goto gone from the state")
+        assert end.position is not None
+        assert abs(end.position.lat - goal.lat) * 111_320 < 8.0 and abs(end.position.alt - goal.alt) < 2.0
+
+        # the RAL's persistence window passes with good telemetry: no late failure, no other error
+        time.sleep(WATCH_AFTER_S / TIME_SCALE)
+        assert WATCH_AFTER_S / TIME_SCALE > TELEMETRY_FAULT_WINDOW_S
+        shown = [(m, c) for m, c, _ in errors_since(robot, since)]
+        assert shown == [REFUSED], shown  # once, and nothing else: no 1009, no 603, no bus code
+        with robot.lock:
+            failed = [e for e in robot.events[start:] if e.kind == "task_failed"]
+        assert not failed, failed
+    finally:
+        if gcs is not None:
+            gcs.close()
+        la.stop()
+        la.cleanup()
