@@ -28,7 +28,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any
+from typing import Any, Literal
 
 import msgspec
 import zenoh
@@ -39,10 +39,15 @@ from bbcs.clock import SimTime
 log = logging.getLogger(__name__)
 
 SIM_ENV = "CROMAT_SIM"
-MANAGER_MEMBER = "@manager"
-"""The manager's member name (a module name never starts with ``@``)."""
+MANAGER_MEMBER = "manager"
+"""The manager's member name (no module may be called so: the manager's own slots live under it). Not
+``@manager``: a key chunk starting with ``@`` is matched by no wildcard."""
 DEFAULT_STEP_S = 0.1
 DEFAULT_DEADLINE_S = 5.0
+RETRY_FIRST_S = 0.002
+RETRY_MAX_S = 0.05
+"""A round that finds a member busy is asked again after a pause growing from RETRY_FIRST_S to RETRY_MAX_S:
+asking at once would wake every member in a tight loop while one of them finishes its work."""
 
 
 class SimSettings(msgspec.Struct, frozen=True, kw_only=True):
@@ -51,8 +56,9 @@ class SimSettings(msgspec.Struct, frozen=True, kw_only=True):
     robot: str
     connect: list[str] = msgspec.field(default_factory=list)
     """The robot router's endpoints, for the simulators (modules get theirs from their context)."""
-    speed: float | None = 1.0
-    """Simulated seconds per wall second at most; None: as fast as every member allows (``--speed max``)."""
+    speed: float | Literal["max"] | None = None
+    """Simulated seconds per wall second at most; "max": as fast as every member allows; None: the simulator's
+    own ``--time-scale``."""
     step_s: float = DEFAULT_STEP_S
     """Simulated seconds between two barriers (the simulators sub-step their physics inside it)."""
     deadline_s: float = DEFAULT_DEADLINE_S
@@ -191,6 +197,8 @@ class Verdict(Enum):
 class Decision:
     verdict: Verdict
     round: int = 0
+    delay: float = 0.0
+    """ASK: wall seconds to wait before asking (a member was busy)."""
     left_behind: list[str] = field(default_factory=list)
     why: str = ""
 
@@ -215,9 +223,11 @@ class Barrier:
     answers: dict[str, Done] = field(default_factory=dict)
     previous: dict[str, tuple[int, tuple[tuple[str, int], ...]]] | None = None
     warned_at: float = 0.0
+    busy_rounds: int = 0
 
     def begin(self, step: int, now: float) -> None:
         self.step, self.round, self.started, self.warned_at = step, 0, now, now
+        self.busy_rounds = 0
         self.answers.clear()
         self.previous = None
 
@@ -231,9 +241,8 @@ class Barrier:
 
     def answer(self, done: Done) -> None:
         if done.member in self.behind and done.step >= self.behind[done.member]:
-            del self.behind[done.member]  # it caught up: waited for again from the next round
+            del self.behind[done.member]  # it caught up: waited for again
             log.warning("lockstep: %s answers again (step %d)", done.member, done.step)
-            return
         if done.step == self.step and done.round == self.round:
             self.answers[done.member] = done
 
@@ -253,6 +262,8 @@ class Barrier:
                 return self._leave(missing, f"no answer within {self.deadline_s:g} s")
             return self._wait(now, f"waiting for {missing}")
         busy = {m: d.busy for m, d in answers.items() if d.busy}
+        if set(busy) & set(self.required):
+            self.started = now  # nobody is late while a required member (the manager starting the robot) holds the step
         unmet = self.check(answers) if self.check is not None else ""
         vector = {m: (d.activity, tuple(sorted(d.counts.items()))) for m, d in answers.items()}
         if not busy and not unmet and vector == self.previous:
@@ -261,15 +272,17 @@ class Barrier:
             why = "; ".join([*(f"{m}: {w}" for m, w in sorted(busy.items())), *([unmet] if unmet else [])])
             return self._leave(sorted(busy), f"not settled after {self.deadline_s:g} s ({why or 'still active'})")
         self.previous = None if busy or unmet else vector
+        self.busy_rounds = self.busy_rounds + 1 if busy or unmet else 0
+        delay = min(RETRY_FIRST_S * 2 ** (self.busy_rounds - 1), RETRY_MAX_S) if self.busy_rounds else 0.0
         self.round += 1
         self.answers.clear()
-        return Decision(Verdict.ASK, self.round,
+        return Decision(Verdict.ASK, self.round, delay,
                         why="; ".join([*(f"{m}: {w}" for m, w in busy.items()), *([unmet] if unmet else [])]))
 
     def _wait(self, now: float, why: str) -> Decision:
         if now - self.warned_at > self.deadline_s:
             self.warned_at = now
-            log.warning("lockstep: step %d still %s", self.step + 1, why)
+            log.warning("lockstep: step %d still %s", self.step, why)
         return Decision(Verdict.WAIT, self.round, why=why)
 
     def _leave(self, members: list[str], why: str) -> Decision:
@@ -305,6 +318,8 @@ class Stepper:
         self._wall = wall
         self._lock = threading.Lock()
         self._inbox: list[Any] = []
+        self._ask_at: float | None = None
+        """When the next round is due (a member was busy), or None."""
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         self._clock_pub = session.declare_publisher(clock_key(robot), congestion_control=zenoh.CongestionControl.BLOCK,
@@ -382,14 +397,31 @@ class Stepper:
 
     def poll(self) -> bool:
         """True once the current step is handled; otherwise asks the next round when one is due."""
+        if self._ask_at is not None:
+            if self._wall() < self._ask_at:
+                return False
+            self._ask_at = None
+            self._ask(Ask(step=self.step, round=self.barrier.round,
+                          now=SimTime(step=self.step, t=self.t, epoch=self.epoch)))
+            return False
         with self._lock:
             self._take()
             decision = self.barrier.decide(self._wall())
         if decision.verdict is Verdict.ASK:
-            self._ask(Ask(step=self.step, round=decision.round,
-                          now=SimTime(step=self.step, t=self.t, epoch=self.epoch)))
+            if decision.delay > 0:
+                self._ask_at = self._wall() + decision.delay
+            else:
+                self._ask(Ask(step=self.step, round=decision.round,
+                              now=SimTime(step=self.step, t=self.t, epoch=self.epoch)))
             return False
         return decision.verdict is Verdict.STEP
+
+    def timeout(self, idle: float = 0.5) -> float:
+        """Wall seconds the caller may block before ``poll`` has something to do (``idle`` when it waits only
+        for answers: they wake ``wake_fd``)."""
+        if self._ask_at is None:
+            return idle
+        return max(0.0, self._ask_at - self._wall())
 
     def close(self) -> None:
         for entity in [*self._entities, self._clock_pub, self._ask_pub]:

@@ -45,6 +45,8 @@ import zenoh
 import zenoh.ext
 
 from bbcs import keys
+from bbcs import lockstep as _lockstep
+from bbcs.clock import WALL, Clock, SimClock
 from bbcs.codec import encode, field_of, leaf_field, type_name, violates_constraint
 from bbcs.conf import ConfError
 from bbcs.context import ModuleContext, load_context
@@ -234,6 +236,13 @@ class Module:
         self._wake_requested = False
         self._timer_stop = False
         self._timer_thread: threading.Thread | None = None
+        self.sim = _lockstep.settings_from_env()
+        """Lockstep simulation settings (CROMAT_SIM), or None: the wall clock, no lockstep."""
+        self.bbcs_clock: Clock = WALL if self.sim is None else SimClock()
+        """The robot's one clock (bbcs/clock.py): timers, heartbeats and every timeout of the module read it."""
+        self._member: _lockstep.Member | None = None
+        self._ask: _lockstep.Ask | None = None
+        self._activity = 0
         self.error_count = 0
         self.rejected = 0
         self.dropped_after_switch = 0
@@ -263,6 +272,32 @@ class Module:
 
     def on_route_change(self, routes: dict[str, int]) -> None:
         """Called at the switch point of a route change (old source drained, new one not yet handled)."""
+
+    def lockstep_busy(self) -> str:
+        """In lockstep: why the module's own threads have not finished what it was given ('' = finished)."""
+        return ""
+
+    def lockstep_counts(self) -> dict[str, int]:
+        """In lockstep: device counters the simulator compares with its own (docs/simulation.md)."""
+        return {}
+
+    def _on_ask(self, ask: _lockstep.Ask) -> None:
+        """A lockstep ask (Zenoh's thread): the loop takes the new time and answers once it is idle."""
+        self._bbcs_queue.put((None, ask))
+        if self._blocked_on is not None:
+            self._wake()
+
+    def _take_ask(self, ask: _lockstep.Ask) -> None:
+        assert isinstance(self.bbcs_clock, SimClock)
+        self.bbcs_clock.advance(ask.now)
+        self._ask = ask
+
+    def _answer_ask(self) -> None:
+        ask, self._ask = self._ask, None
+        if ask is not None and self._member is not None:
+            with self.lock:
+                busy, counts = self.lockstep_busy(), self.lockstep_counts()
+            self._member.answer(ask, self._activity, busy, counts)
 
     def request_stop(self) -> None:
         """Ask the event loop to stop, from any thread (not from a signal handler: it takes locks; see
@@ -301,7 +336,7 @@ class Module:
     def _timer(self) -> None:
         """Wakes a loop blocked on its channel reader at its next deadline (heartbeat, tick) or when asked."""
         kick = self._kick
-        monotonic = time.monotonic
+        monotonic = self.bbcs_clock.monotonic
         while not self._timer_stop:
             delay = self._armed - monotonic()
             if delay > 0 and not self._wake_requested:
@@ -331,6 +366,8 @@ class Module:
                 self._release(reader)
             # alive only now: everything declared, on_start done (its own subscriptions too), inputs flowing
             self._entities.append(self.session.liveliness().declare_token(keys.alive_key(self.robot, self.module)))
+            if self.sim is not None:  # a lockstep member from now on (docs/simulation.md)
+                self._member = _lockstep.Member(self.session, self.robot, self.module, self._on_ask)
             self._serve()
         finally:
             self._shutdown()
@@ -346,7 +383,7 @@ class Module:
             self._timer_thread = threading.Thread(target=self._timer, name=f"{self.module}-timer", daemon=True)
             self._timer_thread.start()
         period = self.tick_period
-        monotonic = time.monotonic
+        monotonic = self.bbcs_clock.monotonic
         next_tick = monotonic() + period if period else float("inf")
         next_beat = monotonic()
         seq = 0
@@ -381,9 +418,13 @@ class Module:
                     self._handle_local(item)
                 busy = True
             channel = self._channel_reader
-            if channel is not None and not self._bbcs_stopping and drain(channel, CHANNEL_BATCH):
+            if channel is not None and not self._bbcs_stopping and (n := drain(channel, CHANNEL_BATCH)):
                 busy = True
+                self._activity += n
             if busy or self._bbcs_stopping:
+                continue
+            if self._ask is not None:  # lockstep: idle, every due timer run: the step is handled here
+                self._answer_ask()
                 continue
             deadline = min(next_tick, next_beat)
             if channel is None:
@@ -479,6 +520,7 @@ class Module:
             if payload or not _is_wake(sample):
                 self._reject(reader.spec.name, reader.key, exc, payload)
             return
+        self._activity += 1
         lock = self.lock
         lock.acquire()  # not ``with``: half the cost here, on every idle datum's path
         try:
@@ -495,6 +537,10 @@ class Module:
     def _handle_local(self, item: Any) -> None:
         if item is _STOP or isinstance(item, _Marker):
             return
+        if isinstance(item, _lockstep.Ask):  # the stepper's question: not activity of the module's own
+            self._take_ask(item)
+            return
+        self._activity += 1
         if isinstance(item, (Input, Tick, RouteChange, Stop)):
             self.handle_event(item)
         else:
@@ -548,6 +594,8 @@ class Module:
         self._timer_stop = True
         self._kick.set()
         try:
+            if self._member is not None:
+                self._member.close()
             with self.lock:
                 self._call_safely("stop", self.on_stop)
         finally:
@@ -734,6 +782,7 @@ class Module:
         except msgspec.MsgspecError as exc:
             self._reject(reader.spec.name, reader.key, exc, payload)
             return
+        self._activity += 1
         with self.lock:
             try:
                 reader.handler(value)

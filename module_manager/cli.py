@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from bbcs.stop_signals import forward_stop_signals
+from module_manager.lockstep import parse_speed
 from module_manager.manager import LaunchError, Manager
 from module_manager.manifest import ManifestError, load_manifest
 
@@ -23,6 +24,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="router endpoint instead of the manifest's bus.listen (repeatable)")
     p.add_argument("--log-dir", metavar="DIR", help="write each child's stdout/stderr to DIR/<name>.log")
     p.add_argument("--check", action="store_true", help="only check the manifest, start nothing")
+    p.add_argument("--speed", metavar="max|N",
+                   help="a lockstep simulation ([sim] lockstep = true) at most N times real time, or as fast as the "
+                        "modules allow ('max'); default: the manifest's [sim] speed (docs/simulation.md)")
     return p
 
 
@@ -33,12 +37,24 @@ def main(argv: list[str] | None = None) -> int:
     except ManifestError as exc:
         print(f"cromat launch: manifest error: {exc}", file=sys.stderr)
         return 2
+    speed: float | str | None = None
+    if args.speed is not None:
+        try:
+            speed = parse_speed(args.speed)
+        except ValueError as exc:
+            print(f"cromat launch: {exc}", file=sys.stderr)
+            return 2
+        if not manifest.raw.sim.lockstep:
+            print(f"cromat launch: --speed needs a lockstep simulation: {args.manifest} has no [sim] lockstep = true",
+                  file=sys.stderr)
+            return 2
     if args.check:
         print(f"{args.manifest}: ok ({len(manifest.modules)} modules, {len(manifest.slot_table.slots)} slots, "
               f"{len(manifest.tasks)} tasks)")
         return 0
     try:
-        manager = Manager(manifest, listen=args.listen, log_dir=Path(args.log_dir) if args.log_dir else None)
+        manager = Manager(manifest, listen=args.listen, log_dir=Path(args.log_dir) if args.log_dir else None,
+                          speed=speed)
     except LaunchError as exc:
         print(f"cromat launch: {exc}", file=sys.stderr)
         return 2

@@ -38,7 +38,7 @@ from bbcs.net import free_port, wait_tcp
 from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import links, mesh, peer_mesh, route_audit, secure
+from module_manager import links, lockstep, mesh, peer_mesh, route_audit, secure
 from module_manager.lines import print_line
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, cpu_list, route_problem
 from module_manager.process import Child, stop_children
@@ -147,7 +147,8 @@ class Manager:
     """Launch and supervise one robot from a checked manifest."""
 
     def __init__(self, manifest: Manifest, *, listen: list[str] | None = None, log_dir: Path | None = None,
-                 out: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+                 out: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic,
+                 speed: float | str | None = None) -> None:
         self.m = manifest
         self.expand = Expander(manifest)
         self.listen = [self.expand(e) for e in (listen or manifest.raw.bus.listen)]
@@ -198,6 +199,13 @@ class Manager:
                                   "the manager cannot tell its modules where the router is")
             connect = [f"{proto}/{first[0]}:{first[1]}"]
         self.connect = connect
+        settings = lockstep.settings_for(manifest, connect, speed)
+        self.sim = None if settings is None else lockstep.ManagerMember(settings)
+        """The manager's part in a lockstep simulation (module_manager/lockstep.py), or None: the wall clock."""
+        self._mri_busy = False
+        self.next_state_at = 0.0
+        for mod in self.modules.values():
+            mod.sup.beat_clock = None if self.sim is None else self.sim.clock.monotonic
         self.runtime_dir: Path | None = None
         self.bus = self.bus_for(MANAGER_MODULE)
         self._peer_acl = links.peer_access_control(self.m) if self.m.pki is not None else None
@@ -222,6 +230,8 @@ class Manager:
             paths.append(env["PYTHONPATH"])
         env["PYTHONPATH"] = os.pathsep.join(paths)
         env.update({k: self.expand(v) for k, v in extra.items()})
+        if self.sim is not None:
+            env.update(self.sim.env())
         return env
 
     def start_router(self) -> None:
@@ -339,6 +349,18 @@ class Manager:
             **{mri.mri_key(robot, v): {"request": mri.MriRequest, "reply": mri.MriReply} for v in mri.VERBS}}))
         self._mri_thread = threading.Thread(target=self._serve_mri, args=(queryable,), name="mri", daemon=True)
         self._mri_thread.start()
+        if self.sim is not None:
+            self.sim.join(s, self.sim_busy)
+
+    def sim_busy(self) -> str:
+        """Lockstep: what the manager must still do before the simulation may step ('' = nothing)."""
+        if self.all_up_at is None:
+            return "modules starting"
+        if self._mri_busy:
+            return "serving an MRI request"
+        if self._state_dirty or (self.sim is not None and self.sim.clock.monotonic() >= self.next_state_at):
+            return "robot state due"
+        return ""
 
     # ------------------------------------------------------------------------------------------ bus events
 
@@ -410,6 +432,8 @@ class Manager:
             return
         with self.lock:
             self.telemetry = value
+            if self.sim is not None:
+                self.sim.activity += 1
 
     def _touch(self) -> None:
         self._state_dirty = True
@@ -663,16 +687,17 @@ class Manager:
             with self.lock:
                 self._waiting = set(self.modules)
                 self._start_ready_modules()
-            next_state = next_status = self.clock()
+            next_status = self.clock()
             while not self.stop_event.is_set():
                 self.step()
                 refused = self.launch_refused()
                 if refused is not None:
                     raise LaunchError(refused)
                 now = self.clock()
-                if self._state_dirty or now >= next_state:
+                state_now = now if self.sim is None else self.sim.clock.monotonic()  # due on the robot's clock
+                if self._state_dirty or state_now >= self.next_state_at:
                     self._state_dirty = False
-                    next_state = now + self.m.raw.robot.state_period_s
+                    self.next_state_at = state_now + self.m.raw.robot.state_period_s
                     if self._state_pub is not None:
                         self._state_pub.publish(self.robot_state())
                 if status_interval > 0 and now >= next_status and self.all_up_at is not None:
@@ -752,6 +777,8 @@ class Manager:
             except Exception:  # already gone with a closed session: nothing left to release
                 pass
         self._entities.clear()
+        if self.sim is not None:
+            self.sim.close()
         for pub in self._publishers:
             pub.close()
         if self._mri_thread is not None:
@@ -883,6 +910,7 @@ class Manager:
     def _serve_mri(self, queryable: Any) -> None:
         try:
             for query in queryable:
+                self._mri_busy = True
                 try:
                     reply = self.handle_mri(str(query.key_expr).rsplit("/", 1)[-1],
                                             query.payload.to_bytes() if query.payload is not None else b"")
@@ -894,6 +922,7 @@ class Manager:
                     pass
                 finally:
                     query.drop()  # finalise now: a consolidating querier waits for the end of the query
+                    self._mri_busy = False
         except zenoh.ZError:
             pass
 

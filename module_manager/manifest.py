@@ -118,6 +118,20 @@ class SupervisionSection(_Section):
     standby: bool = False
 
 
+class SimSection(_Section):
+    """``[sim]``: how a robot on simulators runs (docs/simulation.md, "Lockstep")."""
+
+    lockstep: bool = False
+    """The simulators step only once every module has handled the last step; everyone reads simulated time."""
+    speed: Positive | Literal["max"] | None = None
+    """Simulated seconds per wall second at most, or "max"; unset: each simulator's own ``--time-scale``
+    (``cromat launch --speed`` overrides both)."""
+    step_s: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.1
+    """Simulated seconds between two barriers."""
+    deadline_s: Positive = 5.0
+    """Wall seconds a step waits for a module before it goes on without it."""
+
+
 class SlotDef(_Section):
     number: Annotated[int, msgspec.Meta(ge=0)]
     module: str
@@ -200,6 +214,7 @@ class ManifestFile(_Section):
     robot: RobotSection
     bus: BusSection = msgspec.field(default_factory=BusSection)
     supervision: SupervisionSection = msgspec.field(default_factory=SupervisionSection)
+    sim: SimSection = msgspec.field(default_factory=SimSection)
     pythonpath: list[str] = msgspec.field(default_factory=list)
     slot: list[SlotDef] = msgspec.field(default_factory=list)
     modules: dict[str, ModuleDef] = msgspec.field(default_factory=dict)
@@ -427,6 +442,9 @@ class _Checker:
         if raw.bus.links == "peers" and raw.bus.zenoh_config is not None:
             raise self.fail("bus.links", "links = \"peers\" cannot keep a hand-written router config's access rules "
                                          "(bus.zenoh_config) between modules: use [bus.tls] or links = \"router\"")
+        if raw.sim.lockstep and (raw.bus.tls is not None or raw.bus.zenoh_config is not None):
+            raise self.fail("sim.lockstep", "lockstep under access control is not built: the router's rules do not "
+                                            "grant the @clock and @lockstep keys (docs/simulation.md)")
         for i, endpoint in enumerate(raw.bus.peers):
             if raw.bus.tls is None and not endpoint.startswith("tcp/"):
                 raise self.fail(f"bus.peers.{i}", f"{endpoint!r}: without [bus.tls] the fleet mesh is built over tcp/ "

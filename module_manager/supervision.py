@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import enum
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -103,6 +104,8 @@ class Supervisor:
     next_start_at: float | None = None
     _deleted_at: float | None = None
     _last_beat: float | None = None
+    beat_clock: Callable[[], float] | None = None
+    """What heartbeats are measured on (a lockstep simulation's time, docs/simulation.md); None: ``now``."""
     _kill_sent: bool = False
     _kill_counts_as_failure: bool = False
     _restart_requested: bool = False
@@ -200,7 +203,7 @@ class Supervisor:
             self._promote(now)
 
     def heartbeat(self, now: float) -> None:
-        self._last_beat = now
+        self._last_beat = now if self.beat_clock is None else self.beat_clock()
 
     def exited(self, now: float, code: int, detail: str = "") -> list[Action]:
         """``waitpid`` reported the exit: ``code`` >= 0 exit status, < 0 killed by that signal."""
@@ -263,7 +266,8 @@ class Supervisor:
                     and now - self._deleted_at >= self.policy.unreachable_debounce_s):
                 self.unreachable = True
             wd = self.policy.watchdog_s
-            if wd > 0 and self._last_beat is not None and now - self._last_beat > wd:
+            beat_now = now if self.beat_clock is None else self.beat_clock()
+            if wd > 0 and self._last_beat is not None and beat_now - self._last_beat > wd:
                 return self._kill(f"watchdog: no heartbeat for {wd:g} s", graceful=False, failure=True)
         return []
 
@@ -285,7 +289,7 @@ class Supervisor:
         if self.phase is Phase.STARTING and self.alive and self.routes_ok and self.linked:
             self.phase = Phase.UP
             self.reason = ""
-            self._last_beat = now
+            self._last_beat = now if self.beat_clock is None else self.beat_clock()
 
     def _kill(self, reason: str, *, graceful: bool, failure: bool) -> list[Action]:
         self._kill_counts_as_failure = self._kill_counts_as_failure or failure

@@ -181,13 +181,17 @@ class Ral(Module):
     param_errors = staticmethod(RalConfig.param_errors)
     """The RAL's check of its manifest params (``cromat launch --check``, with the manifest's file:line)."""
 
-    def __init__(self, context: ModuleContext, clock: Any = time.time) -> None:
+    def __init__(self, context: ModuleContext, clock: Any = None) -> None:
         super().__init__(context)
         self.cfg, self.task_names = RalConfig.from_params(context.params)
         self.limits = load_limits(context.conf) if context.conf else Limits(max_speed=p_max_speed())
         self.health = HealthMonitor(load_health(context.conf) if context.conf else HealthConfig())
         """Loss of control seen in the robot's own telemetry (ral/health.py)."""
-        self.clock = clock
+        self.clock = clock if clock is not None else self.bbcs_clock.time
+        """The robot's clock (simulated time in lockstep, bbcs/clock.py): the task judge, stamps, state period."""
+        self.link_clock = clock if clock is not None else time.time
+        """The ground-station link is judged on the wall clock: a ground station is outside any simulation."""
+        self._working = False
         self.judge_cfg = JudgeConfig(
             position_tolerance_m=self.cfg.position_tolerance_m,
             altitude_tolerance_m=self.cfg.altitude_tolerance_m,
@@ -429,7 +433,7 @@ class Ral(Module):
             return
         with self.lock:
             self.link.token(beat.gcs, True)
-            self.link.heartbeat(self.clock())
+            self.link.heartbeat(self.link_clock())
 
     def emit(self, kind: str, *, task_id: int = 0, task_type: str = "", detail: str = "") -> None:
         event = gri.GriEvent(
@@ -510,7 +514,7 @@ class Ral(Module):
         if not self.available and now - self._tasks_fetched >= TASKS_REFRESH_S:
             self._tasks_fetched = now
             self._jobs.put("refresh_tasks")
-        for event in self.link.update(now):
+        for event in self.link.update(self.link_clock()):
             self.emit(event.kind, detail=event.detail)
             if event.action is not None:
                 self._jobs.put(event)
@@ -619,6 +623,7 @@ class Ral(Module):
             job = self._jobs.get()
             if job is None:
                 return
+            self._working = True
             try:
                 if job == "refresh_tasks":
                     self._refresh_tasks()
@@ -634,6 +639,11 @@ class Ral(Module):
                     self._answer(job)
             except Exception:
                 self.log.exception("RAL job failed")
+            self._working = False
+
+    def lockstep_busy(self) -> str:
+        """Lockstep (docs/simulation.md): a task job queued or running (admission, MRI calls) holds the step."""
+        return "task job" if self._working or not self._jobs.empty() else ""
 
     def _mri(self, verb: str, request: msgspec.Struct) -> mri.MriReply | None:
         assert self.session is not None

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import serial
 
+from bbcs.clock import WALL, Clock
 from bbcs.contracts.dsp import LinkStats
 from modules.dsp import protocol as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS, DspDecodeError, decode, encode_payload
@@ -71,13 +72,17 @@ class DspLink:
                  on_telemetry: Callable[[p.Telemetry], None] | None = None,
                  on_error: Callable[[p.DspError], None] | None = None,
                  on_refused: Callable[[Refusal], None] | None = None,
-                 read_timeout: float = 0.02, exclusive: bool = True) -> None:
+                 read_timeout: float = 0.02, exclusive: bool = True, clock: Clock = WALL) -> None:
         if ack_timeout <= 0 or retries < 0:
             raise ValueError("ack_timeout must be > 0 and retries >= 0")
         self.url = url
         self.baudrate = baudrate
         self.ack_timeout = ack_timeout
         self.retries = retries
+        self.clock = clock
+        """What the ACK timeout is measured on: the robot's clock (simulated time in lockstep, bbcs/clock.py)."""
+        self.bytes_handled = 0
+        """Bytes read from the port whose frames were all dispatched (a lockstep simulator compares it)."""
         self.on_telemetry = on_telemetry
         self.on_error = on_error
         self.on_refused = on_refused
@@ -162,7 +167,7 @@ class DspLink:
                         self._count("retries")
                     self._write(frame)
                     with self._cond:
-                        self._cond.wait_for(lambda: self._pending_ack is not None or self._closing
+                        self.clock.wait_for(self._cond, lambda: self._pending_ack is not None or self._closing
                                             or self._failure is not None, timeout)
                         ack = self._pending_ack
                     if ack is not None:
@@ -268,6 +273,7 @@ class DspLink:
                 continue
             for frame in frames:
                 self._dispatch(frame)
+            self.bytes_handled = parser.stats.bytes_in
 
     def _dispatch(self, frame: Frame) -> None:
         if self._last_dsp_seq is not None:

@@ -67,9 +67,13 @@ def test_a_busy_member_or_an_unmet_check_keeps_the_step() -> None:
         return "" if got == state["sim_tx"] else f"dsp read {got} of {state['sim_tx']} bytes"
 
     b = barrier("dsp", check=check)
+    delays = []
     for rnd, (busy, rx) in enumerate([("batch queued", 100), ("", 90), ("", 100)]):
         b.answer(done("dsp", 0, rnd, 7, busy, rx=rx))
-        assert b.decide(0.1).verdict is Verdict.ASK
+        d = b.decide(0.1)
+        assert d.verdict is Verdict.ASK
+        delays.append(d.delay)
+    assert delays[0] > 0 and delays[1] > delays[0] and delays[2] == 0  # a busy member is not asked in a tight loop
     b.answer(done("dsp", 0, 3, 7, rx=100))
     assert b.decide(0.1).verdict is Verdict.STEP
 
@@ -80,6 +84,9 @@ def test_a_required_member_is_waited_for_without_a_deadline() -> None:
     b.joined(MANAGER_MEMBER)
     b.answer(done(MANAGER_MEMBER, 0, 0, 1, "modules starting"))
     assert b.decide(100.0).verdict is Verdict.ASK  # busy, far past the deadline: still waited for
+    b.joined("slow")
+    b.answer(done(MANAGER_MEMBER, 0, 1, 1))
+    assert b.decide(104.0).verdict is Verdict.WAIT  # the deadline runs from when the manager stopped holding the step
 
 
 def test_a_silent_member_is_left_behind_at_the_deadline_and_waited_for_again_once_it_answers() -> None:
@@ -92,8 +99,13 @@ def test_a_silent_member_is_left_behind_at_the_deadline_and_waited_for_again_onc
     assert b.expected() == {"a"}
     b.answer(done("a", 1, 0, 1))
     assert b.decide(6.0).verdict is Verdict.ASK
-    b.answer(done("hung", 0, 7, 3))  # its answer to an old step: it is back
+    b.answer(done("hung", 0, 7, 3))  # its answer to an old step: it is back, waited for again
     assert b.expected() == {"a", "hung"}
+    assert b.decide(6.1).verdict is Verdict.WAIT
+    b.answer(done("a", 1, 1, 1))
+    b.answer(done("hung", 1, 1, 3))  # the answer that brings a member back also counts
+    b.left("a")
+    assert b.decide(6.2).verdict is Verdict.ASK
 
 
 def test_a_member_that_leaves_is_no_longer_waited_for() -> None:

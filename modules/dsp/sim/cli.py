@@ -2,6 +2,9 @@
 
 The first line on stdout is what the PC should open, as a pyserial URL: the pty slave path (``--pty``) or
 ``socket://127.0.0.1:PORT`` (``--tcp``). The simulator then runs until SIGTERM/SIGINT or ``--duration``.
+
+Started by a lockstep launch (``CROMAT_SIM`` in its environment, docs/simulation.md) it is the robot's stepper:
+it joins the robot's bus and advances one frame at a time, each once every module has handled the last.
 """
 
 from __future__ import annotations
@@ -12,6 +15,8 @@ import signal
 import sys
 import threading
 
+from bbcs.lockstep import SimSettings, Stepper, settings_from_env
+from bbcs.session import SessionConfig, open_session
 from modules.dsp import protocol as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS
 from modules.dsp.sim.control import ControlPort
@@ -128,6 +133,21 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dsp-sim: --truth-udp: {exc}", file=sys.stderr)
         endpoint.close()
         return 2
+    try:
+        settings = settings_from_env()
+    except ValueError as exc:
+        print(f"dsp-sim: {exc}", file=sys.stderr)
+        endpoint.close()
+        return 2
+    if settings is not None and args.tcp is None:
+        print("dsp-sim: lockstep needs --tcp (a pty has no connection to count the line's bytes on)",
+              file=sys.stderr)
+        endpoint.close()
+        return 2
+    session = stepper = None
+    if settings is not None:
+        session = open_session(SessionConfig(mode="client", connect=settings.connect))
+        stepper = Stepper(session, settings.robot, deadline_s=settings.deadline_s)
     sim = DspSimulator(
         endpoint, params=DspParams(home_lat=home_lat, home_lon=home_lon, home_alt=home_alt,
                                    takeoff_height=args.takeoff_height),
@@ -135,7 +155,9 @@ def main(argv: list[str] | None = None) -> int:
         rate_hz=args.rate, time_scale=args.time_scale,
         baud=args.baud, tx_faults=faults.get("tx"), rx_faults=faults.get("rx"), record_path=args.record,
         fail_at=args.fail, seed=args.seed,
-        bad_telemetry=bad_telemetry, truth=truth)
+        bad_telemetry=bad_telemetry, truth=truth,
+        stepper=stepper, frame_s=settings.step_s if settings else 0.1,
+        speed=lockstep_speed(settings, args.time_scale) if settings else args.time_scale)
 
     def on_signal(signum: int, frame: object) -> None:
         sim.stop()
@@ -156,7 +178,18 @@ def main(argv: list[str] | None = None) -> int:
             control.close()
         if timer is not None:
             timer.cancel()
+        if stepper is not None:
+            stepper.close()
+        if session is not None:
+            session.close()
     return 0
+
+
+def lockstep_speed(settings: SimSettings, time_scale: float) -> float | None:
+    """The lockstep pace: the launch's speed, or this simulator's ``--time-scale`` (None: as fast as possible)."""
+    if settings.speed == "max":
+        return None
+    return time_scale if settings.speed is None else settings.speed
 
 
 if __name__ == "__main__":

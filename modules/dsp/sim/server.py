@@ -1,7 +1,9 @@
 """The simulated DSP on a real transport: bytes in → frames → DspMachine → ACKs, telemetry and errors out.
 
 The loop is one thread around ``select``: it reads the line, answers commands at once, and steps the flight
-at a fixed rate (``rate_hz`` of simulated time, run ``time_scale`` times faster than the wall clock). Every
+at a fixed rate (``rate_hz`` of simulated time, run ``time_scale`` times faster than the wall clock), or, in a
+lockstep simulation (``stepper``, docs/simulation.md), one frame of ``frame_s`` simulated seconds at a time, each
+only once every module has handled the last one and the DSP line carried every byte both ways. Every
 command received is recorded in order with its time — in memory (``commands``) and, if asked, as JSON lines
 in a file — so tests can check exactly what the PC sent.
 """
@@ -16,7 +18,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
 import msgspec
 import numpy as np
@@ -30,6 +32,9 @@ from modules.dsp.sim.machine import DspMachine, DspParams
 from modules.dsp.sim.transport import Endpoint
 from modules.dsp.sim.truth import TruthSender
 from modules.dsp.sim.vehicle import VehicleParams
+
+if TYPE_CHECKING:
+    from bbcs.lockstep import Done, Stepper
 
 log = logging.getLogger(__name__)
 MAX_CATCH_UP_STEPS = 50
@@ -95,7 +100,8 @@ class DspSimulator:
                  rx_faults: FaultInjector | None = None, record_path: str | os.PathLike[str] | None = None,
                  fail_at: list[tuple[float, int]] | None = None, seed: int | None = None,
                  bad_telemetry: BadTelemetry | None = None, clock: Callable[[], float] = time.monotonic,
-                 truth: TruthSender | None = None) -> None:
+                 truth: TruthSender | None = None, stepper: Stepper | None = None, frame_s: float = 0.1,
+                 speed: float | None = 1.0) -> None:
         if rate_hz <= 0 or time_scale <= 0:
             raise ValueError("rate_hz and time_scale must be positive")
         self.endpoint = endpoint
@@ -108,6 +114,17 @@ class DspSimulator:
         self.rx_faults = rx_faults
         self.bad_telemetry = bad_telemetry
         self.truth = truth  # the aircraft's true state to the lidar simulators (modules/dsp/sim/truth.py)
+        self.stepper = stepper
+        """Lockstep: the barrier each frame waits on (bbcs/lockstep.py); None: free-running on ``clock``."""
+        self.frame_s = frame_s
+        self.speed = speed
+        """Lockstep: simulated seconds per wall second at most (None: as fast as the modules allow)."""
+        self.line_rx = 0
+        self.line_tx = 0
+        """Bytes read from / written to the PC now on the line (since it connected): lockstep compares them."""
+        self._line_client = 0
+        if stepper is not None:
+            stepper.barrier.check = self._line_settled
         self._clock = clock
         self._rng = np.random.default_rng(seed)
         self._parser = FrameParser(PC_TO_DSP_LENGTHS)
@@ -198,6 +215,9 @@ class DspSimulator:
     # --- the loop ----------------------------------------------------------------------------------------
 
     def run(self) -> None:
+        if self.stepper is not None:
+            self._run_lockstep(self.stepper)
+            return
         dt = 1.0 / self.rate_hz
         wall_dt = dt / self.time_scale
         next_tick = self._clock()
@@ -237,6 +257,76 @@ class DspSimulator:
             if self._thread is None:
                 self._close()
 
+    def _run_lockstep(self, stepper: Stepper) -> None:
+        """Frames of ``frame_s`` simulated seconds: the physics sub-steps at ``rate_hz``, then the barrier.
+
+        Commands are read and acknowledged at once while the barrier waits (the DSP module's sender must get its
+        ACKs for the step to settle); simulated time stands still until every member has answered."""
+        dt = 1.0 / self.rate_hz
+        steps = max(1, round(self.frame_s / dt))
+        frame_wall = None if self.speed is None else steps * dt / self.speed
+        fds = [self._wake_r, stepper.wake_fd]
+        self._running = True
+        settled = False
+        next_wall = self._clock()
+        stepper.begin(self.machine.time_s)  # frame 0: nothing moves before the whole robot is up and has answered
+        try:
+            while not self._stop.is_set():
+                now = self._clock()
+                due = settled and (frame_wall is None or now >= next_wall)
+                timeout = 0.0 if due else (max(0.0, next_wall - now) if settled else stepper.timeout())
+                ready, _, _ = select.select([*self.endpoint.fileno_list(), *fds], [], [], timeout)
+                for fd in ready:
+                    if fd == self._wake_r:
+                        os.read(self._wake_r, 64)
+                    elif fd == stepper.wake_fd:
+                        stepper.drain_wake()
+                    else:
+                        data = self.endpoint.on_readable(fd)
+                        if data:
+                            self._on_rx(data)
+                if not settled:
+                    settled = stepper.poll()
+                    continue
+                if frame_wall is not None and self._clock() < next_wall:
+                    continue
+                for _ in range(steps):
+                    with self._lock:
+                        out = self.machine.step(dt)
+                        if self.truth is not None:
+                            self.truth.send(self.machine)
+                    for msg in out:
+                        self._send(msg)
+                if frame_wall is not None:
+                    next_wall = max(next_wall + frame_wall, self._clock() - frame_wall)
+                stepper.begin(self.machine.time_s)
+                settled = False
+        finally:
+            self._running = False
+            if self._thread is None:
+                self._close()
+
+    def _line_settled(self, answers: dict[str, Done]) -> str:
+        """Lockstep: '' once the DSP module has read every byte sent to it and the simulator every byte it wrote
+        (nothing still on the line); else what is missing."""
+        self._follow_client()
+        for done in answers.values():
+            tx, rx = done.counts.get("dsp_bytes_tx"), done.counts.get("dsp_bytes_rx")
+            if tx is None or rx is None:
+                continue
+            with self._lock:
+                line_rx, line_tx = self.line_rx, self.line_tx
+            if tx != line_rx or rx != line_tx:
+                return f"DSP line: {done.member} wrote {tx} B (read here {line_rx}), read {rx} B (sent {line_tx})"
+        return ""
+
+    def _follow_client(self) -> None:
+        client = getattr(self.endpoint, "connections", 0)
+        if client != self._line_client:  # a new PC on the line (the DSP module restarted): count from zero
+            with self._lock:
+                self._line_client = client
+                self.line_rx = self.line_tx = 0
+
     def _check_baud(self) -> None:
         baud = self.endpoint.line_baud()
         if baud != self.line_baud:
@@ -250,6 +340,8 @@ class DspSimulator:
         return self.line_baud is not None and self.line_baud != self.baud
 
     def _on_rx(self, data: bytes) -> None:
+        self._follow_client()
+        self.line_rx += len(data)
         self._check_baud()  # the PC sets its speed before it writes: never decode bytes sent at a wrong rate
         if self.baud_mismatch:
             data = garble(data, self._rng, self.baud / self.line_baud)  # type: ignore[operator]
@@ -288,6 +380,8 @@ class DspSimulator:
             frame = garble(frame, self._rng, self.line_baud / self.baud)  # type: ignore[operator]
         if self.tx_faults is not None:
             frame = self.tx_faults.apply(frame)
+        self._follow_client()
         written = self.endpoint.write(frame)
+        self.line_tx += written
         self.tx_frames += 1
         self.tx_bytes_lost += len(frame) - written

@@ -108,6 +108,8 @@ class TcpEndpoint:
         self.host, self.port = self._listener.getsockname()[:2]
         self._client: socket.socket | None = None
         self.refused = 0
+        self.connections = 0
+        """PCs that took the line so far (a lockstep simulator counts the line's bytes per connection)."""
         self.description = f"tcp {self.host}:{self.port}"
 
     def fileno_list(self) -> list[int]:
@@ -143,6 +145,7 @@ class TcpEndpoint:
             conn.setblocking(False)
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._client = conn
+            self.connections += 1
             return b""
         if self._client is None:
             return b""
