@@ -40,7 +40,7 @@ import sys
 import threading
 import time
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from bbcs import keys
@@ -460,6 +460,55 @@ class Fleet:
                 p.wait(5)
 
 
+def describe_exit(code: int) -> str:
+    """A launch's exit status in words: ``killed by SIGKILL`` for -9, ``exited 1`` otherwise."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exited {code}"
+
+
+@dataclass
+class FleetWatch:
+    """What the running fleet says when a robot's launch ends: one robot's death never stops the others (their
+    RALs see its liveliness go and re-allocate what it held, ral/fleet_protocol.py); the fleet ends only when
+    every robot is down or the operator stops it."""
+
+    names: tuple[str, ...]
+    run_dir: Path = Path("run/fleet")
+    dead: dict[str, int] = field(default_factory=dict)
+    """Robot → its launch's exit status, for each robot seen down."""
+    hub_down: bool = False
+
+    def update(self, exits: dict[str, int | None], hub_exit: int | None) -> list[str]:
+        """The launches' exit statuses now (None: running) → the lines to print about what changed."""
+        lines = []
+        for name in self.names:
+            code = exits.get(name)
+            if code is None or name in self.dead:
+                continue
+            self.dead[name] = code
+            alive = [n for n in self.names if n not in self.dead]
+            if alive:
+                logs = self.run_dir / name / "logs"
+                lines.append(f"fleet: robot {name} is down ({describe_exit(code)}; logs in {logs}): "
+                             f"{len(alive)} of {len(self.names)} robots fly on ({', '.join(alive)}); the fleet "
+                             f"re-allocates the targets {name} had not reached")
+            else:
+                lines.append(f"fleet: robot {name} is down ({describe_exit(code)}): no robot is left")
+        if hub_exit is not None and not self.hub_down:
+            self.hub_down = True
+            lines.append(f"fleet: the hub router is down ({describe_exit(hub_exit)}): ground stations on it and the "
+                         "mesh between the robots are lost; each robot flies on on its own (its own link failsafe)")
+        return lines
+
+    @property
+    def all_down(self) -> bool:
+        return len(self.dead) == len(self.names)
+
+
 def station_lines(fleet: Fleet) -> list[str]:
     """For a secured fleet: where each ground station's pair is and the command that connects it to the hub."""
     if fleet.pki is None:
@@ -499,7 +548,13 @@ def main(argv: list[str] | None = None) -> int:
                    f"({' '.join(f'{n}={p}' for n, p in zip(fleet.names, fleet.ports, strict=True))})")
         for line in station_lines(fleet):
             print_line(line)
-        while not stop.is_set() and all(p.poll() is None for p in fleet.procs):
+        watch = FleetWatch(tuple(fleet.names), fleet.run_dir)
+        while not stop.is_set():
+            exits = {fleet.names[i]: p.poll() for i, p in fleet.by_index.items()}
+            for line in watch.update(exits, fleet.hub.poll() if fleet.hub is not None else None):
+                print_line(line)
+            if watch.all_down:
+                return 1
             stop.wait(0.5)
         return 0
     except FleetError as exc:

@@ -67,6 +67,8 @@ HEAVY_STACKS = frozenset({
     "tests/system/test_fleet_partition.py", "tests/system/test_fleet_scale.py", "tests/system/test_world_sync.py",
     "tests/system/test_survey_dtm.py", "tests/system/test_gcs_survey.py", "tests/modules/uquad/test_system_square.py",
     "tests/system/test_fleet_secure_launch.py", "tests/system/test_fleet_mixed.py",
+    "tests/modules/uquad/test_system_health.py",
+    "tests/system/test_fleet_robot_death.py",
 })
 """Test files that run several robot stacks, or one with the lidar simulators' ray casting, for a minute or more.
 

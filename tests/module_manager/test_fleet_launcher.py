@@ -98,3 +98,21 @@ def test_a_bad_group_is_refused_naming_the_file_and_group(tmp_path: Path, group:
     with pytest.raises(FleetError, match=why) as err:
         load_fleet(path)
     assert str(path) in str(err.value)
+
+
+def test_one_robot_down_is_said_once_and_the_others_fly_on() -> None:  # issue 30 case 9
+    from module_manager.fleet import FleetWatch, describe_exit
+
+    assert describe_exit(-9) == "killed by SIGKILL" and describe_exit(1) == "exited 1"
+    watch = FleetWatch(("uav01", "uav02", "quad01"), Path("/run"))
+    assert watch.update({"uav01": None, "uav02": None, "quad01": None}, None) == []
+    lines = watch.update({"uav01": None, "uav02": -9, "quad01": None}, None)
+    assert lines == ["fleet: robot uav02 is down (killed by SIGKILL; logs in /run/uav02/logs): 2 of 3 robots fly on "
+                     "(uav01, quad01); the fleet re-allocates the targets uav02 had not reached"]
+    assert watch.update({"uav01": None, "uav02": -9, "quad01": None}, None) == [] and not watch.all_down
+    lines = watch.update({"uav01": 1, "uav02": -9, "quad01": None}, -15)
+    assert [x.split(" (")[0] for x in lines] == ["fleet: robot uav01 is down", "fleet: the hub router is down"]
+    assert "SIGTERM" in lines[1] and not watch.all_down
+    assert watch.update({"uav01": 1, "uav02": -9, "quad01": 0}, -15) == [
+        "fleet: robot quad01 is down (exited 0): no robot is left"]
+    assert watch.all_down
