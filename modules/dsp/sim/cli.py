@@ -101,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="dsp-sim: %(levelname)s %(message)s")
+    logging.getLogger("modules.dsp.sim.server").setLevel(logging.INFO)  # the lockstep summary at the end
     if args.time_scale <= 0 or args.rate <= 0 or args.max_speed <= 0:
         print("dsp-sim: --time-scale, --rate and --max-speed must be positive", file=sys.stderr)
         return 2

@@ -303,6 +303,9 @@ class DspSimulator:
                 settled = False
         finally:
             self._running = False
+            wall = self._clock() - self._start_wall
+            log.info("lockstep: %d frames, %d rounds, %.1f s simulated in %.1f s of wall (%.2fx)", stepper.step,
+                     stepper.rounds, self.machine.time_s, wall, self.machine.time_s / wall if wall > 0 else 0.0)
             if self._thread is None:
                 self._close()
 

@@ -1,0 +1,78 @@
+"""The manifest's [sim] table and the launch's lockstep settings (docs/simulation.md, "Lockstep")."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bbcs.lockstep import settings_from_env
+from module_manager import cli
+from module_manager.lockstep import ManagerMember, parse_speed, settings_for
+from module_manager.manifest import ManifestError, parse_manifest
+
+ROOT = Path(__file__).resolve().parents[2]
+SHIPPED = ROOT / "bbcs_conf" / "uav1_sim.toml"
+
+
+def manifest_with(sim: str, *, path: Path = SHIPPED, extra: str = ""):
+    text = path.read_text()
+    text = text.replace("\n[sim]\nlockstep = true\n", "\n")  # the shipped table, if any, is replaced
+    return text.replace("\n[bus]\n", f"\n[sim]\n{sim}\n\n[bus]\n{extra}", 1)
+
+
+def test_without_lockstep_a_launch_has_no_settings() -> None:
+    m = parse_manifest(manifest_with("lockstep = false"), SHIPPED)
+    assert settings_for(m, ["tcp/127.0.0.1:1"]) is None
+
+
+def test_the_launch_speed_overrides_the_manifest() -> None:
+    m = parse_manifest(manifest_with('lockstep = true\nspeed = 4\nstep_s = 0.2\ndeadline_s = 3'), SHIPPED)
+    s = settings_for(m, ["tcp/127.0.0.1:1"])
+    assert s is not None and (s.robot, s.speed, s.step_s, s.deadline_s) == ("uav1", 4.0, 0.2, 3.0)
+    assert settings_for(m, [], "max").speed == "max"  # type: ignore[union-attr]
+    assert settings_for(m, [], 2.5).speed == 2.5  # type: ignore[union-attr]
+    unset = settings_for(parse_manifest(manifest_with("lockstep = true"), SHIPPED), [])
+    assert unset is not None and unset.speed is None  # each simulator's own --time-scale
+    member = ManagerMember(s)
+    assert settings_from_env(member.env()) == s  # what every child of the launch is given
+
+
+@pytest.mark.parametrize("bad, key", [('speed = "fast"', "sim.speed"), ("speed = 0", "sim.speed"),
+                                      ("step_s = 2.0", "sim.step_s"), ("deadline_s = -1", "sim.deadline_s"),
+                                      ("lockstepp = true", "sim.lockstepp")])
+def test_a_bad_sim_table_names_file_and_line(bad: str, key: str) -> None:
+    text = manifest_with(f"lockstep = true\n{bad}")
+    line = text.splitlines().index(bad) + 1
+    with pytest.raises(ManifestError) as err:
+        parse_manifest(text, SHIPPED)
+    assert f"{SHIPPED}:{line}" in str(err.value) and key in str(err.value)
+
+
+def test_lockstep_under_access_control_is_refused() -> None:
+    text = manifest_with("lockstep = true").replace('# zenoh_config = "uav1_router.json5"',
+                                                     'zenoh_config = "zenoh/robot_router_secure.json5"')
+    assert (ROOT / "bbcs_conf" / "zenoh" / "robot_router_secure.json5").is_file() and "\nzenoh_config" in text
+    with pytest.raises(ManifestError, match="lockstep under access control is not built"):
+        parse_manifest(text, SHIPPED)
+
+
+@pytest.mark.parametrize("text", ["max", "1", "20", "0.5"])
+def test_speed_parses(text: str) -> None:
+    assert parse_speed(text) == ("max" if text == "max" else float(text))
+
+
+@pytest.mark.parametrize("text", ["0", "-2", "fast", "inf"])
+def test_a_bad_speed_says_why(text: str) -> None:
+    with pytest.raises(ValueError, match="--speed"):
+        parse_speed(text)
+
+
+def test_launch_speed_needs_a_lockstep_manifest(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "uav1_sim.toml"
+    path.write_text(manifest_with("lockstep = false").replace('conf = "uav1.conf"',
+                                                               f'conf = "{ROOT / "bbcs_conf" / "uav1.conf"}"'))
+    assert cli.main([str(path), "--check", "--speed", "max"]) == 2
+    assert "--speed needs a lockstep simulation" in capsys.readouterr().err
+    assert cli.main([str(path), "--check", "--speed", "fast"]) == 2
+    assert "--speed takes 'max' or a positive number" in capsys.readouterr().err
