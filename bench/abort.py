@@ -204,7 +204,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--aborts", type=int, default=100)
     ap.add_argument("--telemetry-ms", type=int, default=10, help="DSP telemetry period (simulated ms)")
     ap.add_argument("--baseline", type=int, default=200, help="no-op round trips for the baseline")
+    ap.add_argument("--out", help="result file (default bench/results/abort.json)")
+    ap.add_argument("--smoke", action="store_true", help="2 aborts, 5 baseline round trips: proves it runs (CI)")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.aborts, args.baseline = 2, 5
     work = Path(tempfile.mkdtemp(prefix="cromat-abort-"))
     manifest, record_path = prepare(work, args.telemetry_ms)
     port = free_port()
@@ -313,6 +317,7 @@ def main(argv: list[str] | None = None) -> int:
                 "replace_p99_ms": round(pct(replace, 99), 3),
             },
         },
+        args.out,
     )
     return 0
 

@@ -145,7 +145,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--period-ms", type=float, default=50.0, help="control period = telemetry period")
     ap.add_argument("--timeout", type=float, default=400.0, help="simulated seconds per run at most")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--smoke", action="store_true",
+                    help="20 simulated seconds per run: proves the bench still runs (CI), judges nothing")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.timeout = 20.0
     wall = time.perf_counter()
     runs = {"mode0": fly(0, args), "mode3": fly(3, args)}
     print(f"{'':8} {'xtrack RMS m':>13} {'xtrack max m':>13} {'alt RMS m':>10} {'time s':>8} "
@@ -173,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
           f"({args.period_ms / 5.0:.1f} ms): {ok_time}; wall {time.perf_counter() - wall:.0f} s")
     write_results("control", {"summary": summary, "runs": runs, "args": vars(args),
                               "platform": platform.platform(), "python": sys.version.split()[0]}, args.out)
-    return 0 if ok_acc and ok_time else 1
+    return 0 if args.smoke or (ok_acc and ok_time) else 1
 
 
 if __name__ == "__main__":

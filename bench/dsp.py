@@ -108,18 +108,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=100_000, help="frames in the 1 %% corruption run (100000)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per timing, best kept (3)")
     ap.add_argument("--out", help="result file (default bench/results/dsp.json)")
+    ap.add_argument("--smoke", action="store_true", help="a tenth of the frames, one run each: proves it runs (CI)")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.frames, args.repeat = 2_000, 1
+    size = 2_000 if args.smoke else 20_000
 
     rows: list[dict] = []
     rng = np.random.default_rng(0)
     kinds = {
-        "telemetry, all 11 fields": dsp_traffic(20_000, seed=3, masks=(p.TELEMETRY_ALL,),
+        "telemetry, all 11 fields": dsp_traffic(size, seed=3, masks=(p.TELEMETRY_ALL,),
                                                 telemetry_share=1.0),
-        "telemetry, pos+att+vel+hdg+status+err": dsp_traffic(20_000, seed=4, masks=(TYPICAL_MASKS[1],),
+        "telemetry, pos+att+vel+hdg+status+err": dsp_traffic(size, seed=4, masks=(TYPICAL_MASKS[1],),
                                                              telemetry_share=1.0),
         "ACK (smallest frame)": [codec.encode(p.Ack(acked_id=p.MsgId.SET_SPEED, acked_seq=i & 0xFF), i & 0xFF)
-                                 for i in range(20_000)],
-        "mixed traffic (85% telemetry)": dsp_traffic(50_000, seed=5),
+                                 for i in range(size)],
+        "mixed traffic (85% telemetry)": dsp_traffic(size * 5 // 2, seed=5),
     }
     encode_msgs: dict[str, p.Message] = {
         "telemetry, all 11 fields": random_telemetry(rng, p.TELEMETRY_ALL),
@@ -127,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         "ACK (smallest frame)": p.Ack(acked_id=1, acked_seq=2),
         "ADD_WAYPOINT command": p.AddWaypoint(lat=37.4117, lon=-6.0025, alt=30.0),
     }
-    encode_rates = {name: cpu_rate(lambda m=msg: _encode_n(m, 20_000), args.repeat)
+    encode_rates = {name: cpu_rate(lambda m=msg: _encode_n(m, size), args.repeat)
                     for name, msg in encode_msgs.items()}
 
     for name, frames in kinds.items():

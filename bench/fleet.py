@@ -139,12 +139,13 @@ def agent(name: str, port: int, north_m: float, east_m: float, speed: float) -> 
         session.close()
 
 
-def bus_trial(rng: random.Random, trial: int) -> dict[str, float]:
-    """10 agents meshed over real routers: allocation time over the bus, then re-allocation after a kill."""
+def bus_trial(rng: random.Random, trial: int, robots: int = BUS_ROBOTS, n_targets: int = BUS_TARGETS
+              ) -> dict[str, float]:
+    """``robots`` agents meshed over real routers: allocation time over the bus, then re-allocation after a kill."""
     procs: list[subprocess.Popen] = []
     here = str(Path(__file__).resolve())
     try:
-        ports = [free_port() for _ in range(BUS_ROBOTS)]
+        ports = [free_port() for _ in range(robots)]
         routers = []
         for i, p in enumerate(ports):
             cmd = [sys.executable, "-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{p}"]
@@ -167,21 +168,23 @@ def bus_trial(rng: random.Random, trial: int) -> dict[str, float]:
         session = open_session(local_client(ports[-1]))
         view = FleetView(session)
         try:
-            names = {f"r{i:02d}" for i in range(BUS_ROBOTS)}
+            names = {f"r{i:02d}" for i in range(robots)}
             deadline = time.monotonic() + 30
-            while len(list(session.liveliness().get(keys.alive_pattern("*", "ral"), timeout=2.0))) < BUS_ROBOTS:
+            while len(list(session.liveliness().get(keys.alive_pattern("*", "ral"), timeout=2.0))) < robots:
                 assert time.monotonic() < deadline, "the agents' liveliness tokens not all seen"
                 time.sleep(0.2)
             targets = [FleetTarget(id=f"t{i:02d}", lat=LAT0 + rng.uniform(0, 1000) * M_LAT,
                                    lon=LON0 + rng.uniform(0, 1000) * M_LAT / math.cos(math.radians(LAT0)), alt=ALT)
-                       for i in range(BUS_TARGETS)]
+                       for i in range(n_targets)]
             task = FleetTask(id=f"bench{trial}", targets=targets)
             posted = time.time()
             view.post(task)
             first = view.wait(lambda: view.agreed(task.id, names), 30)
             assert first is not None, f"no agreement: {view.decisions(task.id)}"
             alloc_ms = (max(d.decided for d in view.decisions(task.id).values()) - posted) * 1000
-            victim = max(first.routes, key=lambda r: (len(first.routes[r]), r))
+            # the agent holding most targets, but never r00: every other router meshes through its router, so
+            # killing it would partition the rest (a partition is docs/fleet.md's case, not this measurement)
+            victim = max((r for r in first.routes if r != "r00"), key=lambda r: (len(first.routes[r]), r))
             vi = int(victim[1:])
             killed = time.time()
             for proc in (agents[vi], routers[vi]):
@@ -284,11 +287,11 @@ def scale_measure(window_s: float) -> dict[str, float]:
             fleet.stop()
 
 
-def clock_offset() -> dict[str, float]:
-    """The clock-offset estimator's error over the bus (ral/sync.py, docs/sync.md)."""
+def clock_offset(smoke: bool = False) -> dict[str, float]:
+    """The clock-offset estimator's error over the bus (ral/sync.py, docs/sync.md); ``smoke``: 2 robots, 1 s."""
     from ral.sync import measure_clock_offset_p99_ms
 
-    return measure_clock_offset_p99_ms()
+    return measure_clock_offset_p99_ms(n_robots=2, duration_s=1.0) if smoke else measure_clock_offset_p99_ms()
 
 
 def main() -> int:
@@ -304,7 +307,14 @@ def main() -> int:
     ap.add_argument("--north", type=float, default=0.0, help=argparse.SUPPRESS)
     ap.add_argument("--east", type=float, default=0.0, help=argparse.SUPPRESS)
     ap.add_argument("--speed", type=float, default=5.0, help=argparse.SUPPRESS)
+    ap.add_argument("--smoke", action="store_true",
+                    help="2 instances, one bus trial of 3 agents and 6 targets, the clock of 2 robots for 1 s: "
+                         "proves the bench still runs (CI)")
     args = ap.parse_args()
+    bus_robots, bus_targets = BUS_ROBOTS, BUS_TARGETS
+    if args.smoke:
+        args.instances, args.bus_trials, args.scale = 2, 1, 0.0
+        bus_robots, bus_targets = 3, 6
     if args.agent:
         return agent(args.agent, args.port, args.north, args.east, args.speed)
     rng = random.Random(args.seed)
@@ -350,14 +360,14 @@ def main() -> int:
                 summary["alloc_time_p99_ms_10"] = round(row["alloc_p99_ms"], 3)
     bus_rows = []
     for trial in range(args.bus_trials):
-        row = bus_trial(rng, trial)
+        row = bus_trial(rng, trial, bus_robots, bus_targets)
         bus_rows.append(row)
-        print(f"bus trial {trial}: {BUS_ROBOTS} agents x {BUS_TARGETS} targets agreed in {row['alloc_bus_ms']:.0f} ms; "
+        print(f"bus trial {trial}: {bus_robots} agents x {bus_targets} targets agreed in {row['alloc_bus_ms']:.0f} ms; "
               f"{row['victim_targets']} targets of the killed agent ({row['lost_targets']} unvisited) "
               f"re-allocated in {row['realloc_s']:.3f} s")
     summary["realloc_s_10"] = round(max(r["realloc_s"] for r in bus_rows), 3) if bus_rows else None
     summary["alloc_bus_ms_10"] = round(max(r["alloc_bus_ms"] for r in bus_rows), 1) if bus_rows else None
-    clock = clock_offset()
+    clock = clock_offset(args.smoke)
     summary["clock_offset_p99_ms"] = round(clock["clock_offset_p99_ms"], 3)
     print("clock offset over the bus (ral/sync.py): " + ", ".join(f"{k} {v:.3g}" for k, v in clock.items()))
     scale = None

@@ -118,7 +118,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--out", help="result file (default bench/results/lidar.json)")
+    ap.add_argument("--smoke", action="store_true", help="20 scans, one run each: proves the bench still runs (CI)")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.scans, args.repeats = 20, 1
 
     t0 = time.perf_counter()
     records = make_flight(args.scans, args.seed)

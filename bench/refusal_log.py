@@ -97,7 +97,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--messages", type=int, default=5000)
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--out", help="result file (default bench/results/refusal_log.json)")
+    ap.add_argument("--smoke", action="store_true", help="200 messages, one round: proves it runs (CI)")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.messages, args.rounds = 200, 1
     with tempfile.TemporaryDirectory(prefix="cromat-bench-refusals-") as tmp:
         pki, cfg = Path(tmp) / "pki", Path(tmp) / "router.json5"
         assert certs.main([str(pki), "--gcs", "gcs", "--modules", "vision", "--robot", ROBOT, "--acl", str(cfg),
@@ -119,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         "router_cpu_us_per_msg_on": round(med["on"]["router_cpu_us_per_msg"], 1),
     }
     write_results("refusal_log", {"summary": summary, "messages": args.messages, "rounds": rounds,
-                                  "load_average": os.getloadavg()})
+                                  "load_average": os.getloadavg()}, args.out)
     return 0
 
 

@@ -62,7 +62,10 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--n", type=int, default=300, help="repetitions per measurement (300)")
     p.add_argument("--out", help="results file (default bench/results/signing.json)")
+    p.add_argument("--smoke", action="store_true", help="5 repetitions: proves the bench still runs (CI)")
     args = p.parse_args()
+    if args.smoke:
+        args.n = 5
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         (root / "ca").mkdir()

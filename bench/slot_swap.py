@@ -38,7 +38,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--swaps", type=int, default=100)
     ap.add_argument("--period-ms", type=float, default=1.0, help="source publishing period")
+    ap.add_argument("--out", help="result file (default bench/results/slot_swap.json)")
+    ap.add_argument("--smoke", action="store_true", help="4 swaps: proves the bench still runs (CI)")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.swaps = 4
     work = Path(tempfile.mkdtemp(prefix="cromat-swap-"))
     text = (PROBE / "probe_robot.toml").read_text()
     text = text.replace('pythonpath = ["."]', f'pythonpath = ["{PROBE}"]')
@@ -106,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         "swap_ms": [round(v, 3) for v in swaps], "ack_ms": [round(v, 3) for v in acks],
         "noop_mri_ms": [round(v, 3) for v in noop],
         "baseline_noop_p50_ms": round(statistics.median(noop), 3),
-        "summary": {"swap_p50_ms": round(p50, 3), "swap_p99_ms": round(p99, 3)}})
+        "summary": {"swap_p50_ms": round(p50, 3), "swap_p99_ms": round(p99, 3)}}, args.out)
     return 0
 
 

@@ -81,11 +81,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cell", type=float, default=2.0, help="DTM cell size, m")
     ap.add_argument("--return-fraction", type=float, default=0.5, help="share of LD-MRS beams with an echo")
     ap.add_argument("--out", help="result file (default bench/results/survey.json)")
+    ap.add_argument("--smoke", action="store_true",
+                    help="the polygon at a tenth of its size, 4 m cells: proves the bench still runs (CI)")
     args = ap.parse_args(argv)
+    scale = 0.1 if args.smoke else 1.0
+    if args.smoke:
+        args.cell = 4.0
+    polygon = POLYGON * scale
 
     world0 = World()
-    lla = world0.terrain_to_lla(np.column_stack((POLYGON, np.zeros(len(POLYGON)))))
-    start = world0.terrain_to_lla(np.array([[-550.0, -300.0, 0.0]]))[0]
+    lla = world0.terrain_to_lla(np.column_stack((polygon, np.zeros(len(polygon)))))
+    start = world0.terrain_to_lla(np.array([[-550.0 * scale, -300.0 * scale, 0.0]]))[0]
     limits = Limits(speed=args.speed, max_bank_deg=args.bank, ground_altitude=0.0, line_extension=5.0)
     t0 = time.perf_counter()
     result = plan(TrajectoryRequest(request_id=1, survey=SurveyRequest(
@@ -121,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         dtm = build_dtm(geo_res.enu, args.cell)
         build_s = time.process_time() - c0
 
-    area = polygon_mask(dtm, POLYGON)
+    area = polygon_mask(dtm, polygon)
     cov = coverage(dtm, area)
     err = errors(dtm.z, dtm, area, world)
     base = errors(mean_dtm(geo_res.enu, dtm), dtm, area, world)
