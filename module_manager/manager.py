@@ -31,7 +31,7 @@ from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
 from bbcs.contracts import mri
 from bbcs.contracts.error_codes import RouterErrorCode
 from bbcs.contracts.errors import ErrorReport
-from bbcs.contracts.robot import RobotTelemetry
+from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.errors import EXIT_CONFIG
 from bbcs.module import Heartbeat
 from bbcs.net import free_port, wait_tcp
@@ -167,6 +167,8 @@ class Manager:
             name: (msgspec.to_builtins(m.initial) if m.initial is not None else None)
             for name, m in manifest.modes.items()}
         self.telemetry: RobotTelemetry | None = None
+        self.home: GeoPoint | None = None
+        """The take-off point (RobotState.home): the robot's record, so a RAL restarted in flight still has it."""
         self._mesh_refusals: set[str] = set()
         self._mode_acks: dict[str, mri.ModeAck | None] = {}
         self._mode_ack_decode = msgspec.msgpack.Decoder(mri.ModeAck).decode
@@ -432,6 +434,8 @@ class Manager:
             return
         with self.lock:
             self.telemetry = value
+            if value.airborne is False and value.position is not None:
+                self.home = value.position
             if self.sim is not None:
                 self.sim.activity += 1
 
@@ -665,7 +669,7 @@ class Manager:
             return mri.RobotState(robot=self.m.robot, kind=self.m.kind, stamp=time.time(), telemetry=self.telemetry,
                                   modules=[self.module_status(n) for n in self.modules], tasks=self.tasks.active(),
                                   ended=list(self.tasks.ended), task_version=self.tasks.version,
-                                  task_epoch=self.epoch, errors=list(self.errors))
+                                  task_epoch=self.epoch, errors=list(self.errors), home=self.home)
 
     # ------------------------------------------------------------------------------------------ main loop
 

@@ -61,10 +61,12 @@ from ral.tasks import (
     Progress,
     Rejected,
     admit,
+    after_completed,
     available_kinds,
     judge,
     load_limits,
     pan_tilt_check,
+    return_request,
 )
 
 MAX_ERRORS = 20
@@ -87,8 +89,6 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     max_range_m: float = 20_000.0
     stall_s: float = 30.0
     """A movement task that makes no progress for this long fails (task_failed)."""
-    return_height_m: float = 10.0
-    """The ``return`` failsafe flies home at least this high above the take-off point."""
     mri_timeout_s: float = mri.REPLY_TIMEOUT_S
     """Must exceed the manager's ack wait (``mri.MANAGER_ACK_S``), else a task can be applied after being refused."""
     state_period_s: float = 0.2
@@ -473,6 +473,7 @@ class Ral(Module):
                     self._finished.add(info.id)
                     self._live.pop(info.id, None)
                     self._progress.pop(info.id, None)
+                    self._generated.pop(info.id, None)
                     out.append((END_EVENTS[info.status], info, info.detail))
                 for info in active:
                     if info.id not in self._live and info.id not in self._finished:
@@ -502,6 +503,9 @@ class Ral(Module):
         if self._manager_new and ms is not None:
             self._manager_new = False
             self._sync(ms.task_epoch, ms.task_version, ms.tasks, ms.ended)
+            if ms.home is not None:
+                with self.lock:  # the manager's record: a RAL restarted in flight still has the take-off point
+                    self.home = ms.home
             if ms.telemetry is not None:
                 self._fold_telemetry(ms.telemetry, now)
             self._check_errors(ms)
@@ -667,10 +671,18 @@ class Ral(Module):
         self._mri("tasks", mri.ListTasks())
 
     def _end(self, request: mri.EndTask) -> None:
-        """End a task the RAL judged completed or failed (only if it is still that task)."""
+        """End a task the RAL judged completed or failed (only if it is still that task); then start what follows
+        a completed one (the return failsafe's landing, ``ral.tasks.after_completed``)."""
+        with self.lock:
+            info = self._live.get(request.task_id)
         reply = self._mri("task", request)
         if reply is not None and reply.ok and request.status == "failed":
             self._record_error(RalErrorCode.TASK_FAILED, f"task {request.task_id}: {request.detail}")
+        follow = after_completed(info, self.limits) if info is not None and request.status == "completed" else None
+        if follow is not None and info is not None and reply is not None and reply.ok:
+            answer = self.handle(follow, origin=info.origin)
+            self.log.info("%s after task %d: %s", t.kind_of(follow), request.task_id,
+                          "accepted" if answer.accepted else f"refused: {answer.reason}")
 
     def _answer(self, query: zenoh.Query) -> None:
         try:
@@ -802,12 +814,25 @@ class Ral(Module):
         return gri.TaskReply(accepted=True, task_type=task_type)
 
     def _restart(self, module: str) -> gri.TaskReply:
+        if module == self.module:
+            # the manager stops this process to restart it, before its answer could reach the station: the station
+            # is answered first, and the restart is asked for after (the worker's next job, once the reply is out)
+            self._jobs.put(self._ask_own_restart)
+            self.emit("module_restarted", detail=f"{module}: restarting itself, it answers again once up")
+            return gri.TaskReply(accepted=True, reason=f"{module} restarts now: it answers again once up")
         reply = self._mri("module", mri.ModuleCommand(module=module, action="restart"))
         if reply is None or not reply.ok:
             reason = "Module Manager did not answer" if reply is None else reply.reason
             return gri.TaskReply(accepted=False, reason=f"restart {module}: {reason}")
         self.emit("module_restarted", detail=module)
         return gri.TaskReply(accepted=True)
+
+    def _ask_own_restart(self) -> None:
+        """Ask the manager to restart this RAL without waiting for its answer: the answer comes once the new RAL is
+        up, and a query left pending here would hold this process's shutdown until it timed out."""
+        assert self.session is not None
+        self.session.get(mri.mri_key(self.robot, "module"), lambda _reply: None, timeout=self.cfg.mri_timeout_s,
+                         payload=mri.encode(mri.ModuleCommand(module=self.module, action="restart")))
 
     def _run_failsafe(self, event: LinkEvent) -> None:
         request = self._failsafe_request(event.action)
@@ -820,16 +845,11 @@ class Ral(Module):
         if action is FailsafeAction.LAND:
             return t.Land()
         if action is FailsafeAction.RETURN:
-            with self.lock:
-                home = self.home
-                tel = self.telemetry
-            if home is not None:
-                alt = max(
-                    home.alt + self.cfg.return_height_m,
-                    tel.position.alt if tel and tel.position else home.alt,
-                )
-                return t.Goto(waypoints=[t.Waypoint(lat=home.lat, lon=home.lon, alt=alt)])
-            self.emit("failsafe", detail="return: take-off point unknown, holding instead")
+            with self.lock:  # RETURN_HEIGHT where it is, home at that height, then RETURN_ACTION (ral/tasks.py)
+                plan = return_request(self.telemetry, self.home, self.limits, self.judge_cfg)
+            if isinstance(plan, t.Goto):
+                return plan
+            self.emit("failsafe", detail=f"return: {plan}, holding instead")
         return t.Hold()
 
     # ------------------------------------------------------------ fleet allocation (issue 17, ral/fleet.py)

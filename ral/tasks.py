@@ -3,6 +3,7 @@
 - :func:`admit`: a GRI task against what the robot offers, where it is and its .conf limits (:class:`Limits`):
   speed (the task's, else the cruise speed; never above MAX_SPEED), clearance above the take-off point,
   geofence, ceiling, take-off height. A refusal says why; nothing is sent.
+- :func:`return_request`, :func:`after_completed`: the ``return`` failsafe (RETURN_HEIGHT, RETURN_ACTION).
 - :func:`judge`: one running task (as the Module Manager's task book lists it) against new telemetry: completed,
   failed (no progress for ``stall_s``: the distance still to fly along its path did not shrink), or still running.
   Its per-task memory is a :class:`Progress`.
@@ -15,7 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Annotated
+from typing import Annotated, Literal
 
 import msgspec
 
@@ -60,6 +61,11 @@ class Limits:
     geofence: Geofence | None = None
     takeoff_height_m: float | None = None
     """The height the DSP climbs to in take-off mode (it takes no other)."""
+    return_height_m: float | None = None
+    """``RETURN_HEIGHT``: a ``return`` flies home this high above the take-off point (None: at the height it has,
+    never under the minimum clearance)."""
+    return_action: str = "land"
+    """``RETURN_ACTION``: what a ``return`` does once home, ``land`` or ``hover``."""
 
 
 @dataclass(frozen=True)
@@ -230,6 +236,50 @@ def _check_points(points: list[tuple[str, float, float, float | None]], limits: 
                 return (f"{label} altitude {alt:g} m above sea level is {height:g} m above the take-off point; "
                         f"the ceiling is {limits.max_height_m:g} m")
     return ""
+
+
+# ---------------------------------------------------------------- return (PX4's RTL)
+
+
+def return_path(pos: GeoPoint, home: GeoPoint, limits: Limits, cfg: JudgeConfig) -> list[t.Waypoint]:
+    """The path of a ``return`` from ``pos``: up (or down) to the return height where the robot is, then home at
+    that height. No separate vertical leg when the robot is already within ``altitude_tolerance_m`` of that height,
+    or already above home (within ``position_tolerance_m``): the home waypoint alone takes it there."""
+    height = limits.return_height_m
+    if height is None:
+        height = max(pos.alt - home.alt, limits.min_clearance_m or 0.0)
+    alt = home.alt + height
+    out = []
+    if abs(pos.alt - alt) > cfg.altitude_tolerance_m and distance_m(pos.lat, pos.lon, home.lat, home.lon) > \
+            cfg.position_tolerance_m:
+        out.append(t.Waypoint(lat=pos.lat, lon=pos.lon, alt=alt))
+    out.append(t.Waypoint(lat=home.lat, lon=home.lon, alt=alt))
+    return out
+
+
+def return_request(tel: RobotTelemetry | None, home: GeoPoint | None, limits: Limits,
+                   cfg: JudgeConfig) -> t.Goto | str:
+    """The ``return`` failsafe's task: a goto along :func:`return_path` (at the cruise speed), or why there is none
+    (the robot on the ground, or where it is or its take-off point not known)."""
+    if tel is None or tel.position is None or home is None:
+        return "the robot's position or take-off point is not known"
+    if not tel.airborne:
+        return "the robot is on the ground"
+    return t.Goto(waypoints=return_path(tel.position, home, limits, cfg))
+
+
+def is_return(task: t.TaskInfo) -> bool:
+    """A goto the failsafe started is its return (the failsafe's other actions are ``hold`` and ``land``): told
+    from the task book's record alone, so a RAL restarted during the return still lands it."""
+    return task.origin == "failsafe" and task.kind == "goto"
+
+
+def after_completed(task: t.TaskInfo, limits: Limits) -> t.TaskParams | None:
+    """The task the RAL starts when ``task`` completes: a return (:func:`is_return`) ends with ``RETURN_ACTION``
+    (``land``: a landing where it arrived; ``hover``: nothing, the robot holds there). Every other task: None."""
+    if is_return(task) and limits.return_action == "land":
+        return t.Land()
+    return None
 
 
 # ---------------------------------------------------------------- judging a running task
@@ -408,6 +458,8 @@ class _ConfLimits(msgspec.Struct, kw_only=True):
     MAX_HEIGHT: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
     TAKEOFF_HEIGHT: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
     GEOFENCE: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
+    RETURN_HEIGHT: Annotated[float, msgspec.Meta(gt=0.0)] | None = None
+    RETURN_ACTION: Literal["land", "hover"] = "land"
 
 
 def limits_conf_errors(doc: ConfDocument) -> list[ConfError]:
@@ -427,6 +479,14 @@ def limits_conf_errors(doc: ConfDocument) -> list[ConfError]:
             entry = doc.entries["GEOFENCE"]
             errors.append(ConfError("GEOFENCE must be [latitude, longitude, radius in m > 0]", path=doc.path,
                                     line=entry.line, column=entry.column))
+    if raw.RETURN_HEIGHT is not None:
+        entry = doc.entries["RETURN_HEIGHT"]
+        if raw.MIN_CLEARANCE is not None and raw.RETURN_HEIGHT < raw.MIN_CLEARANCE:
+            errors.append(ConfError(f"RETURN_HEIGHT {raw.RETURN_HEIGHT:g} is under MIN_CLEARANCE {raw.MIN_CLEARANCE:g}",
+                                    path=doc.path, line=entry.line, column=entry.column))
+        if raw.MAX_HEIGHT is not None and raw.RETURN_HEIGHT > raw.MAX_HEIGHT:
+            errors.append(ConfError(f"RETURN_HEIGHT {raw.RETURN_HEIGHT:g} is above MAX_HEIGHT {raw.MAX_HEIGHT:g}",
+                                    path=doc.path, line=entry.line, column=entry.column))
     return errors
 
 
@@ -440,4 +500,5 @@ def load_limits(conf_path: str) -> Limits:
     raw = doc.to_struct(_ConfLimits)
     fence = Geofence(*raw.GEOFENCE) if raw.GEOFENCE is not None else None
     return Limits(max_speed=raw.MAX_SPEED, cruise_speed=raw.CRUISE_SPEED, min_clearance_m=raw.MIN_CLEARANCE,
-                  max_height_m=raw.MAX_HEIGHT, geofence=fence, takeoff_height_m=raw.TAKEOFF_HEIGHT)
+                  max_height_m=raw.MAX_HEIGHT, geofence=fence, takeoff_height_m=raw.TAKEOFF_HEIGHT,
+                  return_height_m=raw.RETURN_HEIGHT, return_action=raw.RETURN_ACTION)

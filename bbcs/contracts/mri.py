@@ -23,7 +23,7 @@ import msgspec
 import zenoh
 
 from bbcs import keys
-from bbcs.contracts.robot import RobotTelemetry
+from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.safety import Severity
 from bbcs.contracts.tasks import Origin, TaskInfo, TaskParams
 
@@ -167,6 +167,9 @@ class RobotState(msgspec.Struct, frozen=True, kw_only=True):
     task_epoch: float = 0.0
     errors: list[ErrorEvent] = msgspec.field(default_factory=list)
     """The most recent error codes from the modules' ERROR slots, newest last (bounded)."""
+    home: GeoPoint | None = None
+    """The take-off point: the last position the robot's telemetry gave on the ground. Kept by the manager, so a
+    RAL restarted in flight still knows it (heights above home, ``return``)."""
 
 
 MODE_ACK_SLOT = "mode_ack"

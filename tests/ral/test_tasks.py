@@ -20,12 +20,16 @@ from ral.tasks import (
     Progress,
     Rejected,
     admit,
+    after_completed,
     available_kinds,
     distance_m,
     judge,
+    limits_conf_errors,
     load_limits,
     next_waypoint,
     path_to_go,
+    return_path,
+    return_request,
 )
 
 AVAILABLE = {
@@ -132,6 +136,7 @@ def test_uav1_conf_limits() -> None:
     limits = load_limits(str(Path(__file__).resolve().parents[2] / "bbcs_conf" / "uav1.conf"))
     assert limits.max_speed == 8.0 and limits.cruise_speed == 5.0 and limits.takeoff_height_m == 10.0
     assert limits.geofence is not None and limits.min_clearance_m == 5.0
+    assert limits.return_height_m == 10.0 and limits.return_action == "land"
 
 
 def running(request: t.TaskParams, started: float = 0.0) -> t.TaskInfo:
@@ -399,6 +404,75 @@ def test_a_path_still_being_loaded_is_not_progress_nor_a_stall() -> None:
     assert verdicts[-1][1] == "failed" and verdicts[-1][0] <= 31.0, "a queue filling at a hovering aircraft"
     verdicts = judged(running(t.Goto(waypoints=square)), loading + fly(square, 5.0, hover, t0=5.0))
     assert verdicts[-1][1] == "completed"
+
+
+# ---------------------------------------------------------------- return (issue 30, case 10)
+
+RTL = Limits(max_speed=8.0, cruise_speed=5.0, min_clearance_m=5.0, max_height_m=120.0, return_height_m=30.0)
+
+
+def test_a_return_climbs_where_it_is_then_flies_home_at_the_return_height() -> None:
+    here = GeoPoint(lat=at(200.0, 0.0).lat, lon=HOME.lon, alt=HOME.alt + 10.0)
+    path = return_path(here, HOME, RTL, CFG)
+    assert [(w.lat, w.lon, w.alt) for w in path] == [(here.lat, here.lon, 42.0), (HOME.lat, HOME.lon, 42.0)]
+    high = GeoPoint(lat=here.lat, lon=here.lon, alt=HOME.alt + 80.0)
+    assert [w.alt for w in return_path(high, HOME, RTL, CFG)] == [42.0, 42.0], "descends to it as well"
+    level = GeoPoint(lat=here.lat, lon=here.lon, alt=HOME.alt + 31.0)
+    assert len(return_path(level, HOME, RTL, CFG)) == 1, "already at the return height: straight home"
+    above_home = GeoPoint(lat=HOME.lat, lon=HOME.lon, alt=HOME.alt + 10.0)
+    assert [(w.lat, w.alt) for w in return_path(above_home, HOME, RTL, CFG)] == [(HOME.lat, 42.0)]
+    no_height = Limits(max_speed=8.0, min_clearance_m=5.0)
+    assert [w.alt for w in return_path(here, HOME, no_height, CFG)] == [22.0], "no RETURN_HEIGHT: at its height"
+    low = GeoPoint(lat=here.lat, lon=here.lon, alt=HOME.alt + 2.0)
+    assert return_path(low, HOME, no_height, CFG)[-1].alt == 17.0, "never under the minimum clearance"
+
+
+def failsafe_goto(waypoints: list[t.Waypoint], origin: t.Origin = "failsafe") -> t.TaskInfo:
+    return t.TaskInfo(id=7, name="goto", task_type="movement", kind="goto", params=t.Goto(waypoints=waypoints),
+                      origin=origin)
+
+
+def test_a_completed_return_lands_unless_the_conf_says_hover() -> None:
+    home_path = [t.Waypoint(lat=HOME.lat, lon=HOME.lon, alt=42.0)]
+    assert after_completed(failsafe_goto(home_path), RTL) == t.Land()
+    assert after_completed(failsafe_goto(home_path), Limits(max_speed=8.0, return_action="hover")) is None
+    assert after_completed(failsafe_goto(home_path, origin="gcs"), RTL) is None, "an operator's goto: nothing"
+    assert after_completed(running(t.Hold()), RTL) is None
+
+
+def test_the_return_failsafe_needs_an_airborne_robot_and_its_take_off_point() -> None:
+    airborne = tel(at(200.0, 0.0).lat, HOME.lon, 22.0, airborne=True)
+    plan = return_request(airborne, HOME, RTL, CFG)
+    assert isinstance(plan, t.Goto) and [w.alt for w in plan.waypoints] == [42.0, 42.0] and plan.speed is None
+    assert return_request(tel(airborne=False), HOME, RTL, CFG) == "the robot is on the ground"
+    assert "take-off point is not known" in str(return_request(airborne, None, RTL, CFG))
+    assert "not known" in str(return_request(None, HOME, RTL, CFG))
+    assert isinstance(check(plan, telemetry=airborne), Plan), "admitted as any goto (cruise speed filled in)"
+
+
+def test_a_return_is_judged_on_its_path_home() -> None:
+    start = at(200.0, 0.0, HOME.alt + 10.0)
+    plan = return_request(tel(start.lat, start.lon, start.alt), HOME, RTL, CFG)
+    assert isinstance(plan, t.Goto)
+    verdicts = judged(failsafe_goto(plan.waypoints), fly(plan.waypoints, 5.0, start))
+    assert verdicts[-1][1] == "completed"
+
+
+def test_return_keys_of_the_conf_are_checked_with_file_and_line(tmp_path) -> None:  # noqa: ANN001
+    from bbcs.conf import load_conf
+
+    conf = tmp_path / "r.conf"
+    conf.write_text("MAX_SPEED: 8\nMIN_CLEARANCE: 5\nMAX_HEIGHT: 120\nRETURN_HEIGHT: 200\n")
+    assert [str(e) for e in limits_conf_errors(load_conf(str(conf)))] == [
+        f"{conf}:4:1: RETURN_HEIGHT 200 is above MAX_HEIGHT 120"]
+    conf.write_text("MAX_SPEED: 8\nMIN_CLEARANCE: 5\nRETURN_HEIGHT: 2\n")
+    assert [str(e) for e in limits_conf_errors(load_conf(str(conf)))] == [
+        f"{conf}:3:1: RETURN_HEIGHT 2 is under MIN_CLEARANCE 5"]
+    conf.write_text("MAX_SPEED: 8\nRETURN_ACTION: fly\n")
+    errors = [str(e) for e in limits_conf_errors(load_conf(str(conf)))]
+    assert len(errors) == 1 and errors[0].startswith(f"{conf}:2:1: key 'RETURN_ACTION'") and "'fly'" in errors[0]
+    conf.write_text("MAX_SPEED: 8\nRETURN_ACTION: hover\n")
+    assert load_limits(str(conf)).return_action == "hover" and load_limits(str(conf)).return_height_m is None
 
 
 # ---------------------------------------------------------------- pan & tilt angles sent again

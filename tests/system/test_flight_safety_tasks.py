@@ -1,0 +1,262 @@
+"""Issue 30, cases 1, 2, 7 and 10, on the launched UAV (``cromat launch bbcs_conf/uav1_sim.toml``, the shipped
+manifest: the real Module Manager, RAL, modules and DSP simulator): what the DSP received (the simulator's
+``--record``), what the aircraft did (the simulator's truth, ``--truth-udp``) and what the station was told.
+
+The simulator runs faster than the wall clock with its own ``--time-scale`` option (docs/dsp_protocol.md), as in
+every ``test_gcs_*`` file; the RAL's judge reads the wall clock, so a sped-up flight gives it more simulated time
+before ``stall_s``: the long goto flies at 2x only (the old judge failed it there too), the rest at 4x. After each
+task the test watches 20 wall seconds: nothing may reach the DSP and the aircraft may not move.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from bbcs.contracts import gri, mri
+from bbcs.contracts import tasks as t
+from bbcs.contracts.vehicle_truth import VehicleTruth, decode_truth
+from bbcs.testing import wait_until
+from ral.gcs.api import NoReply
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402
+
+M_PER_DEG = 111_320.0
+QUIET_S = 20.0
+"""How long nothing may follow a task's end (wall seconds)."""
+RETURN_HEIGHT = 10.0
+"""uav1.conf's RETURN_HEIGHT."""
+
+
+class Truth:
+    """The DSP simulator's truth datagrams (``--truth-udp``), on a UDP socket this test owns on 127.0.0.1."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.lock = threading.Lock()
+        self.samples: list[VehicleTruth] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, name="truth", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        last = -1.0
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            try:
+                truth = decode_truth(data)
+            except ValueError:  # msgspec's decode errors are ValueErrors: not a truth datagram
+                continue
+            if truth.time_s - last >= 0.1:  # ten samples a simulated second are plenty
+                last = truth.time_s
+                with self.lock:
+                    self.samples.append(truth)
+
+    def edit(self, text: str) -> str:
+        """Manifest edit: the simulator sends its truth here."""
+        old = '"--tcp", "127.0.0.1:{port:dsp}"'
+        assert old in text, "the DSP simulator's command line in uav1_sim.toml changed"
+        return text.replace(old, f'{old}, "--truth-udp", "127.0.0.1:{self.port}"', 1)
+
+    def mark(self) -> int:
+        with self.lock:
+            return len(self.samples)
+
+    def since(self, mark: int) -> list[VehicleTruth]:
+        with self.lock:
+            return self.samples[mark:]
+
+    def latest(self) -> VehicleTruth:
+        wait_until(lambda: self.mark() > 0, 30, "the simulator's truth")
+        with self.lock:
+            return self.samples[-1]
+
+    def close(self) -> None:
+        self._stop.set()
+        self.sock.close()
+        self._thread.join(2.0)
+
+
+def horizontal_m(a: VehicleTruth, lat: float, lon: float) -> float:
+    return M_PER_DEG * ((a.lat - lat) ** 2 + ((a.lon - lon) * 0.7937) ** 2) ** 0.5  # cos(37.41°)
+
+
+Flight = tuple[SimRobot, Truth]
+
+
+@pytest.fixture
+def fly(tmp_path: Path) -> Iterator[Callable[..., Flight]]:
+    made: list[tuple[object, object, Truth]] = []
+
+    def make(time_scale: float = 4.0, link: bool = True, ral: dict[str, str] | None = None) -> Flight:
+        truth = Truth()
+        la = gcs = None
+        try:
+            la, record = launch_robot(tmp_path, edit=truth.edit, time_scale=time_scale, ral=ral)
+            gcs = connect(la.port, "ground1", link=link)
+        finally:
+            made.append((la, gcs, truth))
+        robot = SimRobot(la, gcs, record)
+        robot.wait_state(lambda s: s.manager_up and s.position is not None and bool(s.available), 60,
+                         "GRI state with position and task list")
+        return robot, truth
+
+    yield make
+    for la, gcs, truth in made:
+        if gcs is not None:
+            gcs.close()  # type: ignore[attr-defined]
+        if la is not None:
+            la.stop()  # type: ignore[attr-defined]
+            la.cleanup()  # type: ignore[attr-defined]
+        truth.close()
+
+
+def names(cmds: list[dict]) -> list[str]:
+    return [c["name"] for c in cmds]
+
+
+def ral_status(robot: SimRobot) -> mri.ModuleStatus | None:
+    """The RAL's status from the manager; None while the manager does not answer (it answers MRI requests one at a
+    time, and a module restart holds it until the module is up)."""
+    try:
+        return {m.name: m for m in robot.gcs.modules(ROBOT).modules}["ral"]
+    except NoReply:
+        return None
+
+
+def restarted(robot: SimRobot, old_pid: int | None) -> bool:
+    status = ral_status(robot)
+    return status is not None and status.pid != old_pid and status.state == "up"
+
+
+def finished(robot: SimRobot, reply: gri.TaskReply, timeout_s: float, after: int) -> gri.GriEvent:
+    assert reply.accepted, reply.reason
+    return robot.wait_event(lambda e: e.task_id == reply.task_id and e.kind != "task_accepted", timeout_s,
+                            f"task {reply.task_id} ended", after=after)
+
+
+def assert_quiet(robot: SimRobot, truth: Truth, what: str) -> VehicleTruth:
+    """For ``QUIET_S`` after ``what``: nothing reaches the DSP, the aircraft stays where it is; returns where."""
+    time.sleep(2.0)  # the task's end reaches the GRI with the manager's state; let the aircraft settle first
+    mark, seen, at = len(robot.commands()), truth.mark(), truth.latest()
+    time.sleep(QUIET_S)
+    sent = robot.commands()[mark:]
+    assert sent == [], f"after {what}, with no task running, the DSP received {names(sent)}"
+    samples = truth.since(seen)
+    assert samples, "the simulator's truth stopped"
+    climb = max(abs(s.alt - at.alt) for s in samples)
+    drift = max(horizontal_m(s, at.lat, at.lon) for s in samples)
+    assert climb < 0.5 and drift < 1.0, f"after {what} the aircraft moved: {climb:.1f} m vertically, {drift:.1f} m"
+    assert not [x for x in robot.state.tasks if x.task_type == "movement"], robot.state.tasks
+    return at
+
+
+# ------------------------------------------------------------------ case 1: a finished task brings back nothing
+
+
+def test_after_a_landing_nothing_is_sent_and_the_aircraft_stays_down(fly: Callable[..., Flight]) -> None:
+    """take_off then land: the DSP used to get SET_MODE 4 after touchdown and the aircraft climbed to 10 m."""
+    robot, truth = fly()
+    robot.ensure_airborne()
+    start = len(robot.events)
+    done = finished(robot, robot.gcs.send(ROBOT, t.Land()), 60, start)
+    assert done.kind == "task_completed", done
+    ground = assert_quiet(robot, truth, "the landing")
+    assert ground.alt - ground.home[2] < 0.5, "on the ground"
+
+
+# ------------------------------------------------------------------ case 2 (and 1): a long goto, then nothing
+
+
+def test_a_four_waypoint_goto_111_m_apart_completes_and_nothing_follows(fly: Callable[..., Flight]) -> None:
+    """The old judge (distance to the last waypoint + 50 m a queued one) failed this square at +30 s while it was
+    flown at 5 m/s; once complete, the goto's end used to put the aircraft back in take-off mode (down to 10 m)."""
+    robot, truth = fly(time_scale=2.0)
+    up = robot.ensure_airborne()
+    assert up.position is not None and up.home is not None
+    square = grid_path(up.position, [(10, 0), (10, 13), (0, 13), (0, 0)])  # 111, 115, 111, 115 m
+    square = [t.Waypoint(lat=w.lat, lon=w.lon, alt=up.home.alt + 30.0) for w in square]
+    start = len(robot.events)
+    began = time.monotonic()
+    done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=square)), 150, start)
+    flown_s = time.monotonic() - began
+    assert done.kind == "task_completed", f"{done} after {flown_s:.0f} s"
+    assert flown_s > 30.0, "the square took longer than stall_s: the judge saw its progress"
+    at = assert_quiet(robot, truth, "the goto")
+    assert abs(at.alt - square[-1].alt) < 2.0, f"held at the goto's altitude, not {at.alt - at.home[2]:.1f} m"
+
+
+# ------------------------------------------------------------------ cases 7 and 10: a RAL restarted in flight, return
+
+
+def test_a_restarted_ral_flies_a_goto_and_the_return_lands_at_home(fly: Callable[..., Flight]) -> None:
+    robot, truth = fly(link=False, ral={"failsafe_action": "return", "failsafe_timeout_s": "1.5"})
+    pilot = connect(robot.launch.port, "pilot")  # type: ignore[attr-defined]
+    try:
+        robot.wait_state(lambda s: s.link == "up", 30, "the pilot's link up")
+        up = robot.ensure_airborne()
+        home = up.home
+        assert home is not None and up.position is not None
+        # the station is told the truth when it restarts the RAL: accepted, not silence ("denied by policy")
+        ral_pid = ral_status(robot).pid  # type: ignore[union-attr]
+        reply = robot.gcs.restart(ROBOT, "ral")
+        assert reply.accepted and "restarts" in reply.reason, reply
+        wait_until(lambda: restarted(robot, ral_pid), 60, "the RAL restarted")
+        # then killed in flight: it comes back knowing the take-off point (the manager's record)
+        ral_pid = ral_status(robot).pid  # type: ignore[union-attr]
+        assert ral_pid is not None
+        os.kill(ral_pid, signal.SIGKILL)
+        killed = time.time()
+        wait_until(lambda: restarted(robot, ral_pid), 60, "the RAL back after SIGKILL")
+        robot.wait_state(lambda s: s.stamp > killed and s.home is not None and s.manager_up and bool(s.available)
+                         and s.link == "up", 30, "the new RAL's state, with the take-off point and the pilot's link")
+        assert robot.state.home == home
+        away = [t.Waypoint(lat=w.lat, lon=w.lon, alt=home.alt + 30.0) for w in grid_path(up.position, [(4, 0),
+                                                                                                     (4, 4)])]
+        start = len(robot.events)
+        done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=away)), 60, start)
+        assert done.kind == "task_completed", done
+        robot.wait_state(lambda s: s.position is not None and abs(s.position.alt - away[-1].alt) < 2.0, 15,
+                         "at the goto's end")
+        mark, seen, start = len(robot.commands()), truth.mark(), len(robot.events)
+    finally:
+        pilot.close()
+    # link lost: the return failsafe descends to RETURN_HEIGHT where it is, flies home at it, lands
+    back = robot.wait_event(lambda e: e.kind == "task_accepted" and "failsafe" in e.detail, 30, "the return",
+                            after=start)
+    returned = robot.wait_event(lambda e: e.task_id == back.task_id and e.kind != "task_accepted", 90,
+                                "the return ended", after=start)
+    assert returned.kind == "task_completed", returned
+    land = robot.wait_event(lambda e: e.kind == "task_accepted" and e.detail.startswith("land"), 15,
+                            "the return's landing", after=start)
+    landed = robot.wait_event(lambda e: e.task_id == land.task_id and e.kind != "task_accepted", 60,
+                              "landed", after=start)
+    assert landed.kind == "task_completed", landed
+    sent = robot.commands()[mark:]
+    added = [c["fields"] for c in sent if c["name"] == "ADD_WAYPOINT"]
+    assert [round(a["alt"]) for a in added] == [round(home.alt + RETURN_HEIGHT)] * 2, added
+    assert abs(added[-1]["lat"] - home.lat) < 1e-4 and abs(added[-1]["lon"] - home.lon) < 1e-4
+    assert "SET_MODE" in names(sent[names(sent).index("ADD_WAYPOINT"):]), "then the landing"
+    flown = truth.since(seen)
+    mid = [s for s in flown if 15.0 < horizontal_m(s, home.lat, home.lon) < 30.0 and s.vel_neu[2] > -0.5]
+    assert mid and all(abs(s.alt - home.alt - RETURN_HEIGHT) < 2.0 for s in mid[-5:]), \
+        "flew home at the return height"
+    ground = assert_quiet(robot, truth, "the return's landing")
+    assert horizontal_m(ground, home.lat, home.lon) < 8.0 and ground.alt - home.alt < 0.5, "down at home"
