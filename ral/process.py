@@ -31,7 +31,7 @@ from bbcs.context import ModuleContext
 from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.dsp import FORWARDED_DSP_ERROR_BASE, MAX_SPEED_LIMIT, LinkErrorCode
-from bbcs.contracts.error_codes import RalErrorCode
+from bbcs.contracts.error_codes import RalErrorCode, error_name
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.contracts.path_follower import (
@@ -592,7 +592,8 @@ class Ral(Module):
         for info in running:
             for e in fresh:
                 if info.task_type in serves.get(e.module, set()) and e.stamp >= info.started:
-                    detail = f"module {e.module} reported error {e.code}{' ' + e.name if e.name else ''}"
+                    name = e.name or error_name(e.module, e.code)  # the manager's records carry the bare code
+                    detail = f"module {e.module} reported error {e.code}{' ' + name if name else ''}"
                     self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status="failed",
                                                detail=detail))
                     break

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import msgspec
 import numpy as np
@@ -59,6 +59,9 @@ class UquadConfig(msgspec.Struct, frozen=True, kw_only=True):
     MOTOR_CMD_TIMEOUT: float = 0.2
     MOTOR_ACK_TIMEOUT: float = 0.1
     MOTOR_ERROR_ACTION: Literal["land", "cut"] = "land"
+    CUT_TILT_DEG: Annotated[float, msgspec.Meta(gt=0.0, le=180.0)] = 70.0
+    """The estimate tilted beyond this (degrees) for CUT_TILT_S: tumbling, the motors are cut (upset.py)."""
+    CUT_TILT_S: Annotated[float, msgspec.Meta(ge=0.0)] = 0.1
     LOG_DIR: str = "runs/uquad"
 
 

@@ -30,6 +30,7 @@ from modules.uquad.gps import LocalGps
 from modules.uquad.imu_protocol import ImuFrame
 from modules.uquad.kalman import Kalman
 from modules.uquad.planner import Mode, Planner, PlannerConfig
+from modules.uquad.upset import TumbleCut
 
 
 @dataclass
@@ -37,6 +38,8 @@ class CoreStats:
     frames: int = 0
     control_actions: int = 0
     calibration_refusals: int = 0
+    tumble_cuts: int = 0
+    """Times the motors were cut because the estimate showed the quadrotor tumbling (upset.py)."""
     gps_updates: int = 0
     last_ts: float = 0.0
     """The last measured control period (s)."""
@@ -62,6 +65,7 @@ class FlightCore:
             waypoint_speed_max=v.WAYPOINT_SPEED_MAX, cruise_speed=v.CRUISE_SPEED, land_speed=v.LAND_SPEED,
             ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT))
         self.every = v.CONTROL_EVERY
+        self.tumble = TumbleCut(v.CUT_TILT_DEG, v.CUT_TILT_S)
         self.raw_queue = RawQueue(v.IMU_QUEUE_LEN, v.IMU_FIR) if v.IMU_FIR else None
         """The seed's FIR filter on the raw frames (off by default, as the seed flew): IMU_FIR in the .conf."""
         self.spinup_s = v.MOTOR_RAMP_S + 0.3
@@ -139,6 +143,14 @@ class FlightCore:
         k.update_altitude(data.altitude_m)
         if not self.planner.airborne:
             k.update_still()
+        if self.tumble.update(now, float(k.euler[0]), float(k.euler[1]), self.planner.airborne):
+            self.planner.set_mode(Mode.IDLE, k.position.copy(), float(k.euler[2]))  # motors off, now
+            self.stats.tumble_cuts += 1
+            self.stats.errors.append(self.tumble.reason)
+            self.controller.reset()
+            self._motors_on_at = None
+            self.last_command = np.zeros(4)
+            return self.last_command
         self._since_control += len(frames)
         if self._since_control < self.every:
             return None

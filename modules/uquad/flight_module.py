@@ -216,9 +216,13 @@ class UquadModule(Module):
                     frames += len(group)
                     now = frames * 0.01 if self.clock_mode == "imu" else t_read
                     refusals = self.core.stats.calibration_refusals
+                    cuts = self.core.stats.tumble_cuts
                     cmd = self.core.on_frames(group, now)  # the estimator and the law run once per read
                     if cmd is not None:
                         self._command(cmd, now, t_read, motor)  # first: nothing else waits in front of it
+                    if self.core.stats.tumble_cuts != cuts:  # motors cut (the zeros above): tell the RAL now
+                        self._publish_telemetry(tumbling=True)
+                        self.report_error(UquadErrorCode.LOSS_OF_CONTROL, self.core.stats.errors[-1])
                     if self.core.stats.calibration_refusals != refusals:
                         self.report_error(UquadErrorCode.CALIBRATION_REFUSED, self.core.stats.errors[-1])
                     if fake_gps is not None and self.core.calibrated and (g := fake_gps.poll(now)) is not None:
@@ -299,7 +303,9 @@ class UquadModule(Module):
             rates=_vec(self.core.gyro), acc_bias=_vec(k.acc_bias), mode=int(self.core.planner.mode),
             setpoint=_vec(self.core.planner.sp)))
 
-    def _publish_telemetry(self) -> None:
+    def _publish_telemetry(self, tumbling: bool = False) -> None:
+        """The generic telemetry; ``tumbling``: sent at the cut, still airborne (it is: falling, motors off) so the
+        RAL judges the attitude that made it (the planner is idle from now on)."""
         core = self.core
         if not core.calibrated:
             self._send("telemetry", RobotTelemetry(stamp=time.time(), mode=int(Mode.IDLE), mode_name="calibrating",
@@ -318,8 +324,9 @@ class UquadModule(Module):
             velocity=VelocityNED(vn=float(k.velocity[1]), ve=float(k.velocity[0]), vd=-float(k.velocity[2])),
             heading_deg=heading_deg(theta),
             mode=int(planner.mode), mode_name=planner.mode.name.lower(),
-            airborne=planner.airborne, waypoints_queued=queued,
-            error_code=UquadErrorCode.DRIVER_ERROR if self.driver_error else 0,
+            airborne=planner.airborne or tumbling, waypoints_queued=queued,
+            error_code=(UquadErrorCode.LOSS_OF_CONTROL if tumbling else
+                        UquadErrorCode.DRIVER_ERROR if self.driver_error else 0),
         ))
 
 

@@ -26,6 +26,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gps", default="127.0.0.1:0", help="host:port, 'pty', or 'none'")
     ap.add_argument("--esc", default="127.0.0.1:0", help="host:port")
     ap.add_argument("--truth", default="127.0.0.1:0", help="host:port or 'none'")
+    ap.add_argument("--control", default="none",
+                    help="host:port of the fault-injection port (JSON lines, modules/uquad/sim/server.py) or 'none'")
     ap.add_argument("--imu-mode", choices=("binary", "ascii"), default=None, help="override IMU_MODE of the .conf")
     ap.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
     ap.add_argument("--seed", type=int, default=1)
@@ -37,8 +39,9 @@ def main(argv: list[str] | None = None) -> int:
     imu = PtyEnd("imu") if args.imu == "pty" else _tcp("imu", args.imu)
     gps = None if args.gps == "none" else PtyEnd("gps") if args.gps == "pty" else _tcp("gps", args.gps)
     truth = None if args.truth == "none" else _tcp("truth", args.truth)
+    control = None if args.control == "none" else _tcp("control", args.control)
     server = SimServer(sim, imu, gps, _tcp("esc", args.esc), truth, imu_mode=args.imu_mode or cfg.imu_mode,
-                       speed=args.speed)
+                       speed=args.speed, control=control)
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
     signal.signal(signal.SIGINT, lambda *_: server.stop())
     parts = " ".join(f"{e.name}={e.url}" for e in server.ends())

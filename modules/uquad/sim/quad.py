@@ -1,6 +1,8 @@
 """The simulated quadrotor: rigid body, first-order motors, ground contact, and sensors that produce the IMU's
 raw ADC counts through the inverse of the board's calibration, with noise, a gyro bias (the start calibration
 estimates it), an accelerometer bias (the estimator's bias states track it) and a slow temperature drift.
+Faults can be injected: :meth:`QuadSim.fail_motor` makes a motor give a share of its thrust and torque (0: a motor
+or propeller lost), the simulator's control port sets it from outside (modules/uquad/sim/server.py).
 
 Pure apart from a seeded RNG: ``step(dt)`` advances the physics; ``imu_frame()``/``gps_fix()`` sample sensors.
 """
@@ -48,6 +50,8 @@ class QuadSim:
     w_cmd: np.ndarray = field(default_factory=lambda: np.zeros(model.N_MOTORS))
     t: float = 0.0
     on_ground: bool = True
+    motor_efficiency: np.ndarray = field(default_factory=lambda: np.ones(model.N_MOTORS))
+    """Share of each motor's thrust and torque actually produced (1 healthy, 0 lost): the fault injection."""
 
     def __post_init__(self) -> None:
         self.rng = np.random.default_rng(self.seed)
@@ -61,12 +65,21 @@ class QuadSim:
     def command(self, speeds: np.ndarray | list[float]) -> None:
         self.w_cmd = np.asarray(speeds, dtype=float).copy()
 
+    def fail_motor(self, motor: int, efficiency: float = 0.0) -> None:
+        """From now on motor ``motor`` (0-3) produces ``efficiency`` (0…1) of its thrust; 1 repairs it."""
+        if not 0 <= motor < model.N_MOTORS:
+            raise ValueError(f"motor must be 0..{model.N_MOTORS - 1}, not {motor}")
+        if not 0.0 <= efficiency <= 1.0:
+            raise ValueError(f"efficiency must be in [0, 1], not {efficiency}")
+        self.motor_efficiency[motor] = efficiency
+
     def step(self, dt: float) -> None:
         p = self.params
         self.w += (self.w_cmd - self.w) * min(1.0, dt / p.motor_tau)
-        d = np.array(model.rates(self.x, self.w, p))
+        w = self.w * np.sqrt(self.motor_efficiency)  # thrust and torque go with w²: a share of both
+        d = np.array(model.rates(self.x, w, p))
         if self.on_ground:
-            thrust = p.k_thrust * float(np.sum(self.w ** 2))
+            thrust = p.k_thrust * float(np.sum(w ** 2))
             if thrust <= p.mass * p.g * 1.001:
                 self._acc_world = np.zeros(3)
                 self.x[model.IVX:] = 0.0

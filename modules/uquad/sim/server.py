@@ -1,6 +1,11 @@
-"""The simulator's far ends: IMU bytes out, GPS NMEA out, ESC set-points in, and a ``truth`` stream (JSON lines:
-the true state, for tests and the benchmark), each on its own 127.0.0.1 TCP port (one client at a time, a new
-one replaces the old) or, for the IMU and GPS, a pty.
+"""The simulator's far ends: IMU bytes out, GPS NMEA out, ESC set-points in, a ``truth`` stream (JSON lines:
+the true state, for tests and the benchmark) and a ``control`` port (fault injection), each on its own 127.0.0.1
+TCP port (one client at a time, a new one replaces the old) or, for the IMU and GPS, a pty.
+
+Control port: one JSON object a line, answered by one line: ``{"motor": 2, "efficiency": 0.0}`` makes motor 2
+give no thrust from the next physics step on (``efficiency`` 0…1, 1 repairs it), answered ``{"ok": true, "t":
+<simulated time>}``; anything else is answered ``{"ok": false, "error": "<why>"}`` and changes nothing. The
+truth lines carry ``motor_efficiency``.
 
 Simulated time runs ``speed`` times faster than the wall clock (1 = real time). Writes never block: bytes a
 client does not drain are lost and counted, as on a UART. The ESCs stop the motors when no set-point arrived
@@ -23,6 +28,24 @@ from modules.uquad import motor_protocol as mp
 from modules.uquad.gps import encode as encode_nmea
 from modules.uquad.imu_protocol import encode_ascii, encode_binary
 from modules.uquad.sim.quad import QuadSim
+
+MOTORS = 4
+
+
+def parse_control(line: bytes) -> tuple[int, float]:
+    """A control-port line → (motor, efficiency); ValueError saying why it is refused."""
+    try:
+        doc = json.loads(line)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"not JSON: {exc}") from None
+    if not isinstance(doc, dict) or set(doc) != {"motor", "efficiency"}:
+        raise ValueError('expected {"motor": 0-3, "efficiency": 0-1}')
+    motor, eff = doc["motor"], doc["efficiency"]
+    if isinstance(motor, bool) or not isinstance(motor, int) or not 0 <= motor < MOTORS:
+        raise ValueError(f"motor must be an integer 0..{MOTORS - 1}, not {motor!r}")
+    if isinstance(eff, bool) or not isinstance(eff, int | float) or not 0.0 <= eff <= 1.0:
+        raise ValueError(f"efficiency must be a number in [0, 1], not {eff!r}")
+    return motor, float(eff)
 
 PHYSICS_DT = 0.002
 IMU_PERIOD = 0.010
@@ -131,8 +154,10 @@ class SimStats:
 class SimServer:
     def __init__(self, sim: QuadSim, imu: TcpEnd | PtyEnd, gps: TcpEnd | PtyEnd | None, esc: TcpEnd,
                  truth: TcpEnd | None, *, imu_mode: str = "binary", speed: float = 1.0, gps_period: float = 0.2,
-                 esc_timeout_s: float = 0.1, truth_period: float = 0.05) -> None:
+                 esc_timeout_s: float = 0.1, truth_period: float = 0.05, control: TcpEnd | None = None) -> None:
         self.sim, self.imu, self.gps, self.esc, self.truth = sim, imu, gps, esc, truth
+        self.control = control
+        self._control_buf = b""
         self.encode = encode_binary if imu_mode == "binary" else encode_ascii
         self.speed = speed
         self.gps_period = gps_period
@@ -147,7 +172,7 @@ class SimServer:
         self._stop = True
 
     def ends(self) -> list[TcpEnd | PtyEnd]:
-        return [e for e in (self.imu, self.gps, self.esc, self.truth) if e is not None]
+        return [e for e in (self.imu, self.gps, self.esc, self.truth, self.control) if e is not None]
 
     def _poll(self, timeout: float) -> None:
         owners = {fd: end for end in self.ends() for fd in end.fds()}
@@ -162,13 +187,34 @@ class SimServer:
                     self.sim.command(self.stats.last_esc)
                     self._last_esc_t = self.sim.t
                 self.stats.esc_bad = self.esc_parser.bad_frames
+            elif end is self.control and data:
+                self._on_control(data)
+
+    def _on_control(self, data: bytes) -> None:
+        """Fault injection: each complete line is applied (or refused) and answered."""
+        assert self.control is not None
+        self._control_buf = (self._control_buf + data)[-65536:]
+        *lines, self._control_buf = self._control_buf.split(b"\n")
+        for line in lines:
+            if not line.strip():
+                continue
+            try:
+                motor, eff = parse_control(line)
+            except ValueError as exc:
+                answer = {"ok": False, "error": str(exc)}
+            else:
+                self.sim.fail_motor(motor, eff)
+                answer = {"ok": True, "t": round(self.sim.t, 4)}
+                print(f"uquad sim: motor {motor} efficiency {eff:g} at t={self.sim.t:.3f}", flush=True)
+            self.control.write((json.dumps(answer) + "\n").encode())
 
     def _truth_line(self) -> bytes:
         s = self.sim
         doc = {"t": round(s.t, 4), "x": [round(float(v), 5) for v in s.x], "w": [round(float(v), 2) for v in s.w],
                "on_ground": s.on_ground, "imu_frames": self.stats.imu_frames, "esc_frames": self.stats.esc_frames,
                "esc_timeouts": self.stats.esc_timeouts, "imu_bytes_lost": self.stats.imu_bytes_lost,
-               "esc": [round(float(v), 2) for v in self.stats.last_esc]}
+               "esc": [round(float(v), 2) for v in self.stats.last_esc],
+               "motor_efficiency": [round(float(v), 3) for v in s.motor_efficiency]}
         return (json.dumps(doc) + "\n").encode()
 
     def run(self, duration_s: float | None = None) -> None:
