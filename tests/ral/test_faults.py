@@ -1,12 +1,18 @@
 """The persistence rule for refused DSP telemetry (ral/faults.py), with an injected clock: one bad frame never fails
-a task; a fault with no valid telemetry after it for the window fails the running tasks the DSP serves, once."""
+a task; a fault with no valid telemetry after it for the window fails the running tasks the DSP serves, once. Then
+the RAL process itself, against the stand-in manager: its hook applies the rule."""
 
 from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
 
 from bbcs.contracts import mri
 from bbcs.contracts.dsp import LinkErrorCode
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.contracts.tasks import TaskInfo
+from bbcs.testing import wait_until
 from ral import faults
 from ral.faults import TELEMETRY_FAULT_WINDOW_S, TelemetryFault, is_telemetry_refusal, judge, step
 
@@ -118,3 +124,45 @@ def test_judge_fails_only_the_running_tasks_of_the_types_the_dsp_serves() -> Non
     assert all("no valid telemetry after it for 3 s" in e.detail for e in ends)
     assert judge(fault, state_at(104.0), running, now=110.0)[1] == []  # once per refusal, not at every state
     assert faults.TELEMETRY_FAULT_WINDOW_S == 3.0  # docs/error_codes.md and docs/dsp_protocol.md say 3 s
+
+
+# --- the RAL process against the stand-in manager (tests/ral/standin.py): the hook in ral/process.py ------------
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from standin import ROBOT as ROBOT_NAME  # noqa: E402
+from test_process import Rig, rig, ten_waypoints  # noqa: E402, F401  (rig: the RAL and a stand-in manager)
+
+DSP_UP = [mri.ModuleStatus(name="dsp", state="up", task_types=["movement", "pan_tilt"])]
+
+
+def failed(ral: Rig, task_id: int) -> list:
+    return [e for e in list(ral.events) if e.kind == "task_failed" and e.task_id == task_id]
+
+
+def test_the_ral_fails_a_goto_only_when_refused_telemetry_persists(rig: Rig) -> None:  # noqa: F811
+    goto = rig.gcs.send(ROBOT_NAME, ten_waypoints())
+    assert goto.accepted, goto.reason
+    # one refused frame, valid telemetry before and after it: the goto flies on
+    t0 = time.time()
+    rig.manager.tel = RobotTelemetry(stamp=t0 - 0.1)
+    rig.manager.publish_state(modules=DSP_UP, errors=[refusal(t0)])
+    deadline = time.time() + TELEMETRY_FAULT_WINDOW_S + 1.5
+    while time.time() < deadline:
+        rig.manager.tel = RobotTelemetry(stamp=time.time())
+        rig.manager.publish_state(modules=DSP_UP, errors=[refusal(t0)])
+        time.sleep(0.2)
+    assert failed(rig, goto.task_id) == [] and rig.manager.end_tasks() == []
+    # refused frames and nothing valid after them: failed after the window, with the reason
+    t1 = time.time()
+    stale = RobotTelemetry(stamp=t1 - 0.1)
+    rig.manager.tel = stale
+    errors = [refusal(t0), refusal(t1)]
+    while time.time() < t1 + TELEMETRY_FAULT_WINDOW_S - 0.5:
+        rig.manager.publish_state(modules=DSP_UP, errors=errors)
+        time.sleep(0.2)
+    assert failed(rig, goto.task_id) == []  # not before the window
+    wait_until(lambda: (rig.manager.publish_state(modules=DSP_UP, errors=errors), failed(rig, goto.task_id))[1],
+               10, "the goto failed once the fault persisted")
+    end = rig.manager.end_tasks()[-1]
+    assert (end.task_id, end.status) == (goto.task_id, "failed") and "no valid telemetry" in end.detail
+    assert time.time() - t1 >= TELEMETRY_FAULT_WINDOW_S
