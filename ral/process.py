@@ -49,6 +49,7 @@ from bbcs.contracts.trajectory import OrbitRequest, SurveyRequest, TrajectoryReq
 from bbcs.module import Module
 from bbcs.signing import FleetTrust
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
+from ral import faults as telemetry_faults
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.fleet import FleetLink, can_do_from, goto_of, own_state_of
 from ral.fleet_protocol import Execute, FleetConfig, OwnState
@@ -218,6 +219,8 @@ class Ral(Module):
         self._finished: set[int] = set()
         self._progress: dict[int, Progress] = {}
         self._seen_errors = 0.0
+        self._telemetry_fault = telemetry_faults.TelemetryFault()
+        """Refused DSP telemetry frames: they fail a task only when the fault persists (ral/faults.py)."""
         self._jobs: queue.Queue[Any] = queue.Queue()
         self._bus_lock = threading.Lock()
         self._manager_state: mri.RobotState | None = None
@@ -509,6 +512,11 @@ class Ral(Module):
             if ms.telemetry is not None:
                 self._fold_telemetry(ms.telemetry, now)
             self._check_errors(ms)
+            with self.lock:
+                running = list(self._live.values())
+            self._telemetry_fault, ends = telemetry_faults.judge(self._telemetry_fault, ms, running, now)
+            for end in ends:
+                self._jobs.put(end)
         up = ms is not None and now - self._manager_seen <= MANAGER_STALE_S
         if up != self._manager_up:
             self._manager_up = up
@@ -583,7 +591,8 @@ class Ral(Module):
     def _check_errors(self, ms: mri.RobotState) -> None:
         """A module error after a task started fails the running tasks of the types that module serves."""
         serves = {m.name: set(m.task_types) for m in ms.modules}
-        fresh = [e for e in ms.errors if e.stamp > self._seen_errors and e.code not in HARMLESS_CODES]
+        fresh = [e for e in ms.errors if e.stamp > self._seen_errors and e.code not in HARMLESS_CODES
+                 and not telemetry_faults.is_telemetry_refusal(e)]  # not fatal alone: ral/faults.py
         if not fresh:
             return
         self._seen_errors = max(e.stamp for e in fresh)
