@@ -43,7 +43,7 @@ MANAGER_MEMBER = "manager"
 """The manager's member name (no module may be called so: the manager's own slots live under it). Not
 ``@manager``: a key chunk starting with ``@`` is matched by no wildcard."""
 DEFAULT_STEP_S = 0.1
-DEFAULT_DEADLINE_S = 5.0
+DEFAULT_DEADLINE_S = 20.0
 RETRY_FIRST_S = 0.002
 RETRY_MAX_S = 0.05
 """A round that finds a member busy is asked again after a pause growing from RETRY_FIRST_S to RETRY_MAX_S:
@@ -224,10 +224,14 @@ class Barrier:
     previous: dict[str, tuple[int, tuple[tuple[str, int], ...]]] | None = None
     warned_at: float = 0.0
     busy_rounds: int = 0
+    last: dict[str, tuple[int, tuple[tuple[str, int], ...]]] = field(default_factory=dict)
+    changed: list[str] = field(default_factory=list)
+    """Members whose activity or counts changed between the last two rounds (what keeps a step unsettled)."""
 
     def begin(self, step: int, now: float) -> None:
         self.step, self.round, self.started, self.warned_at = step, 0, now, now
         self.busy_rounds = 0
+        self.last = {}
         self.answers.clear()
         self.previous = None
 
@@ -268,9 +272,12 @@ class Barrier:
         vector = {m: (d.activity, tuple(sorted(d.counts.items()))) for m, d in answers.items()}
         if not busy and not unmet and vector == self.previous:
             return Decision(Verdict.STEP)
+        self.changed = sorted(m for m in vector if self.last.get(m) != vector[m])
+        self.last = vector
         if late and not set(busy) & set(self.required):
             why = "; ".join([*(f"{m}: {w}" for m, w in sorted(busy.items())), *([unmet] if unmet else [])])
-            return self._leave(sorted(busy), f"not settled after {self.deadline_s:g} s ({why or 'still active'})")
+            return self._leave(sorted(busy), f"not settled after {self.deadline_s:g} s "
+                                             f"({why or 'still active: ' + ', '.join(self.changed)})")
         self.previous = None if busy or unmet else vector
         self.busy_rounds = self.busy_rounds + 1 if busy or unmet else 0
         delay = min(RETRY_FIRST_S * 2 ** (self.busy_rounds - 1), RETRY_MAX_S) if self.busy_rounds else 0.0

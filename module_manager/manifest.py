@@ -128,8 +128,8 @@ class SimSection(_Section):
     (``cromat launch --speed`` overrides both)."""
     step_s: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.1
     """Simulated seconds between two barriers."""
-    deadline_s: Positive = 5.0
-    """Wall seconds a step waits for a module before it goes on without it."""
+    deadline_s: Positive = 20.0
+    """Wall seconds a step waits for a module before it goes on without it (a loaded machine may take seconds)."""
 
 
 class SlotDef(_Section):

@@ -1,0 +1,80 @@
+"""Lockstep simulation (docs/simulation.md, "Lockstep"): how fast, and whether a loaded machine changes the flight.
+
+1. ``survey_sim_speedup``: the shipped ``bbcs_conf/uav1_lidar_sim.toml`` in lockstep at ``--speed max`` (the DSP
+   simulator stepping on the barrier; the MTi-G/LD-MRS simulators following its truth), take-off, the survey of
+   the 62 m x 89 m polygon of the system tests (0.0007 x 0.0008 degrees, 25 m, 10 % overlap), landing: simulated
+   seconds (the GRI state's stamps) over wall seconds, from the take-off request to the GRI's "on the ground".
+   Target: >= 10 on this 2-core machine.
+2. ``lockstep_same_record``: the shipped ``bbcs_conf/uav1_sim.toml`` in lockstep, take-off, a goto, landing and
+   20 simulated seconds of watching, once on the machine as it is and once beside 4 processes spinning on a
+   processor each: the simulated DSP's two records, as command sequence and fields, are identical.
+
+    python bench/sim.py                  # both, about 2-3 minutes; table on stdout, JSON in bench/results/sim.json
+    python bench/sim.py --only survey    # or: --only record
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+from benchlib import ROOT, write_results
+
+sys.path.insert(0, str(ROOT / "tests" / "system"))
+from lockstep_support import Flight, busy_processes, fly_mission, fly_survey, stop  # noqa: E402
+
+SPEEDUP_TARGET = 10.0
+
+
+def describe(flight: Flight) -> dict[str, object]:
+    return {"sim_s": round(flight.sim_s, 2), "wall_s": round(flight.wall_s, 2),
+            "speedup": round(flight.sim_s / flight.wall_s, 2) if flight.wall_s > 0 else None,
+            "commands": len(flight.record), "tasks": flight.events}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=("survey", "record"), help="run one of the two measurements")
+    ap.add_argument("--busy", type=int, default=4, help="busy processes beside the second mission (4)")
+    ap.add_argument("--out", help="result file (default bench/results/sim.json)")
+    args = ap.parse_args(argv)
+    result: dict[str, object] = {}
+    summary: dict[str, object] = {}
+    rows: list[tuple[str, str]] = []
+    with tempfile.TemporaryDirectory(prefix="cromat-bench-sim-") as tmp:
+        if args.only in (None, "survey"):
+            survey = fly_survey(Path(tmp) / "survey")
+            result["survey"] = describe(survey)
+            speedup = survey.sim_s / survey.wall_s
+            summary["survey_sim_speedup"] = round(speedup, 2)
+            rows.append(("survey_sim_speedup", f"{speedup:.2f}x ({survey.sim_s:.1f} s simulated in "
+                                               f"{survey.wall_s:.1f} s; target >= {SPEEDUP_TARGET:g})"))
+            rows.append(("survey tasks", ", ".join(survey.events)))
+        if args.only in (None, "record"):
+            quiet = fly_mission(Path(tmp) / "quiet")
+            hogs = busy_processes(args.busy)
+            try:
+                loaded = fly_mission(Path(tmp) / "loaded")
+            finally:
+                stop(hogs)
+            same = quiet.commands() == loaded.commands() and quiet.events == loaded.events
+            result["mission_quiet"] = describe(quiet)
+            result["mission_loaded"] = describe(loaded) | {"busy_processes": args.busy}
+            summary["lockstep_same_record"] = same
+            summary["mission_speedup_quiet"] = round(quiet.sim_s / quiet.wall_s, 2)
+            summary["mission_speedup_loaded"] = round(loaded.sim_s / loaded.wall_s, 2)
+            rows.append(("lockstep_same_record", f"{str(same).lower()} ({len(quiet.record)} commands each)"))
+            rows.append(("mission speedup", f"{quiet.sim_s / quiet.wall_s:.2f}x quiet, "
+                                            f"{loaded.sim_s / loaded.wall_s:.2f}x beside {args.busy} busy processes"))
+    result["summary"] = summary
+    width = max(len(k) for k, _ in rows)
+    for key, value in rows:
+        print(f"{key:<{width}}  {value}")
+    write_results("sim", result, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

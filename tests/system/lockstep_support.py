@@ -1,0 +1,156 @@
+"""A lockstep flight on the shipped uav1_sim.toml, for the lockstep system test and bench/sim.py.
+
+``fly_mission`` launches the robot with ``[sim] lockstep = true`` (added unless the shipped manifest has it) at
+``--speed max``, flies take-off, a goto and a landing through the GCS API, keeps watching ``watch_s`` simulated
+seconds after the landing, and returns what the simulated DSP received and how long it all took, simulated and
+on the wall. Simulated time is read from the GRI state's stamps (the RAL's clock: the simulation's time).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bbcs.contracts import gri
+from bbcs.contracts import tasks as t
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
+from launch_support import Launch  # noqa: E402
+from test_gcs_mission import GRID_DEG, ROBOT, SimRobot, connect, sim_manifest  # noqa: E402
+from test_gcs_survey import POLYGON  # noqa: E402
+
+from modules.dsp.sim.record import read_record  # noqa: E402
+
+N_MODULES = 6
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@dataclass
+class Flight:
+    record: list[dict[str, Any]]
+    """Every command the simulated DSP applied, in order."""
+    sim_s: float
+    """Simulated seconds from the first task to the end of the watch."""
+    wall_s: float
+    """Wall seconds for the same."""
+    events: list[str]
+
+    def commands(self) -> list[tuple[str, Any]]:
+        """The record as command sequence and fields (its times left out: they are not the contract)."""
+        return [(r["name"], r["fields"]) for r in self.record]
+
+
+def lockstep_manifest(tmp_path: Path) -> tuple[Path, Path]:
+    def edit(text: str) -> str:
+        if "lockstep = true" in text:
+            return text
+        return text.replace("\n[bus]\n", "\n[sim]\nlockstep = true\n\n[bus]\n", 1)
+
+    return sim_manifest(tmp_path, edit=edit, time_scale=1.0)
+
+
+def busy_processes(n: int) -> list[subprocess.Popen]:
+    """``n`` processes spinning on a processor each (a loaded machine)."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def stop(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        p.kill()
+    for p in procs:
+        p.wait(10)
+
+
+def _done(robot: SimRobot, task_id: int, timeout_s: float, what: str) -> str:
+    event = robot.wait_event(lambda e: e.task_id == task_id and e.kind in ("task_completed", "task_failed"),
+                             timeout_s, what)
+    return event.kind
+
+
+def fly_mission(tmp_path: Path, *, watch_s: float = 20.0, timeout_s: float = 240.0) -> Flight:
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    manifest, record = lockstep_manifest(tmp_path)
+    la = Launch(manifest, tmp_path, "--speed", "max")
+    gcs = None
+    try:
+        la.wait_line(f"all {N_MODULES} modules up", 120)
+        gcs = connect(la.port, "ground1")
+        robot = SimRobot(la, gcs, record)
+        first = robot.wait_state(lambda s: s.link == "up" and s.position is not None and s.home is not None,
+                                 timeout_s, "a GRI state with position, home and this GCS linked")
+        home = first.home
+        assert home is not None
+        wall0, sim0 = time.monotonic(), first.stamp
+        kinds = []
+        reply = gcs.send(ROBOT, gri.TakeOff(height=10.0))
+        assert reply.accepted, reply.reason
+        kinds.append(_done(robot, reply.task_id, timeout_s, "take-off ended"))
+        goal = gri.Waypoint(lat=round(round(home.lat / GRID_DEG) * GRID_DEG + 2 * GRID_DEG, 4),
+                            lon=round(round(home.lon / GRID_DEG) * GRID_DEG, 4), alt=home.alt + 10.0)
+        reply = gcs.send(ROBOT, gri.Goto(waypoints=[goal], speed=5.0))
+        assert reply.accepted, reply.reason
+        kinds.append(_done(robot, reply.task_id, timeout_s, "goto ended"))
+        reply = gcs.send(ROBOT, gri.Land())
+        assert reply.accepted, reply.reason
+        kinds.append(_done(robot, reply.task_id, timeout_s, "landing ended"))
+        landed = robot.wait_state(lambda s: s.airborne is False, timeout_s, "on the ground")
+        robot.wait_state(lambda s: s.stamp >= landed.stamp + watch_s, timeout_s,
+                         f"{watch_s:g} simulated seconds of watching after the landing")
+        end = robot.state
+        return Flight(record=read_record(record), sim_s=end.stamp - sim0, wall_s=time.monotonic() - wall0,
+                      events=kinds)
+    finally:
+        if gcs is not None:
+            gcs.close()
+        la.stop()
+        la.cleanup()
+
+
+def survey_manifest(tmp_path: Path) -> tuple[Path, Path]:
+    """The shipped uav1_lidar_sim.toml in lockstep, its DSP simulator recording, the lidar logs in ``tmp_path``."""
+    text = (ROOT / "bbcs_conf" / "uav1_lidar_sim.toml").read_text()
+    text = text.replace('conf = "uav1.conf"', f'conf = "{ROOT / "bbcs_conf" / "uav1.conf"}"')
+    record = tmp_path / "dsp.jsonl"
+    dsp = '"--tcp", "127.0.0.1:{port:dsp}"'
+    assert dsp + "]" in text, "the DSP simulator's command line in uav1_lidar_sim.toml changed"
+    text = text.replace(dsp + "]", f'{dsp}, "--record", "{record}"]')
+    text = text.replace("params = { ldmrs_host", f'params = {{ out_dir = "{tmp_path / "lidar"}", ldmrs_host')
+    if "lockstep = true" not in text:
+        text = text.replace("\n[bus]\n", "\n[sim]\nlockstep = true\n\n[bus]\n", 1)
+    path = tmp_path / "uav1_lidar_sim.toml"
+    path.write_text(text)
+    return path, record
+
+
+def fly_survey(tmp_path: Path, *, timeout_s: float = 300.0) -> Flight:
+    """Take-off, the survey of test_gcs_survey's polygon (0.0007 x 0.0008 degrees: 62 m x 89 m) at 25 m with
+    10 % overlap, landing, on uav1_lidar_sim.toml at ``--speed max``."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    manifest, record = survey_manifest(tmp_path)
+    la = Launch(manifest, tmp_path, "--speed", "max")
+    gcs = None
+    try:
+        la.wait_line("modules up", 150)
+        gcs = connect(la.port, "surveyor")
+        robot = SimRobot(la, gcs, record)
+        first = robot.wait_state(lambda s: s.link == "up" and s.position is not None and "survey" in s.available,
+                                 timeout_s, "a GRI state with position and the survey task")
+        wall0, sim0 = time.monotonic(), first.stamp
+        kinds = []
+        for task in (gri.TakeOff(height=10.0), t.Survey(polygon=POLYGON, height=25.0, overlap=0.1), gri.Land()):
+            reply = gcs.send(ROBOT, task)
+            assert reply.accepted, reply.reason
+            kinds.append(_done(robot, reply.task_id, timeout_s, f"{type(task).__name__} ended"))
+        landed = robot.wait_state(lambda s: s.airborne is False, timeout_s, "on the ground")
+        return Flight(record=read_record(record), sim_s=landed.stamp - sim0, wall_s=time.monotonic() - wall0,
+                      events=kinds)
+    finally:
+        if gcs is not None:
+            gcs.close()
+        la.stop()
+        la.cleanup()
