@@ -145,10 +145,6 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         endpoint.close()
         return 2
-    session = stepper = None
-    if settings is not None:
-        session = open_session(SessionConfig(mode="client", connect=settings.connect))
-        stepper = Stepper(session, settings.robot, deadline_s=settings.deadline_s)
     sim = DspSimulator(
         endpoint, params=DspParams(home_lat=home_lat, home_lon=home_lon, home_alt=home_alt,
                                    takeoff_height=args.takeoff_height),
@@ -157,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
         baud=args.baud, tx_faults=faults.get("tx"), rx_faults=faults.get("rx"), record_path=args.record,
         fail_at=args.fail, seed=args.seed,
         bad_telemetry=bad_telemetry, truth=truth,
-        stepper=stepper, frame_s=settings.step_s if settings else 0.1,
+        frame_s=settings.step_s if settings else 0.1,
         speed=lockstep_speed(settings, args.time_scale) if settings else args.time_scale)
 
     def on_signal(signum: int, frame: object) -> None:
@@ -168,6 +164,11 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, on_signal)
     url = endpoint.path if isinstance(endpoint, PtyEndpoint) else f"socket://{endpoint.host}:{endpoint.port}"
     print(url, flush=True)
+    session = stepper = None
+    if settings is not None:  # after the readiness line: the DSP module may connect while the bus session opens
+        session = open_session(SessionConfig(mode="client", connect=settings.connect))
+        stepper = Stepper(session, settings.robot, deadline_s=settings.deadline_s)
+        sim.use_stepper(stepper)
     timer = threading.Timer(args.duration, sim.stop) if args.duration > 0 else None
     if timer is not None:
         timer.daemon = True

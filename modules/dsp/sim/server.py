@@ -124,7 +124,7 @@ class DspSimulator:
         """Bytes read from / written to the PC now on the line (since it connected): lockstep compares them."""
         self._line_client = 0
         if stepper is not None:
-            stepper.barrier.check = self._line_settled
+            self.use_stepper(stepper)
         self._clock = clock
         self._rng = np.random.default_rng(seed)
         self._parser = FrameParser(PC_TO_DSP_LENGTHS)
@@ -184,6 +184,11 @@ class DspSimulator:
             self._record.close()
         if self.truth is not None:
             self.truth.close()
+
+    def use_stepper(self, stepper: Stepper) -> None:
+        """Step on this lockstep barrier (before ``run``): frames of ``frame_s``, the DSP line checked."""
+        self.stepper = stepper
+        stepper.barrier.check = self._line_settled
 
     # --- observation ---------------------------------------------------------------------------------------
 
