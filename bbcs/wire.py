@@ -18,7 +18,7 @@ from typing import Any
 import msgspec
 import zenoh
 
-from bbcs import keys
+from bbcs import bounded, keys
 from bbcs.codec import encode, type_name
 
 MSGPACK = "application/msgpack"
@@ -49,17 +49,18 @@ def answer_in_thread(query: zenoh.Query, key: Any, decoder: msgspec.msgpack.Deco
                      handle: Callable[[Any], msgspec.Struct], invalid: Callable[[str], msgspec.Struct],
                      name: str) -> None:
     """Decode ``query``'s payload, ``handle`` it and reply on ``key``, on a thread of its own: for handlers too slow
-    for Zenoh's thread (a slow callback stalls the link's other subscriptions). A payload that does not decode is
-    answered with ``invalid(reason)``."""
+    for Zenoh's thread (a slow callback stalls the link's other subscriptions). A payload that does not decode, or
+    is too large or too deeply nested to try (:mod:`bbcs.bounded`), is answered with ``invalid(reason)``; the query
+    is dropped (finalised) whatever happens, so no refused request is left pending in the process."""
 
     def run() -> None:
         try:
-            request = decoder.decode(query.payload.to_bytes() if query.payload is not None else b"")
-        except msgspec.MsgspecError as exc:
-            value = invalid(str(exc))
-        else:
-            value = handle(request)
-        try:
+            try:
+                request = bounded.decode(decoder, query.payload.to_bytes() if query.payload is not None else b"")
+            except (msgspec.MsgspecError, RecursionError) as exc:
+                value = invalid(str(exc))
+            else:
+                value = handle(request)
             reply(query, key, value)
         finally:
             query.drop()

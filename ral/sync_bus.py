@@ -22,7 +22,7 @@ import msgspec
 import zenoh
 import zenoh.ext
 
-from bbcs import keys, wire
+from bbcs import bounded, keys, wire
 from bbcs.contracts import gri
 from bbcs.contracts import sync as s
 from bbcs.contracts import tasks as t
@@ -51,7 +51,7 @@ class ClockService:
     def _on_probe(self, query: zenoh.Query) -> None:
         t2 = self.clock()
         try:
-            probe = _probe_decoder.decode(query.payload.to_bytes() if query.payload is not None else b"")
+            probe = bounded.decode(_probe_decoder, query.payload.to_bytes() if query.payload is not None else b"")
         except msgspec.MsgspecError:
             return  # not a probe: no answer (the asker times out)
         echo = s.ClockEcho(robot=self.robot, t1=probe.t1, t2=t2, t3=self.clock())

@@ -20,7 +20,7 @@ from typing import Literal
 
 import msgspec
 
-from bbcs import keys
+from bbcs import bounded, keys
 from bbcs.contracts.mri import ErrorEvent, ModuleStatus
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.tasks import (
@@ -232,8 +232,9 @@ def encode(value: msgspec.Struct) -> bytes:
 
 
 def decode_request(payload: bytes) -> TaskRequest:
-    """Decode = validate: msgspec.ValidationError says which field is wrong and why."""
-    return _request_decoder.decode(payload)
+    """Decode = validate: msgspec.ValidationError says which field is wrong and why; a request too large or too
+    deeply nested is refused before decoding (bbcs.bounded.RequestRefused, a msgspec.DecodeError)."""
+    return bounded.decode(_request_decoder, payload)
 
 
 def decode_reply(payload: bytes) -> TaskReply:

@@ -22,7 +22,7 @@ from typing import Literal
 import msgspec
 import zenoh
 
-from bbcs import keys
+from bbcs import bounded, keys
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.safety import Severity
 from bbcs.contracts.tasks import Origin, TaskInfo, TaskParams
@@ -207,7 +207,8 @@ def mri_key(robot: str, verb: str) -> str:
 
 
 def decode_request(payload: bytes) -> MriRequest:
-    return _request_decoder.decode(payload)
+    """Decode = validate; too large or too deep is refused first (bbcs.bounded.RequestRefused)."""
+    return bounded.decode(_request_decoder, payload)
 
 
 def encode(value: msgspec.Struct) -> bytes:
