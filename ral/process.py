@@ -75,6 +75,11 @@ HARMLESS_CODES = frozenset({FORWARDED_DSP_ERROR_BASE + LinkErrorCode.FLUSHED})
 """Module errors that do not affect a running task (unsent commands dropped because an abort overtook them)."""
 MANAGER_STALE_S = 3.0
 TASKS_REFRESH_S = 1.0
+RESTART_REPLY_S = 4.0
+"""A module restart is answered within this, below a ground station's default 5 s wait: as the manager confirmed
+it by then, else as under way (its outcome follows as a ``module_restarted`` event or an error)."""
+RESTART_CONFIRM_S = 60.0
+"""How long the manager's confirmation of a restart is awaited (it answers once the module is up and linked)."""
 
 
 class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
@@ -830,12 +835,62 @@ class Ral(Module):
             self._jobs.put(self._ask_own_restart)
             self.emit("module_restarted", detail=f"{module}: restarting itself, it answers again once up")
             return gri.TaskReply(accepted=True, reason=f"{module} restarts now: it answers again once up")
-        reply = self._mri("module", mri.ModuleCommand(module=module, action="restart"))
+        with self.lock:
+            ms = self._manager_state
+            known = sorted(m.name for m in ms.modules) if ms is not None else []
+        if known and module not in known:
+            return gri.TaskReply(accepted=False, reason=f"restart {module}: no module {module!r} on robot "
+                                                        f"{self.robot} (modules: {', '.join(known)})")
+        # the manager answers once the module is up and linked, which can take longer than a station waits: asked
+        # from a thread of its own (the worker stays free for an abort), answered as confirmed or as under way
+        answered = threading.Event()
+        outcome: dict[str, Any] = {"waiting": True}
+        guard = threading.Lock()
+
+        def ask() -> None:
+            reply = self._restart_call(module)
+            with guard:
+                outcome["reply"] = reply
+                if outcome["waiting"]:
+                    answered.set()
+                    return
+            self._restart_outcome(module, reply)
+
+        threading.Thread(target=ask, name=f"ral.restart.{module}", daemon=True).start()
+        answered.wait(RESTART_REPLY_S)
+        with guard:
+            outcome["waiting"] = False
+            if "reply" not in outcome:
+                return gri.TaskReply(accepted=True, reason=(
+                    f"restart {module} under way: not confirmed by the Module Manager within {RESTART_REPLY_S:g} s; "
+                    "a module_restarted event (or an error) says how it ended"))
+        reply = outcome["reply"]
         if reply is None or not reply.ok:
             reason = "Module Manager did not answer" if reply is None else reply.reason
             return gri.TaskReply(accepted=False, reason=f"restart {module}: {reason}")
         self.emit("module_restarted", detail=module)
         return gri.TaskReply(accepted=True)
+
+    def _restart_call(self, module: str) -> mri.MriReply | None:
+        """The manager's answer to a restart of ``module`` (None: none within ``RESTART_CONFIRM_S``)."""
+        assert self.session is not None
+        try:
+            reply = mri.call(self.session, self.robot, "module", mri.ModuleCommand(module=module, action="restart"),
+                             RESTART_CONFIRM_S)
+        except mri.MriError:
+            return None
+        self._sync_list(reply.data)
+        return reply
+
+    def _restart_outcome(self, module: str, reply: mri.MriReply | None) -> None:
+        """A restart the station was told was under way has ended: say how (event, or an error on the GRI)."""
+        if reply is not None and reply.ok:
+            self.emit("module_restarted", detail=f"{module} (confirmed after the reply)")
+        elif reply is None:
+            self._record_error(RalErrorCode.MRI_NO_REPLY, f"restart {module}: the Module Manager did not confirm it "
+                                                          f"within {RESTART_CONFIRM_S:g} s")
+        else:
+            self._record_error(RalErrorCode.MRI_REFUSED, f"restart {module}: {reply.reason}")
 
     def _ask_own_restart(self) -> None:
         """Ask the manager to restart this RAL without waiting for its answer: the answer comes once the new RAL is

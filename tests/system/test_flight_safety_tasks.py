@@ -152,10 +152,11 @@ def finished(robot: SimRobot, reply: gri.TaskReply, timeout_s: float, after: int
                             f"task {reply.task_id} ended", after=after)
 
 
-def assert_quiet(robot: SimRobot, truth: Truth, what: str) -> VehicleTruth:
-    """For ``QUIET_S`` after ``what``: nothing reaches the DSP, the aircraft stays where it is; returns where."""
+def assert_quiet(robot: SimRobot, truth: Truth, what: str, mark: int) -> VehicleTruth:
+    """From the record's ``mark`` (taken when ``what`` ended) for ``QUIET_S``: nothing reaches the DSP; and the
+    aircraft, once settled, stays where it is. Returns where."""
     time.sleep(2.0)  # the task's end reaches the GRI with the manager's state; let the aircraft settle first
-    mark, seen, at = len(robot.commands()), truth.mark(), truth.latest()
+    seen, at = truth.mark(), truth.latest()
     time.sleep(QUIET_S)
     sent = robot.commands()[mark:]
     assert sent == [], f"after {what}, with no task running, the DSP received {names(sent)}"
@@ -178,7 +179,7 @@ def test_after_a_landing_nothing_is_sent_and_the_aircraft_stays_down(fly: Callab
     start = len(robot.events)
     done = finished(robot, robot.gcs.send(ROBOT, t.Land()), 60, start)
     assert done.kind == "task_completed", done
-    ground = assert_quiet(robot, truth, "the landing")
+    ground = assert_quiet(robot, truth, "the landing", len(robot.commands()))
     assert ground.alt - ground.home[2] < 0.5, "on the ground"
 
 
@@ -198,8 +199,9 @@ def test_a_four_waypoint_goto_111_m_apart_completes_and_nothing_follows(fly: Cal
     done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=square)), 150, start)
     flown_s = time.monotonic() - began
     assert done.kind == "task_completed", f"{done} after {flown_s:.0f} s"
+    mark = len(robot.commands())
     assert flown_s > 30.0, "the square took longer than stall_s: the judge saw its progress"
-    at = assert_quiet(robot, truth, "the goto")
+    at = assert_quiet(robot, truth, "the goto", mark)
     assert abs(at.alt - square[-1].alt) < 2.0, f"held at the goto's altitude, not {at.alt - at.home[2]:.1f} m"
 
 
@@ -215,6 +217,8 @@ def test_a_restarted_ral_flies_a_goto_and_the_return_lands_at_home(fly: Callable
         home = up.home
         assert home is not None and up.position is not None
         # the station is told the truth when it restarts the RAL: accepted, not silence ("denied by policy")
+        unknown = robot.gcs.restart(ROBOT, "nosuch")
+        assert not unknown.accepted and "modules: dsp, pan_tilt" in unknown.reason, unknown
         ral_pid = ral_status(robot).pid  # type: ignore[union-attr]
         reply = robot.gcs.restart(ROBOT, "ral")
         assert reply.accepted and "restarts" in reply.reason, reply
@@ -249,6 +253,7 @@ def test_a_restarted_ral_flies_a_goto_and_the_return_lands_at_home(fly: Callable
     landed = robot.wait_event(lambda e: e.task_id == land.task_id and e.kind != "task_accepted", 60,
                               "landed", after=start)
     assert landed.kind == "task_completed", landed
+    landed_mark = len(robot.commands())
     sent = robot.commands()[mark:]
     added = [c["fields"] for c in sent if c["name"] == "ADD_WAYPOINT"]
     assert [round(a["alt"]) for a in added] == [round(home.alt + RETURN_HEIGHT)] * 2, added
@@ -258,5 +263,5 @@ def test_a_restarted_ral_flies_a_goto_and_the_return_lands_at_home(fly: Callable
     mid = [s for s in flown if 15.0 < horizontal_m(s, home.lat, home.lon) < 30.0 and s.vel_neu[2] > -0.5]
     assert mid and all(abs(s.alt - home.alt - RETURN_HEIGHT) < 2.0 for s in mid[-5:]), \
         "flew home at the return height"
-    ground = assert_quiet(robot, truth, "the return's landing")
+    ground = assert_quiet(robot, truth, "the return's landing", landed_mark)
     assert horizontal_m(ground, home.lat, home.lon) < 8.0 and ground.alt - home.alt < 0.5, "down at home"
