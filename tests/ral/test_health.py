@@ -262,3 +262,12 @@ class _Goto:
 
 
 ROBOT_GOTO = _Goto()
+
+
+def test_the_rals_conf_check_reports_the_health_group() -> None:
+    """``cromat conf check`` / ``launch --check`` call ``Ral.conf_errors``: a HEALTH mistake is among them."""
+    from ral.process import Ral
+
+    doc = parse_conf("MAX_SPEED: 4\nHEALTH: limits {\n  spin_s = 0\n}\n", "uquad9.conf")
+    errors = Ral.conf_errors(doc)
+    assert [(e.line, "spin_s" in str(e)) for e in errors] == [(3, True)]
