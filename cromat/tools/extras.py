@@ -7,7 +7,8 @@ import importlib.util
 NEEDS: dict[str, tuple[str, ...]] = {
     "record": ("mcap",),
     "replay": ("mcap",),
-    "foxglove": ("foxglove",),
+    "foxglove": ("foxglove", "websockets"),
+    "bag": ("mcap",),
 }
 
 

@@ -13,6 +13,9 @@ telemetry (any ``bbcs.contracts.robot:RobotTelemetry`` slot, else the GRI state)
 
 With each scan the ``tf`` channel also gets the scanner's mounting, ``<robot>/base_link`` → ``<robot>/lidar``, so
 the points sit under the vehicle in the 3D panel.
+
+The public port speaks ``foxglove.websocket.v1`` (the open protocol: ``@foxglove/ws-protocol``, Lichtblick) as well
+as the SDK's ``foxglove.sdk.v1``/``v1.1`` (:mod:`cromat.tools.foxglove_relay`).
 """
 
 from __future__ import annotations
@@ -70,6 +73,7 @@ from cromat.tools.foxglove_convert import (  # noqa: E402
     point_cloud_data,
     zyx_quaternion,
 )
+from cromat.tools.foxglove_relay import FoxgloveRelay  # noqa: E402
 from cromat.tools.progress import StatusLine
 
 TELEMETRY_TYPE = "bbcs.contracts.robot:RobotTelemetry"
@@ -270,19 +274,20 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a signal handler
     ctx = foxglove.Context()
     server = None
+    relay: FoxgloveRelay | None = None
     bridge = None
     writer = None
     try:
         catalog = discover(session, args.robot, args.timeout)
         try:
-            server = foxglove.start_server(name=f"cromat {args.robot}", host=args.host, port=args.port,
-                                           context=ctx)
+            server = foxglove.start_server(name=f"cromat {args.robot}", host="127.0.0.1", port=0, context=ctx)
+            relay = FoxgloveRelay(args.host, args.port, server.port)
         except Exception as exc:
             raise ToolError(f"cannot start the Foxglove WebSocket server on {args.host}:{args.port}: {exc}") from None
         if args.mcap:
             writer = foxglove.open_mcap(args.mcap, allow_overwrite=True, context=ctx)
         bridge = Bridge(session, catalog, selections, ctx)
-        print(f"foxglove bridge: ws://{args.host}:{server.port} ({', '.join(selections)}); in Foxglove: "
+        print(f"foxglove bridge: ws://{args.host}:{relay.port} ({', '.join(selections)}); in Foxglove: "
               "Open connection > Foxglove WebSocket", file=out, flush=True)
         status = StatusLine()
         end = time.monotonic() + args.duration if args.duration > 0 else float("inf")
@@ -295,6 +300,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         restore_signals()
         if bridge is not None:
             bridge.close()
+        if relay is not None:
+            relay.stop()
         if server is not None:
             server.stop()
         if writer is not None:
