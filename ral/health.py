@@ -11,7 +11,7 @@ the telemetry's own stamps (pure: no bus, no clock of its own):
 - ``off_path`` (error): farther than ``max_off_m`` for ``off_s`` from where the running movement task keeps the
   robot (the path from where the task started through its waypoints, the column above a take-off or landing, a
   hold's point);
-- ``spin`` (critical): the heading turning faster than ``max_yaw_rate_dps`` on average over ``spin_s``.
+- ``spin`` (critical): airborne, the heading turning faster than ``max_yaw_rate_dps`` on average over ``spin_s``.
 
 Each detector reports once per episode (again only after its condition has been clear for ``clear_s``). The first
 fault of an episode, while airborne, asks for the robot's health action (``action_critical`` or ``action_error``:
@@ -204,7 +204,7 @@ class HealthMonitor:
 
     def _spin(self, tel: RobotTelemetry) -> str | None:
         heading = tel.heading_deg if tel.heading_deg is not None else (tel.attitude.yaw if tel.attitude else None)
-        if heading is None or not math.isfinite(heading):
+        if heading is None or not math.isfinite(heading) or not tel.airborne:  # carried or set up on the ground
             self._headings.clear()
             return None
         h = self._headings

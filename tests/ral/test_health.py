@@ -179,6 +179,9 @@ def test_heading_spinning_across_north_is_found_and_a_turn_is_not() -> None:
     faults = run(mon, spin)
     assert [(f.detector, f.severity) for f in faults] == [("spin", Severity.CRITICAL)]
     assert 3.0 < faults[0].stamp <= 4.0 and "heading turning" in faults[0].detail
+    on_ground = HealthMonitor(HealthConfig(max_yaw_rate_dps=120.0, spin_s=1.0))
+    turned_by_hand = [tel(k * 0.1, heading=(90.0 - 30.0 * k) % 360.0, airborne=False) for k in range(12)]
+    assert run(on_ground, turned_by_hand) == []
 
 
 # ---------------------------------------------------------------- episodes and actions
