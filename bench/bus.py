@@ -523,6 +523,9 @@ def main() -> None:
                         "ping-pong on 127.0.0.1) in the same run")
     p.add_argument("--secure", action="store_true",
                    help="also measure small slots under mTLS and the access policy, links = router vs peers")
+    p.add_argument("--out", help="result file (default bench/results/bus.json)")
+    p.add_argument("--smoke", action="store_true",
+                   help="one round of 50 pings and 2000 messages (200 of 32 kB): proves the bench still runs (CI)")
     p.add_argument("--role", help=argparse.SUPPRESS)
     p.add_argument("--mode", help=argparse.SUPPRESS)
     p.add_argument("--size", default="small", help=argparse.SUPPRESS)
@@ -530,6 +533,8 @@ def main() -> None:
     p.add_argument("--count", type=int, help=argparse.SUPPRESS)
     p.add_argument("--tag", default="t", help=argparse.SUPPRESS)
     args = p.parse_args()
+    if args.smoke:
+        args.rounds, args.pings, args.messages = 1, 50, 2000
     if args.role in ("udp_echo", "udp_ping"):
         udp_role(args)
         return
@@ -586,7 +591,8 @@ def main() -> None:
                 for mode in MODES if size == "small" else ("raw", "bbcs"):
                     lat.setdefault((mode, size), []).extend(
                         latency_run(port, mode, size, args.pings, f"l{rnd}{size}{mode}"))
-            for size, count in (("small", args.messages), ("32k", max(5000, args.messages // 10))):
+            scans = 200 if args.smoke else max(5000, args.messages // 10)
+            for size, count in (("small", args.messages), ("32k", scans)):
                 for mode in MODES if size == "small" else ("raw", "bbcs"):
                     thr.setdefault((mode, size), []).append(
                         throughput_run(port, mode, size, count, f"t{rnd}{size}{mode}"))
@@ -638,7 +644,7 @@ def main() -> None:
     print("\n" + "\n".join(f"{k:34} {'n/a' if v is None else f'{v:.3f}'}" for k, v in summary.items()))
     write_results("bus", {"summary": summary, "rows": rows, "notes": summary_notes, "rounds": args.rounds,
                           "pings": args.pings,
-                          "messages": args.messages, "stamp": time.time()})
+                          "messages": args.messages, "stamp": time.time()}, args.out)
 
 
 if __name__ == "__main__":

@@ -121,7 +121,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--no-bytecode-cache", action="store_true",
                     help="children inherit the environment as it is, no warm-up launch (see the module's doc)")
+    ap.add_argument("--out", help="result file (default bench/results/launch.json)")
+    ap.add_argument("--smoke", action="store_true", help="one timed run, no warm-up: proves it runs (CI)")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.runs = 1
     global BYTECODE_CACHE
     BYTECODE_CACHE = not args.no_bytecode_cache
     manifest = Path(args.manifest).resolve()
@@ -134,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     launches, floors, bares = [], [], []
     try:
         wait_port(port, 30)
-        if BYTECODE_CACHE:  # untimed: writes the .pyc files of everything the launch and the floor import
+        if BYTECODE_CACHE and not args.smoke:  # untimed: writes the .pyc files of what the launch and floor import
             cold_start(manifest, f"all {n_modules} modules up")
             floor(m, f"tcp/127.0.0.1:{port}")
         for _ in range(args.runs):
@@ -159,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         "floor_s": floors,
         "bare_import_zenoh_s": bares, "floor_imports": floor_jobs(m),
         "summary": {"cold_start_s": round(cold, 4), "floor_s": round(low, 4), "cold_start_ratio": round(ratio, 3),
-                    "cold_start_ratio_bare": round(ratio_bare, 3)}})
+                    "cold_start_ratio_bare": round(ratio_bare, 3)}}, args.out)
     return 0
 
 

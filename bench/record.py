@@ -163,7 +163,10 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=3.0, help="throughput phase length")
     p.add_argument("--uav-seconds", type=float, default=15.0, help="UAV recording length")
     p.add_argument("--out", help="results file (default bench/results/record.json)")
+    p.add_argument("--smoke", action="store_true", help="0.5 s phases, 1 s of UAV recording: proves it runs (CI)")
     args = p.parse_args()
+    if args.smoke:
+        args.seconds, args.uav_seconds = 0.5, 1.0
     if args.role == "publisher":
         return publisher(args.port, args.seconds)
     procs = Processes()

@@ -125,7 +125,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--colds", type=int, default=10)
     ap.add_argument("--no-standby", action="store_true",
                     help="restart without a warm standby (the same path as a cold start; for comparison)")
+    ap.add_argument("--out", help="result file (default bench/results/restart.json)")
+    ap.add_argument("--smoke", action="store_true", help="2 kills, 1 cold start: proves the bench still runs (CI)")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.kills, args.colds = 2, 1
     tmp = Path(tempfile.mkdtemp(prefix="cromat-bench-restart-"))
     standby = "false" if args.no_standby else "true"
     manifest = write_manifest(tmp, edit=lambda t: t.replace(
@@ -189,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
         "restart_routes_ms": restart["routes"], "restart_datum_ms": restart["datum"], "cold_datum_ms": cold,
         "summary": {"restart_p50_ms": round(r50, 1), "restart_p99_ms": round(r99, 1), "cold_p50_ms": round(c50, 1),
                     "cold_p99_ms": round(pct(cold, 99), 1),
-                    "restart_ratio": round(ratio, 3), "standby": not args.no_standby}})
+                    "restart_ratio": round(ratio, 3), "standby": not args.no_standby}}, args.out)
     return 0
 
 

@@ -111,19 +111,27 @@ class Truth:
             self.lines += [json.loads(line) for line in done if line]
 
 
+def _edit(text: str, old: str, new: str) -> str:
+    if text.count(old) != 1:
+        raise SystemExit(f"{MANIFEST.name} changed: {old!r} is not in it once; bench/uquad.py must follow")
+    return text.replace(old, new)
+
+
 def manifest(tmp: Path, *, speed: float = 1.0, clock: str = "wall", duration_s: float | None = None,
              nice: int = 0) -> Path:
     text = MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{CONF}"')
     extra = f', "--duration", "{duration_s:g}"' if duration_s else ""
-    text = text.replace('"--truth", "127.0.0.1:{port:truth}"]',
-                        f'"--truth", "127.0.0.1:{{port:truth}}", "--speed", "{speed:g}"{extra}]')
-    text = text.replace('controller = "hover" }', f'controller = "hover", clock = "{clock}", nice = "{nice}" }}')
+    # every edit must apply: one that silently missed (the shipped command line grew a --control port) left the
+    # endurance simulator at x1 with no end, and the bench waited for a stop line that never came
+    text = _edit(text, '"--truth", "127.0.0.1:{port:truth}"',
+                 f'"--truth", "127.0.0.1:{{port:truth}}", "--speed", "{speed:g}"{extra}')
+    text = _edit(text, 'controller = "hover" }', f'controller = "hover", clock = "{clock}", nice = "{nice}" }}')
     if nice:  # the simulated physics and the driver too (the simulator cuts the motors after 0.1 s without ESCs)
         for proc in ("modules.uquad.sim", "modules.uquad.motor_driver"):
             text = text.replace(f'command = ["{{python}}", "-m", "{proc}"',
                                 f'command = ["nice", "-n", "{nice}", "{{python}}", "-m", "{proc}"')
     for kind in ("imu_raw", "state", "control"):
-        text = text.replace(f'params = {{ kind = "{kind}" }}', f'params = {{ kind = "{kind}", dir = "{tmp}" }}')
+        text = _edit(text, f'params = {{ kind = "{kind}" }}', f'params = {{ kind = "{kind}", dir = "{tmp}" }}')
     path = tmp / f"uquad1_sim_x{speed:g}.toml"
     path.write_text(text)
     return path
@@ -140,7 +148,7 @@ def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(p - (a + t * ab)))
 
 
-def flight(tmp: Path, side: float, nice: int = 0) -> dict:
+def flight(tmp: Path, side: float, nice: int = 0, timeout_s: float = 180.0) -> dict:
     from bbcs.contracts import gri
     from ral.gcs.api import Gcs, session_config
 
@@ -164,7 +172,7 @@ def flight(tmp: Path, side: float, nice: int = 0) -> dict:
 
         wait(lambda: states and states[-1].position is not None, 60, "calibrated telemetry")
         home_alt = states[-1].position.alt
-        run(gri.TakeOff(height=HEIGHT_M), "take-off", 90)
+        run(gri.TakeOff(height=HEIGHT_M), "take-off", min(90, timeout_s))
         cfg = load_config(CONF)
         local = Home(cfg.home_lat, cfg.home_lon, cfg.home_alt)
         corners = [np.array(c) for c in ((side, 0, HEIGHT_M), (side, side, HEIGHT_M), (0, side, HEIGHT_M),
@@ -175,12 +183,12 @@ def flight(tmp: Path, side: float, nice: int = 0) -> dict:
             waypoints.append(gri.Waypoint(lat=lat, lon=lon, alt=home_alt + HEIGHT_M))
         start = len(truth.lines)
         t0 = time.monotonic()
-        run(gri.Goto(waypoints=waypoints), "square", 180)
+        run(gri.Goto(waypoints=waypoints), "square", timeout_s)
         square_s = time.monotonic() - t0
         path = np.array([line["x"][:3] for line in truth.lines[start:]])
         legs = [(path[0], corners[0])] + [(corners[i], corners[i + 1]) for i in range(3)]
         errors = [min(segment_distance(p, a, b) for a, b in legs) for p in path]
-        run(gri.Land(), "landing", 60)
+        run(gri.Land(), "landing", min(60, timeout_s))
     except (TimeoutError, RuntimeError) as exc:
         failure = f"{exc}; flight module: {' | '.join(re.findall(r'WARNING (error .*)', launch.log('uquad')))}"
         print(f"flight failed: {failure}", file=sys.stderr)
@@ -254,12 +262,16 @@ def main() -> int:
                     help="the flight module's niceness in the real-time flight (negative: higher priority)")
     ap.add_argument("--out", default=None)
     ap.add_argument("--keep", metavar="DIR", default=None, help="keep logs and data files in DIR")
+    ap.add_argument("--smoke", action="store_true",
+                    help="a 1 m square (30 s per step at most), 3 simulated seconds of endurance: proves it runs (CI)")
     args = ap.parse_args()
+    if args.smoke:
+        args.minutes, args.side = 0.05, 1.0
     with tempfile.TemporaryDirectory(prefix="bench-uquad-") as d:
         tmp = Path(args.keep or d)
         tmp.mkdir(parents=True, exist_ok=True)
         base50, base99 = baseline_core_ms()
-        fl = flight(tmp, args.side, args.nice)
+        fl = flight(tmp, args.side, args.nice, 30.0 if args.smoke else 180.0)
         load_flight = float(Path("/proc/loadavg").read_text().split()[0])
         en = endurance(tmp, args.minutes, args.speed, args.nice)
     lat = fl["latencies_ms"]
