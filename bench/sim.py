@@ -31,7 +31,8 @@ SPEEDUP_TARGET = 10.0
 def describe(flight: Flight) -> dict[str, object]:
     return {"sim_s": round(flight.sim_s, 2), "wall_s": round(flight.wall_s, 2),
             "speedup": round(flight.sim_s / flight.wall_s, 2) if flight.wall_s > 0 else None,
-            "commands": len(flight.record), "tasks": flight.events}
+            "commands": len(flight.record), "tasks": flight.events,
+            "cpu_s": {k: round(v, 1) for k, v in sorted((flight.cpu_s or {}).items(), key=lambda kv: -kv[1])}}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -8,6 +8,7 @@ on the wall. Simulated time is read from the GRI state's stamps (the RAL's clock
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -20,7 +21,7 @@ from bbcs.contracts import tasks as t
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
-from launch_support import Launch  # noqa: E402
+from launch_support import Launch, cmdline, group_members  # noqa: E402
 from test_gcs_mission import GRID_DEG, ROBOT, SimRobot, connect, sim_manifest  # noqa: E402
 from test_gcs_survey import POLYGON  # noqa: E402
 
@@ -39,10 +40,30 @@ class Flight:
     wall_s: float
     """Wall seconds for the same."""
     events: list[str]
+    cpu_s: dict[str, float] | None = None
+    """Processor seconds each process of the launch had used by the end (where the time goes)."""
 
     def commands(self) -> list[tuple[str, Any]]:
         """The record as command sequence and fields (its times left out: they are not the contract)."""
         return [(r["name"], r["fields"]) for r in self.record]
+
+
+PROGRAMS = ("modules.", "module_manager.cli", "bbcs.router", "ral")
+
+
+def cpu_by_process(pgid: int) -> dict[str, float]:
+    """Processor seconds (user + system) of every live process in the launch's process group, by what it runs."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out: dict[str, float] = {}
+    for pid in group_members(pgid):
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        argv = cmdline(pid)
+        name = next((a for a in reversed(argv) if a.startswith(PROGRAMS)), " ".join(argv[-2:]))
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
 
 
 def lockstep_manifest(tmp_path: Path) -> tuple[Path, Path]:
@@ -69,7 +90,7 @@ def stop(procs: list[subprocess.Popen]) -> None:
 def _done(robot: SimRobot, task_id: int, timeout_s: float, what: str) -> str:
     event = robot.wait_event(lambda e: e.task_id == task_id and e.kind in ("task_completed", "task_failed"),
                              timeout_s, what)
-    return event.kind
+    return event.kind if event.kind == "task_completed" else f"{event.kind}: {event.detail}"
 
 
 def fly_mission(tmp_path: Path, *, watch_s: float = 20.0, timeout_s: float = 240.0) -> Flight:
@@ -103,7 +124,7 @@ def fly_mission(tmp_path: Path, *, watch_s: float = 20.0, timeout_s: float = 240
                          f"{watch_s:g} simulated seconds of watching after the landing")
         end = robot.state
         return Flight(record=read_record(record), sim_s=end.stamp - sim0, wall_s=time.monotonic() - wall0,
-                      events=kinds)
+                      events=kinds, cpu_s=cpu_by_process(la.pgid))
     finally:
         if gcs is not None:
             gcs.close()
@@ -148,7 +169,7 @@ def fly_survey(tmp_path: Path, *, timeout_s: float = 300.0) -> Flight:
             kinds.append(_done(robot, reply.task_id, timeout_s, f"{type(task).__name__} ended"))
         landed = robot.wait_state(lambda s: s.airborne is False, timeout_s, "on the ground")
         return Flight(record=read_record(record), sim_s=landed.stamp - sim0, wall_s=time.monotonic() - wall0,
-                      events=kinds)
+                      events=kinds, cpu_s=cpu_by_process(la.pgid))
     finally:
         if gcs is not None:
             gcs.close()
