@@ -16,6 +16,7 @@ import sys
 import threading
 
 from bbcs.conf.errors import ConfError
+from bbcs.signing import SigningError, StationSigner
 from cromat.mavlink.dialect import read_key
 from cromat.mavlink.endpoints import QGC_PORT, EndpointError, SerialPort, TcpServer, UdpTarget, parse_host_port
 from cromat.mavlink.gateway import Gateway
@@ -103,9 +104,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         specs = robot_specs(args)
         key = read_key(args.signing_key) if args.signing_key else None
+        signer = StationSigner.from_files(args.cert, args.key) if args.cert and args.key else None
         cfg = session_config(args.connect, ca=args.ca, cert=args.cert, key=args.key, config_file=args.config,
                              connect_timeout_s=args.timeout)
-    except (UsageError, ConfError, ValueError, OSError) as exc:
+    except (UsageError, ConfError, ValueError, OSError, SigningError) as exc:
         print(f"cromat mavlink: {exc}", file=sys.stderr)
         return 2
     except Exception as exc:  # noqa: BLE001 - a manifest error (module_manager's ManifestError) names file:line
@@ -124,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cromat mavlink: {exc}", file=sys.stderr)
         return 3
     gateway = Gateway(gcs, endpoints, specs, discover=args.all or not specs, signing_key=key,
-                      announce=lambda line: print(f"cromat mavlink: {line}", flush=True))
+                      announce=lambda line: print(f"cromat mavlink: {line}", flush=True), signer=signer)
     stop = threading.Event()
 
     def on_signal(*_: object) -> None:

@@ -63,7 +63,8 @@ class _Worker:
 class Gateway:
     def __init__(self, gcs: Gcs, endpoints: Sequence[Endpoint], specs: Sequence[RobotSpec] = (), *,
                  discover: bool = True, signing_key: bytes | None = None, clock: Callable[[], float] = time.monotonic,
-                 retry_s: float = 1.5, announce: Callable[[str], None] = lambda line: None) -> None:
+                 retry_s: float = 1.5, announce: Callable[[str], None] = lambda line: None,
+                 signer: Any = None) -> None:
         """``specs``: robots named by the operator (manifest or flag); ``discover``: also every other robot whose GRI
         state appears (a fleet), each with the next free system id."""
         self.gcs = gcs
@@ -73,6 +74,9 @@ class Gateway:
         self.clock = clock
         self.retry_s = retry_s
         self.announce = announce
+        self.signer = signer
+        """A ``bbcs.signing.StationSigner`` (the station's TLS identity): signs fence edits, which a secured fleet's
+        world model adopts only signed."""
         self.inbox: queue.Queue[tuple[str, Any]] = queue.Queue()
         self.refusals = 0
         self._last_refusal_log: dict[str, float] = {}
@@ -152,10 +156,13 @@ class Gateway:
             v = self._add_vehicle(state.robot)
             if v is None:
                 return
+        first_state = v.state is None
         had_home = v.state is not None and v.state.home is not None
         v.state = state
-        for error in statustext.new_errors(v.seen_errors, state.errors):
-            self._text(v, statustext.error_text(v.robot, error))
+        fresh = statustext.new_errors(v.seen_errors, state.errors)
+        if not first_state:  # the errors listed when the gateway first sees a robot are history, not news
+            for error in fresh:
+                self._text(v, statustext.error_text(v.robot, error))
         if state.home is not None and not had_home:
             v.schedule.due_at.pop("HOME_POSITION", None)
 
@@ -168,7 +175,6 @@ class Gateway:
         enc = Encoder(sysid, self._write, self.out_signing)
         v = Vehicle(spec, sysid, enc, retry_s=self.retry_s)
         v.boot = self.clock()
-        # seen before: errors already in the list are history, not news
         self.vehicles[robot] = v
         self.by_sysid[sysid] = v
         self.workers[robot] = _Worker(robot, self._send_request)
@@ -323,13 +329,15 @@ class Gateway:
             reply = str(exc)
         self.inbox.put(("reply", (robot, command, outcome, partner, reply)))
 
-    def _on_reply(self, robot: str, command: int, outcome: cm.Send | None, partner: mission.Partner,
+    def _on_reply(self, robot: str, command: int, outcome: Any, partner: mission.Partner,
                   reply: gri.TaskReply | str) -> None:
         v = self.vehicles[robot]
         v.pending.discard(command)
         log.info("%s: %s answered %s", robot, pl.command_name(command) if command >= 0 else command, reply)
-        if command == FENCE_JOB:  # reply: "" or the reason
+        if command == FENCE_JOB:  # outcome: the upload; reply: "" or the reason
             result = mav.MAV_MISSION_ACCEPTED if not reply else mav.MAV_MISSION_DENIED
+            if not reply:
+                v.stored[mav.MAV_MISSION_TYPE_FENCE] = outcome.items  # type: ignore[union-attr]
             self._mission_ack(v, partner, result, mav.MAV_MISSION_TYPE_FENCE, str(reply))
             return
         assert outcome is not None
@@ -531,24 +539,25 @@ class Gateway:
         from bbcs.contracts import world as w
         from ral.gcs.fleet_cmd import world_request, world_snapshot
 
-        v = self.vehicles[robot]
         try:
             old = [e.id for e in world_snapshot(self.gcs, robot).entries
                    if e.id.startswith(fence.fence_id(robot, 0)[:-1]) and not e.deleted]
             for entry_id in old:
-                world_request(self.gcs, robot, w.WorldDelete(id=entry_id, author=self.gcs.name))
+                world_request(self.gcs, robot, w.WorldDelete(id=entry_id, author=self.gcs.name), self.signer)
             for put in puts:
-                reply = world_request(self.gcs, robot, put)
+                reply = world_request(self.gcs, robot, put, self.signer)
                 if not reply.accepted:
                     raise GcsError(f"zone {put.id} refused: {reply.reason}")
         except GcsError as exc:
             reason = f"fence upload refused: {exc} (the robot has no world model, or it refused the zone)"
-            self.inbox.put(("reply", (robot, FENCE_JOB, None, a.partner, reason)))
+            self.inbox.put(("reply", (robot, FENCE_JOB, a, a.partner, reason)))
             return
-        v.stored[mav.MAV_MISSION_TYPE_FENCE] = a.items
-        self.inbox.put(("reply", (robot, FENCE_JOB, None, a.partner, "")))
+        self.inbox.put(("reply", (robot, FENCE_JOB, a, a.partner, "")))
 
     def _cleared(self, v: Vehicle, a: mission.Cleared) -> None:
+        if a.mission_type == mav.MAV_MISSION_TYPE_FENCE:  # the vehicle's zones leave the world model
+            self._fence(v, mission.Uploaded(a.partner, [], a.mission_type))
+            return
         if a.mission_type == mav.MAV_MISSION_TYPE_MISSION:
             v.set_plan([], None)
         v.stored.pop(a.mission_type, None)

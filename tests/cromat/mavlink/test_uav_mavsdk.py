@@ -257,6 +257,66 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
     assert [c["name"] for c in robot.commands()[after:]] == []
 
 
+def test_fence_upload_becomes_a_no_fly_zone_the_ral_enforces(site: Site) -> None:
+    from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync
+    from mavsdk.plugins.mission_raw import MissionRawError
+
+    from ral.gcs.fleet_cmd import world_snapshot
+
+    robot = site.robot
+    here = robot.wait_state(lambda s: s.position is not None, 30, "a position").position
+    assert here is not None
+    lat0, lon0 = _grid(here.lat, here.lon)
+    square = [(lat0 + 2 * GRID_DEG, lon0 - GRID_DEG), (lat0 + 2 * GRID_DEG, lon0 + GRID_DEG),
+              (lat0 + 4 * GRID_DEG, lon0 + GRID_DEG), (lat0 + 4 * GRID_DEG, lon0 - GRID_DEG)]
+    fence = [MissionItem(seq=i, frame=0, command=5002, current=0, autocontinue=1, param1=4.0, param2=0.0,
+                         param3=0.0, param4=0.0, x=round(la * 1e7), y=round(lo * 1e7), z=0.0, mission_type=1)
+             for i, (la, lo) in enumerate(square)]
+    across = [MissionItem(seq=0, frame=6, command=16, current=1, autocontinue=1, param1=0.0, param2=0.0, param3=0.0,
+                          param4=0.0, x=round((lat0 + 6 * GRID_DEG) * 1e7), y=round(lon0 * 1e7), z=15.0,
+                          mission_type=0)]
+    texts: list[str] = []
+
+    async def session():  # noqa: ANN202
+        m, system = await _system(site.udp)
+        try:
+            from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+            tel, mission = TelemetryAsync(system), MissionRawAsync(system)
+
+            async def collect() -> None:
+                async for st in tel.subscribe_status_text():
+                    texts.append(st.text)
+
+            collector = asyncio.ensure_future(collect())
+            await mission.upload_geofence(fence)
+            zones = [e for e in world_snapshot(robot.gcs, ROBOT).entries if e.id.startswith("mavlink.") and
+                     not e.deleted]
+            assert [(e.id, type(e.body).__name__) for e in zones] == [("mavlink.uav1.fence0", "NoFlyZone")]
+            await mission.upload_mission(across)  # from here to beyond the zone: its leg crosses it
+            mark = len(robot.commands())
+            with pytest.raises(MissionRawError):
+                await mission.start_mission()
+            await asyncio.sleep(1.0)
+            assert any("no-fly zone" in x for x in texts), texts
+            assert robot.commands()[mark:] == []
+        finally:
+            collector.cancel()
+            m.destroy()
+
+    run_async(session, 90)
+    mav = Mav(site.tcp)  # MISSION_CLEAR_ALL of the fence (pymavlink): the vehicle's zones leave the world model
+    try:
+        mark = mav.mark()
+        mav.mav.mission_clear_all_send(1, 1, 1)
+        ack = mav.wait(mark, "MISSION_ACK", lambda m: m.mission_type == 1, 20)
+        assert ack.type == 0  # MAV_MISSION_ACCEPTED
+    finally:
+        mav.close()
+    gone = [e for e in world_snapshot(robot.gcs, ROBOT).entries if e.id.startswith("mavlink.")]
+    assert gone and all(e.deleted for e in gone)
+
+
 def test_signed_link_refuses_unsigned_forged_and_replayed_commands(site: Site, tmp_path: Path) -> None:
     key = os.urandom(32)
     key_file = tmp_path / "signing.key"
