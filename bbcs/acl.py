@@ -174,6 +174,7 @@ def router_config(
     dsp_senders: list[str] | None = None,
     mesh_robots: list[str] | None = None,
     hubs: list[str] | None = None,
+    revoked: list[str] | None = None,
 ) -> dict[str, Any]:
     """A complete Zenoh router config: ``tls/`` listeners with mTLS and the access policy above.
 
@@ -280,6 +281,7 @@ def router_config(
     everyone = [s["id"] for s in subjects]
     policies.append({"id": "everyone", "subjects": everyone,
                      "rules": ["observe", "history", "history-sub", "read-queries", "deliver"]})
+    _deny_revoked(rules, subjects, policies, revoked)
     config: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
@@ -350,7 +352,7 @@ def peer_ingress_policy(router_access_control: dict[str, Any], router_cn: str, *
 
 
 def hub_config(*, listen: list[str], ca: str, cert: str, key: str, gcs: list[str],
-               robots: list[str]) -> dict[str, Any]:
+               robots: list[str], revoked: list[str] | None = None) -> dict[str, Any]:
     """A hub (ground) router's config: mTLS on ``tls/`` links and its own policy. Ground stations connected to it
     get a ground station's rights on every robot; each robot's router (``router-<robot>``) may write only its own
     robot's keys; everyone observes. The robots' routers (``[bus] peers``) or the hub (``--connect``) may dial."""
@@ -376,6 +378,7 @@ def hub_config(*, listen: list[str], ca: str, cert: str, key: str, gcs: list[str
                          "rules": [f"robot-{name}-write", f"robot-{name}-token"]})
     policies.append({"id": "everyone", "subjects": [s["id"] for s in subjects],
                      "rules": ["observe", "history", "history-sub", "read-queries", "deliver"]})
+    _deny_revoked(rules, subjects, policies, revoked)
     return {
         "mode": "router",
         "listen": {"endpoints": list(listen)},
@@ -387,6 +390,22 @@ def hub_config(*, listen: list[str], ca: str, cert: str, key: str, gcs: list[str
         "access_control": {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
                            "policies": policies},
     }
+
+
+def _deny_revoked(rules: list[dict[str, Any]], subjects: list[dict[str, Any]], policies: list[dict[str, Any]],
+                  revoked: list[str] | None) -> None:
+    """Revoked certificate names (``cromat certs --revoke``: Zenoh's TLS checks no CRL) get nothing: a deny of
+    every message, both ways, on every key any rule names. A deny wins over the allows the same name still has
+    as a listed ground station, so the name stays denied until the router's config is regenerated without it."""
+    names = list(dict.fromkeys(revoked or []))
+    if not names:
+        return
+    for name in names:
+        keys.validate_name(name, "revoked identity")
+    every_key = list(dict.fromkeys(k for r in rules for k in r["key_exprs"]))
+    rules.append(_rule("revoked", ALL_MESSAGES, every_key, permission="deny") | {"flows": ["ingress", "egress"]})
+    subjects.append({"id": "revoked", "cert_common_names": names})
+    policies.append({"id": "revoked", "subjects": ["revoked"], "rules": ["revoked"]})
 
 
 def write(config: dict[str, Any], path: Path) -> None:

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import datetime as dt
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
@@ -119,6 +120,23 @@ class Expired(SignatureRefused):
 
 class Replayed(SignatureRefused):
     pass
+
+
+class NotForThisRobot(SignatureRefused):
+    pass
+
+
+def task_check(robot: str) -> Callable[[msgspec.Struct, FleetTrust, float], str]:
+    """:func:`authenticate`, then refuse a fleet task that names its robots and not ``robot``
+    (:class:`NotForThisRobot`): a captured task is flown only by the robots its station posted it to."""
+
+    def check(item: msgspec.Struct, trust: FleetTrust, now: float) -> str:
+        signer = authenticate(item, trust, now)
+        named: list[str] = getattr(item, "robots", [])
+        if named and robot not in named:
+            raise NotForThisRobot(f"signed for {', '.join(named)}, not for {robot}")
+        return signer
+    return check
 
 
 def default_lifetime_s(item: msgspec.Struct, now: float) -> float:

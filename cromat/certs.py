@@ -49,6 +49,18 @@ from bbcs import acl, keys
 
 CA = "ca"
 CRL = "crl.pem"
+REVOKED_NAMES = "revoked.txt"
+"""Beside ``crl.pem``: the common names of the revoked certificates, one a line. Zenoh's TLS has no CRL setting and
+its policy knows identities by CN only, so a robot's router denies these names everything (bbcs/acl.py ``revoked``)
+and a revoked name is never issued again: the station is re-issued under a new name."""
+
+
+def revoked_names(folder: Path) -> list[str]:
+    """The names in ``folder``'s :data:`REVOKED_NAMES` (none when it has no such file)."""
+    path = folder / REVOKED_NAMES
+    if not path.exists():
+        return []
+    return [line.strip() for line in path.read_text().splitlines() if line.strip()]
 CRL_DAYS = 365
 """The list's ``nextUpdate``: robots do not refuse a list older than this (a robot off the network must not stop
 obeying its stations because the operator's list went stale); informational."""
@@ -196,12 +208,18 @@ def revoke(ca_dir: Path, cert_pem: Path, copies: list[Path], now: dt.datetime | 
         builder = builder.add_revoked_certificate(
             x509.RevokedCertificateBuilder().serial_number(cert.serial_number).revocation_date(now).build())
     data = builder.sign(ca_key, hashes.SHA256()).public_bytes(serialization.Encoding.PEM)
+    names = "".join(f"{n}\n" for n in dict.fromkeys([*revoked_names(ca_dir), *_names_of(cert)]))
     for folder in [ca_dir, *copies]:
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = folder / f".{CRL}.tmp"
-        tmp.write_bytes(data)
-        tmp.replace(folder / CRL)  # whole or not at all: a RAL may read it at any moment
+        for target, content in ((REVOKED_NAMES, names.encode()), (CRL, data)):
+            tmp = folder / f".{target}.tmp"
+            tmp.write_bytes(content)
+            tmp.replace(folder / target)  # whole or not at all: a RAL or a launch may read it at any moment
     return held
+
+
+def _names_of(cert: x509.Certificate) -> list[str]:
+    return [str(a.value) for a in cert.subject.get_attributes_for_oid(x509.oid.NameOID.COMMON_NAME)]
 
 
 def _revoked_file(name: str, ground: Path) -> Path:
@@ -290,7 +308,8 @@ def _hub(args: argparse.Namespace) -> int:
         if args.acl:
             cfg = acl.hub_config(listen=args.listen or ["tls/0.0.0.0:7447"], ca=str((out / "ca.pem").resolve()),
                                  cert=str((out / f"{args.hub}.pem").resolve()),
-                                 key=str((out / f"{args.hub}.key").resolve()), gcs=args.gcs or ["gcs"], robots=robots)
+                                 key=str((out / f"{args.hub}.key").resolve()), gcs=args.gcs or ["gcs"], robots=robots,
+                                 revoked=revoked_names(out))
             acl.write(cfg, Path(args.acl))
     except (CertError, ValueError) as exc:
         print(f"cromat certs: {exc}", file=sys.stderr)
@@ -358,8 +377,9 @@ def main(argv: list[str] | None = None) -> int:
         except (CertError, ValueError) as exc:
             print(f"cromat certs: {exc}", file=sys.stderr)
             return 2
-        print(f"cromat certs: revoked {', '.join(args.revoke)}; revocation list {out / CRL} (copy it to every "
-              f"robot's folder; a running RAL reads it again when it changes)")
+        print(f"cromat certs: revoked {', '.join(args.revoke)}; revocation list {out / CRL} and names "
+              f"{out / REVOKED_NAMES} (copy both to every robot's folder; a running RAL reads the list again when it "
+              f"changes; a robot's router denies the names from its next start: restart it, or relaunch)")
         return 0
     try:
         if (out / f"{CA}.key").exists():
@@ -368,6 +388,10 @@ def main(argv: list[str] | None = None) -> int:
         if ground.resolve() == out.resolve() or ca_dir.resolve() == out.resolve():
             raise CertError("the CA and ground-station folders must not be the robot folder")
         robot_side = [n for n in dict.fromkeys([*local, *modules]) if n not in gcs]
+        again = [n for n in dict.fromkeys([*gcs, *robot_side]) if n in revoked_names(ca_dir)]
+        if again:
+            raise CertError(f"{', '.join(again)}: revoked (listed in {ca_dir / REVOKED_NAMES}); routers deny the name "
+                            f"itself, so issue the station under a new name and list that one in [bus.tls] gcs")
         ca_dir.mkdir(parents=True, exist_ok=True)
         os.chmod(ca_dir, 0o700)
         make_ca(ca_dir, args.ca_name)
@@ -386,6 +410,7 @@ def main(argv: list[str] | None = None) -> int:
                 robot=args.robot,
                 gcs=gcs,
                 modules=[m for m in dict.fromkeys(modules) if m not in ("ral", "manager")],
+                revoked=revoked_names(out),
             )
             acl.write(cfg, Path(args.acl))
     except (CertError, ValueError) as exc:

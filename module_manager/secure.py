@@ -52,10 +52,19 @@ def router_config(manifest: Manifest, listen: list[str]) -> dict[str, Any]:
         key=str(pki / f"{ROUTER}.key"), robot=manifest.robot, gcs=list(tls.gcs), modules=modules,
         ral=ral_module or tls.ral, manager=MANAGER_MODULE, identities=cn,
         controls={n: manifest.modules[n].control_slot for n in modules},
-        mesh_robots=list(tls.mesh_robots), hubs=list(tls.hubs))
+        mesh_robots=list(tls.mesh_robots), hubs=list(tls.hubs), revoked=revoked_names(pki))
     if not tls.acl:
         del cfg["access_control"]
     return cfg
+
+
+def revoked_names(pki: Path) -> list[str]:
+    """The revoked certificate names in the robot folder (``cromat certs --revoke`` writes ``revoked.txt`` beside
+    ``crl.pem``): the router denies them everything (bbcs/acl.py), read at every launch."""
+    path = pki / "revoked.txt"
+    if not path.exists():
+        return []
+    return [line.strip() for line in path.read_text().splitlines() if line.strip()]
 
 
 def write_router_config(manifest: Manifest, listen: list[str], folder: Path) -> Path:

@@ -33,7 +33,7 @@ from bbcs import keys
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetState, FleetTask
-from bbcs.signing import FleetTrust
+from bbcs.signing import FleetTrust, task_check
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from ral.fleet_protocol import Execute, FleetConfig, FleetNode, OwnState
 from ral.signed import ReplayMemory, SignatureGate
@@ -58,9 +58,12 @@ class TaskGate(SignatureGate):
     its validity, and not an older signature of a task id it holds a newer one of
     (:class:`~ral.signed.ReplayMemory`)."""
 
-    def __init__(self, trust: FleetTrust | None, clock: Callable[[], float], remember: int = 1024) -> None:
+    def __init__(self, trust: FleetTrust | None, clock: Callable[[], float], remember: int = 1024,
+                 robot: str | None = None) -> None:
+        # ``robot``: refuse a task signed for other robots (bbcs.signing.task_check, issue 32 item 8)
         super().__init__(trust, clock, "fleet task", remember, logger=log,
-                         replay=ReplayMemory(lambda task: task.id))  # type: ignore[attr-defined]
+                         replay=ReplayMemory(lambda task: task.id),  # type: ignore[attr-defined]
+                         **({"check": task_check(robot)} if robot is not None else {}))
 
     def admit(self, task: FleetTask, source: str, label: str = "") -> bool:  # type: ignore[override]
         return super().admit(task, source, label or task.id)
@@ -78,7 +81,7 @@ class FleetLink:
         self.own = own
         self.fly = fly
         self.clock = clock or time.time
-        self.gate = TaskGate(trust, self.clock)
+        self.gate = TaskGate(trust, self.clock, robot=robot)
         self.lock = threading.Lock()
         self.entities: list[Any] = []
         self.pub: Publisher[FleetState] | None = None

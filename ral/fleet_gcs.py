@@ -60,6 +60,10 @@ class FleetView:
         subscriber (the router tells it once it knows one): a put that reaches the router before any robot's
         subscription does is delivered to no one."""
         if signer is not None:
+            if not task.robots:  # the robots it is for, inside the signature: a capture flies no other one
+                with self.lock:
+                    seen = sorted(self.states)
+                task = msgspec.structs.replace(task, robots=seen)
             task = signer.sign(task, lifetime_s=lifetime_s)
         publisher = self.session.declare_publisher(keys.fleet_task_key(task.id))
         matched = threading.Event()

@@ -31,6 +31,8 @@ from bbcs.contracts.tasks import AltitudeAMSL, Latitude, Longitude
 
 MAX_TARGETS = 200
 FleetId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$")]
+MAX_ROBOTS = 256
+"""Robots one fleet task may name."""
 """Task, target and robot names: one key chunk."""
 
 
@@ -58,6 +60,10 @@ class FleetTask(msgspec.Struct, frozen=True, kw_only=True):
     balance: bool = False
     """Share the targets so that the last robot finishes soonest, not so that the robots fly the least in all
     (an area to survey: ``cromat gcs fleet post --area`` sets it)."""
+    robots: Annotated[list[FleetId], msgspec.Meta(max_length=MAX_ROBOTS)] = []
+    """The robots the task is for (inside the signed bytes): a secured robot not named here never adopts it, so a
+    captured task is not flown by a robot the station did not post it to (a new one). ``cromat gcs fleet post``
+    names the robots the station sees; empty: any robot (an unsecured fleet)."""
     signed_at: float = 0.0
     """When the ground station signed it (seconds since the epoch, its clock); 0: not signed."""
     valid_until: float = 0.0

@@ -35,5 +35,5 @@ def signed_bytes(item: msgspec.Struct) -> bytes:
     floats as float64, so a struct decoded from the wire gives back the bytes its signer signed, provided both sides
     use the same struct; a field added later changes the bytes (old and new robots then refuse each other's items,
     loudly, rather than trust fields they cannot see). Two signed types never share bytes: their arrays differ in
-    length or in the type of their elements (a fleet task has eight fields, a zone edit five)."""
+    length or in the type of their elements (a fleet task has nine fields, a zone edit five)."""
     return msgspec.msgpack.encode([getattr(item, f) for f in item.__struct_fields__ if f not in SIGNATURE_FIELDS])
