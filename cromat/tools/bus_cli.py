@@ -23,6 +23,7 @@ from typing import Any, TextIO
 
 import msgspec
 import zenoh
+import zenoh.ext
 from msgspec.json import schema as json_schema
 
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
@@ -70,9 +71,16 @@ def build_parser() -> argparse.ArgumentParser:
 class Feed:
     """Subscribers on key expressions whose samples go to one queue (the callback only enqueues)."""
 
-    def __init__(self, session: zenoh.Session, selections: list[str]) -> None:
+    def __init__(self, session: zenoh.Session, selections: list[str], *, latched: bool = False) -> None:
+        """``latched``: also the last value of every safe state slot, kept by its publisher (as ``record`` gets
+        it): a mode or an error published before the tool started is shown at once."""
         self.queue: queue.SimpleQueue[tuple[str, bytes, str, int | None, float]] = queue.SimpleQueue()
-        self._subs = [session.declare_subscriber(sel, self._on_sample) for sel in selections]
+        if latched:
+            self._subs = [zenoh.ext.declare_advanced_subscriber(
+                session, sel, self._on_sample, history=zenoh.ext.HistoryConfig(detect_late_publishers=True))
+                for sel in selections]
+        else:
+            self._subs = [session.declare_subscriber(sel, self._on_sample) for sel in selections]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         if sample.kind != zenoh.SampleKind.PUT:
@@ -124,6 +132,7 @@ def _deadline(duration: float) -> float:
 def cmd_list(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
     cat = discover(session, args.robot, args.timeout)
     meters: dict[str, RateMeter] = {}
+    encodings: dict[str, str] = {}
     if args.window > 0:
         feed = Feed(session, keyexpr.everything(args.robot))
         end = time.monotonic() + args.window
@@ -132,10 +141,11 @@ def cmd_list(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> i
                 got = feed.get(left)
                 if got is not None:
                     meters.setdefault(got[0], RateMeter(args.window)).add(time.monotonic(), len(got[1]))
+                    encodings.setdefault(got[0], got[2])
         finally:
             feed.close()
         for key in meters:
-            cat.info(key)
+            cat.info(key, encodings.get(key, ""))
     now = time.monotonic()
     if not cat.modules and not meters:
         print(f"nothing alive on robot {args.robot!r} behind this router", file=sys.stderr)
@@ -151,15 +161,32 @@ def cmd_list(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> i
     for robot in cat.robots:
         names = [m.name for (r, _), m in sorted(cat.modules.items()) if r == robot]
         print(f"robot {robot}: {len(names)} modules alive: {', '.join(names)}", file=out)
-    print(f"{'key':<38} {'type':<22} {'kind':<13} {'rate':>8}  writer -> readers", file=out)
+    out.write("\n".join(list_lines(cat, meters, now)) + "\n")
+    return 0
+
+
+LIST_WIDTH = 100
+"""``bus list`` rows fit this many columns: the key's line, then its writer and readers indented below."""
+
+
+def list_lines(cat: Catalog, meters: dict[str, RateMeter], now: float) -> list[str]:
+    """The table of ``bus list``: per key a line (key, type, kind, rate), and ``writer -> readers`` under it,
+    wrapped within :data:`LIST_WIDTH` columns."""
+    import textwrap
+
+    width = min(max((len(k) for k in cat.slots), default=3), 44)
+    lines = [f"{'key':<{width}} {'type':<22} {'kind':<12} {'rate':>9}", f"{'':<4}writer -> readers"]
     for key, s in sorted(cat.slots.items()):
         m = meters.get(key)
-        rate = f"{m.rate(now).hz:7.1f}Hz" if m and m.total > 1 else ("  1 msg " if m else "    -   ")
+        rate = f"{m.rate(now).hz:.1f}Hz" if m and m.total > 1 else ("1 msg" if m else "-")
         kind = f"{s.safety} {s.kind}".strip() or "-"
+        head = f"{key:<{width}} {s.short_type:<22.22} {kind:<12} {rate:>9}"
+        lines.append(head[:LIST_WIDTH])
         number = f"#{s.number} " if s.number is not None else ""
-        print(f"{key:<38} {s.short_type:<22} {kind:<13} {rate:>8}  {number}{','.join(s.writers) or '-'} -> "
-              f"{', '.join(s.readers) or '-'}", file=out)
-    return 0
+        flow = f"{number}{', '.join(s.writers) or '-'} -> {', '.join(s.readers) or '-'}"
+        lines += textwrap.wrap(flow, LIST_WIDTH, initial_indent="    ", subsequent_indent="        ",
+                               break_on_hyphens=False)
+    return lines
 
 
 def cmd_echo(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
@@ -169,8 +196,12 @@ def cmd_echo(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> i
     except Exception as exc:
         raise ToolError(f"{args.selection!r} is not a key expression: {exc}") from None
     robot = selection.split("/")[1] if selection.count("/") >= 1 else "*"
-    decoders = Decoders(discover(session, robot if "@" not in robot else "*", args.timeout))
-    feed = Feed(session, [selection])
+    catalog = discover(session, robot if "@" not in robot and "*" not in robot else "*", args.timeout)
+    decoders = Decoders(catalog)
+    if not catalog.find(selection):
+        print(f"cromat bus echo: no module or service on the bus describes a key matching {selection} "
+              "(`cromat bus list` shows what is); waiting for data on it anyway", file=sys.stderr, flush=True)
+    feed = Feed(session, [selection], latched=True)
     n = 0
     end = _deadline(args.duration)
     try:
@@ -200,6 +231,8 @@ def cmd_echo(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> i
         pass
     finally:
         feed.close()
+    if not n:
+        print(f"cromat bus echo: nothing received on {selection}", file=sys.stderr)
     return 0 if n else 1
 
 
@@ -251,11 +284,22 @@ def cmd_schema(session_factory: Any, args: argparse.Namespace, out: TextIO) -> i
     session = session_factory()
     try:
         cat = discover(session, key.split("/")[1], args.timeout)
+        info = cat.slots.get(key) or cat.info(key)
+        if not info.schema:  # no description: a sample's encoding names its struct (@ral/fleet, a replayed key)
+            feed = Feed(session, [key], latched=True)
+            try:
+                got = feed.get(args.timeout)
+            finally:
+                feed.close()
+            if got is not None:
+                info = cat.info(key, got[2])
     finally:
         session.close()
-    info = cat.slots.get(key) or cat.info(key)
     if not info.schema:
-        raise ToolError(f"no module on the bus describes {key} (is it alive? `cromat bus list` shows what is)", 1)
+        if info.type:
+            raise ToolError(f"{key} carries {info.type}, which is not installed here: no schema to show", 1)
+        raise ToolError(f"no module on the bus describes {key} and nothing arrived on it within {args.timeout:g} s "
+                        "(is it alive? `cromat bus list` shows what is)", 1)
     print(json.dumps({"key": key, "type": info.type, **info.schema}, indent=2), file=out)
     return 0
 

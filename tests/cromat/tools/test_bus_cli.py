@@ -119,3 +119,38 @@ def test_pub_validates_before_sending(uav):
     finally:
         sub.undeclare()
         session.close()
+
+
+def test_echo_shows_the_last_value_of_latched_slots_and_says_when_a_key_is_unknown(uav):
+    """Issue 34 item 3: a safe state slot published before the echo began (the manager's mode slot, a module's
+    mode acknowledgement) is shown at once, from its publisher's cache; a key nobody describes is said."""
+    mode = cromat("bus", "--connect", uav, "echo", "uav1/manager/pan_tilt_mode", "--json", "--count", "1",
+                  "--duration", "10")
+    assert mode.returncode == 0, mode.stderr
+    line = json.loads(mode.stdout)
+    assert line["type"] == "bbcs.contracts.pan_tilt:ModoFuncionamientoPT" and "problem" not in line, line
+    acks = cromat("bus", "--connect", uav, "echo", "uav1/*/mode_ack", "--json", "--duration", "4")
+    assert acks.returncode == 0, acks.stderr
+    acked = {json.loads(x)["key"]: json.loads(x)["data"] for x in acks.stdout.splitlines()}
+    assert acked["cromat/uav1/pan_tilt/mode_ack"]["mode"] == line["data"], (acked, line)  # the mode it answered
+    ghost = cromat("bus", "--connect", uav, "echo", "uav1/nobody/here", "--duration", "1")
+    assert ghost.returncode == 1 and ghost.stdout == ""
+    assert "no module or service on the bus describes a key matching cromat/uav1/nobody/here" in ghost.stderr
+    assert "nothing received on cromat/uav1/nobody/here" in ghost.stderr
+
+
+def test_list_types_every_key_and_fits_100_columns(uav):
+    """Issue 34 item 4: keys typed only by their samples' encoding (the RAL's @ral/world_digest...) show their
+    type, and their schema; every row fits 100 columns."""
+    r = cromat("bus", "--connect", uav, "list", "--robot", "uav1", "--window", "3")
+    assert r.returncode == 0, r.stderr
+    rows = r.stdout.splitlines()
+    assert max(map(len, rows)) <= 100, max(rows, key=len)
+    keyed = [row.split() for row in rows if row.startswith("cromat/")]
+    assert keyed and not [row for row in keyed if row[1] == "?"], [row for row in keyed if row[1] == "?"]
+    undescribed = [row[0] for row in keyed if row[0].startswith("cromat/uav1/@ral/") and row[0] not in (
+        "cromat/uav1/@ral/state", "cromat/uav1/@ral/events")]
+    assert undescribed, rows
+    schema = cromat("bus", "--connect", uav, "schema", undescribed[0])
+    assert schema.returncode == 0, schema.stderr
+    assert json.loads(schema.stdout)["key"] == undescribed[0]
