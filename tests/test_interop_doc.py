@@ -73,3 +73,33 @@ def test_the_encoding_is_documented_as_it_is_sent():
     from bbcs.wire import encoding_for
     assert f"`{encoding_for(gri.GriState)}`" in DOC
     assert "pending" not in DOC.lower()
+
+
+def test_every_ral_key_and_the_discovery_are_documented():
+    """Issue 34 item 9: the keys a client meets besides the described ones (the RAL's sync, world and fleet keys,
+    the manager's mode slots), robot discovery, and how an input's key follows from its route."""
+    from bbcs import keys
+    from bbcs.contracts import sync, world
+
+    table = DOC.split("## Keys")[1].split("\n## ")[0]
+    ral_keys = [f("r").replace("cromat/r/", "cromat/<robot>/") for f in (
+        gri.state_key, gri.events_key, gri.task_key, sync.clock_key, sync.clock_offsets_key, sync.sync_key,
+        world.world_key, world.world_digest_key, world.world_model_key, world.world_request_key,
+        keys.fleet_state_key)]
+    for key in [*ral_keys, "cromat/<robot>/manager/<slot>", "cromat/<robot>/<module>/mode_ack"]:
+        assert f"| `{key}` |" in table, f"{key} has no row in docs/interop.md's key table"
+    assert 'liveliness().get("cromat/*/@alive/ral"' in DOC
+    assert "strict_map_key=False" in DOC and "A task does not need a link" in DOC
+
+
+def test_the_python_snippets_read_as_one_program():
+    """Every ```python block of the page, in order, is one program with no undefined name (a snippet once used
+    ``time`` without importing it); checked by ruff's pyflakes rules."""
+    import subprocess
+    import sys
+
+    blocks = [b.split("```")[0] for b in DOC.split("```python\n")[1:]]
+    program = "\n".join(blocks)
+    r = subprocess.run([sys.executable, "-m", "ruff", "check", "--select", "F821,F822", "--stdin-filename",
+                        "interop_snippets.py", "-"], input=program, capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
