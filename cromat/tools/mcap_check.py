@@ -146,14 +146,17 @@ def _diff(a: dict[int, int], b: dict[int, int], topic: dict[int, str]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    paths = sys.argv[1:] if argv is None else argv
-    if not paths:
-        print("usage: python -m cromat.tools.mcap_check FILE.mcap...", file=sys.stderr)
-        return 2
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m cromat.tools.mcap_check",
+                                description="Check MCAP files strictly (CRCs, chunk indexes, summary statistics, "
+                                            "JSON messages and schemas), as `mcap doctor` would.")
+    p.add_argument("files", nargs="+", metavar="FILE.mcap")
+    args = p.parse_args(argv)
     code = 0
-    for p in paths:
+    for path in args.files:
         try:
-            print(check_mcap(p).line())
+            print(check_mcap(path).line())
         except (McapCheckError, OSError) as exc:
             print(f"{exc}", file=sys.stderr)
             code = 1

@@ -68,3 +68,12 @@ def test_lying_statistics_are_named(tmp_path):
     f.write_bytes(bytes(data))
     with pytest.raises(McapCheckError, match="message_count is 51, the file has 50"):
         check_mcap(f)
+
+
+def test_help_is_help(capsys):
+    """Issue 34 item 7: ``--help`` was taken for a file name (FileNotFoundError)."""
+    import pytest
+
+    with pytest.raises(SystemExit) as done:
+        main(["--help"])
+    assert done.value.code == 0 and "FILE.mcap" in capsys.readouterr().out

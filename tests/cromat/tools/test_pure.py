@@ -83,3 +83,21 @@ def test_yamlish_cuts_packed_arrays_but_json_keeps_them():
     assert "xyz: \"AAAA" in "\n".join(lines) and "(1600 chars; --json prints it whole)" in "\n".join(lines)
     assert all(len(line) < 220 for line in lines)  # the 100-byte layer (136 chars) is short enough to keep
     assert base64.b64decode(msgspec.json.decode(msgspec.json.encode(value))["xyz"]) == xyz
+
+
+class Tree(msgspec.Struct):
+    name: str
+    children: list[Tree] = []
+
+
+def test_inline_refs_gives_the_root_once_and_no_refs():
+    """Issue 34 item 7: the recordings' and the bridge's schemas are inlined: no ``$ref``, no ``$defs``, the
+    root struct not repeated (GriState's was 25.8 KB with a second copy of everything under ``$defs``)."""
+    raw = msgspec.json.schema(gri.GriState)
+    text = msgspec.json.encode(inline_refs(raw)).decode()
+    assert '"$ref"' not in text and '"$defs"' not in text
+    assert len(text) < 1.1 * len(msgspec.json.encode(raw))
+    assert inline_refs(raw)["properties"]["telemetry"]["anyOf"][0]["title"] == "RobotTelemetry"
+    tree = inline_refs(msgspec.json.schema(Tree))  # a struct inside itself: the one reference that must stay
+    assert tree["title"] == "Tree" and tree["properties"]["children"]["items"] == {"$ref": "#/$defs/Tree"}
+    assert tree["$defs"]["Tree"]["properties"]["children"]["items"] == {"$ref": "#/$defs/Tree"}
