@@ -11,8 +11,12 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+# A bench runs as ``python bench/NAME.py``, so bench/ is sys.path[0]: the project's packages must come before it,
+# or a bench's file shadows a package of the same name (bench/control.py hid ``control``, which the DSP and uQuad
+# simulators import, and every bench using them failed). Imported before any project package, by every bench.
+if str(ROOT) in sys.path:
+    sys.path.remove(str(ROOT))
+sys.path.insert(0, str(ROOT))
 RESULTS = ROOT / "bench" / "results"
 
 
