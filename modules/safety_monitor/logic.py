@@ -92,6 +92,8 @@ class MonitorConfig:
     progress_window_s: float = 10.0
     progress_m: float = 2.0
     gri_position_m: float = 5.0
+    gri_lag_s: float = 0.5
+    """How long before its stamp a GRI position may have been measured (the DSP → telemetry module pipeline)."""
     airborne_window_s: float = 2.0
     airborne_height_m: float = 1.0
     """Truth height above which the aircraft is surely airborne (the simulator's flag flips at 0.2 m)."""
@@ -228,15 +230,18 @@ class SafetyMonitor:
         tel = state.telemetry
         if tel is None or tel.position is None or not self.truth:
             return
-        truth = self._truth_at(tel.stamp)
-        if truth is None:
+        # the telemetry's stamp is when the telemetry module converted the DSP's frame, a little after the DSP
+        # measured it: the GRI is right if the aircraft was there at some instant of the lag before its stamp
+        window = [tr for s, tr in self.truth if tel.stamp - self.cfg.gri_lag_s <= s <= tel.stamp + SKEW_S]
+        if not window:
             return
         self.counts["gri_compared"] += 1
-        d = math.hypot(ground_distance_m(tel.position.lat, tel.position.lon, truth.lat, truth.lon),
-                       tel.position.alt - truth.alt)
-        ev = [f"GRI telemetry at {tel.stamp:.2f}: {tel.position.lat:.7f}, {tel.position.lon:.7f}, "
-              f"{tel.position.alt:.1f} m", f"truth then: {truth.lat:.7f}, {truth.lon:.7f}, {truth.alt:.1f} m",
-              f"distance {d:.1f} m (limit {self.cfg.gri_position_m:g} m)"]
+        pos = tel.position
+        d, truth = min(((math.hypot(ground_distance_m(pos.lat, pos.lon, tr.lat, tr.lon), pos.alt - tr.alt), tr)
+                        for tr in window), key=lambda x: x[0])
+        ev = [f"GRI telemetry at {tel.stamp:.2f}: {pos.lat:.7f}, {pos.lon:.7f}, {pos.alt:.1f} m",
+              f"truth nearest to it in the {self.cfg.gri_lag_s:g} s before: {truth.lat:.7f}, {truth.lon:.7f}, "
+              f"{truth.alt:.1f} m", f"distance {d:.1f} m (limit {self.cfg.gri_position_m:g} m)"]
         self._gri_pos = self._episode(self._gri_pos, d > self.cfg.gri_position_m, tel.stamp, 0.0,
                                       Invariant.GRI_TRUTH, "gri_position", Severity.ERROR,
                                       f"the GRI shows the aircraft {d:.1f} m from where it is", ev)

@@ -8,8 +8,6 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from monitor_support import attach_monitor, free_udp_port, send_truth_to  # noqa: E402
 from test_gcs_mission import ROBOT, TIME_SCALE, SimRobot, connect, grid_path, launch_robot  # noqa: E402
@@ -17,21 +15,13 @@ from test_gcs_mission import ROBOT, TIME_SCALE, SimRobot, connect, grid_path, la
 from bbcs import keys
 from bbcs.contracts import dsp as p
 from bbcs.contracts import gri
-from bbcs.contracts.safety import Breach, Invariant, Severity
+from bbcs.contracts.safety import Invariant, Severity
 from bbcs.session import local_client, open_session
 from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import wait_until
 
 WATCH_AFTER_S = 20.0
 """Simulated seconds watched after the last task ends: nothing unrequested may follow."""
-
-
-def issue_30_case_1(b: Breach) -> bool:
-    """A movement command sent after a movement task ended (the manager re-flying the mode before it), or the
-    aircraft below the clearance while that re-flown take-off mode lifts it: issue 30 case 1."""
-    after_end = any(line.startswith("last task ended before it") for line in b.evidence)
-    return (b.kind == "untraced_command" and after_end and "path_follower" in b.evidence[0]) \
-        or b.kind == "below_clearance"
 
 
 def test_monitor_sees_a_clean_flight_and_reports_a_command_with_no_task(tmp_path: Path) -> None:
@@ -83,10 +73,6 @@ def test_monitor_sees_a_clean_flight_and_reports_a_command_with_no_task(tmp_path
             assert "pan_deg=33.0" in injected.evidence[0] and "'pan_tilt'" in injected.evidence[0]
             assert any(line.startswith("tasks running then: none") for line in injected.evidence), injected
 
-            known = [b for b in flight_breaches if issue_30_case_1(b)]
-            if flight_breaches and len(known) == len(flight_breaches):
-                pytest.xfail("issue 30 case 1 (a finished task brings back the one before it): the monitor saw\n"
-                             + "\n".join(b.describe() for b in known))
             monitor.assert_no_breaches(flight_breaches)
     finally:
         if gcs is not None:

@@ -209,6 +209,17 @@ def test_the_gri_where_the_truth_is_agrees() -> None:
     assert run(m, 10) == [] and m.counts["gri_compared"] == 1
 
 
+def test_the_gri_may_show_where_the_aircraft_was_up_to_half_a_second_before_its_stamp() -> None:
+    """The telemetry module stamps a frame a little after the DSP measured it: at 20 m/s, 0.3 s is 6 m."""
+    m = monitor()
+    for i in range(60):
+        truth(m, i / 10, north_m=20.0 * i / 10)
+    m.on_gri_state(6.0, gri(5.0, north_m=20.0 * 4.7))
+    assert run(m, 10) == []
+    m.on_gri_state(6.0, gri(5.0, north_m=20.0 * 4.0))  # 1 s old: 10 m behind the oldest truth it may be
+    assert kinds(run(m, 10)) == ["gri_position"]
+
+
 def test_the_gri_more_than_5_m_off_the_truth_or_wrong_about_airborne_is_a_breach() -> None:
     m = monitor()
     for i in range(60):
