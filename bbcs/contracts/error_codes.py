@@ -18,6 +18,7 @@ from __future__ import annotations
 from enum import IntEnum
 
 from bbcs.contracts.dsp import FORWARDED_DSP_ERROR_BASE, ErrorCode, LinkErrorCode
+from bbcs.contracts.safety import BreachCode
 from bbcs.errors import BusErrorCode
 
 
@@ -153,6 +154,7 @@ MODULE_CODES: dict[str, type[IntEnum]] = {
     "ral": RalErrorCode,
     "uquad": UquadErrorCode,
     "lidar_logger": LidarLoggerError,
+    "safety_monitor": BreachCode,
 }
 """Module name → the enum of its own codes (100-999)."""
 
