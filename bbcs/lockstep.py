@@ -218,6 +218,9 @@ class Barrier:
     round: int = 0
     started: float = 0.0
     members: set[str] = field(default_factory=set)
+    asked: set[str] = field(default_factory=set)
+    """Members present when the current round was asked: one that joins later is waited for from the next round
+    (it never got this round's ask)."""
     behind: dict[str, int] = field(default_factory=dict)
     """Members left behind → the step they were left at."""
     answers: dict[str, Done] = field(default_factory=dict)
@@ -230,6 +233,7 @@ class Barrier:
 
     def begin(self, step: int, now: float) -> None:
         self.step, self.round, self.started, self.warned_at = step, 0, now, now
+        self.asked = set(self.members)
         self.busy_rounds = 0
         self.last = {}
         self.answers.clear()
@@ -240,6 +244,7 @@ class Barrier:
 
     def left(self, member: str) -> None:
         self.members.discard(member)
+        self.asked.discard(member)
         self.behind.pop(member, None)
         self.answers.pop(member, None)
 
@@ -251,7 +256,7 @@ class Barrier:
             self.answers[done.member] = done
 
     def expected(self) -> set[str]:
-        return (self.members | set(self.required)) - set(self.behind)
+        return ((self.asked & self.members) | set(self.required)) - set(self.behind)
 
     def decide(self, now: float) -> Decision:
         expected = self.expected()
@@ -283,6 +288,7 @@ class Barrier:
         delay = min(RETRY_FIRST_S * 2 ** (self.busy_rounds - 1), RETRY_MAX_S) if self.busy_rounds else 0.0
         self.round += 1
         self.answers.clear()
+        self.asked = set(self.members)
         return Decision(Verdict.ASK, self.round, delay,
                         why="; ".join([*(f"{m}: {w}" for m, w in busy.items()), *([unmet] if unmet else [])]))
 

@@ -82,9 +82,9 @@ def test_a_required_member_is_waited_for_without_a_deadline() -> None:
     b = barrier(required=frozenset({MANAGER_MEMBER}))
     assert b.decide(100.0).verdict is Verdict.WAIT  # not even present yet
     b.joined(MANAGER_MEMBER)
+    b.joined("slow")
     b.answer(done(MANAGER_MEMBER, 0, 0, 1, "modules starting"))
     assert b.decide(100.0).verdict is Verdict.ASK  # busy, far past the deadline: still waited for
-    b.joined("slow")
     b.answer(done(MANAGER_MEMBER, 0, 1, 1))
     assert b.decide(104.0).verdict is Verdict.WAIT  # the deadline runs from when the manager stopped holding the step
 
@@ -106,6 +106,18 @@ def test_a_silent_member_is_left_behind_at_the_deadline_and_waited_for_again_onc
     b.answer(done("hung", 1, 1, 3))  # the answer that brings a member back also counts
     b.left("a")
     assert b.decide(6.2).verdict is Verdict.ASK
+
+
+def test_a_member_that_joins_during_a_round_is_waited_for_from_the_next_one() -> None:
+    b = barrier("a")
+    b.joined("late")  # its token came after the round's ask went out: it never got it
+    b.answer(done("a", 0, 0, 1))
+    d = b.decide(0.1)
+    assert d.verdict is Verdict.ASK
+    b.answer(done("a", 0, 1, 1))
+    assert b.decide(0.2).verdict is Verdict.WAIT  # asked this round: its answer is needed
+    b.answer(done("late", 0, 1, 0))
+    assert b.decide(0.2).verdict is Verdict.ASK  # a new member changes the picture: one more quiet round
 
 
 def test_a_member_that_leaves_is_no_longer_waited_for() -> None:

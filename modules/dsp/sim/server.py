@@ -293,7 +293,8 @@ class DspSimulator:
                 if not settled:
                     settled = stepper.poll()
                     continue
-                if frame_wall is not None and self._clock() < next_wall:
+                started = self._clock()
+                if frame_wall is not None and started < next_wall:
                     continue
                 for _ in range(steps):
                     with self._lock:
@@ -302,8 +303,8 @@ class DspSimulator:
                             self.truth.send(self.machine)
                     for msg in out:
                         self._send(msg)
-                if frame_wall is not None:
-                    next_wall = max(next_wall + frame_wall, self._clock() - frame_wall)
+                if frame_wall is not None:  # paced from when this frame started: a late frame is not made up
+                    next_wall = max(next_wall, started) + frame_wall
                 stepper.begin(self.machine.time_s)
                 settled = False
         finally:
