@@ -143,14 +143,15 @@ class SafetyMonitor:
 
     def __init__(self, cfg: MonitorConfig) -> None:
         self.cfg = cfg
-        self.tasks: dict[int, TaskInfo] = {}
+        self.tasks: dict[tuple[float, int], TaskInfo] = {}
+        """(task book epoch, task id) → its latest record: a restarted manager numbers its tasks again."""
         self.book_stamp: float | None = None
         self.sent: deque[_Sent] = deque(maxlen=MAX_SENT)
         """Commands by count, not age: a survey's goal is the last waypoint sent since it started."""
         self._pending: list[_Sent] = []
-        self._verdicts_due: dict[int, float] = {}
-        self._aborts_due: set[int] = set()
-        self._judged_tasks: set[int] = set()
+        self._verdicts_due: dict[tuple[float, int], float] = {}
+        self._aborts_due: set[tuple[float, int]] = set()
+        self._judged_tasks: set[tuple[float, int]] = set()
         self.truth: deque[tuple[float, VehicleTruth]] = deque()
         self.telemetry: deque[_Sample] = deque()
         self.home_alt: float | None = None
@@ -175,19 +176,21 @@ class SafetyMonitor:
         self._pending.append(item)
         self.counts["commands"] += 1
 
-    def on_book(self, now: float, stamp: float, active: Iterable[TaskInfo], ended: Iterable[TaskInfo]) -> None:
+    def on_book(self, now: float, stamp: float, active: Iterable[TaskInfo], ended: Iterable[TaskInfo],
+                epoch: float = 0.0) -> None:
         """The Module Manager's task book (running tasks and the recently ended ones)."""
         self.counts["books"] += 1
         self.book_stamp = stamp if self.book_stamp is None else max(self.book_stamp, stamp)
         for info in [*active, *ended]:
-            old = self.tasks.get(info.id)
+            key = (epoch, info.id)
+            old = self.tasks.get(key)
             if old is not None and old.ended is not None:
                 continue  # an ended record never changes
-            self.tasks[info.id] = info
-            if info.name == "abort" and info.id not in self._judged_tasks:
-                self._aborts_due.add(info.id)
-            if info.ended is not None and info.id not in self._judged_tasks:
-                self._verdicts_due[info.id] = info.ended + self.cfg.verdict_wait_s
+            self.tasks[key] = info
+            if info.name == "abort" and key not in self._judged_tasks:
+                self._aborts_due.add(key)
+            if info.ended is not None and key not in self._judged_tasks:
+                self._verdicts_due[key] = info.ended + self.cfg.verdict_wait_s
 
     def on_telemetry(self, now: float, t: p.Telemetry) -> None:
         """The DSP's telemetry (the position source when no truth flows)."""

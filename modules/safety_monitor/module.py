@@ -145,7 +145,7 @@ class SafetyMonitorModule(Module):
         return on_sample
 
     def _on_book(self, now: float, state: mri.RobotState) -> None:
-        self.monitor.on_book(now, state.stamp, state.tasks, state.ended)
+        self.monitor.on_book(now, state.stamp, state.tasks, state.ended, state.task_epoch)
 
     def _read_truth(self) -> None:
         assert self._truth_sock is not None

@@ -30,6 +30,7 @@ EXTRA: dict[str, list[str]] = {}
 """Arguments beside ``--smoke``, by bench (none yet: ``bus.py --secure`` would double the bus run)."""
 PARALLEL = 3
 RUN_TIMEOUT_S = 110.0
+pytestmark = pytest.mark.timeout(RUN_TIMEOUT_S + 40)  # a test waits for its own run, which may start late
 
 
 def benches() -> list[str]:

@@ -8,6 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from monitor_support import attach_monitor, free_udp_port, send_truth_to  # noqa: E402
 from test_gcs_mission import ROBOT, TIME_SCALE, SimRobot, connect, grid_path, launch_robot  # noqa: E402
@@ -24,6 +26,7 @@ WATCH_AFTER_S = 20.0
 """Simulated seconds watched after the last task ends: nothing unrequested may follow."""
 
 
+@pytest.mark.timeout(240)  # a whole robot launched and flown: 60-110 s at a load of 40-50 on 2 cores
 def test_monitor_sees_a_clean_flight_and_reports_a_command_with_no_task(tmp_path: Path) -> None:
     truth = free_udp_port()
     la, record = launch_robot(tmp_path, edit=send_truth_to(truth))

@@ -122,6 +122,14 @@ def test_start_up_holds_are_traced_only_before_the_first_task() -> None:
     assert b.severity is Severity.WARNING  # a hold nothing asked for: wrong, but it moves nothing
 
 
+def test_a_restarted_manager_numbering_its_tasks_again_is_a_new_book() -> None:
+    m = monitor()
+    book(m, 20.0, task(1, "take_off", 10.0, 15.0, status="completed"))
+    m.on_book(40.0, 40.0, [task(1, "goto", 30.0)], [], epoch=35.0)  # task 1 again, of the new book
+    sent(m, 31.0, p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
+    assert run(m, 50) == [] and len(m.tasks) == 2
+
+
 def test_a_command_is_judged_only_once_the_task_book_could_show_its_task() -> None:
     m = monitor()
     sent(m, 10.1, p.SetMode(mode=p.Mode.PATH_AUTO_HEADING))
