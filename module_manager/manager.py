@@ -258,7 +258,9 @@ class Manager:
         host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))
         if not wait_tcp(host, port, self.m.raw.bus.ready_timeout_s, lambda: self.router.poll() is None):
             raise LaunchError(f"the router did not listen on {host}:{port} within "
-                              f"{self.m.raw.bus.ready_timeout_s:g} s (exit {self.router.poll()})")
+                              f"{self.m.raw.bus.ready_timeout_s:g} s ("
+                              + ("still starting: [bus] ready_timeout_s may be too short for this machine)"
+                                 if (code := self.router.poll()) is None else f"it exited with code {code})"))
         self.out(f"  router      listening on {', '.join(self.listen)}{_on(self.m.raw.bus.cpus)} "
                  f"({self.clock() - t:.2f} s)")
 
