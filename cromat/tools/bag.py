@@ -35,6 +35,10 @@ EPOCH_AFTER = 1e9
 """A ``--start``/``--end`` above this is seconds since the epoch; below, seconds from the recording's start."""
 
 
+MIN_RATE_SPAN_NS = 500_000_000
+"""A channel's rate is shown when its messages span this long (a burst of three in 65 µs is no rate)."""
+
+
 class BagError(RuntimeError):
     """A file cannot be read or the options cannot work; the message says why."""
 
@@ -86,7 +90,7 @@ class BagInfo:
         out.append(f"{'channel':<{width}} {'type':<28} {'encoding':<9} {'messages':>8} {'rate':>9}")
         for c in sorted(self.channels, key=lambda c: c.topic):
             rate = f"{(c.messages - 1) / ((c.last_ns - c.first_ns) / 1e9):.2f}Hz" \
-                if c.messages > 1 and c.last_ns > c.first_ns else "-"
+                if c.messages > 2 and c.last_ns - c.first_ns >= MIN_RATE_SPAN_NS else "-"
             out.append(f"{c.topic:<{width}} {c.type.rpartition(':')[2][:28]:<28} {c.encoding:<9} {c.messages:>8} "
                        f"{rate:>9}")
         return out
