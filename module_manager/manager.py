@@ -810,8 +810,9 @@ class Manager:
         if mod.control is not None:
             mod.control.publish(self._control_value(mod))
 
-    def apply_routes(self, changes: dict[tuple[str, str], int]) -> tuple[bool, str]:
-        """Check every route, then publish the changed modules' CONTROL_ENTRADA and wait for their RouteAcks.
+    def apply_routes(self, changes: dict[tuple[str, str], int], *, wait: bool = True) -> tuple[bool, str]:
+        """Check every route, then publish the changed modules' CONTROL_ENTRADA and wait for their RouteAcks
+        (``wait`` False: a task's routes put back at its end, which no data of the task follows).
 
         All or nothing: a route to a missing slot or a slot of another type refuses the whole change.
         """
@@ -837,7 +838,7 @@ class Manager:
                 mod = self.modules[name]
                 mod.sup.routes_changed()
                 self._publish_control(mod)
-                if mod.sup.phase in (Phase.STARTING, Phase.UP):
+                if wait and mod.sup.phase in (Phase.STARTING, Phase.UP):
                     waiting.append(name)
             self._touch()
         problems = []
@@ -906,7 +907,7 @@ class Manager:
                 if not mode_ok:
                     ok, why, code = False, "; ".join(w for w in (why, mode_why) if w), mode_code
         if ending:
-            routes_ok, routes_why = self.apply_routes(dict(changes.routes))
+            routes_ok, routes_why = self.apply_routes(dict(changes.routes), wait=False)
             if not routes_ok:
                 ok, why = False, "; ".join(w for w in (why, routes_why) if w)
         return ok, why, code
