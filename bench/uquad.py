@@ -263,7 +263,7 @@ def main() -> int:
     ap.add_argument("--out", default=None)
     ap.add_argument("--keep", metavar="DIR", default=None, help="keep logs and data files in DIR")
     ap.add_argument("--smoke", action="store_true",
-                    help="a 1 m square (30 s per step at most), 3 simulated seconds of endurance: proves it runs (CI)")
+                    help="a 1 m square (15 s per step at most), 3 simulated seconds of endurance: proves it runs (CI)")
     args = ap.parse_args()
     if args.smoke:
         args.minutes, args.side = 0.05, 1.0
@@ -271,7 +271,7 @@ def main() -> int:
         tmp = Path(args.keep or d)
         tmp.mkdir(parents=True, exist_ok=True)
         base50, base99 = baseline_core_ms()
-        fl = flight(tmp, args.side, args.nice, 30.0 if args.smoke else 180.0)
+        fl = flight(tmp, args.side, args.nice, 15.0 if args.smoke else 180.0)
         load_flight = float(Path("/proc/loadavg").read_text().split()[0])
         en = endurance(tmp, args.minutes, args.speed, args.nice)
     lat = fl["latencies_ms"]
