@@ -706,7 +706,7 @@ class DspSent(msgspec.Struct, frozen=True, kw_only=True):
     still refuse it (``errors`` says so); a command flushed by an ABORT or refused by ownership never appears."""
 
     sender: str
-    """The command key's sender (``commands_<sender>``), or the batch's own ``sender`` on the shared key."""
+    """The sender its command key names (``commands_<sender>``): who really wrote the batch."""
     batch_id: int
     command: DspCommand
     stamp: float
