@@ -60,6 +60,10 @@ class Catalog:
     slots: dict[str, SlotInfo] = field(default_factory=dict)
     slot_numbers: dict[str, dict[int, str]] = field(default_factory=dict)
     """robot → slot number → key."""
+    docs: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Every ``@schema`` answer as it came, by its key (a recording keeps them so its replay can answer them)."""
+    route_lists: dict[str, mri.RouteList] = field(default_factory=dict)
+    """robot → the manager's ``routes`` answer, as it came."""
 
     @property
     def robots(self) -> list[str]:
@@ -166,13 +170,14 @@ def _schema_docs(session: zenoh.Session, selector: str, timeout_s: float) -> dic
     return docs
 
 
-def _slot_table(session: zenoh.Session, robot: str, timeout_s: float) -> dict[int, str]:
+def _slot_table(session: zenoh.Session, robot: str, timeout_s: float, cat: Catalog) -> dict[int, str]:
     try:
         reply = mri.call(session, robot, "routes", mri.ListRoutes(), timeout_s)
     except mri.MriError:
         return {}
     if not reply.ok or not isinstance(reply.data, mri.RouteList):
         return {}
+    cat.route_lists[robot] = reply.data
     table = {}
     for number, where in reply.data.slots.items():
         module, _, slot = where.partition("/")
@@ -190,9 +195,10 @@ def discover(session: zenoh.Session, robot: str = "*", timeout_s: float = 3.0) -
     for r, m in alive:
         cat.modules[(r, m)] = ModuleInfo(r, m)
     for r in sorted({r for r, _ in alive}):
-        cat.slot_numbers[r] = _slot_table(session, r, timeout_s)
+        cat.slot_numbers[r] = _slot_table(session, r, timeout_s, cat)
     docs: dict[tuple[str, str], dict[str, Any]] = {}
     for key, doc in _schema_docs(session, keys.schema_pattern(robot), timeout_s).items():
+        cat.docs[key] = doc
         r, m = key.split("/")[1:3]
         if (r, m) in cat.modules:
             docs[(r, m)] = doc
@@ -206,6 +212,7 @@ def discover(session: zenoh.Session, robot: str = "*", timeout_s: float = 3.0) -
             entry.writers.append("(manager)")
     for service in (keys.manager_key(robot), keys.ral_key(robot)):
         for key, doc in _schema_docs(session, keys.schema_key_of(service), timeout_s).items():
+            cat.docs[key] = doc
             writer = f"({key.split('/')[2].lstrip('@')})"
             _add_keys(cat, doc, writer)
     for doc in docs.values():

@@ -168,9 +168,11 @@ class Bridge:
     def handle(self, key: str, payload: bytes, stamp_ns: int, encoding: str = "") -> None:
         ch, dec = self.channels.get(key) or self._channel(key, encoding)
         value, _problem = dec.decode(payload)
+        tname = dec.type and f"{dec.type.__module__}:{dec.type.__qualname__}"
+        if tname == GRI_EVENT_TYPE and isinstance(value, dict) and isinstance(value.get("stamp"), float | int):
+            stamp_ns = int(value["stamp"] * 1e9)  # its own time: the RAL's cached events arrive late
         ch.log(msgspec.json.encode(value), log_time=stamp_ns)
         self.bridged += 1
-        tname = dec.type and f"{dec.type.__module__}:{dec.type.__qualname__}"
         if tname == LIDAR_SCAN_TYPE:
             self._scan(self._robot(key), _decode_scan(payload), stamp_ns)
             return

@@ -10,6 +10,7 @@ and what was dropped (samples of safe state slots missed on the bus, data that w
 from __future__ import annotations
 
 import argparse
+import heapq
 import json
 import sys
 import threading
@@ -30,6 +31,15 @@ from cromat.tools.connection import ToolError, add_connection_options, connect
 from cromat.tools.extras import require
 from cromat.tools.progress import StatusLine
 
+REORDER_S = 1.0
+"""Each message waits this long (wall time) before it is written, so the file is in log-time order: the
+subscriptions' threads hand samples over out of order (measured: up to 189 ms back across channels)."""
+START_HOLD_S = 2.0
+"""Nothing is written in the first seconds: the publishers' caches (last values of safe states, the RAL's last
+GRI events, with their own older stamps) are still answering, and go first."""
+GRI_EVENT_TYPE = "bbcs.contracts.gri:GriEvent"
+"""Logged at their own ``stamp``: the RAL's cached events reach a late recorder with the time they arrive."""
+
 FIFO_SAMPLES = 100_000
 """Samples a subscription buffers for its writer thread; when full, Zenoh back-pressures reliable publishers
 (and best-effort ones drop), as for any slow subscriber: memory stays bounded."""
@@ -42,6 +52,8 @@ class ChannelStats:
     """Bytes on the bus (msgpack)."""
     invalid: int = 0
     """Messages that did not validate against the slot's struct (recorded as they decoded)."""
+    late: int = 0
+    """Messages written after a later one (they came more than ``REORDER_S`` after it)."""
 
 
 @dataclass
@@ -59,6 +71,10 @@ class Summary:
         return sum(c.messages for c in self.channels.values())
 
     @property
+    def late(self) -> int:
+        return sum(c.late for c in self.channels.values())
+
+    @property
     def bytes(self) -> int:
         return sum(c.bytes for c in self.channels.values())
 
@@ -66,26 +82,30 @@ class Summary:
         span = max(self.ended - self.started, 1e-9)
         out = [f"recorded {self.messages} messages, {self.bytes} bytes from the bus in {span:.1f} s "
                f"into {len(self.files)} file(s): {', '.join(self.files)}",
-               f"dropped: {self.missed} (missed on the bus), {self.dropped_undecodable} (not msgpack)",
+               f"dropped: {self.missed} (missed on the bus), {self.dropped_undecodable} (not msgpack); "
+               f"{self.late} written out of log-time order (came over {REORDER_S:g} s late)",
                f"{'channel':<42} {'messages':>9} {'bytes':>11} {'invalid':>8}"]
         for key, c in sorted(self.channels.items()):
             out.append(f"{key:<42} {c.messages:>9} {c.bytes:>11} {c.invalid:>8}")
         return out
 
     def as_dict(self) -> dict[str, Any]:
-        return {"files": self.files, "messages": self.messages, "bytes": self.bytes,
+        return {"files": self.files, "messages": self.messages, "bytes": self.bytes, "late": self.late,
                 "missed": self.missed, "dropped_undecodable": self.dropped_undecodable,
                 "channels": {k: msgspec.structs.asdict(c) if isinstance(c, msgspec.Struct) else vars(c)
                              for k, c in self.channels.items()}}
 
 
 class _Channel:
-    __slots__ = ("id", "typed", "stats")
+    __slots__ = ("id", "typed", "stats", "own_stamp")
 
-    def __init__(self, channel_id: int, typed: Callable[[bytes], Any] | None, stats: ChannelStats) -> None:
+    def __init__(self, channel_id: int, typed: Callable[[bytes], Any] | None, stats: ChannelStats,
+                 own_stamp: bool = False) -> None:
         self.id = channel_id
         self.typed = typed
         self.stats = stats
+        self.own_stamp = own_stamp
+        """Messages logged at their own ``stamp`` field (GRI events), not the router's."""
 
 
 class McapSink:
@@ -105,6 +125,12 @@ class McapSink:
         self._channels: dict[str, _Channel] = {}
         self.file_bytes = 0
         self.file_started = 0.0
+        self._pending: list[tuple[int, int, float, str, bytes, str]] = []
+        """Heap of (log time, arrival number, arrival, key, payload, encoding) waiting ``REORDER_S``."""
+        self._arrivals = 0
+        self._last_written = 0
+        self.reorder_s = REORDER_S
+        self._hold_until = time.monotonic() + START_HOLD_S
         self._open()
 
     def _path(self) -> Path:
@@ -121,7 +147,12 @@ class McapSink:
         kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
         self._writer = Writer(self._stream, compression=kind[self.compression])
         self._writer.start(profile=mcapfmt.PROFILE, library="cromat record")
-        self._writer.add_metadata("cromat.recording", {**self.meta, "file_index": str(self.file_index)})
+        self._writer.add_metadata("cromat.recording", {**self.meta, "file_index": str(self.file_index),
+                                                        "started_ns": str(time.time_ns())})
+        # what the bus said of itself, for a replay to say it again (cromat.tools.replay.LiveRobot)
+        self._writer.add_metadata(mcapfmt.META_BUS, {
+            "schemas": json.dumps(self.catalog.docs),
+            "routes": msgspec.json.encode(self.catalog.route_lists).decode()})
         self._channels = {}
         self.file_bytes = 0
         self.file_started = time.monotonic()
@@ -129,6 +160,7 @@ class McapSink:
 
     def _close(self) -> None:
         if self._writer is not None:
+            self.flush(everything=True)
             self._writer.finish()
             self._stream.close()
             self._writer = None
@@ -154,11 +186,41 @@ class McapSink:
             metadata={mcapfmt.META_KEY: key, mcapfmt.META_TYPE: tname, mcapfmt.META_KIND: info.kind,
                       mcapfmt.META_SAFETY: info.safety, mcapfmt.META_BUS_ENCODING: encoding})
         stats = self.summary.channels.setdefault(key, ChannelStats())
-        ch = self._channels[key] = _Channel(channel_id, msgspec.msgpack.Decoder(typ).decode if typ else None, stats)
+        ch = self._channels[key] = _Channel(channel_id, msgspec.msgpack.Decoder(typ).decode if typ else None, stats,
+                                            own_stamp=tname == GRI_EVENT_TYPE)
         return ch
 
     def write(self, key: str, payload: bytes, stamp_ns: int, encoding: str = "") -> None:
+        """Queue one sample; it is written once it has waited ``reorder_s`` (:meth:`flush`), in log-time order."""
+        if (ch := self._channels.get(key)) is None:
+            ch = self._channel(key, encoding)
+        if ch.own_stamp and ch.typed is not None:
+            try:
+                stamp_ns = int(ch.typed(payload).stamp * 1e9)
+            except (msgspec.MsgspecError, AttributeError):
+                pass
+        self._arrivals += 1
+        heapq.heappush(self._pending, (stamp_ns, self._arrivals, time.monotonic(), key, payload, encoding))
+        if not self.reorder_s:
+            self._hold_until = 0.0
+            self.flush(everything=True)
+
+    def flush(self, everything: bool = False) -> None:
+        """Write the queued samples that have waited long enough (all of them with ``everything``), oldest log
+        time first."""
+        now = time.monotonic()
+        if not everything and now < self._hold_until:
+            return
+        due = now - self.reorder_s
+        while self._pending and (everything or self._pending[0][2] <= due):
+            stamp_ns, _, _, key, payload, encoding = heapq.heappop(self._pending)
+            self._write(key, payload, stamp_ns, encoding)
+
+    def _write(self, key: str, payload: bytes, stamp_ns: int, encoding: str) -> None:
         ch = self._channels.get(key) or self._channel(key, encoding)
+        if stamp_ns < self._last_written:
+            ch.stats.late += 1
+        self._last_written = max(self._last_written, stamp_ns)
         try:
             data = msgspec.json.encode(ch.typed(payload)) if ch.typed is not None else None
         except msgspec.ValidationError:
@@ -190,7 +252,7 @@ class Recorder:
         self.split_bytes = split_bytes
         self.split_s = split_s
         self.received = 0
-        self._lock = threading.Lock()
+        self.lock = self._lock = threading.Lock()
         self.sink.summary.started = time.time()
         # advanced subscribers: the last value of every safe state slot (cached by its publisher) is recorded too
         self._subs = [zenoh.ext.declare_advanced_subscriber(
@@ -217,6 +279,7 @@ class Recorder:
                 with self._lock:
                     self.received += 1
                     sink.write(key, payload, stamp, str(sample.encoding))
+                    sink.flush()
                     if (self.split_bytes and sink.file_bytes >= self.split_bytes) or (
                             self.split_s and time.monotonic() - sink.file_started >= self.split_s):
                         sink.rotate()
@@ -287,6 +350,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
             if (args.duration and elapsed >= args.duration) or (args.count and rec.received >= args.count):
                 break
             s = sink.summary
+            with rec.lock:
+                sink.flush()
             status.show(f"recording {elapsed:7.1f} s  {rec.received} msgs  {s.bytes / 1e6:.2f} MB  "
                         f"{len(s.channels)} channels  dropped {s.missed + s.dropped_undecodable}  "
                         f"file {sink.file_index}")

@@ -6,11 +6,16 @@ state and events), so a ground station watching NEW sees the flight. Each JSON m
 msgpack bytes that were on the bus through the struct named in its channel. Every key is published reliably
 (an unsafe slot's best-effort delivery would drop messages of a fast replay); state keys keep their last value
 for late joiners.
+
+A replayed robot is live to every tool (:class:`LiveRobot`): its modules' liveliness tokens, their ``@schema``
+answers and the manager's ``routes`` answer as recorded, and every epoch ``stamp`` in the data moved to now
+(``--keep-stamps`` keeps them as recorded).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import threading
 import time
@@ -38,14 +43,85 @@ class Encoder:
     key: str
     type: type[msgspec.Struct] | None
     remap: tuple[str, str] | None
+    shift_s: float = 0.0
+    """Added to every epoch stamp in the data (:func:`rebase_stamps`)."""
 
     def __call__(self, data: bytes) -> bytes:
+        if self.shift_s:
+            data = msgspec.json.encode(rebase_stamps(msgspec.json.decode(data), self.shift_s))
         if self.type is None:
             return msgspec.msgpack.encode(msgspec.json.decode(data))
         value = msgspec.json.decode(data, type=self.type)
         if self.remap and getattr(value, "robot", None) == self.remap[0]:
             value = msgspec.structs.replace(value, robot=self.remap[1])
         return msgspec.msgpack.encode(value)
+
+
+EPOCH_AFTER = 1e9
+"""A ``stamp`` above this many seconds is a time since the epoch (after 2001); smaller ones (monotonic clocks,
+frame stamps) are not moved."""
+
+
+def rebase_stamps(value: Any, shift_s: float) -> Any:
+    """``value`` (decoded JSON) with every field named ``stamp`` or ``*_stamp`` that holds an epoch time moved by
+    ``shift_s`` seconds, at any depth: a replayed flight's states, telemetry, errors and events then read as now."""
+    if isinstance(value, dict):
+        return {k: (v + shift_s if (k == "stamp" or k.endswith("_stamp")) and isinstance(v, float | int)
+                    and not isinstance(v, bool) and v > EPOCH_AFTER else rebase_stamps(v, shift_s))
+                for k, v in value.items()}
+    if isinstance(value, list):
+        return [rebase_stamps(v, shift_s) for v in value]
+    return value
+
+
+class LiveRobot:
+    """What makes a replayed robot look alive to every tool, from the recording's ``cromat.bus`` metadata and
+    its channels: a liveliness token per module (``cromat gcs robots``, ``cromat bus list``), the modules' and
+    services' ``@schema`` answers, and the manager's ``routes`` answer (``cromat bus graph``), robot renamed."""
+
+    def __init__(self, session: zenoh.Session, remap: tuple[str, str] | None) -> None:
+        self.session = session
+        self.remap = remap
+        self._entities: list[Any] = []
+        self.modules: set[tuple[str, str]] = set()
+
+    def _key(self, key: str) -> str:
+        return keyexpr.remap_robot(key, *self.remap) if self.remap else key
+
+    def _text(self, text: str) -> str:
+        if not self.remap:
+            return text
+        return text.replace(f'"cromat/{self.remap[0]}/', f'"cromat/{self.remap[1]}/')
+
+    def start(self, bus_meta: dict[str, str], channel_keys: list[str]) -> None:
+        from bbcs import keys
+        from bbcs.contracts import mri
+
+        schemas = json.loads(bus_meta.get("schemas") or "{}")
+        routes = json.loads(bus_meta.get("routes") or "{}")
+        for key in [*schemas, *channel_keys]:
+            parts = self._key(key).split("/")
+            if len(parts) == 4 and parts[3] in ("@schema", "@heartbeat", "@route") and not parts[2].startswith("@"):
+                self.modules.add((parts[1], parts[2]))
+            elif len(parts) >= 3 and parts[2] == "@ral":
+                self.modules.add((parts[1], "ral"))
+        for robot, module in sorted(self.modules):
+            self._entities.append(self.session.liveliness().declare_token(keys.alive_key(robot, module)))
+        for key, doc in schemas.items():  # each answers on its own key, as the modules do (a wildcard query)
+            payload, own = self._text(json.dumps(doc)).encode(), self._key(key)
+            self._entities.append(self.session.declare_queryable(
+                own, lambda q, own=own, payload=payload: q.reply(own, payload)))
+        for robot, table in routes.items():
+            reply = mri.encode(mri.MriReply(ok=True, data=msgspec.convert(table, mri.RouteList, str_keys=True)))
+            robot = self.remap[1] if self.remap and robot == self.remap[0] else robot
+            own = mri.mri_key(robot, "routes")
+            self._entities.append(self.session.declare_queryable(
+                own, lambda q, own=own, reply=reply: q.reply(own, reply)))
+
+    def close(self) -> None:
+        for entity in self._entities:
+            entity.undeclare()
+        self._entities = []
 
 
 def _reader(stream: Any) -> Any:
@@ -62,9 +138,21 @@ def messages(files: list[Path]) -> Iterator[tuple[Any, Any]]:
                 yield channel, message
 
 
+def recording_meta(path: Path, name: str) -> dict[str, str]:
+    """The metadata record ``name`` of a file ({} when it has none)."""
+    with open(path, "rb") as f:
+        for record in _reader(f).iter_metadata():
+            if record.name == name:
+                return dict(record.metadata)
+    return {}
+
+
 def time_range(files: list[Path]) -> tuple[int, int, int]:
-    """First and last log time (ns) and message count, from the files' statistics."""
+    """First and last log time (ns) and message count, from the files' statistics. The first is when the
+    recording began when the file says so: the RAL's cached GRI events are logged at their own, earlier stamps,
+    and are published at once, not waited for."""
     start, end, count = None, None, 0
+    began = [int(v) for p in files[:1] if (v := recording_meta(p, "cromat.recording").get("started_ns"))]
     for path in files:
         with open(path, "rb") as f:
             summary = _reader(f).get_summary()
@@ -74,13 +162,16 @@ def time_range(files: list[Path]) -> tuple[int, int, int]:
         start = st.message_start_time if start is None else min(start, st.message_start_time)
         end = st.message_end_time if end is None else max(end, st.message_end_time)
         count += st.message_count
+    if began and start is not None and start < began[0] <= (end or 0):
+        start = began[0]
     return start or 0, end or 0, count
 
 
 class Replayer:
-    def __init__(self, session: zenoh.Session, remap: tuple[str, str] | None = None) -> None:
+    def __init__(self, session: zenoh.Session, remap: tuple[str, str] | None = None, shift_s: float = 0.0) -> None:
         self.session = session
         self.remap = remap
+        self.shift_s = shift_s
         self._pubs: dict[str, tuple[Publisher[Any], Encoder]] = {}
         """recorded key → its publisher (channel ids differ between the files of a split recording)"""
         self.published: dict[str, int] = {}
@@ -98,7 +189,7 @@ class Replayer:
         safety = Safety.SAFE  # every recorded message is delivered: unsafe slots are replayed reliably too
         name = out_key.rsplit("/", 1)[-1].lstrip("@") or "slot"
         spec = SlotSpec(name, typ or stand_in(tname), Direction.OUT, kind, safety)
-        pair = (Publisher(self.session, out_key, spec), Encoder(out_key, typ, self.remap))
+        pair = (Publisher(self.session, out_key, spec), Encoder(out_key, typ, self.remap, self.shift_s))
         self._pubs[key] = pair
         return pair
 
@@ -111,6 +202,12 @@ class Replayer:
             return
         pub.publish_raw(payload)
         self.published[pub.key] = self.published.get(pub.key, 0) + 1
+
+    def rebase(self, shift_s: float) -> None:
+        """Move every stamp by ``shift_s`` seconds from now on."""
+        self.shift_s = shift_s
+        for _, enc in self._pubs.values():
+            enc.shift_s = shift_s
 
     @property
     def keys(self) -> list[str]:
@@ -174,6 +271,8 @@ def build_parser() -> argparse.ArgumentParser:
     speed.add_argument("--fast", action="store_true", help="as fast as possible")
     p.add_argument("--robot-map", metavar="OLD=NEW", help="publish robot OLD's data as robot NEW")
     p.add_argument("--select", action="append", metavar="KEYEXPR", help="only keys matching (repeatable)")
+    p.add_argument("--keep-stamps", action="store_true",
+                   help="publish the data's stamps as recorded (default: moved so the recording begins now)")
     p.add_argument("--settle", type=float, default=1.0,
                    help="at most this many seconds to wait, before the first message, for the router to know a "
                         "subscriber of every key (default 1; it starts at once when all have one)")
@@ -201,7 +300,9 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     session = connect(args)
     stop = threading.Event()
     restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a signal handler
-    rep = Replayer(session, remap)
+    shift_s = 0.0 if args.keep_stamps or not first else time.time() - first / 1e9
+    rep = Replayer(session, remap, shift_s)
+    live = LiveRobot(session, remap)
     unheard: list[str] = []
     status = StatusLine()
     n = 0
@@ -214,7 +315,10 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                 key = (ch.metadata or {}).get(mcapfmt.META_KEY, ch.topic)
                 if not selections or any(keyexpr.intersects(s, key) for s in selections):
                     rep.declare(ch)
+        live.start(recording_meta(files[0], mcapfmt.META_BUS), list(rep._pubs))
         unheard = rep.wait_for_subscribers(args.settle, stop)
+        if shift_s:  # the recording's start is now, after the wait
+            rep.rebase(time.time() - first / 1e9)
         wall0 = time.monotonic()
         for channel, message in messages(files):
             if stop.is_set():
@@ -236,6 +340,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         status.done()
     finally:
         restore_signals()
+        live.close()
         rep.close()
         session.close()
     print(f"replayed {sum(rep.published.values())} of {total} messages on {len(rep.published)} keys"

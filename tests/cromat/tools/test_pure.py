@@ -101,3 +101,28 @@ def test_inline_refs_gives_the_root_once_and_no_refs():
     tree = inline_refs(msgspec.json.schema(Tree))  # a struct inside itself: the one reference that must stay
     assert tree["title"] == "Tree" and tree["properties"]["children"]["items"] == {"$ref": "#/$defs/Tree"}
     assert tree["$defs"]["Tree"]["properties"]["children"]["items"] == {"$ref": "#/$defs/Tree"}
+
+
+def test_the_recorder_writes_in_log_time_order_and_events_at_their_own_stamps(tmp_path):
+    """Issue 34 item 7: samples handed over out of order (the subscriptions' threads) are written in log-time
+    order; a GRI event from the RAL's cache at its own stamp, before the rest; one later than the window is said."""
+    from mcap.reader import make_reader
+
+    from cromat.tools.catalog import Catalog
+    from cromat.tools.record import McapSink
+
+    sink = McapSink(tmp_path / "o.mcap", Catalog(), split=False)
+    enc = str(encoding_for(DatosPT))
+    t0 = 1_795_000_000_000_000_000
+    for ms in (30, 10, 20, 50, 40):
+        sink.write("cromat/r/ral/pt_datos", msgspec.msgpack.encode(DatosPT(ref_pan=ms)), t0 + ms * 1_000_000, enc)
+    cached = gri.GriEvent(robot="r", stamp=(t0 - 5_000_000_000) / 1e9, kind="task_accepted")
+    sink.write("cromat/r/@ral/events", msgspec.msgpack.encode(cached), t0 + 60_000_000,
+               str(encoding_for(gri.GriEvent)))
+    sink.flush(everything=True)
+    sink.write("cromat/r/ral/pt_datos", msgspec.msgpack.encode(DatosPT(ref_pan=0)), t0, enc)  # came too late
+    sink.close()
+    with open(tmp_path / "o.mcap", "rb") as f:
+        got = [(m.log_time - t0) // 1_000_000 for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert got == [-5000, 10, 20, 30, 40, 50, 0]
+    assert sink.summary.late == 1 and "1 written out of log-time order" in sink.summary.lines()[1]
