@@ -30,6 +30,7 @@ EXTRA: dict[str, list[str]] = {}
 """Arguments beside ``--smoke``, by bench (none yet: ``bus.py --secure`` would double the bus run)."""
 PARALLEL = 3
 RUN_TIMEOUT_S = 110.0
+STOP_GRACE_S = 20.0
 pytestmark = pytest.mark.timeout(RUN_TIMEOUT_S + 40)  # a test waits for its own run, which may start late
 
 
@@ -74,14 +75,23 @@ class Runs:
         try:
             text, _ = proc.communicate(timeout=RUN_TIMEOUT_S)
         except subprocess.TimeoutExpired:
-            self._kill(proc.pid)
-            text, _ = proc.communicate()
-            text += f"\n[killed after {RUN_TIMEOUT_S:g} s]"
+            text = self._interrupt(proc) + f"\n[stopped after {RUN_TIMEOUT_S:g} s]"
         finally:
             with self.lock:
                 self.running.discard(proc.pid)
             self._kill(proc.pid)  # whatever the bench left running in its process group
         return proc.returncode, text, out
+
+    def _interrupt(self, proc: subprocess.Popen) -> str:
+        """Ctrl+C first, so the bench's ``finally`` stops what it launched in sessions of its own (a robot's
+        manager); its process group killed only after a grace."""
+        try:
+            proc.send_signal(signal.SIGINT)
+            text, _ = proc.communicate(timeout=STOP_GRACE_S)
+        except subprocess.TimeoutExpired:
+            self._kill(proc.pid)
+            text, _ = proc.communicate()
+        return text
 
     @staticmethod
     def _kill(pgid: int) -> None:
@@ -94,9 +104,19 @@ class Runs:
         with self.lock:
             self.stopping = True
             running = list(self.running)
+        for pid in running:  # the tests stopped early: their runs get Ctrl+C, then the grace, then SIGKILL
+            try:
+                os.kill(pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for future in self.futures.values():
+            try:
+                future.result(timeout=STOP_GRACE_S + 5)
+            except Exception:
+                pass
         for pid in running:
             self._kill(pid)
-        self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 def cases() -> list[tuple[str, list[str]]]:
@@ -117,7 +137,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Runs]:
 
 
 def check(runs: Runs, key: str) -> None:
-    code, text, out = runs.futures[key].result(timeout=RUN_TIMEOUT_S + 10)
+    code, text, out = runs.futures[key].result(timeout=RUN_TIMEOUT_S + STOP_GRACE_S + 10)
     tail = "\n".join(text.splitlines()[-30:])
     assert code == 0, f"bench/{key} --smoke exited {code}:\n{tail}"
     assert out.exists(), f"bench/{key} --smoke wrote no result file:\n{tail}"
