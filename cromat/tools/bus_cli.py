@@ -28,6 +28,7 @@ from msgspec.json import schema as json_schema
 
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from cromat.tools import keyexpr
+from cromat.tools.attendance import Declarations, declarations
 from cromat.tools.catalog import Catalog, Decoder, discover, stand_in, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
 from cromat.tools.render import graph_dot, graph_text, yamlish
@@ -131,6 +132,7 @@ def _deadline(duration: float) -> float:
 
 def cmd_list(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
     cat = discover(session, args.robot, args.timeout)
+    declared = declarations(session, min(args.timeout, 2.0))  # before this tool subscribes: not counted
     meters: dict[str, RateMeter] = {}
     encodings: dict[str, str] = {}
     if args.window > 0:
@@ -155,13 +157,17 @@ def cmd_list(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> i
             m = meters.get(key)
             print(json.dumps({"key": key, "type": s.type, "kind": s.kind, "safety": s.safety, "number": s.number,
                               "writers": s.writers, "readers": s.readers,
-                              "hz": round(m.rate(now).hz, 3) if m else 0.0, "messages": m.total if m else 0}),
+                              "hz": round(m.rate(now).hz, 3) if m else 0.0, "messages": m.total if m else 0,
+                              **dict(zip(("publishers", "subscribers"),
+                                         declared.count(key) if declared else (None, None), strict=True))}),
                   file=out)
         return 0
     for robot in cat.robots:
         names = [m.name for (r, _), m in sorted(cat.modules.items()) if r == robot]
         print(f"robot {robot}: {len(names)} modules alive: {', '.join(names)}", file=out)
-    out.write("\n".join(list_lines(cat, meters, now)) + "\n")
+    out.write("\n".join(list_lines(cat, meters, now, declared)) + "\n")
+    if declared is None:
+        print("(pub/sub: counts need the router's admin space, [bus] admin_space = true in the manifest)", file=out)
     return 0
 
 
@@ -169,18 +175,20 @@ LIST_WIDTH = 100
 """``bus list`` rows fit this many columns: the key's line, then its writer and readers indented below."""
 
 
-def list_lines(cat: Catalog, meters: dict[str, RateMeter], now: float) -> list[str]:
+def list_lines(cat: Catalog, meters: dict[str, RateMeter], now: float,
+               declared: Declarations | None = None) -> list[str]:
     """The table of ``bus list``: per key a line (key, type, kind, rate), and ``writer -> readers`` under it,
     wrapped within :data:`LIST_WIDTH` columns."""
     import textwrap
 
     width = min(max((len(k) for k in cat.slots), default=3), 44)
-    lines = [f"{'key':<{width}} {'type':<22} {'kind':<12} {'rate':>9}", f"{'':<4}writer -> readers"]
+    lines = [f"{'key':<{width}} {'type':<22} {'kind':<12} {'rate':>9} {'pub/sub':>7}", f"{'':<4}writer -> readers"]
     for key, s in sorted(cat.slots.items()):
         m = meters.get(key)
         rate = f"{m.rate(now).hz:.1f}Hz" if m and m.total > 1 else ("1 msg" if m else "-")
         kind = f"{s.safety} {s.kind}".strip() or "-"
-        head = f"{key:<{width}} {s.short_type:<22.22} {kind:<12} {rate:>9}"
+        counts = "{}/{}".format(*declared.count(key)) if declared else "-"
+        head = f"{key:<{width}} {s.short_type:<22.22} {kind:<12} {rate:>9} {counts:>7}"
         lines.append(head[:LIST_WIDTH])
         number = f"#{s.number} " if s.number is not None else ""
         flow = f"{number}{', '.join(s.writers) or '-'} -> {', '.join(s.readers) or '-'}"
