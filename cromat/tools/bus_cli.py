@@ -31,6 +31,7 @@ from cromat.tools import keyexpr
 from cromat.tools.attendance import Declarations, declarations
 from cromat.tools.catalog import Catalog, Decoder, discover, stand_in, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
+from cromat.tools.delivery import RouterEcho
 from cromat.tools.render import graph_dot, graph_text, yamlish
 from cromat.tools.stats import RateMeter
 
@@ -56,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("schema", help="JSON Schema of a slot or struct")
     s.add_argument("target", help="slot (uav1/dsp/telemetry) or struct type (package.module:Class)")
     pb = sub.add_parser("pub", help="publish a datum given as JSON, validated first")
-    pb.add_argument("key", help="slot key, e.g. uav1/ral/pt_datos")
+    # dest slot_key: the connection options' --key (this station's private key) must not be overwritten by it
+    pb.add_argument("slot_key", metavar="key", help="slot key, e.g. uav1/ral/pt_datos")
     pb.add_argument("data", help="the datum as a JSON object")
     pb.add_argument("--type", help="struct type package.module:Class (default: the slot's, from the bus)")
     pb.add_argument("--count", type=int, default=1, help="publish N times")
@@ -348,10 +350,10 @@ def _field_first(message: str) -> str:
 
 
 def cmd_pub(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
-    key = keyexpr.expand(args.key)
+    key = keyexpr.expand(args.slot_key)
     parts = key.split("/")
     if len(parts) != 4 or any(c in key for c in "*$?#"):
-        raise ToolError(f"{args.key!r} is not one slot key (robot/module/slot)")
+        raise ToolError(f"{args.slot_key!r} is not one slot key (robot/module/slot)")
     cat = discover(session, parts[1], args.timeout)
     info = cat.info(key)
     type_name_ = args.type or info.type
@@ -365,17 +367,36 @@ def cmd_pub(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> in
     spec_type = typ or stand_in(type_name_)
     spec = SlotSpec(parts[3], spec_type, Direction.OUT, Kind(info.kind or "state"),
                     Safety(info.safety or "safe") if (info.kind or "state") == "state" else Safety.SAFE)
+    echo = RouterEcho(args, [key])
     pub = Publisher(session, key, spec)
+    sent = max(1, args.count)
     try:
+        _wait_matching(session, key, args.timeout)  # the echo's subscription known here: the first put is not lost
         payload = msgspec.msgpack.encode(value)
-        for i in range(max(1, args.count)):
+        for i in range(sent):
             if i:
                 time.sleep(1.0 / args.rate)
             pub.publish_raw(payload)
+        delivered = echo.wait({key: sent}, args.timeout)[key]
     finally:
         pub.close()
-    print(f"published {max(1, args.count)} x {type_name_ or 'datum'} on {key}", file=out)
-    return 0
+        echo.close()
+    if not delivered:
+        print(f"cromat bus pub: the router delivered none of the {sent} put on {key}: its access policy drops "
+              f"this identity's writes there (or the router is gone)", file=sys.stderr)
+        return 1
+    print(f"published {sent} x {type_name_ or 'datum'} on {key} (the router delivered {delivered})", file=out)
+    return 0 if delivered >= sent else 1
+
+
+def _wait_matching(session: zenoh.Session, key: str, timeout_s: float) -> None:
+    probe = session.declare_publisher(key)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while not probe.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        probe.undeclare()
 
 
 def cmd_graph(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:

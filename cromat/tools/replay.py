@@ -32,6 +32,7 @@ from bbcs.stop_signals import forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import stand_in, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect
+from cromat.tools.delivery import RouterEcho, dropped_keys
 from cromat.tools.extras import require
 from cromat.tools.progress import StatusLine, bar
 
@@ -304,6 +305,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     rep = Replayer(session, remap, shift_s)
     live = LiveRobot(session, remap)
     unheard: list[str] = []
+    echo: RouterEcho | None = None
     status = StatusLine()
     n = 0
     try:
@@ -317,6 +319,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                     rep.declare(ch)
         live.start(recording_meta(files[0], mcapfmt.META_BUS), list(rep._pubs))
         unheard = rep.wait_for_subscribers(args.settle, stop)
+        echo = RouterEcho(args, rep.keys)  # after that wait: the echo is no consumer of the robot's
+        rep.wait_for_subscribers(args.timeout, stop)  # the echo's subscriptions known here: nothing missed
         if shift_s:  # the recording's start is now, after the wait
             rep.rebase(time.time() - first / 1e9)
         wall0 = time.monotonic()
@@ -338,10 +342,13 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
                 status.show(f"replay {bar(frac)} {frac * 100:5.1f}%  {n}/{total} msgs  "
                             f"t={(message.log_time - first) / 1e9:7.1f} s")
         status.done()
+        delivered = echo.wait(dict(rep.published), args.timeout) if echo is not None else {}
     finally:
         restore_signals()
         live.close()
         rep.close()
+        if echo is not None:
+            echo.close()
         session.close()
     print(f"replayed {sum(rep.published.values())} of {total} messages on {len(rep.published)} keys"
           + (f" ({rep.failed} could not be re-encoded)" if rep.failed else "")
@@ -349,6 +356,14 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     if unheard:
         print(f"{len(unheard)} of {len(rep.keys)} keys had no subscriber when the replay began "
               f"(--settle {args.settle:g} s): {', '.join(unheard[:5])}{' ...' if len(unheard) > 5 else ''}", file=out)
+    sent = sum(rep.published.values())
+    print(f"the router delivered {sum(delivered.values())} of {sent}", file=out)
+    dropped = dropped_keys(dict(rep.published), delivered)
+    if dropped:
+        print(f"cromat replay: the router delivered nothing on {len(dropped)} of {len(rep.published)} keys (its "
+              f"access policy drops this identity's writes there): {', '.join(dropped[:5])}"
+              f"{' ...' if len(dropped) > 5 else ''}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -2,7 +2,8 @@
 
 Zenoh reports a refused link as "unable to connect" whatever the cause. When that happens the GCS repeats the
 connection step by step with the same files: a TCP connect (``router unreachable``), then a TLS handshake with
-the station's CA, certificate and key (``TLS refused: no certificate / unknown CA / expired``), reading the
+the station's CA, certificate and key (``TLS refused: no certificate / unknown CA / expired / not yet valid /
+router name mismatch``), reading the
 certificate's dates and the router's TLS alert. A request that got no answer from a robot that is visibly
 alive was dropped by the router's access policy (``denied by policy``).
 """
@@ -20,6 +21,8 @@ UNREACHABLE = "router unreachable"
 NO_CERTIFICATE = "TLS refused: no certificate"
 UNKNOWN_CA = "TLS refused: unknown CA"
 EXPIRED = "TLS refused: expired"
+NOT_YET_VALID = "TLS refused: not yet valid"
+NAME_MISMATCH = "TLS refused: router name mismatch"
 DENIED = "denied by policy"
 
 
@@ -62,7 +65,8 @@ def diagnose_connect(cfg: SessionConfig, timeout_s: float = 3.0, now: datetime |
         if dates is not None and now > dates[1]:
             return f"{EXPIRED}: this station's certificate {tls.cert} expired on {dates[1]:%Y-%m-%d %H:%M} UTC"
         if dates is not None and now < dates[0]:
-            return f"{EXPIRED}: this station's certificate {tls.cert} is not valid before {dates[0]:%Y-%m-%d %H:%M} UTC"
+            return (f"{NOT_YET_VALID}: this station's certificate {tls.cert} is not valid before "
+                    f"{dates[0]:%Y-%m-%d %H:%M} UTC (is this computer's clock right?)")
         ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
         ctx.check_hostname = tls.verify_name
         try:
@@ -79,7 +83,8 @@ def diagnose_connect(cfg: SessionConfig, timeout_s: float = 3.0, now: datetime |
                     pass
         except ssl.SSLCertVerificationError as exc:
             if "mismatch" in (exc.verify_message or ""):
-                return f"{UNKNOWN_CA}: the router's certificate does not name {host} ({exc.verify_message})"
+                return (f"{NAME_MISMATCH}: the router's certificate does not name {host} ({exc.verify_message}); "
+                        f"connect by a name it carries, or re-issue it with --router-host {host}")
             return f"{UNKNOWN_CA}: the router's certificate is not signed by {tls.root_ca} ({exc.verify_message})"
         except ssl.SSLError as exc:
             reason = (exc.reason or str(exc)).upper()

@@ -72,3 +72,35 @@ def test_the_legitimate_station_connects(router: tuple[int, Path]) -> None:
 def test_no_reply_from_a_visible_robot_is_the_policy() -> None:
     assert explain_no_reply("uav1", True, "land").startswith("denied by policy: robot 'uav1' is up")
     assert explain_no_reply("uav1", False, "land").startswith("no answer from robot 'uav1' to land: the robot is not")
+
+
+def test_a_certificate_not_yet_valid_is_not_called_expired(router: tuple[int, Path]) -> None:
+    """Issue 32 item 9: a station whose clock is behind its certificate's start was told "expired"."""
+    from datetime import UTC, datetime
+
+    from ral.gcs.diagnose import diagnose_connect
+
+    port, tmp = router
+    cfg = station(port, tmp / "robot-ground" / "ca.pem", tmp / "robot-ground" / "gcs.pem")
+    why = diagnose_connect(cfg, now=datetime(2001, 1, 1, tzinfo=UTC))
+    assert why.startswith("TLS refused: not yet valid: this station's certificate"), why
+
+
+def test_a_router_name_mismatch_is_not_called_unknown_ca(router: tuple[int, Path]) -> None:
+    """Issue 32 item 9: a router whose certificate (from the right CA) names other hosts was reported as "unknown
+    CA"; a real router presenting a certificate for elsewhere.invalid only, reached as localhost."""
+    port, tmp = router
+    other_port = free_port()
+    certs.make_leaf(tmp / "elsewhere", "router", ["elsewhere.invalid"], ca_dir=tmp / "robot-ca")
+    procs = Processes()
+    try:
+        procs.start(["-m", "bbcs.router", "--listen", f"tls/127.0.0.1:{other_port}", "--tls-ca",
+                     str(tmp / "robot" / "ca.pem"), "--tls-cert", str(tmp / "elsewhere" / "router.pem"), "--tls-key",
+                     str(tmp / "elsewhere" / "router.key")], stdout=subprocess.DEVNULL)
+        wait_port(other_port)
+        with pytest.raises(Unreachable) as info:
+            Gcs(station(other_port, tmp / "robot-ground" / "ca.pem", tmp / "robot-ground" / "gcs.pem"), timeout_s=2.0)
+        assert "): TLS refused: router name mismatch: the router's certificate does not name localhost" in str(
+            info.value), str(info.value)
+    finally:
+        procs.stop_all()
