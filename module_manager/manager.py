@@ -305,8 +305,10 @@ class Manager:
             else:
                 ok = child.poll() is None
             if not ok:
+                code = child.poll()
                 raise LaunchError(f"process {name} ({' '.join(argv)}) not ready within {ready.timeout_s:g} s "
-                                  f"(ready: {ready.kind}; exit {child.poll()})")
+                                  f"(ready: {ready.kind}; " + ("still running, not ready yet)" if code is None
+                                                              else f"it exited with code {code})"))
             self.out(f"  {name:<11} ready, pid {child.pid}{_on(spec.cpus)} ({self.clock() - t:.2f} s)")
 
     def open_bus(self) -> None:
@@ -362,8 +364,14 @@ class Manager:
             return "modules starting"
         if self._mri_busy:
             return "serving an MRI request"
-        if self._state_dirty or (self.sim is not None and self.sim.clock.monotonic() >= self.next_state_at):
-            return "robot state due"
+        if self.sim is not None and (self._state_dirty or self.sim.clock.monotonic() >= self.next_state_at):
+            # due at this simulated time: published now, from the ask (the loop would take up to its next wake)
+            with self.lock:
+                self._state_dirty = False
+                self.next_state_at = self.sim.clock.monotonic() + self.m.raw.robot.state_period_s
+                if self._state_pub is not None:
+                    self._state_pub.publish(self.robot_state())
+                self.sim.activity += 1  # a new datum out: at least one more round sees where it went
         return ""
 
     # ------------------------------------------------------------------------------------------ bus events
