@@ -317,6 +317,8 @@ class Gateway:
             if v.state is None:
                 self._ack(v, cmd.command, mav.MAV_RESULT_TEMPORARILY_REJECTED, partner)
                 return
+            if outcome.role == "pause":  # where the mission stands now: once the hold runs, its queue is gone
+                v.pause_at()
             v.pending.add(cmd.command)
             self.workers[v.robot].jobs.put((v.robot, cmd.command, outcome, partner))
 

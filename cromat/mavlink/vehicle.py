@@ -81,6 +81,7 @@ class Vehicle:
         self.mission_index = 0
         self.run: MissionRun | None = None
         self.paused_at: int | None = None
+        self.pausing_at: int | None = None
         self.speed: float | None = None
         self.rtl_task = 0
         self.reached = 0
@@ -140,17 +141,16 @@ class Vehicle:
             return 0, 0, mav.MISSION_STATE_NO_MISSION
         total = self.plan.count
         prog = self.mission_progress()
-        if prog is None:
-            index = self.paused_at if self.paused_at is not None else self.mission_index
-            state = mav.MISSION_STATE_PAUSED if self.paused_at is not None else mav.MISSION_STATE_NOT_STARTED
-        else:
-            index = prog.current
-            if self.run is not None and self.run.completed:
-                state = mav.MISSION_STATE_COMPLETE
-            elif self.mission_running():
-                state = mav.MISSION_STATE_ACTIVE
-            else:
-                state = mav.MISSION_STATE_PAUSED if self.paused_at is not None else mav.MISSION_STATE_NOT_STARTED
+        if self.paused_at is not None and not self.mission_running():
+            index, state = self.paused_at, mav.MISSION_STATE_PAUSED
+        elif prog is None:
+            index, state = self.mission_index, mav.MISSION_STATE_NOT_STARTED
+        elif self.run is not None and self.run.completed:
+            index, state = prog.current, mav.MISSION_STATE_COMPLETE
+        elif self.mission_running():
+            index, state = prog.current, mav.MISSION_STATE_ACTIVE
+        else:  # replaced, cancelled or failed: where it stopped
+            index, state = prog.current, mav.MISSION_STATE_PAUSED
         index = min(max(index, 0), len(self.plan.seqs) - 1)
         return self.plan.seqs[index], total, state
 
@@ -165,6 +165,11 @@ class Vehicle:
 
     # ---------------------------------------------------------------- what the RAL said
 
+    def pause_at(self) -> None:
+        """Note the running mission's current waypoint as a pause is asked (the mission continues from there)."""
+        prog = self.mission_progress() if self.mission_running() else None
+        self.pausing_at = prog.current if prog is not None else None
+
     def started(self, role: Role, offset: int, reply: gri.TaskReply, request: gri.TaskRequest) -> None:
         if role == "mission":
             sent = len(request.waypoints)  # type: ignore[union-attr]
@@ -172,8 +177,8 @@ class Vehicle:
             self.reached = offset
             self.paused_at = None
         elif role == "pause":
-            prog = self.mission_progress()
-            self.paused_at = prog.current if prog is not None else self.mission_index
+            self.paused_at = self.pausing_at if self.pausing_at is not None else self.mission_index
+            self.pausing_at = None
             if self.run is not None:
                 self.run.ended = True
         elif role == "rtl":

@@ -47,7 +47,7 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
     finally:
         if gw is not None:
             gw.close()
-            print("gateway output (the last 60 lines):", *gw.lines[-60:], sep="\n")
+            (tmp / "gateway.log").write_text("\n".join(gw.lines) + "\n")  # kept with the robot's logs
         if gcs is not None:
             gcs.close()
         la.stop()
@@ -159,7 +159,8 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
     home = start.home
     lat0, lon0 = _grid(home.lat, home.lon)
     rel = 15.0
-    path = [(lat0 + GRID_DEG, lon0), (lat0 + GRID_DEG, lon0 + GRID_DEG), (lat0 + 2 * GRID_DEG, lon0 + GRID_DEG)]
+    step = 3 * GRID_DEG  # legs of ~33 m: long enough to pause the mission in the middle of it
+    path = [(lat0 + step, lon0), (lat0 + step, lon0 + step), (lat0 + 2 * step, lon0 + step), (lat0 + 2 * step, lon0)]
 
     def items(points: list[tuple[float, float]]) -> list:
         return [MissionItem(seq=i, frame=6, command=16, current=int(i == 0), autocontinue=1, param1=0.0,
@@ -198,21 +199,35 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
             await mission.upload_mission(items(path))
             mark = len(robot.commands())
             await mission.start_mission()
-            done = await first(mission.subscribe_mission_progress(), lambda p: p.total == 3 and p.current == 3, 90)
-            assert done.current == 3
+            # paused once the first waypoint is reached (hold: ABORT at the DSP), then continued from where it was
+            robot.wait_state(lambda s: 0 < (s.waypoints_queued or 0) < 4, 60, "the first waypoint reached")
+            await mission.pause_mission()
+            wait_until(lambda: "ABORT" in [c["name"] for c in robot.commands()[mark:]], 15, "the hold's ABORT")
+            await asyncio.sleep(1.0)
+            await mission.start_mission()
+            done = await first(mission.subscribe_mission_progress(), lambda p: p.total == 4 and p.current == 4, 90)
+            assert done.current == 4
             return mark
         finally:
             collector.cancel()
             m.destroy()
 
-    mark = run_async(session, 200)
-    sent = robot.commands()[mark:]
-    added = [c["fields"] for c in sent if c["name"] == "ADD_WAYPOINT"]
-    assert [(round(a["lat"], 4), round(a["lon"], 4)) for a in added] == [(round(a, 4), round(b, 4)) for a, b in path]
+    mark = run_async(session, 240)
+    flown = robot.commands()[mark:]
+    paused = [c["name"] for c in flown].index("ABORT")  # the hold
+    added = [c["fields"] for c in flown[:paused] if c["name"] == "ADD_WAYPOINT"]
+    planned = [(round(a, 4), round(b, 4)) for a, b in path]
+    assert [(round(a["lat"], 4), round(a["lon"], 4)) for a in added] == planned
+    names = [c["name"] for c in flown[paused:]]
+    assert names.index("INVALIDATE_PATH") < names.index("ADD_WAYPOINT"), names
+    again = [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in flown[paused:]
+             if c["name"] == "ADD_WAYPOINT"]
+    assert 1 <= len(again) <= 3 and again == planned[-len(again):], again  # the rest of the mission, in order
     flown_home = robot.state.home  # the take-off point, as the RAL set it at the take-off
     assert flown_home is not None
     assert all(abs(a["alt"] - (flown_home.alt + rel)) < 0.01 for a in added), (added, flown_home)
-    assert [c["name"] for c in sent].index("INVALIDATE_PATH") < [c["name"] for c in sent].index("ADD_WAYPOINT")
+    first_names = [c["name"] for c in flown[:paused]]
+    assert first_names.index("INVALIDATE_PATH") < first_names.index("ADD_WAYPOINT")
     end = robot.wait_state(lambda s: s.waypoints_queued == 0, 20, "the queue empty")
     assert end.position is not None
     assert _metres(end.position.lat, end.position.lon, *path[-1]) < 8.0
