@@ -83,8 +83,8 @@ class MonitorConfig:
     decide_after_s: float = 3.0
     """A command is judged once the task book is this much newer than it, or this long after it at the latest."""
     book_lag_s: float = 0.3
-    end_grace_s: float = 1.0
-    """A stop command this soon after a task of its sender's types ended is that task's end."""
+    end_grace_s: float = 2.0
+    """A stop command this soon after a task of its sender's types ended is that task's end (the hold that ends it)."""
     goal_tolerance_m: float = 10.0
     """Horizontal: the DSP gets waypoints on a 1e-4 degree grid (about 11 m), the RAL completes within 8 m."""
     goal_alt_tolerance_m: float = 3.0
