@@ -181,6 +181,11 @@ def _georef(args: argparse.Namespace) -> int:
     return 0
 
 
+def _progress(text: str) -> None:
+    """What a long run is doing, on stderr (a DTM of many logs takes tens of seconds; stdout keeps the report)."""
+    print(f"cromat lidar dtm: {text}", file=sys.stderr, flush=True)
+
+
 def _dtm(args: argparse.Namespace) -> int:
     if not args.cell > 0:
         raise ValueError(f"--cell must be positive, got {args.cell}")
@@ -191,8 +196,9 @@ def _dtm(args: argparse.Namespace) -> int:
     clouds = []
     left_out = 0
     in_gaps = 0
-    for item in args.logs:
+    for i, item in enumerate(args.logs, 1):
         path = Path(item)
+        _progress(f"{i}/{len(args.logs)} reading and georeferencing {path}")
         log = load_log(path)
         mounting, lever, position_ref = _mounting_and_lever(path, args)
         select = ground_candidates(log.flags)
@@ -216,6 +222,7 @@ def _dtm(args: argparse.Namespace) -> int:
         west, south = np.floor(lo / args.cell) * args.cell
         east, north = np.ceil(hi / args.cell) * args.cell
         bounds = (float(west), float(south), float(east), float(north))
+    _progress(f"gridding {len(enu)} ground points into {args.cell:g} m cells, then writing {args.out}")
     dtm = build_dtm(enu, args.cell, max_above=args.max_above, min_points=args.min_points, bounds=bounds)
     report = {"points": len(enu), "logs": len(args.logs), "cell_m": args.cell, "rows": dtm.shape[0],
               "cols": dtm.shape[1], **coverage(dtm).as_dict(), "geotiff": str(write_geotiff(args.out, dtm, origin)),

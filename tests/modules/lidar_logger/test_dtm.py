@@ -128,7 +128,11 @@ def test_two_logs_go_into_one_model(flight_folder, tmp_path, capsys) -> None:
     second = write_run(tmp_path / "Scan_sim2", world, records)
     assert cli.main(["dtm", str(folder), str(second), "--cell", "4", "--out", str(tmp_path / "a.tif"),
                      "--json"]) == 0
-    both = json.loads(capsys.readouterr().out)
+    said = capsys.readouterr()
+    both = json.loads(said.out)
+    assert [line.split(" reading")[0] for line in said.err.splitlines()][:2] == [  # progress (issue 34 item 8)
+        "cromat lidar dtm: 1/2", "cromat lidar dtm: 2/2"]
+    assert "cromat lidar dtm: gridding" in said.err
     assert cli.main(["dtm", str(folder), "--cell", "4", "--out", str(tmp_path / "b.tif"), "--json"]) == 0
     one = json.loads(capsys.readouterr().out)
     assert both["logs"] == 2 and both["points"] > one["points"] and both["cells_with_data"] > one["cells_with_data"]
