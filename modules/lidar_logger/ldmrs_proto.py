@@ -148,12 +148,13 @@ _KNOWN_TYPES = frozenset(int(t) for t in DataType)
 
 def _next_header(buf: bytearray, lo: int, hi: int, device_id: int, max_payload: int) -> int | None:
     """Where, in ``buf[lo:hi]``, the header of another message from the same device begins (its magic word, a
-    known data type, a possible size): -1 while a magic word there lacks the bytes to tell; None when there is none.
-    Four magic bytes and a matching device id and type inside a payload by chance: about 2**-40 per byte."""
+    known data type, a possible size); ``-1 - k`` while the magic word at ``k`` lacks the bytes to tell; None when
+    there is none. Four magic bytes and a matching device id and type inside a payload by chance: about 2**-40 per
+    byte."""
     k = buf.find(MAGIC_BYTES, lo, hi + 3)
     while 0 <= k < hi:
         if len(buf) - k < HEADER_SIZE:
-            return -1
+            return -1 - k
         _, _, size, _, dev, data_type, _ = HEADER.unpack_from(buf, k)
         if dev == device_id and data_type in _KNOWN_TYPES and size <= max_payload:
             return k
@@ -186,6 +187,9 @@ class MessageParser:
         self.bad_size = 0
         self.size_mismatch = 0
         self.cut_short = 0
+        self._searched = 0
+        """Bytes of the message waited for (at the buffer's start) already searched for a next header: a long
+        message arriving in small reads is searched once, not once per read."""
 
     @property
     def damaged(self) -> int:
@@ -202,6 +206,7 @@ class MessageParser:
         out: list[Message] = []
         pos = 0
         n = len(buf)
+        searched, self._searched = self._searched, 0
         while True:
             start = buf.find(MAGIC_BYTES, pos)
             if start < 0:
@@ -221,15 +226,19 @@ class MessageParser:
                 pos += 4
                 continue
             end = pos + HEADER_SIZE + size
-            nxt = _next_header(buf, pos + HEADER_SIZE, min(n, end), device_id, self._max)
-            if nxt == -1:
-                break  # a magic word inside the claimed payload: wait for the bytes that say what it starts
+            lo = max(pos + HEADER_SIZE, pos + searched)
+            searched = 0  # valid for the message at the buffer's start only
+            nxt = _next_header(buf, lo, min(n, end), device_id, self._max)
+            if nxt is not None and nxt < 0:  # a magic word inside the claimed payload: wait for what it starts
+                self._searched = -nxt - 1 - pos
+                break
             if nxt is not None:  # the next message starts inside this one's claimed size: this one was cut short
                 self.cut_short += 1
                 self.discarded_bytes += nxt - pos
                 pos = nxt
                 continue
             if n < end:
+                self._searched = max(0, n - 3 - pos)
                 break
             payload = memoryview(buf)[pos + HEADER_SIZE:end]
             if not _payload_consistent(data_type, payload):
