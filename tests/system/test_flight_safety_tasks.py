@@ -4,8 +4,11 @@ manifest: the real Module Manager, RAL, modules and DSP simulator): what the DSP
 
 The simulator runs faster than the wall clock with its own ``--time-scale`` option (docs/dsp_protocol.md), as in
 every ``test_gcs_*`` file; the RAL's judge reads the wall clock, so a sped-up flight gives it more simulated time
-before ``stall_s``: the long goto flies at 2x only (the old judge failed it there too), the rest at 4x. After each
-task the test watches 20 wall seconds: nothing may reach the DSP and the aircraft may not move.
+before ``stall_s``: the long goto flies at 2x only (the old judge failed it there too), the rest at 4x. (Lockstep,
+docs/simulation.md, would judge on simulated time, but on this loaded 2-core machine it ran slower than the wall
+clock: a 10 s take-off took over 30 s.) After a landing and after a goto the first two tests watch 20 seconds of
+the RAL's clock: nothing may reach the DSP and the aircraft may not move. Each test is one launch, under the suite's
+120 s per test on a loaded machine.
 """
 
 from __future__ import annotations
@@ -153,11 +156,12 @@ def finished(robot: SimRobot, reply: gri.TaskReply, timeout_s: float, after: int
 
 
 def assert_quiet(robot: SimRobot, truth: Truth, what: str, mark: int) -> VehicleTruth:
-    """From the record's ``mark`` (taken when ``what`` ended) for ``QUIET_S``: nothing reaches the DSP; and the
-    aircraft, once settled, stays where it is. Returns where."""
-    time.sleep(2.0)  # the task's end reaches the GRI with the manager's state; let the aircraft settle first
+    """From the record's ``mark`` (taken when ``what`` ended) for ``QUIET_S`` (the GRI state's stamps): nothing
+    reaches the DSP; and the aircraft, once settled, stays where it is. Returns where."""
+    ended_at = robot.state.stamp
+    robot.wait_state(lambda s: s.stamp >= ended_at + 2.0, 60, "the aircraft settled")
     seen, at = truth.mark(), truth.latest()
-    time.sleep(QUIET_S)
+    robot.wait_state(lambda s: s.stamp >= ended_at + 2.0 + QUIET_S, 120, f"{QUIET_S:g} s after {what}")
     sent = robot.commands()[mark:]
     assert sent == [], f"after {what}, with no task running, the DSP received {names(sent)}"
     samples = truth.since(seen)
@@ -173,7 +177,7 @@ def assert_quiet(robot: SimRobot, truth: Truth, what: str, mark: int) -> Vehicle
 
 
 def test_after_a_landing_nothing_is_sent_and_the_aircraft_stays_down(fly: Callable[..., Flight]) -> None:
-    """take_off then land: the DSP used to get SET_MODE 4 after touchdown and the aircraft climbed to 10 m."""
+    """take_off then land: the DSP used to get SET_MODE 4 after touchdown and the aircraft climbed back to 10 m."""
     robot, truth = fly()
     robot.ensure_airborne()
     start = len(robot.events)
@@ -183,32 +187,76 @@ def test_after_a_landing_nothing_is_sent_and_the_aircraft_stays_down(fly: Callab
     assert ground.alt - ground.home[2] < 0.5, "on the ground"
 
 
-# ------------------------------------------------------------------ case 2 (and 1): a long goto, then nothing
+def test_after_a_goto_nothing_is_sent_and_the_aircraft_stays(fly: Callable[..., Flight]) -> None:
+    """take_off, goto 30 m above home: the goto's end used to put the aircraft back in take-off mode (down to 10 m)."""
+    robot, truth = fly()
+    up = robot.ensure_airborne()
+    assert up.position is not None and up.home is not None
+    goal = [t.Waypoint(lat=w.lat, lon=w.lon, alt=up.home.alt + 30.0) for w in grid_path(up.position, [(2, 0)])]
+    start = len(robot.events)
+    done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=goal)), 60, start)
+    assert done.kind == "task_completed", done
+    at = assert_quiet(robot, truth, "the goto", len(robot.commands()))
+    assert abs(at.alt - goal[-1].alt) < 2.0, f"held at the goto's altitude, not {at.alt - at.home[2]:.1f} m"
 
 
-def test_a_four_waypoint_goto_111_m_apart_completes_and_nothing_follows(fly: Callable[..., Flight]) -> None:
-    """The old judge (distance to the last waypoint + 50 m a queued one) failed this square at +30 s while it was
-    flown at 5 m/s; once complete, the goto's end used to put the aircraft back in take-off mode (down to 10 m)."""
+# ------------------------------------------------------------------ case 2: a long path is not failed while flown
+
+
+def test_a_four_waypoint_goto_111_m_apart_completes_on_the_default_stall_s(fly: Callable[..., Flight]) -> None:
+    """The old judge (distance to the last waypoint + 50 m a queued one) failed this square at +30 s (31 s on this
+    test at 2x) while it was flown at 5 m/s."""
     robot, truth = fly(time_scale=2.0)
     up = robot.ensure_airborne()
     assert up.position is not None and up.home is not None
     square = grid_path(up.position, [(10, 0), (10, 13), (0, 13), (0, 0)])  # 111, 115, 111, 115 m
-    square = [t.Waypoint(lat=w.lat, lon=w.lon, alt=up.home.alt + 30.0) for w in square]
+    square = [t.Waypoint(lat=w.lat, lon=w.lon, alt=up.home.alt + 20.0) for w in square]
     start = len(robot.events)
     began = time.monotonic()
-    done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=square)), 150, start)
+    done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=square)), 110, start)
     flown_s = time.monotonic() - began
     assert done.kind == "task_completed", f"{done} after {flown_s:.0f} s"
-    mark = len(robot.commands())
     assert flown_s > 30.0, "the square took longer than stall_s: the judge saw its progress"
-    at = assert_quiet(robot, truth, "the goto", mark)
-    assert abs(at.alt - square[-1].alt) < 2.0, f"held at the goto's altitude, not {at.alt - at.home[2]:.1f} m"
+    at = truth.latest()
+    assert horizontal_m(at, square[-1].lat, square[-1].lon) < 8.0 and abs(at.alt - square[-1].alt) < 2.0
 
 
-# ------------------------------------------------------------------ cases 7 and 10: a RAL restarted in flight, return
+# ------------------------------------------------------------------ case 7: a RAL restarted in flight
 
 
-def test_a_restarted_ral_flies_a_goto_and_the_return_lands_at_home(fly: Callable[..., Flight]) -> None:
+def test_a_ral_restarted_or_killed_in_flight_accepts_and_flies_a_goto(fly: Callable[..., Flight]) -> None:
+    robot, truth = fly()
+    up = robot.ensure_airborne()
+    home = up.home
+    assert home is not None and up.position is not None
+    # the station is told the truth when it restarts the RAL: accepted, not silence ("denied by policy")
+    unknown = robot.gcs.restart(ROBOT, "nosuch")
+    assert not unknown.accepted and "modules: dsp, pan_tilt" in unknown.reason, unknown
+    ral_pid = ral_status(robot).pid  # type: ignore[union-attr]
+    reply = robot.gcs.restart(ROBOT, "ral")
+    assert reply.accepted and "restarts" in reply.reason, reply
+    wait_until(lambda: restarted(robot, ral_pid), 60, "the RAL restarted")
+    # then killed in flight: it comes back knowing the take-off point (the manager's record)
+    ral_pid = ral_status(robot).pid  # type: ignore[union-attr]
+    assert ral_pid is not None
+    os.kill(ral_pid, signal.SIGKILL)
+    killed = time.time()
+    wait_until(lambda: restarted(robot, ral_pid), 60, "the RAL back after SIGKILL")
+    robot.wait_state(lambda s: s.stamp > killed and s.home is not None and s.manager_up and bool(s.available),
+                     30, "the new RAL's state, with the take-off point")
+    assert robot.state.home == home
+    away = [t.Waypoint(lat=w.lat, lon=w.lon, alt=home.alt + 20.0) for w in grid_path(up.position, [(2, 2)])]
+    start = len(robot.events)
+    done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=away)), 60, start)
+    assert done.kind == "task_completed", done
+    at = truth.latest()
+    assert horizontal_m(at, away[-1].lat, away[-1].lon) < 8.0 and abs(at.alt - away[-1].alt) < 2.0, "flown"
+
+
+# ------------------------------------------------------------------ case 10: the return (failsafe) lands at home
+
+
+def test_the_return_flies_home_at_the_return_height_and_lands(fly: Callable[..., Flight]) -> None:
     robot, truth = fly(link=False, ral={"failsafe_action": "return", "failsafe_timeout_s": "1.5"})
     pilot = connect(robot.launch.port, "pilot")  # type: ignore[attr-defined]
     try:
@@ -216,36 +264,18 @@ def test_a_restarted_ral_flies_a_goto_and_the_return_lands_at_home(fly: Callable
         up = robot.ensure_airborne()
         home = up.home
         assert home is not None and up.position is not None
-        # the station is told the truth when it restarts the RAL: accepted, not silence ("denied by policy")
-        unknown = robot.gcs.restart(ROBOT, "nosuch")
-        assert not unknown.accepted and "modules: dsp, pan_tilt" in unknown.reason, unknown
-        ral_pid = ral_status(robot).pid  # type: ignore[union-attr]
-        reply = robot.gcs.restart(ROBOT, "ral")
-        assert reply.accepted and "restarts" in reply.reason, reply
-        wait_until(lambda: restarted(robot, ral_pid), 60, "the RAL restarted")
-        # then killed in flight: it comes back knowing the take-off point (the manager's record)
-        ral_pid = ral_status(robot).pid  # type: ignore[union-attr]
-        assert ral_pid is not None
-        os.kill(ral_pid, signal.SIGKILL)
-        killed = time.time()
-        wait_until(lambda: restarted(robot, ral_pid), 60, "the RAL back after SIGKILL")
-        robot.wait_state(lambda s: s.stamp > killed and s.home is not None and s.manager_up and bool(s.available)
-                         and s.link == "up", 30, "the new RAL's state, with the take-off point and the pilot's link")
-        assert robot.state.home == home
         away = [t.Waypoint(lat=w.lat, lon=w.lon, alt=home.alt + 30.0) for w in grid_path(up.position, [(4, 0),
                                                                                                      (4, 4)])]
         start = len(robot.events)
         done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=away)), 60, start)
         assert done.kind == "task_completed", done
-        robot.wait_state(lambda s: s.position is not None and abs(s.position.alt - away[-1].alt) < 2.0, 15,
-                         "at the goto's end")
         mark, seen, start = len(robot.commands()), truth.mark(), len(robot.events)
     finally:
         pilot.close()
     # link lost: the return failsafe descends to RETURN_HEIGHT where it is, flies home at it, lands
     back = robot.wait_event(lambda e: e.kind == "task_accepted" and "failsafe" in e.detail, 30, "the return",
                             after=start)
-    returned = robot.wait_event(lambda e: e.task_id == back.task_id and e.kind != "task_accepted", 90,
+    returned = robot.wait_event(lambda e: e.task_id == back.task_id and e.kind != "task_accepted", 60,
                                 "the return ended", after=start)
     assert returned.kind == "task_completed", returned
     land = robot.wait_event(lambda e: e.kind == "task_accepted" and e.detail.startswith("land"), 15,
@@ -253,15 +283,14 @@ def test_a_restarted_ral_flies_a_goto_and_the_return_lands_at_home(fly: Callable
     landed = robot.wait_event(lambda e: e.task_id == land.task_id and e.kind != "task_accepted", 60,
                               "landed", after=start)
     assert landed.kind == "task_completed", landed
-    landed_mark = len(robot.commands())
     sent = robot.commands()[mark:]
     added = [c["fields"] for c in sent if c["name"] == "ADD_WAYPOINT"]
     assert [round(a["alt"]) for a in added] == [round(home.alt + RETURN_HEIGHT)] * 2, added
     assert abs(added[-1]["lat"] - home.lat) < 1e-4 and abs(added[-1]["lon"] - home.lon) < 1e-4
-    assert "SET_MODE" in names(sent[names(sent).index("ADD_WAYPOINT"):]), "then the landing"
+    assert names(sent)[-1] == "SET_MODE" and sent[-1]["fields"]["mode"] == 5, f"then the landing: {names(sent)}"
     flown = truth.since(seen)
     mid = [s for s in flown if 15.0 < horizontal_m(s, home.lat, home.lon) < 30.0 and s.vel_neu[2] > -0.5]
     assert mid and all(abs(s.alt - home.alt - RETURN_HEIGHT) < 2.0 for s in mid[-5:]), \
         "flew home at the return height"
-    ground = assert_quiet(robot, truth, "the return's landing", landed_mark)
-    assert horizontal_m(ground, home.lat, home.lon) < 8.0 and ground.alt - home.alt < 0.5, "down at home"
+    wait_until(lambda: truth.latest().alt - home.alt < 0.5, 15, "the simulator's truth on the ground")
+    assert horizontal_m(truth.latest(), home.lat, home.lon) < 8.0, "down at home"
