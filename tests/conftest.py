@@ -69,6 +69,7 @@ HEAVY_STACKS = frozenset({
     "tests/system/test_fleet_secure_launch.py", "tests/system/test_fleet_mixed.py",
     "tests/modules/uquad/test_system_health.py",
     "tests/system/test_fleet_robot_death.py",
+    "tests/cromat/mavlink/test_uquad_fleet.py",
 })
 """Test files that run several robot stacks, or one with the lidar simulators' ray casting, for a minute or more.
 
