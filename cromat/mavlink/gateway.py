@@ -301,7 +301,8 @@ class Gateway:
         if msg.target_system == 0:
             return  # a command must name its vehicle (QGroundControl and MAVSDK always do)
         cmd = cm.command_of(msg)
-        if cmd.command in v.pending:
+        key = _command_key(cmd)
+        if key in v.pending:  # the same command resent while its request is with the RAL
             self._ack(v, cmd.command, mav.MAV_RESULT_IN_PROGRESS, partner)
             return
         s = v.state
@@ -319,22 +320,22 @@ class Gateway:
                 return
             if outcome.role == "pause":  # where the mission stands now: once the hold runs, its queue is gone
                 v.pause_at()
-            v.pending.add(cmd.command)
-            self.workers[v.robot].jobs.put((v.robot, cmd.command, outcome, partner))
+            v.pending.add(key)
+            self.workers[v.robot].jobs.put((v.robot, cmd.command, outcome, partner, key))
 
-    def _send_request(self, job: tuple[str, int, cm.Send, mission.Partner]) -> None:
+    def _send_request(self, job: tuple[str, int, cm.Send, mission.Partner, tuple]) -> None:
         """On the vehicle's worker: the RAL's verdict, handed back to the loop."""
-        robot, command, outcome, partner = job
+        robot, command, outcome, partner, key = job
         try:
             reply: gri.TaskReply | str = self.gcs.send(robot, outcome.request)
         except GcsError as exc:
             reply = str(exc)
-        self.inbox.put(("reply", (robot, command, outcome, partner, reply)))
+        self.inbox.put(("reply", (robot, command, outcome, partner, reply, key)))
 
     def _on_reply(self, robot: str, command: int, outcome: Any, partner: mission.Partner,
-                  reply: gri.TaskReply | str) -> None:
+                  reply: gri.TaskReply | str, key: tuple = ()) -> None:
         v = self.vehicles[robot]
-        v.pending.discard(command)
+        v.pending.discard(key)
         log.info("%s: %s answered %s", robot, pl.command_name(command) if command >= 0 else command, reply)
         if command == FENCE_JOB:  # outcome: the upload; reply: "" or the reason
             result = mav.MAV_MISSION_ACCEPTED if not reply else mav.MAV_MISSION_DENIED
@@ -520,8 +521,7 @@ class Gateway:
             # RAL admits it as any path); the MISSION_ACK waits for its verdict
             v.replacing = (a.items, plan)
             request = gri.FollowPath(waypoints=list(plan.waypoints), speed=plan.speed or v.speed)
-            v.pending.add(REPLACE_JOB)
-            self.workers[v.robot].jobs.put((v.robot, REPLACE_JOB, cm.Send(request, "mission", 0), a.partner))
+            self.workers[v.robot].jobs.put((v.robot, REPLACE_JOB, cm.Send(request, "mission", 0), a.partner, ()))
         elif a.mission_type == mav.MAV_MISSION_TYPE_FENCE:
             self._fence(v, a)
         else:
@@ -564,6 +564,11 @@ class Gateway:
             v.set_plan([], None)
         v.stored.pop(a.mission_type, None)
         self._mission_ack(v, a.partner, mav.MAV_MISSION_ACCEPTED, a.mission_type)
+
+
+def _command_key(cmd: cm.Command) -> tuple:
+    """A command and its parameters, NaN included (NaN != NaN), to know a resend from a new command."""
+    return (cmd.command, cmd.frame, *(None if math.isnan(x) else x for x in cmd.params))
 
 
 def _param_id(raw: Any) -> str:

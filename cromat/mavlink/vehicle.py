@@ -87,7 +87,7 @@ class Vehicle:
         self.reached = 0
         """Mission items told reached (MISSION_ITEM_REACHED) for the current run."""
         self.seen_errors: set[tuple[str, int, float]] = set()
-        self.pending: set[int] = set()
+        self.pending: set[tuple] = set()
         """Commands sent to the RAL and not answered yet (a retransmission is answered IN_PROGRESS)."""
         self.param_queue: list[int] = []
         self.replacing: tuple[list[pl.Item], pl.Plan] | None = None

@@ -6,6 +6,8 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
+import pytest
+
 from bbcs.contracts import gri
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.tasks import TaskInfo
@@ -135,9 +137,14 @@ def test_a_resent_command_is_in_progress_not_sent_twice() -> None:
     wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_NAV_LAND, 1, 0, 0, 0, 0, 0, 0, 0))
     pump(gw, lambda: bool(wire.of("COMMAND_ACK")), "an answer to the resend")
     assert wire.of("COMMAND_ACK")[0].result == mav.MAV_RESULT_IN_PROGRESS and len(gcs.requests) == 1
+    # a different command of the same number is a new request, not a resend
+    wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, 37.42, -6.0, 30.0))
+    wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, 37.43, -6.0, 30.0))
     gcs.release.set()
-    pump(gw, lambda: len(wire.of("COMMAND_ACK")) == 2, "the verdict")
-    assert wire.of("COMMAND_ACK")[1].result == mav.MAV_RESULT_ACCEPTED
+    pump(gw, lambda: len(wire.of("COMMAND_ACK")) == 4, "the verdicts")
+    assert [a.result for a in wire.of("COMMAND_ACK")[1:]] == [mav.MAV_RESULT_ACCEPTED] * 3
+    lats = [r.waypoints[0].lat for r in gcs.requests[1:]]  # type: ignore[union-attr]
+    assert lats == pytest.approx([37.42, 37.43], abs=1e-5)  # COMMAND_LONG's params are float32
 
 
 def upload(gw: Gateway, wire: Wire, n: int) -> None:
