@@ -364,8 +364,14 @@ class Manager:
             return "modules starting"
         if self._mri_busy:
             return "serving an MRI request"
-        if self._state_dirty or (self.sim is not None and self.sim.clock.monotonic() >= self.next_state_at):
-            return "robot state due"
+        if self.sim is not None and (self._state_dirty or self.sim.clock.monotonic() >= self.next_state_at):
+            # due at this simulated time: published now, from the ask (the loop would take up to its next wake)
+            with self.lock:
+                self._state_dirty = False
+                self.next_state_at = self.sim.clock.monotonic() + self.m.raw.robot.state_period_s
+                if self._state_pub is not None:
+                    self._state_pub.publish(self.robot_state())
+                self.sim.activity += 1  # a new datum out: at least one more round sees where it went
         return ""
 
     # ------------------------------------------------------------------------------------------ bus events

@@ -44,8 +44,14 @@ class Flight:
     """Processor seconds each process of the launch had used by the end (where the time goes)."""
 
     def commands(self) -> list[tuple[str, Any]]:
-        """The record as command sequence and fields (its times left out: they are not the contract)."""
-        return [(r["name"], r["fields"]) for r in self.record]
+        """The mission's part of the record as command sequence and fields (its times left out: they are not the
+        contract): what the DSP applied once simulated time moved. Before that (time 0) come the DSP module's
+        start-up sequence and whatever modules send while the robot starts, which no step orders."""
+        return [(r["name"], r["fields"]) for r in self.record if r["t"] > 0]
+
+    def startup(self) -> list[tuple[str, Any]]:
+        """The record at simulated time 0: the start-up sequence (and the modules' first commands)."""
+        return [(r["name"], r["fields"]) for r in self.record if r["t"] == 0]
 
 
 PROGRAMS = ("modules.", "module_manager.cli", "bbcs.router", "ral")
