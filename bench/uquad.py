@@ -148,7 +148,7 @@ def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(p - (a + t * ab)))
 
 
-def flight(tmp: Path, side: float, nice: int = 0, timeout_s: float = 180.0) -> dict:
+def flight(tmp: Path, side: float, nice: int = 0) -> dict:
     from bbcs.contracts import gri
     from ral.gcs.api import Gcs, session_config
 
@@ -172,7 +172,7 @@ def flight(tmp: Path, side: float, nice: int = 0, timeout_s: float = 180.0) -> d
 
         wait(lambda: states and states[-1].position is not None, 60, "calibrated telemetry")
         home_alt = states[-1].position.alt
-        run(gri.TakeOff(height=HEIGHT_M), "take-off", min(90, timeout_s))
+        run(gri.TakeOff(height=HEIGHT_M), "take-off", 90)
         cfg = load_config(CONF)
         local = Home(cfg.home_lat, cfg.home_lon, cfg.home_alt)
         corners = [np.array(c) for c in ((side, 0, HEIGHT_M), (side, side, HEIGHT_M), (0, side, HEIGHT_M),
@@ -183,12 +183,12 @@ def flight(tmp: Path, side: float, nice: int = 0, timeout_s: float = 180.0) -> d
             waypoints.append(gri.Waypoint(lat=lat, lon=lon, alt=home_alt + HEIGHT_M))
         start = len(truth.lines)
         t0 = time.monotonic()
-        run(gri.Goto(waypoints=waypoints), "square", timeout_s)
+        run(gri.Goto(waypoints=waypoints), "square", 180)
         square_s = time.monotonic() - t0
         path = np.array([line["x"][:3] for line in truth.lines[start:]])
         legs = [(path[0], corners[0])] + [(corners[i], corners[i + 1]) for i in range(3)]
         errors = [min(segment_distance(p, a, b) for a, b in legs) for p in path]
-        run(gri.Land(), "landing", min(60, timeout_s))
+        run(gri.Land(), "landing", 60)
     except (TimeoutError, RuntimeError) as exc:
         failure = f"{exc}; flight module: {' | '.join(re.findall(r'WARNING (error .*)', launch.log('uquad')))}"
         print(f"flight failed: {failure}", file=sys.stderr)
@@ -199,13 +199,16 @@ def flight(tmp: Path, side: float, nice: int = 0, timeout_s: float = 180.0) -> d
         if gcs is not None:
             gcs.close()
         launch.stop()
+    return {"failure": failure, "pos_rms": math.sqrt(float(np.mean(np.square(errors)))) if errors else None,
+            "pos_max": float(max(errors)) if errors else None, "square_s": square_s, **control_figures(tmp)}
+
+
+def control_figures(tmp: Path) -> dict:
+    """IMU → motor latencies and the control period from the control logger's file of the last run."""
     controls = [json.loads(line) for line in (tmp / f"{ROBOT}_control.jsonl").read_text().splitlines()]
-    latencies_ms = [c["latency_s"] * 1000 for c in controls if c["latency_s"] >= 0]
     ts = [c["ts"] for c in controls[10:]]
-    return {"latencies_ms": latencies_ms, "failure": failure,
-            "pos_rms": math.sqrt(float(np.mean(np.square(errors)))) if errors else None,
-            "pos_max": float(max(errors)) if errors else None, "square_s": square_s, "control_actions": len(controls),
-            "ts_p50_ms": _pct(ts, 50) * 1000, "ts_p99_ms": _pct(ts, 99) * 1000}
+    return {"latencies_ms": [c["latency_s"] * 1000 for c in controls if c["latency_s"] >= 0],
+            "control_actions": len(controls), "ts_p50_ms": _pct(ts, 50) * 1000, "ts_p99_ms": _pct(ts, 99) * 1000}
 
 
 def endurance(tmp: Path, minutes: float, speed: float, nice: int = 0) -> dict:
@@ -263,17 +266,23 @@ def main() -> int:
     ap.add_argument("--out", default=None)
     ap.add_argument("--keep", metavar="DIR", default=None, help="keep logs and data files in DIR")
     ap.add_argument("--smoke", action="store_true",
-                    help="a 1 m square (15 s per step at most), 3 simulated seconds of endurance: proves it runs (CI)")
+                    help="no real-time flight, 3 simulated seconds of endurance (latencies from its control log): "
+                         "proves the bench still runs (CI)")
     args = ap.parse_args()
     if args.smoke:
-        args.minutes, args.side = 0.05, 1.0
+        args.minutes = 0.05
     with tempfile.TemporaryDirectory(prefix="bench-uquad-") as d:
         tmp = Path(args.keep or d)
         tmp.mkdir(parents=True, exist_ok=True)
         base50, base99 = baseline_core_ms()
-        fl = flight(tmp, args.side, args.nice, 15.0 if args.smoke else 180.0)
+        # --smoke: a second robot launch and a real-time flight do not fit a CI budget on a loaded machine; the
+        # endurance run goes through the launch, the manifest edits, the simulator's end and the logs
+        fl = None if args.smoke else flight(tmp, args.side, args.nice)
         load_flight = float(Path("/proc/loadavg").read_text().split()[0])
         en = endurance(tmp, args.minutes, args.speed, args.nice)
+        if fl is None:
+            fl = {"failure": "not flown (--smoke)", "pos_rms": None, "pos_max": None, "square_s": math.nan,
+                  **control_figures(tmp)}
     lat = fl["latencies_ms"]
     rows = [
         ("loop body only (baseline, in-process)", f"p50 {base50:.2f} ms", f"p99 {base99:.2f} ms"),
