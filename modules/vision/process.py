@@ -20,7 +20,6 @@ simulated scene: ``target_east``, ``target_north`` (m from the first telemetry p
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING
 
 import msgspec
@@ -136,7 +135,8 @@ class Vision(Module):
                               velocity=(float(p.get("target_ve", "0")), float(p.get("target_vn", "0"))),
                               radius_m=float(p.get("target_radius", "2.0")))
         return SimulatedCamera(world, camera=self.pipeline.config.camera, ground_alt=self.ground_alt,
-                               targets=[target], noise_sigma=float(p.get("noise", "2")))
+                               targets=[target], noise_sigma=float(p.get("noise", "2")),
+                               clock=self.bbcs_clock.monotonic)  # the scene moves in the robot's time
 
     def on_telemetry(self, value: RobotTelemetry) -> None:
         self.latest = value
@@ -169,7 +169,7 @@ class Vision(Module):
             return
         if result.publish:
             self.publish("target", target_datum(result))
-            now = time.monotonic()
+            now = self.bbcs_clock.monotonic()
             if now - self._last_path >= self.path_period:
                 self.publish("path", path_datum(result))
                 self._last_path = now
