@@ -106,8 +106,6 @@ class LiveRobot:
                 self.modules.add((parts[1], parts[2]))
             elif len(parts) >= 3 and parts[2] == "@ral":
                 self.modules.add((parts[1], "ral"))
-        for robot, module in sorted(self.modules):
-            self._entities.append(self.session.liveliness().declare_token(keys.alive_key(robot, module)))
         for key, doc in schemas.items():  # each answers on its own key, as the modules do (a wildcard query)
             payload, own = self._text(json.dumps(doc)).encode(), self._key(key)
             self._entities.append(self.session.declare_queryable(
@@ -118,6 +116,9 @@ class LiveRobot:
             own = mri.mri_key(robot, "routes")
             self._entities.append(self.session.declare_queryable(
                 own, lambda q, own=own, reply=reply: q.reply(own, reply)))
+        # the tokens last: a tool that sees the robot alive finds its descriptions already answered
+        for robot, module in sorted(self.modules):
+            self._entities.append(self.session.liveliness().declare_token(keys.alive_key(robot, module)))
 
     def close(self) -> None:
         for entity in self._entities:

@@ -18,7 +18,7 @@ from bbcs.contracts import gri
 from bbcs.session import local_client, open_session
 from bbcs.testing import Processes, start_router, wait_until
 from cromat.tools.catalog import discover
-from cromat.tools.replay import rebase_stamps
+from cromat.tools.replay import rebase_stamps, recording_meta
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -142,10 +142,11 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
             # issue 34 item 5: while it plays, the replayed robot is live to every tool
             with Gcs(session_config([f"tcp/127.0.0.1:{port}"])) as gcs:
                 wait_until(lambda: gcs.robots(1.0) == ["uav9"], 10, "cromat gcs robots lists the replayed robot")
-            graph = discover(session, "uav9", 2.0)
+            graph = discover(session, "uav9", 10.0)
             assert {m for _, m in graph.modules} == {"dsp", "pan_tilt", "path_follower", "ral", "telemetry",
                                                      "vision"}
-            assert "pan_tilt.datos#10" in graph.slots["cromat/uav9/ral/pt_datos"].readers
+            assert "pan_tilt.datos#10" in graph.slots["cromat/uav9/ral/pt_datos"].readers, \
+                recording_meta(out, "cromat.bus").get("routes")
             r_out, r_err = player.communicate(timeout=60)
             assert player.returncode == 0, r_err
             assert f"replayed {sum(counts.values())} of {sum(counts.values())} messages" in r_out
@@ -154,7 +155,7 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
             wait_until(lambda: len(tel) >= len(data["cromat/uav1/dsp/telemetry"]), 10, "replayed telemetry")
             # the same data, every stamp moved by one offset: the recording began when the replay did
             shift = replayed[0]["stamp"] - expected[0]["stamp"]
-            assert abs(replayed[0]["stamp"] - began) < 5.0, (replayed[0]["stamp"], began)
+            assert began < replayed[0]["stamp"] < time.time(), (replayed[0]["stamp"], began)  # now, not then
             assert same_but_moved(replayed, expected, shift)
             assert same_but_moved(tel, data["cromat/uav1/dsp/telemetry"], shift)
             assert encodings == {"application/msgpack;bbcs.contracts.dsp:Telemetry"}  # says its type, as live
