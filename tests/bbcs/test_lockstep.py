@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Mapping
 
+import msgspec
 import pytest
 
+from bbcs import keys
 from bbcs.clock import SimClock
+from bbcs.context import ModuleContext
 from bbcs.lockstep import (
     MANAGER_MEMBER,
+    SIM_ENV,
     Ask,
     Barrier,
     Done,
@@ -20,7 +25,9 @@ from bbcs.lockstep import (
     settings_env,
     settings_from_env,
 )
+from bbcs.module import Module
 from bbcs.session import local_client, open_session
+from bbcs.slots import InputSlot, Kind
 from bbcs.testing import Processes, start_router, wait_until
 
 
@@ -173,3 +180,60 @@ def test_a_step_over_the_bus_waits_for_every_member() -> None:
         for s in sessions:
             s.close()
         procs.stop_all()
+
+
+class Reading(msgspec.Struct, frozen=True, kw_only=True):
+    n: int
+
+
+class Ticker(Module):
+    """Ticks every 0.5 s of its clock; a handler that takes 0.3 s of wall."""
+
+    name = "ticker"
+    slots = (InputSlot("reading", Reading, kind=Kind.STREAM),)
+    tick_period = 0.5
+
+    def on_start(self) -> None:
+        self.ticks: list[float] = []
+        self.handled: list[int] = []
+
+    def on_tick(self) -> None:
+        self.ticks.append(self.bbcs_clock.monotonic())
+
+    def on_reading(self, value: Reading) -> None:
+        time.sleep(0.3)
+        self.handled.append(value.n)
+
+
+def test_a_module_runs_on_simulated_time_and_answers_only_once_idle(router: int, sessions,  # noqa: ANN001
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """A real Module under CROMAT_SIM: its ticks and heartbeat follow the stepper's time, not the wall, and its
+    answer to an ask comes only after the datum it was handling (the step waits for it)."""
+    monkeypatch.setenv(SIM_ENV, msgspec.json.encode(SimSettings(robot="r1")).decode())
+    mod = Ticker(ModuleContext(robot="r1", module="ticker", bus=local_client(router)))
+    assert isinstance(mod.bbcs_clock, SimClock)
+    loop = threading.Thread(target=mod.run, daemon=True)
+    loop.start()
+    s = sessions()
+    beats: list[float] = []
+    s.declare_subscriber(keys.heartbeat_key("r1", "ticker"), lambda _sample: beats.append(mod.bbcs_clock.monotonic()))
+    stepper = Stepper(s, "r1", required=frozenset())
+    try:
+        wait_until(lambda: stepper.members == {"ticker"}, 10, "the module's member token")
+        time.sleep(0.6)
+        assert mod.ticks == [] and len(beats) <= 1  # the wall moves, simulated time does not: no tick, one beat
+        pub = s.declare_publisher(keys.slot_key("r1", "ticker", "reading"))
+        for step in range(1, 13):  # 1.2 s of simulated time in steps of 0.1 s
+            if step == 3:
+                pub.put(msgspec.msgpack.encode(Reading(n=7)))
+                wait_until(lambda: mod._activity > 0 or mod.handled, 5, "the datum taken")
+            stepper.begin(round(step * 0.1, 3))
+            wait_until(stepper.poll, 10, f"step {step} handled")
+            if step == 3:
+                assert mod.handled == [7]  # the step was handled only once the datum was
+        assert mod.ticks == [0.5, 1.0]
+        assert any(1.0 <= b <= 1.2 for b in beats) and len(beats) <= 2  # one beat a simulated second
+    finally:
+        mod.request_stop()
+        loop.join(10)
+        stepper.close()
