@@ -6,10 +6,12 @@ from pathlib import Path
 
 import pytest
 
+from bbcs.clock import SimClock, SimTime
 from bbcs.lockstep import settings_from_env
 from module_manager import cli
 from module_manager.lockstep import ManagerMember, parse_speed, settings_for
 from module_manager.manifest import ManifestError, parse_manifest
+from module_manager.supervision import Kill, Phase, Policy, Spawn, Supervisor
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "bbcs_conf" / "uav1_sim.toml"
@@ -76,3 +78,21 @@ def test_launch_speed_needs_a_lockstep_manifest(tmp_path: Path, capsys: pytest.C
     assert "--speed needs a lockstep simulation" in capsys.readouterr().err
     assert cli.main([str(path), "--check", "--speed", "fast"]) == 2
     assert "--speed takes 'max' or a positive number" in capsys.readouterr().err
+
+
+def test_the_watchdog_measures_heartbeats_in_simulated_time() -> None:
+    """Lockstep: a module is killed after watchdog_s of *simulated* silence, however long the wall takes, and never
+    for wall time passing while the simulation stands still."""
+    sim = SimClock(epoch=0.0)
+    sup = Supervisor(Policy(watchdog_s=3.0), needs_ack=False, beat_clock=sim.monotonic)
+    sup.start(0.0)
+    assert sup.tick(0.0) == [Spawn(restart_count=0)]
+    sup.spawned(0.0)
+    sup.liveliness(0.0, True)
+    assert sup.phase is Phase.UP
+    sup.heartbeat(100.0)  # the wall says 100 s; the beat is taken at simulated 0
+    assert sup.tick(1000.0) == []  # 900 s of wall, no simulated time: not silent
+    sim.advance(SimTime(step=29, t=2.9, epoch=0.0))
+    assert sup.tick(1001.0) == []
+    sim.advance(SimTime(step=31, t=3.1, epoch=0.0))
+    assert sup.tick(1001.0) == [Kill(reason="watchdog: no heartbeat for 3 s", graceful=False)]
