@@ -123,6 +123,13 @@ trajectory generator, a bridge task's references to the path follower). Besides 
 may write them."""
 
 
+SET_POINT_RATES_HZ = {"pan_tilt": 50.0}
+"""DSP senders whose batches are set-points (the newest supersedes the rest), and the most batches a second the
+router lets through on their command key (Zenoh's downsampling at its ingress, per link and so per identity).
+pan & tilt follows targets at the vision rate (10 Hz); a flood of 53-95 k/s queued on the DSP's link ahead of the
+abort (issue 32 item 1). Not the path follower's: a dropped waypoint or abort batch is never acceptable."""
+
+
 def _own(robot: str, name: str) -> list[str]:
     own = [keys.slot_pattern(robot, name), keys.route_ack_pattern(robot, name), keys.heartbeat_pattern(robot, name)]
     return [*own, *_adv(own), keys.schema_pattern(robot, name)]
@@ -175,6 +182,7 @@ def router_config(
     mesh_robots: list[str] | None = None,
     hubs: list[str] | None = None,
     revoked: list[str] | None = None,
+    write_rates: dict[str, float] | None = None,
 ) -> dict[str, Any]:
     """A complete Zenoh router config: ``tls/`` listeners with mTLS and the access policy above.
 
@@ -307,6 +315,11 @@ def router_config(
             "policies": policies,
         },
     }
+    rates = {keys.slot_pattern(r, DSP_MODULE, commands_slot(s)): hz for s, hz in SET_POINT_RATES_HZ.items()
+             if s in senders} if write_rates is None else dict(write_rates)
+    if rates:  # per link, so per identity: a flood is cut where it enters, before it queues on the DSP's link
+        config["downsampling"] = [{"id": "write-rates", "messages": ["put"], "flows": ["ingress"],
+                                   "rules": [{"key_expr": k, "freq": hz} for k, hz in rates.items()]}]
     if peers or hub_cns:  # it dials other routers ([bus] peers): it presents its own certificate there too
         config["transport"]["link"]["tls"].update({"connect_certificate": cert, "connect_private_key": key})
     return config

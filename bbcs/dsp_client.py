@@ -36,7 +36,9 @@ def commands_output(sender: str) -> Any:
     """Output ``dsp_commands``: writes into the DSP process's command input for ``sender``
     (``dsp/commands_<sender>``, the key only that identity may write under access control, see
     bbcs.contracts.dsp). There is no shared mailbox."""
-    return OutputSlot("dsp_commands", DspCommands, kind=Kind.STREAM, peer=f"{MODULE}/{commands_slot(sender)}")
+    # abort travels here: ahead of bulk and perception data on every link, sent at once (issue 32)
+    return OutputSlot("dsp_commands", DspCommands, kind=Kind.STREAM, peer=f"{MODULE}/{commands_slot(sender)}",
+                      priority="interactive_high", express=True)
 
 
 class DspCommander:

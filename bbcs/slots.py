@@ -44,6 +44,8 @@ log = logging.getLogger("bbcs.slots")
 T = TypeVar("T", bound=msgspec.Struct)
 
 DEFAULT_SAFE_QUEUE = 1024
+PRIORITIES = ("REAL_TIME", "INTERACTIVE_HIGH", "INTERACTIVE_LOW", "DATA_HIGH", "DATA", "DATA_LOW", "BACKGROUND")
+"""Zenoh's priorities, highest first (``SlotSpec.priority`` takes them in lower case)."""
 """Samples a safe input buffers before Zenoh back-pressures its publisher."""
 BACKPRESSURE_S = 0.05
 """A safe ``put`` blocked longer than this is reported as consumer back-pressure."""
@@ -85,6 +87,12 @@ class SlotSpec(Generic[T]):
     """Another module's slot this one is bound to, ``module`` (same slot name) or ``module/slot``: an input
     reads that output (e.g. ``dsp/telemetry``); an output writes into that module's input, a mailbox (e.g.
     ``dsp/commands``). None: the slot lives under this module's own key."""
+    priority: str | None = None
+    """An output's Zenoh priority, by name (``real_time``, ``interactive_high``, ``interactive_low``, ``data_high``,
+    ``data``, ``data_low``, ``background``): what a link sends first when it is busy. None: Zenoh's default (data).
+    The DSP's commands (abort among them) and its telemetry go ahead of bulk and perception data (issue 32)."""
+    express: bool = False
+    """Send at once instead of batching with what follows (Zenoh's express): for rare, urgent outputs."""
 
     def __post_init__(self) -> None:
         keys.validate_name(self.name, "slot name")
@@ -98,6 +106,9 @@ class SlotSpec(Generic[T]):
             raise SlotError(f"slot {self.name!r}: a stream is always safe (every message, in order)")
         if self.queue < 1:
             raise SlotError(f"slot {self.name!r}: queue bound must be at least 1")
+        if self.priority is not None and self.priority.upper() not in PRIORITIES:
+            raise SlotError(f"slot {self.name!r}: priority {self.priority!r} is not one of "
+                            f"{', '.join(p.lower() for p in PRIORITIES)}")
 
     @property
     def codec(self) -> Codec[T]:
@@ -127,9 +138,12 @@ def InputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE, safety: Safe
 
 
 def OutputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE,  # noqa: N802
-               safety: Safety = Safety.SAFE, peer: str | None = None) -> SlotSpec[T]:
-    """Declare an output slot (``peer``: write into that module's input slot of the same name)."""
-    return SlotSpec(name, type, Direction.OUT, Kind(kind), Safety(safety), peer=peer)
+               safety: Safety = Safety.SAFE, peer: str | None = None, priority: str | None = None,
+               express: bool = False) -> SlotSpec[T]:
+    """Declare an output slot (``peer``: write into that module's input slot of the same name; ``priority``,
+    ``express``: :class:`SlotSpec`)."""
+    return SlotSpec(name, type, Direction.OUT, Kind(kind), Safety(safety), peer=peer, priority=priority,
+                    express=express)
 
 
 class _BlockWatch:
@@ -197,13 +211,16 @@ class Publisher(Generic[T]):
         self.backpressure_events = 0
         self._closed = False
         encoding = encoding_for(spec.type)
+        qos: dict[str, Any] = {"express": True} if spec.express else {}
+        if spec.priority is not None:
+            qos["priority"] = getattr(zenoh.Priority, spec.priority.upper())
         if spec.safety is Safety.UNSAFE:
             self._pub: Any = session.declare_publisher(
                 key, encoding=encoding, reliability=zenoh.Reliability.BEST_EFFORT,
-                congestion_control=zenoh.CongestionControl.DROP)
+                congestion_control=zenoh.CongestionControl.DROP, **qos)
         elif spec.kind is Kind.STATE:
             self._pub = zenoh.ext.declare_advanced_publisher(
-                session, key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE,
+                session, key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE, **qos,
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 cache=zenoh.ext.CacheConfig(1),
                 sample_miss_detection=zenoh.ext.MissDetectionConfig(
@@ -211,7 +228,7 @@ class Publisher(Generic[T]):
                 publisher_detection=True)
         elif replay:
             self._pub = zenoh.ext.declare_advanced_publisher(
-                session, key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE,
+                session, key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE, **qos,
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 cache=zenoh.ext.CacheConfig(replay),
                 sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=None),
@@ -219,7 +236,7 @@ class Publisher(Generic[T]):
         else:
             self._pub = session.declare_publisher(
                 key, encoding=encoding, reliability=zenoh.Reliability.RELIABLE,
-                congestion_control=zenoh.CongestionControl.BLOCK)
+                congestion_control=zenoh.CongestionControl.BLOCK, **qos)
         self._type = spec.type
         self._put = self._pub.put
         self._putting = False

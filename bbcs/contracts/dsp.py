@@ -646,6 +646,9 @@ class LinkErrorCode(IntEnum):
     OVER_MAX_SPEED = 102  # SET_SPEED above the .conf MAX_SPEED: the batch was not sent
     FLUSHED = 103  # commands of a batch were dropped, unsent, by an ABORT
     NOT_OWNER = 104  # a sender's batch holds a command class it does not own (COMMAND_RIGHTS): not sent
+    FLOODED = 106
+    """A sender put batches faster than the DSP takes them: coalesced (same set-points) or dropped past its bound,
+    and refusals beyond the first, counted; one report a second naming the sender (modules/dsp/intake.py)."""
     TELEMETRY_REFUSED = 105
     """A telemetry frame that passed the CRC was malformed or had a field outside its declared range: dropped,
     counted (``LinkStats.telemetry_refused``) and reported on the DSP process's ERROR slot, at most once per

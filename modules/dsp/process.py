@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
 from typing import ClassVar, NoReturn
 
 from bbcs.conf import ConfError
@@ -39,6 +38,7 @@ from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.dsp import protocol as p
 from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
+from modules.dsp.intake import CommandIntake, Flood
 from modules.dsp.link import DspLink, open_link, startup
 from modules.dsp.refusals import Refusal, RefusalCounter, RefusalReport
 
@@ -57,9 +57,9 @@ class DspModule(Module):
     name: ClassVar[str] = contract.MODULE
     slots = (
         *(InputSlot(commands_slot(sender), contract.DspCommands, kind=Kind.STREAM) for sender in COMMAND_RIGHTS),
-        OutputSlot(contract.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE),
+        OutputSlot(contract.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE, priority="interactive_low"),
         OutputSlot(contract.ERRORS_SLOT, contract.DspErrorReport, kind=Kind.STREAM),
-        OutputSlot(contract.LINK_SLOT, LinkStats, safety=Safety.UNSAFE),
+        OutputSlot(contract.LINK_SLOT, LinkStats, safety=Safety.UNSAFE, priority="interactive_low"),
         OutputSlot(contract.SENT_SLOT, contract.DspSent, kind=Kind.STREAM),  # each command put on the line
         OutputSlot("error", ErrorReport),
     )
@@ -75,7 +75,7 @@ class DspModule(Module):
 
     def on_start(self) -> None:
         self.conf = self._load_conf()
-        self._batches: deque[contract.DspCommands] = deque()
+        self._batches = CommandIntake()  # bounded per sender, coalescing, never blocking (issue 32 item 1)
         self._cond = threading.Condition()
         self._abort_generation = 0
         self._sender_stop = False
@@ -113,6 +113,11 @@ class DspModule(Module):
             sender.join(timeout=2.0)
 
     def on_tick(self) -> None:
+        cond = getattr(self, "_cond", None)
+        if cond is not None:
+            with cond:
+                floods = self._batches.due(time.monotonic())
+            self._report_floods(floods)
         with self._refusals_lock:
             due = self.refusals.flush(time.monotonic())
         if due is not None:
@@ -167,9 +172,12 @@ class DspModule(Module):
         batch = contract.DspCommands(sender=sender, commands=batch.commands, batch_id=batch.batch_id)
         refused = refused_classes(sender, [type(cmd).__name__ for cmd in batch.commands])
         if refused:
-            detail = f"{sender} does not own {', '.join(refused)}: batch {batch.batch_id} not sent"
-            self.report_error(LinkErrorCode.NOT_OWNER, detail)
-            self._publish_report(LinkErrorCode.NOT_OWNER, detail, batch, refused[0])
+            with self._cond:  # the first of a window in full, the rest counted (a flood of refusals: one report)
+                first = self._batches.refuse(sender, time.monotonic())
+            if first:
+                detail = f"{sender} does not own {', '.join(refused)}: batch {batch.batch_id} not sent"
+                self.report_error(LinkErrorCode.NOT_OWNER, detail)
+                self._publish_report(LinkErrorCode.NOT_OWNER, detail, batch, refused[0])
             return
         self._queue(batch)
 
@@ -182,21 +190,30 @@ class DspModule(Module):
                 self.report_error(BusErrorCode.LIMIT_EXCEEDED, detail)
                 self._publish_report(LinkErrorCode.OVER_MAX_SPEED, detail, batch, "SetSpeed")
                 return
+        abort = any(isinstance(cmd, p.Abort) for cmd in batch.commands)
         with self._cond:
-            if any(isinstance(cmd, p.Abort) for cmd in batch.commands):
-                flushed = list(self._batches)
-                self._batches.clear()
+            flushed = self._batches.offer(batch.sender, batch, tuple(type(c).__name__ for c in batch.commands),
+                                          abort=abort)
+            if abort:
                 self._abort_generation += 1
-                self._batches.appendleft(batch)
-            else:
-                flushed = []
-                self._batches.append(batch)
+            floods = self._batches.due(time.monotonic())
             self._cond.notify_all()
+        self._report_floods(floods)
         if any(isinstance(cmd, p.Abort) for cmd in batch.commands):
             self.log.info("ABORT from %s (batch %d): %d queued batches flushed", batch.sender, batch.batch_id,
                           len(flushed))
         for old in flushed:
             self._publish_report(LinkErrorCode.FLUSHED, f"batch flushed by an ABORT from {batch.sender}", old)
+
+    def _report_floods(self, floods: list[Flood]) -> None:
+        """One report per flooding sender and window, naming it, with what it lost (never one per batch)."""
+        for f in floods:
+            detail = (f"{f.sender} flooded its DSP command key: {f.coalesced} batches coalesced, {f.dropped} dropped "
+                      f"(over {self._batches.bound} waiting), {f.refused} refused (not owner, or by the DSP) "
+                      f"since the last report")
+            self.report_error(LinkErrorCode.FLOODED, detail)
+            self.publish(contract.ERRORS_SLOT, contract.DspErrorReport(
+                code=int(LinkErrorCode.FLOODED), name=LinkErrorCode.FLOODED.name, detail=detail, sender=f.sender))
 
     def _send_loop(self) -> None:
         while True:
@@ -204,7 +221,7 @@ class DspModule(Module):
                 self._cond.wait_for(lambda: self._batches or self._sender_stop)
                 if self._sender_stop:
                     return
-                batch = self._batches.popleft()
+                batch = self._batches.take()[1]  # type: ignore[index]
                 generation = self._abort_generation
                 self._sending = True
             try:
@@ -239,7 +256,10 @@ class DspModule(Module):
             try:
                 self.link.send(cmd)
             except DspRejected as exc:
-                self._publish_report(exc.status, str(exc), batch, name)
+                with self._cond:  # a sender's run of refused batches: the first in full, the rest counted
+                    first = self._batches.refuse(batch.sender, time.monotonic())
+                if first:
+                    self._publish_report(exc.status, str(exc), batch, name)
                 return
             except DspTimeout as exc:
                 self._publish_report(LinkErrorCode.NO_ACK, str(exc), batch, name)

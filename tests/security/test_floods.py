@@ -1,0 +1,90 @@
+"""Issue 32 item 1: a module with the narrowest DSP rights floods its own DSP key; the DSP link holds.
+
+The pan & tilt identity puts valid ``SetPanTiltAngles`` batches on ``dsp/commands_pan_tilt`` as fast as it can
+(before: queued without limit, one report per batch, the error stream filled, back-pressure stopped the heartbeat
+and the watchdog killed the process). Against a real robot router with the generated policy, the real DSP process
+and simulator: during the flood the path follower's ABORT reaches the simulator's record, the process lives on, and
+the flood is reported a handful of times (one FLOODED report a second naming pan_tilt), not once per batch.
+"""
+
+from __future__ import annotations
+
+import select
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+import zenoh
+
+from bbcs.contracts import dsp as bus
+from bbcs.dsp_client import commands_output
+from bbcs.session import open_session
+from bbcs.slots import Publisher
+from bbcs.testing import Processes, wait_until
+from modules.dsp import protocol as p
+from modules.dsp.sim.record import read_record
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_wildcard_puts import ROOT, Inbox, R, Rig, _start  # noqa: E402
+from test_wildcard_puts import rig as rig  # noqa: E402, F401  (the fixture)
+
+FLOOD_S = 4.0
+
+
+def test_a_pan_tilt_flood_neither_stops_the_abort_nor_floods_the_reports(rig: Rig, tmp_path: Path) -> None:
+    record = tmp_path / "dsp.jsonl"
+    procs = Processes()
+    sessions: list[zenoh.Session] = []
+    stop = threading.Event()
+    try:
+        sim = procs.start(["-m", "modules.dsp.sim", "--pty", "--record", str(record)], stdout=subprocess.PIPE,
+                          text=True)
+        assert select.select([sim.stdout], [], [], 15.0)[0], "the simulator printed nothing"
+        _start(procs, rig, "dsp", "--conf", str(ROOT / "bbcs_conf" / "uav1.conf"), "--param",
+               f"port={sim.stdout.readline().strip()}")
+        dsp = procs.procs[-1]
+        gcs = open_session(rig.config("gcs"))
+        flooder = open_session(rig.config("pan_tilt"))
+        follower = open_session(rig.config("path_follower"))
+        sessions += [gcs, flooder, follower]
+        inbox = Inbox(gcs, f"{R}/dsp/link", f"{R}/dsp/errors")
+        wait_until(lambda: inbox.values(f"{R}/dsp/link"), 60, "the DSP process started up")
+        flood_key = f"{R}/dsp/{bus.commands_slot('pan_tilt')}"
+        abort_key = f"{R}/dsp/{bus.commands_slot('path_follower')}"
+        sent = [0]
+
+        def flood() -> None:  # with the module's own output declaration (its priority): the worst case
+            pub = Publisher(flooder, flood_key, commands_output("pan_tilt"))
+            end = time.monotonic() + FLOOD_S
+            while not stop.is_set() and time.monotonic() < end:
+                pub.publish(bus.DspCommands(sender="pan_tilt", batch_id=sent[0], commands=[
+                    p.SetPanTiltAngles(pan_deg=float(sent[0] % 90), tilt_deg=-10.0)]))
+                sent[0] += 1
+            pub.close()
+
+        flooding = threading.Thread(target=flood, daemon=True)
+        flooding.start()
+        time.sleep(1.5)  # the flood well under way
+        abort = Publisher(follower, abort_key, commands_output("path_follower"))  # as the path follower sends it
+        asked = time.monotonic()  # the simulator records CLOCK_MONOTONIC too ('mono'): one clock per host
+        abort.publish(bus.DspCommands(sender="path_follower", commands=[p.Abort()]))
+        wait_until(lambda: any(c["name"] == "ABORT" for c in read_record(record)), 30, "the ABORT at the simulator")
+        took = next(c["mono"] for c in read_record(record) if c["name"] == "ABORT") - asked
+        flooding.join(FLOOD_S + 5)
+        reports = [msgspec.msgpack.decode(v, type=bus.DspErrorReport) for v in inbox.values(f"{R}/dsp/errors")]
+        floods = [r for r in reports if r.code == bus.LinkErrorCode.FLOODED]
+        print(f"\nflood: {sent[0]} batches in {FLOOD_S:g} s; ABORT at the simulator {took * 1000:.0f} ms after it "
+              f"was put; {len(floods)} FLOODED reports, {len(reports)} reports in all")
+        assert took < 2.0, f"the ABORT took {took:.2f} s under the flood"
+        assert floods and all(r.sender == "pan_tilt" for r in floods), reports[:5]
+        assert len(reports) <= 3 * FLOOD_S + 10, f"{len(reports)} reports for one flood"  # never one per batch
+        assert dsp.poll() is None, "the DSP process died under the flood"
+        inbox.close()
+    finally:
+        stop.set()
+        for s in sessions:
+            s.close()
+        procs.stop_all()
