@@ -1,0 +1,467 @@
+"""One launched robot for the campaign: a shipped manifest in lockstep at ``--speed max``, a ground station, the
+flight-safety monitor as the oracle, and the runner of :mod:`campaign_steps` on it (docs/simulation.md, "Campaign").
+
+The manifest is the shipped one with only the simulation's instruments added: lockstep (``[sim] lockstep =
+true``), the .conf's absolute path, and on the DSP simulator's command line its record, its fault-injection
+control port and its truth sent to the monitor (on ``uav1_lidar_sim.toml``, whose lidar simulators already take
+the truth, through a tee in this process). Everything started here is stopped by :meth:`CampaignRobot.close`.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from bbcs.clock import SimTime
+from bbcs.contracts import gri
+from bbcs.contracts import tasks as t
+from bbcs.lockstep import clock_key
+from bbcs.session import local_client, open_session
+from modules.dsp.sim.control import send_command
+from ral.gcs.api import Gcs, GcsError, session_config
+
+ROOT = Path(__file__).resolve().parents[2]
+for _dir in (Path(__file__).resolve().parent, ROOT / "tests" / "system", ROOT / "tests" / "module_manager"):
+    if str(_dir) not in sys.path:
+        sys.path.insert(0, str(_dir))
+from campaign_steps import Cell, Profile, Step  # noqa: E402
+from launch_support import Launch, group_members  # noqa: E402
+from monitor_support import MonitorView, attach_monitor, free_udp_port  # noqa: E402
+
+ROBOT = "uav1"
+GRID_DEG = 1e-4
+END_EVENTS = frozenset({"task_completed", "task_cancelled", "task_replaced", "task_failed", "aborted",
+                        "task_rejected"})
+STUCK_WALL_S = 90.0
+"""Wall seconds without simulated time moving after which the robot is taken as stuck (an incident)."""
+LAND_WAIT_SIM_S = 150.0
+SETTLE_SIM_S = 4.0
+"""Simulated seconds watched on the ground after a sequence: the monitor's last judgements are due by then
+(commands 3 s, an abort 2 s, a loss of control 3.5 s after the fact)."""
+
+
+class Stuck(RuntimeError):
+    """The simulation stopped moving, or the robot cannot be brought back to the ground: an incident."""
+
+
+class Tee:
+    """Forwards every UDP datagram it gets on 127.0.0.1 to several local ports (the simulator's truth to the
+    lidar simulators and the monitor)."""
+
+    def __init__(self, targets: list[int]) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.targets = [("127.0.0.1", p) for p in targets]
+        self.stopping = False
+        self.thread = threading.Thread(target=self._run, name="campaign-truth-tee", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stopping:
+            try:
+                data = self.sock.recv(65536)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            for target in self.targets:
+                try:
+                    self.sock.sendto(data, target)
+                except OSError:
+                    pass
+
+    def close(self) -> None:
+        self.stopping = True
+        self.thread.join(2.0)
+        self.sock.close()
+
+
+def _replace_once(text: str, old: str, new: str, what: str) -> str:
+    if text.count(old) != 1:
+        raise RuntimeError(f"{what}: {old!r} is not in the shipped manifest once (it changed)")
+    return text.replace(old, new, 1)
+
+
+def campaign_manifest(profile: Profile, workdir: Path, monitor_truth: int, control: int) -> tuple[Path, Path,
+                                                                                                  Tee | None]:
+    """The shipped manifest with the simulation's instruments (module docstring). Returns (manifest, DSP record,
+    the truth tee when one is needed)."""
+    shipped = ROOT / "bbcs_conf" / profile.manifest
+    text = shipped.read_text()
+    record = workdir / "dsp_record.jsonl"
+    text = _replace_once(text, 'conf = "uav1.conf"', f'conf = "{shipped.parent / "uav1.conf"}"', "the .conf")
+    if "lockstep = true" not in text:
+        text = _replace_once(text, "\n[bus]\n", "\n[sim]\nlockstep = true\n\n[bus]\n", "[bus]")
+    dsp = '"--tcp", "127.0.0.1:{port:dsp}"'
+    extra = f', "--record", "{record}", "--control", "127.0.0.1:{control}"'
+    tee = None
+    if '"--truth-udp", "127.0.0.1:{port:truth}"' in text:  # uav1_lidar_sim.toml: the lidar simulators follow it
+        lidar = free_udp_port()
+        tee = Tee([lidar, monitor_truth])
+        text = _replace_once(text, '"--truth-udp", "127.0.0.1:{port:truth}"', f'"--truth-udp", "127.0.0.1:{tee.port}"',
+                             "the DSP simulator's truth")
+        text = _replace_once(text, '"--follow-udp", "{port:truth}"', f'"--follow-udp", "{lidar}"',
+                             "the lidar simulators' truth")
+    else:
+        extra += f', "--truth-udp", "127.0.0.1:{monitor_truth}"'
+    text = _replace_once(text, dsp + "]", dsp + extra + "]", "the DSP simulator's command line")
+    if "params = { ldmrs_host" in text:  # the lidar logger writes its scans into the work folder, not runs/
+        text = _replace_once(text, "params = { ldmrs_host", f'params = {{ out_dir = "{workdir / "lidar"}", ldmrs_host',
+                             "the lidar logger's params")
+    path = workdir / profile.manifest
+    path.write_text(text)
+    return path, record, tee
+
+
+@dataclass
+class Outcome:
+    """What one step did, as the runner saw it (for the report of a failing sequence)."""
+
+    step: Step
+    note: str
+    sim_t: float
+
+
+@dataclass
+class Anchor:
+    lat: float
+    lon: float
+    alt: float
+
+    def at(self, cell: Cell, height: float | None = None) -> tuple[float, float, float]:
+        """A grid cell's coordinates (on the DSP's 10^-4 degree grid), ``height`` metres above the anchor."""
+        lat = round(round(self.lat / GRID_DEG) * GRID_DEG + cell[0] * GRID_DEG, 4)
+        lon = round(round(self.lon / GRID_DEG) * GRID_DEG + cell[1] * GRID_DEG, 4)
+        return lat, lon, self.alt + (height or 0.0)
+
+
+@dataclass
+class Sequence:
+    steps: list[Step]
+    outcomes: list[Outcome] = field(default_factory=list)
+    breaches: list[Any] = field(default_factory=list)
+    sim_s: float = 0.0
+    wall_s: float = 0.0
+    incident: str = ""
+    watched: dict[str, int] = field(default_factory=dict)
+    """What the monitor watched during it (its status counters' increase): an oracle that saw nothing vouches
+    for nothing."""
+    failed: list[str] = field(default_factory=list)
+    """Tasks that failed during it, with the robot's reason (not a breach by itself: the monitor judges that)."""
+
+
+WATCHED = ("commands_judged", "verdicts", "truth", "gri_compared", "telemetry")
+
+
+def _counters(monitor: MonitorView) -> dict[str, int]:
+    st = monitor.status
+    return {k: getattr(st, k) for k in WATCHED} if st is not None else dict.fromkeys(WATCHED, 0)
+
+
+class CampaignRobot:
+    """A robot launched once and flown through many sequences, each ended on the ground by :meth:`reset`."""
+
+    def __init__(self, profile: Profile, workdir: Path, *, log=print, launch_timeout_s: float = 180.0) -> None:
+        self.profile = profile
+        self.workdir = workdir
+        self.log = log
+        self.stack = ExitStack()
+        self.lock = threading.Lock()
+        self.events: list[gri.GriEvent] = []
+        self.state: gri.GriState | None = None
+        self.sim_t = 0.0
+        self._sim_seen = time.monotonic()
+        self.link: Gcs | None = None
+        try:
+            self._start(launch_timeout_s)
+        except BaseException:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------------ start and stop
+
+    def _start(self, timeout_s: float) -> None:
+        workdir = self.workdir
+        workdir.mkdir(parents=True, exist_ok=True)
+        truth, self.control = free_udp_port(), free_udp_port()
+        manifest, self.record, tee = campaign_manifest(self.profile, workdir, truth, self.control)
+        if tee is not None:
+            self.stack.callback(tee.close)
+        t0 = time.monotonic()
+        self.launch = Launch(manifest, workdir, "--speed", "max")
+        self.stack.callback(self._stop_launch)
+        self.launch.wait_line("modules up", timeout_s)
+        self.launch_s = time.monotonic() - t0
+        endpoint = f"tcp/127.0.0.1:{self.launch.port}"
+        self.session = open_session(local_client(self.launch.port))
+        self.stack.callback(self.session.close)
+        decode = msgspec.msgpack.Decoder(SimTime).decode
+        sub = self.session.declare_subscriber(clock_key(ROBOT), lambda s: self._on_time(decode(s.payload.to_bytes())))
+        self.stack.callback(sub.undeclare)
+        self.gcs = Gcs(session_config([endpoint]), name="campaign", timeout_s=20.0)
+        self.stack.callback(self.gcs.close)
+        self.gcs.watch(ROBOT, self._on_state)
+        self.gcs.events(ROBOT, self._on_event)
+        self._open_link()
+        self.stack.callback(self._close_link)
+        self.monitor: MonitorView = self.stack.enter_context(attach_monitor(self.launch.port, workdir,
+                                                                            truth_port=truth))
+        first = self._wait(lambda: self.state is not None and self.state.home is not None
+                           and self.state.position is not None and self.state.link == "up", 60.0,
+                           "a GRI state with home, position and the campaign's link")
+        assert first.home is not None
+        self.anchor = Anchor(first.home.lat, first.home.lon, first.home.alt)
+        self.monitor.wait_watching(60.0)
+        self.ready_s = time.monotonic() - t0
+
+    def _stop_launch(self) -> None:
+        try:
+            self.launch.stop(timeout_s=20.0)
+        finally:
+            self.launch.cleanup()
+            (self.workdir / "launch.out").write_text("\n".join(self.launch.lines) + "\n")
+
+    def close(self) -> None:
+        self.stack.close()
+
+    def _open_link(self) -> None:
+        self.link = Gcs(session_config([f"tcp/127.0.0.1:{self.launch.port}"]), name="campaign_link", link=[ROBOT])
+
+    def _close_link(self) -> None:
+        if self.link is not None:
+            self.link.close()
+            self.link = None
+
+    # ------------------------------------------------------------------ what the robot says
+
+    def _on_time(self, now: SimTime) -> None:
+        if now.t > self.sim_t:
+            self.sim_t = now.t
+            self._sim_seen = time.monotonic()
+
+    def _on_state(self, state: gri.GriState) -> None:
+        with self.lock:
+            self.state = state
+
+    def _on_event(self, event: gri.GriEvent) -> None:
+        with self.lock:
+            self.events.append(event)
+
+    def _wait(self, pred, sim_s: float, what: str) -> gri.GriState:  # noqa: ANN001
+        """Until ``pred()`` holds, at most ``sim_s`` simulated seconds; Stuck when simulated time stops moving."""
+        end = self.sim_t + sim_s
+        while True:
+            with self.lock:
+                state = self.state
+            if pred():
+                assert state is not None or self.state is not None
+                return self.state  # type: ignore[return-value]
+            if self.sim_t >= end:
+                raise Stuck(f"{what}: not within {sim_s:g} simulated seconds")
+            if time.monotonic() - self._sim_seen > STUCK_WALL_S:
+                raise Stuck(f"{what}: simulated time stopped at {self.sim_t:.1f} s for {STUCK_WALL_S:g} wall s")
+            if self.launch.proc.poll() is not None:
+                raise Stuck(f"{what}: cromat launch exited {self.launch.proc.returncode}")
+            time.sleep(0.02)
+
+    def sleep_sim(self, s: float) -> None:
+        end = self.sim_t + s
+        self._wait(lambda: self.sim_t >= end, s + 1.0, f"{s:g} simulated seconds")
+
+    # ------------------------------------------------------------------ steps
+
+    def run(self, seq: Sequence, deadline: float | None = None) -> Sequence:
+        """Fly ``seq.steps``, then :meth:`reset`; the monitor's breaches of that span and what each step did go
+        into ``seq``. An incident (the robot stuck, not back on the ground) ends it early and is recorded."""
+        mark = len(self.monitor.seen())
+        first_event = len(self.events)
+        before = _counters(self.monitor)
+        sim0, wall0 = self.sim_t, time.monotonic()
+        self.last_task = 0
+        try:
+            for s in seq.steps:
+                if deadline is not None and time.monotonic() > deadline:
+                    seq.incident = "stopped: the campaign's wall budget ran out mid-sequence"
+                    break
+                try:
+                    note = self.do(s)
+                except GcsError as exc:  # a request no one answered (the RAL restarting): an answer of its own
+                    note = f"no answer: {exc}"
+                seq.outcomes.append(Outcome(s, note, self.sim_t))
+            self.reset()
+        except Stuck as exc:
+            seq.incident = str(exc)
+        except GcsError as exc:
+            seq.incident = f"the ground station, resetting: {exc}"
+        seq.sim_s, seq.wall_s = self.sim_t - sim0, time.monotonic() - wall0
+        seq.breaches = self.monitor.seen()[mark:]
+        seq.watched = {k: v - before[k] for k, v in _counters(self.monitor).items()}
+        with self.lock:
+            seq.failed = [f"task {e.task_id}: {e.detail}" for e in self.events[first_event:] if e.kind == "task_failed"]
+        return seq
+
+    def do(self, s: Step) -> str:
+        """One step; returns what came of it (a refusal is an answer, not an incident)."""
+        op = s.op
+        if op == "wait":
+            self.sleep_sim(s["s"])
+            return "waited"
+        if op == "done":
+            return self._until_done(s["s"])
+        if op == "kill":
+            return self._kill(s["module"])
+        if op == "link_loss":
+            self._close_link()
+            time.sleep(s["s"])  # the link's timeouts are on the wall clock (docs/simulation.md)
+            self._open_link()
+            return f"link cut {s['s']:g} wall s"
+        if op == "bad_frame":
+            return send_command("127.0.0.1", self.control, f"spoil {s['field']}={s['value']} {s['count']}")
+        if op == "restart_ral":
+            return self._reply(self.gcs.restart(ROBOT, "ral"))
+        if op == "route":
+            routes = self.gcs.route(ROBOT, "pan_tilt", "datos", s["datos"])
+            return f"pan_tilt.datos = {routes.routes.get('pan_tilt', {}).get('datos')}"
+        return self._reply(self.gcs.send(ROBOT, self.request(s)))
+
+    def _reply(self, reply: gri.TaskReply) -> str:
+        if reply.accepted:
+            self.last_task = reply.task_id
+            return f"accepted task {reply.task_id}"
+        return f"refused: {reply.reason}"
+
+    def request(self, s: Step) -> gri.TaskRequest:
+        """The GRI request of a task step, its places turned into coordinates from the anchor."""
+        a = self.anchor
+        op = s.op
+        simple = {"take_off": lambda: gri.TakeOff(height=s["h"]), "land": gri.Land, "hold": gri.Hold,
+                  "abort": gri.Abort, "track": gri.Track}
+        if op in simple:
+            return simple[op]()
+        if op in ("goto", "follow_path"):
+            wps = [gri.Waypoint(lat=lat, lon=lon, alt=alt) for lat, lon, alt in (a.at(c, s["h"]) for c in s["to"])]
+            if op == "goto":
+                return gri.Goto(waypoints=wps, speed=s["v"])
+            mode = s["mode"]
+            return gri.FollowPath(waypoints=wps, speed=s["v"], heading=0.5 if mode == 1 else None,
+                                  follower="onboard" if mode == 3 else "dsp")
+        if op == "survey":
+            (n, e), (dn, de) = s["at"][0], s["size"][0]
+            corners = [(n, e), (n + dn, e), (n + dn, e + de), (n, e + de)]
+            return t.Survey(polygon=[t.Vertex(lat=a.at(c)[0], lon=a.at(c)[1]) for c in corners], height=s["h"],
+                            overlap=s["overlap"])
+        if op == "orbit":
+            lat, lon, _ = a.at(s["at"][0])
+            return t.Orbit(lat=lat, lon=lon, radius=s["r"], height=s["h"], turns=s["turns"])
+        if op == "pan_tilt":
+            return gri.SetPanTilt(pan=s["pan"], tilt=s["tilt"])
+        if op == "look_at":
+            lat, lon, alt = a.at(s["at"][0])
+            return gri.LookAt(lat=lat, lon=lon, alt=alt)
+        raise ValueError(f"no request for step {op!r}")
+
+    def _until_done(self, sim_s: float) -> str:
+        task = self.last_task
+        if not task:
+            return "no task to wait for"
+        found: list[gri.GriEvent] = []
+
+        def ended() -> bool:
+            with self.lock:
+                found[:] = [e for e in self.events if e.task_id == task and e.kind in END_EVENTS]
+            return bool(found)
+
+        try:
+            self._wait(ended, sim_s, f"task {task} ending")
+        except Stuck:
+            if self.sim_t < 1.0 or time.monotonic() - self._sim_seen > STUCK_WALL_S:
+                raise
+            return f"task {task} still running after {sim_s:g} s"
+        e = found[0]
+        return f"task {task} {e.kind}" + (f": {e.detail}" if e.detail else "")
+
+    def _kill(self, module: str) -> str:
+        state = self.state
+        status = next((m for m in (state.modules if state else []) if m.name == module), None)
+        if status is None or status.pid is None:
+            return f"{module} has no process now"
+        if status.pid not in group_members(self.launch.pgid):  # only a process of this launch, ever
+            return f"{module}'s pid {status.pid} is not (or no longer) of this launch"
+        try:
+            os.kill(status.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            return f"{module} (pid {status.pid}) already gone"
+        return f"killed {module} (pid {status.pid})"
+
+    # ------------------------------------------------------------------ between sequences
+
+    def reset(self) -> None:
+        """Back to the start of a sequence: linked, routes as the manifest has them, every module up, on the
+        ground, and the monitor's last judgements made."""
+        if self.link is None:
+            self._open_link()
+        self.wait_healthy()
+        if self.profile.routes:
+            routes = self.gcs.routes(ROBOT).routes.get("pan_tilt", {})
+            if routes.get("datos") != self.profile.routes[0]:
+                self.gcs.route(ROBOT, "pan_tilt", "datos", self.profile.routes[0])
+        for _ in range(3):
+            if self._on_ground():
+                break
+            reply = self.gcs.send(ROBOT, gri.Land())
+            if not reply.accepted:
+                self.sleep_sim(2.0)
+                continue
+            self.last_task = reply.task_id
+            self._until_done(LAND_WAIT_SIM_S)
+            try:
+                self._wait(self._on_ground, 20.0, "on the ground")
+            except Stuck:
+                if time.monotonic() - self._sim_seen > STUCK_WALL_S:
+                    raise
+        if not self._on_ground():
+            raise Stuck("not back on the ground after three landings")
+        self.sleep_sim(SETTLE_SIM_S)
+        try:
+            self.monitor.settle(60.0)
+        except AssertionError as exc:
+            raise Stuck(f"the monitor did not judge every command: {str(exc).splitlines()[0]}") from None
+
+    def recovered(self) -> bool:
+        """After an incident: whether a reset now succeeds (else the robot is relaunched)."""
+        if self.launch.proc.poll() is not None:
+            return False
+        try:
+            self.reset()
+        except (Stuck, GcsError) as exc:
+            self.log(f"  the robot did not recover: {exc}")
+            return False
+        return True
+
+    def wait_healthy(self, sim_s: float = 60.0) -> None:
+        """Until a GRI state newer than now (the RAL alive) shows every module up, the manager up and our link."""
+        with self.lock:
+            since = self.state.stamp if self.state is not None else 0.0
+
+        def healthy() -> bool:
+            st = self.state
+            return st is not None and st.stamp > since and st.manager_up and st.link == "up" \
+                and all(m.state == "up" for m in st.modules)
+
+        self._wait(healthy, sim_s, "every module up, a fresh GRI state and the campaign's link")
+
+    def _on_ground(self) -> bool:
+        st = self.state
+        return st is not None and st.airborne is False
