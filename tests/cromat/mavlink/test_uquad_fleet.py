@@ -41,6 +41,13 @@ class Fleet:
         gcs.watch("*", lambda s: self.states.__setitem__(s.robot, s))
         gcs.events(QUAD, self.events.append)
 
+    def task_end(self, mark: int, what: str) -> None:
+        """The uQuad's first task to end after ``mark`` completed (else: what the GRI said instead)."""
+        ended = ("task_completed", "task_failed", "task_cancelled", "task_replaced", "aborted")
+        wait_until(lambda: any(e.kind in ended for e in self.events[mark:]), 90, f"the {what} ended")
+        end = next(e for e in self.events[mark:] if e.kind in ended)
+        assert end.kind == "task_completed", (what, end, self.events[mark:])
+
     def state(self, robot: str, pred, what: str, timeout_s: float = 30.0) -> gri.GriState:  # noqa: ANN001
         wait_until(lambda: robot in self.states and pred(self.states[robot]), timeout_s, what)
         return self.states[robot]
@@ -132,10 +139,14 @@ def test_uquad_takes_off_and_lands_from_mavsdk(fleet: Fleet) -> None:
             pos = await first(tel.subscribe_position())
             here = fleet.states[QUAD].position
             assert here is not None and _metres(pos.latitude_deg, pos.longitude_deg, here.lat, here.lon) < 1.0
+            mark = len(fleet.events)
             await act.takeoff()  # the uQuad's own take-off height: TAKEOFF_HEIGHT_DEFAULT, 3 m
-            await first(tel.subscribe_position(), lambda p: p.relative_altitude_m > 2.4, 60)
+            await asyncio.to_thread(fleet.task_end, mark, "take_off")
+            await first(tel.subscribe_position(), lambda p: p.relative_altitude_m > 2.4, 20)
+            mark = len(fleet.events)
             await act.land()
-            await first(tel.subscribe_in_air(), lambda x: not x, 90)
+            await asyncio.to_thread(fleet.task_end, mark, "land")
+            await first(tel.subscribe_in_air(), lambda x: not x, 20)
         finally:
             m.destroy()
 
