@@ -168,13 +168,14 @@ def test_record_holds_the_scans(lidar_robot, tmp_path):
         scan = msgspec.json.decode(message.data, type=LidarScan)
         assert scan.points > 0 and scan.pose_valid
         recorded.append(scan)
-    # replayed onto another router, the scans come back as they were on the bus, points byte for byte
+    # replayed onto another router, the scans come back as they were on the bus, points byte for byte (stamps
+    # kept as recorded: a replay moves them to now by default)
     procs = Processes()
     try:
         port = start_router(procs)
         session, replayed, lock = bus_scans(port)
         try:
-            rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", str(out), "--fast")
+            rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", str(out), "--fast", "--keep-stamps")
             assert rep.returncode == 0, rep.stderr
             try:
                 wait_until(lambda: len(replayed) >= len(recorded), 30, "every recorded scan replayed")
