@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT / "tests" / "campaign"))
 from campaign_run import run_campaign  # noqa: E402
 from campaign_steps import PROFILES, parse_steps, show_steps  # noqa: E402
 
-DEFAULT_SEQUENCES = 12
+DEFAULT_SEQUENCES = 8
 DEFAULT_SEED = 31
 DEFAULT_BUDGET_S = 150.0
 """Wall seconds after which no new sequence starts (the launch included): the default run ends within 3 minutes
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", help="fly these steps once instead of generated sequences (a printed reproduction)")
     ap.add_argument("--budget-s", type=float, default=DEFAULT_BUDGET_S,
                     help=f"wall seconds after which no sequence starts ({DEFAULT_BUDGET_S:g}; 0: none)")
-    ap.add_argument("--shrink", type=int, default=6, help="runs spent shrinking each failing sequence (6)")
+    ap.add_argument("--shrink", type=int, default=4, help="runs spent shrinking each failing sequence (4)")
     ap.add_argument("--smoke", action="store_true", help="one short sequence: the bench still runs")
     ap.add_argument("--keep", help="keep the robots' logs and DSP records in this folder")
     ap.add_argument("--out", help="result file (default bench/results/campaign.json)")

@@ -127,7 +127,7 @@ def run_campaign(seed: int, n: int, profiles: list[Profile], workdir: Path, *, b
                     result.skipped += len(todo) - k
                     log(f"wall budget of {budget_s:g} s spent: {len(todo) - k} sequences not run")
                     break
-                seq = robot.run(Sequence(list(steps)), deadline)
+                seq = robot.run(Sequence(list(steps)))
                 result.sim_s += seq.sim_s
                 info = describe(seq) | {"index": index, "profile": name}
                 result.sequences.append(info)
@@ -175,7 +175,7 @@ def _shrink(robot: CampaignRobot, failure: Failure, budget: int, deadline: float
     def fails(candidate: list[Step]) -> bool:
         if deadline is not None and time.monotonic() > deadline:
             return False
-        seq = robot.run(Sequence(list(candidate)), deadline)
+        seq = robot.run(Sequence(list(candidate)))
         got = {b.kind for b in seq.breaches}
         log(f"  shrink: {len(candidate)} steps -> {', '.join(sorted(got)) or 'no breach'}")
         return bool(got & wanted)

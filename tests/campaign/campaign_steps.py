@@ -222,6 +222,8 @@ def _route(rng: random.Random, n: int) -> tuple[Cell, ...]:
 
 
 def _task(rng: random.Random, op: str, profile: Profile) -> Step:
+    """A task the robot admits: the survey's lines wide enough for the generator's turns (uav1_lidar_sim.toml:
+    at 25 m or more with 20 % overlap or less), heights above MIN_CLEARANCE, speeds within MAX_SPEED."""
     h = rng.choice(HEIGHTS)
     if op == "take_off":
         return step(op)
@@ -232,7 +234,7 @@ def _task(rng: random.Random, op: str, profile: Profile) -> Step:
         return step(op, mode=rng.choice(modes), to=_route(rng, rng.randint(2, 4)), h=h, v=rng.choice(SPEEDS))
     if op == "survey":
         return step(op, at=(_cell(rng),), size=((rng.randint(2, 4), rng.randint(2, 4)),),
-                    h=rng.choice((20.0, 25.0)), overlap=rng.choice((0.2, 0.3, 0.5)))
+                    h=rng.choice((25.0, 30.0)), overlap=rng.choice((0.0, 0.1, 0.2)))
     if op == "orbit":
         return step(op, at=(_cell(rng),), r=float(rng.choice((15, 25, 40))), h=rng.choice((15.0, 20.0, 25.0)),
                     turns=rng.choice((0.25, 0.5, 1.0)))
