@@ -35,6 +35,7 @@ class RobotSpec:
     battery_full_v: float | None = None
     battery_empty_v: float | None = None
     rtl_height: float = 10.0
+    """The .conf's RETURN_HEIGHT (m above home): the return-to-launch flies home at least this high."""
 
 
 def spec_from_manifest(path: str) -> RobotSpec:
@@ -51,9 +52,10 @@ def spec_from_manifest(path: str) -> RobotSpec:
     def num(value: object) -> float | None:
         return number(value) if isinstance(value, str) else None
 
+    rtl = num(doc.get("RETURN_HEIGHT")) or num(ral.get("return_height_m"))  # the .conf's, as the RAL's return
     return RobotSpec(name=m.robot, params=table, takeoff_height=num(takeoff), max_speed=num(max_speed),
                      battery_full_v=num(ral.get("battery_full_v")), battery_empty_v=num(ral.get("battery_empty_v")),
-                     rtl_height=num(ral.get("return_height_m")) or 10.0)
+                     rtl_height=rtl or 10.0)
 
 
 @dataclass
