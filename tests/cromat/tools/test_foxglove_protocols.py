@@ -36,11 +36,13 @@ LAT = 37.123456
 
 
 @pytest.fixture(scope="module")
-def npm_modules(request: pytest.FixtureRequest) -> Path:
-    """``node_modules`` with Foxglove's client, installed once into pytest's (git-ignored) cache."""
+def npm_modules(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``node_modules`` with Foxglove's client, installed once into pytest's (git-ignored) cache, or into the
+    test's temporary folder when the cache is off (``-p no:cacheprovider``)."""
     if shutil.which("node") is None or shutil.which("npm") is None:
         pytest.skip("node and npm are not installed: Foxglove's npm client cannot run here")
-    folder = Path(request.config.cache.mkdir("foxglove_npm"))
+    cache = getattr(request.config, "cache", None)
+    folder = Path(cache.mkdir("foxglove_npm")) if cache is not None else tmp_path_factory.mktemp("foxglove_npm")
     modules = folder / "node_modules"
     if not (modules / "@foxglove" / "ws-protocol" / "package.json").exists():
         (folder / "package.json").write_text('{"name": "cromat-foxglove-test", "private": true}\n')
