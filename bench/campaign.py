@@ -58,8 +58,9 @@ def main(argv: list[str] | None = None) -> int:
 
     with tempfile.TemporaryDirectory(prefix="cromat-campaign-") as tmp:
         workdir = Path(args.keep) if args.keep else Path(tmp)
-        result = run_campaign(args.seed, args.sequences, profiles, workdir, budget_s=args.budget_s or None,
-                              shrink_budget=0 if args.smoke else args.shrink, given=given)
+        result = run_campaign(args.seed, 0 if given else args.sequences, profiles, workdir,
+                              budget_s=args.budget_s or None, shrink_budget=0 if args.smoke else args.shrink,
+                              given=[given] if given else [])
     summary = result.summary()
     rows = [("sequences run", f"{summary['campaign_sequences']}" + (f" ({result.skipped} not run: wall budget)"
                                                                    if result.skipped else "")),

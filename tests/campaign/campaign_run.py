@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,7 +40,8 @@ class Failure:
     shrink_exhausted: bool = False
 
     def report(self) -> str:
-        head = f"sequence {self.index} on {self.profile}: " + (", ".join(self.kinds) or "no breach") + \
+        which = f"sequence {self.index}" if self.index >= 0 else f"given sequence {-self.index}"
+        head = f"{which} on {self.profile}: " + (", ".join(self.kinds) or "no breach") + \
             (f"; incident: {self.incident}" if self.incident else "")
         lines = [head, f"  steps: {show_steps(self.steps)}", *("  " + d.replace("\n", "\n  ") for d in self.described)]
         if self.shrunk is not None:
@@ -98,21 +99,21 @@ def describe(seq: Sequence) -> dict[str, Any]:
 
 
 def run_campaign(seed: int, n: int, profiles: list[Profile], workdir: Path, *, budget_s: float | None = None,
-                 shrink_budget: int = 6, gen: GenConfig = GenConfig(), given: list[Step] | None = None,
+                 shrink_budget: int = 6, gen: GenConfig = GenConfig(), given: Iterable[list[Step]] = (),
                  log: Callable[[str], None] = print) -> CampaignResult:
-    """``n`` sequences of campaign ``seed``, sequence i on ``profiles[i % len(profiles)]`` (or the ``given`` steps
-    once on ``profiles[0]``). Stops starting sequences once ``budget_s`` wall seconds have gone, and shrinks a
-    failing sequence only while the budget lasts."""
+    """The ``given`` sequences (regressions, a reproduction: indices -1, -2, ...) on ``profiles[0]``, then ``n``
+    sequences of campaign ``seed``, sequence i on ``profiles[i % len(profiles)]``. Stops starting sequences once
+    ``budget_s`` wall seconds have gone (the launches included), and shrinks a failing generated sequence only while
+    the budget lasts."""
     t0 = time.monotonic()
     deadline = t0 + budget_s if budget_s is not None else None
     result = CampaignResult(seed)
     plan: dict[str, list[tuple[int, list[Step]]]] = {}
-    if given is not None:
-        plan[profiles[0].name] = [(0, given)]
-    else:
-        for i in range(n):
-            p = profiles[i % len(profiles)]
-            plan.setdefault(p.name, []).append((i, generate(seed, i, p, gen)))
+    for k, steps in enumerate(given):
+        plan.setdefault(profiles[0].name, []).append((-k - 1, list(steps)))
+    for i in range(n):
+        p = profiles[i % len(profiles)]
+        plan.setdefault(p.name, []).append((i, generate(seed, i, p, gen)))
     for name, todo in plan.items():
         profile = PROFILES[name]
         if deadline is not None and time.monotonic() > deadline:
@@ -138,7 +139,7 @@ def run_campaign(seed: int, n: int, profiles: list[Profile], workdir: Path, *, b
                     + "".join(f"\n    failed {f}" for f in seq.failed))
                 if kinds or seq.incident:
                     failure = Failure(name, index, list(steps), kinds, info["breaches"], seq.incident)
-                    if kinds and shrink_budget > 0:
+                    if kinds and shrink_budget > 0 and index >= 0:
                         _shrink(robot, failure, shrink_budget, deadline, log)
                     result.failures.append(failure)
                 if seq.incident and not robot.recovered():
