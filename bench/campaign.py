@@ -31,6 +31,8 @@ DEFAULT_SEED = 31
 DEFAULT_BUDGET_S = 150.0
 """Wall seconds after which no new sequence starts (the launch included): the default run ends within 3 minutes
 on this loaded 2-core machine however slow it is that day (sequences not run are counted as skipped)."""
+SMOKE_BUDGET_S = 75.0
+"""--smoke: no launch attempt or sequence starts after this (tests/bench/test_smoke.py stops a run at 110 s)."""
 SMOKE_STEPS = "take_off; done s=60; goto to=1:0 h=15 v=8; done s=60"
 
 
@@ -58,9 +60,9 @@ def main(argv: list[str] | None = None) -> int:
 
     with tempfile.TemporaryDirectory(prefix="cromat-campaign-") as tmp:
         workdir = Path(args.keep) if args.keep else Path(tmp)
-        result = run_campaign(args.seed, 0 if given else args.sequences, profiles, workdir,
-                              budget_s=args.budget_s or None, shrink_budget=0 if args.smoke else args.shrink,
-                              given=[given] if given else [])
+        budget = SMOKE_BUDGET_S if args.smoke else args.budget_s or None
+        result = run_campaign(args.seed, 0 if given else args.sequences, profiles, workdir, budget_s=budget,
+                              shrink_budget=0 if args.smoke else args.shrink, given=[given] if given else [])
     summary = result.summary()
     rows = [("sequences run", f"{summary['campaign_sequences']}" + (f" ({result.skipped} not run: wall budget)"
                                                                    if result.skipped else "")),

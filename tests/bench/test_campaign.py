@@ -32,8 +32,8 @@ REGRESSIONS = [
 """Sequences the campaign found breaches in, shrunk, flown first on every run (docs/simulation.md, "Campaign")."""
 KNOWN = {
     "spin": lambda b: "failed_while_progressing" in b and "loss of control (spin)" in b,
-    "mode_replayed": lambda b: "untraced_command" in b and "SetMode(mode=<Mode.TAKE_OFF: 4>)" in b
-    and "'path_follower'" in b,
+    # the restarted path follower's first batch: SET_TRACKING 0, INVALIDATE_PATH, SET_MODE TAKE_OFF
+    "mode_replayed": lambda b: "untraced_command" in b and "from 'path_follower' (batch 1)" in b,
 }
 """Product defects this campaign found and cannot fix in its own files (docs/simulation.md, "Campaign", "Found"):
 
@@ -41,8 +41,8 @@ KNOWN = {
   time.time()), so the RAL's health rules (ral/health.py, on the telemetry's stamps) see the yaw rate multiplied
   by the simulation's speed and fail a path at its turns while the aircraft progresses;
 - ``mode_replayed``: a completed take-off leaves its mode in the manager's latched path_follower_mode slot (ending
-  a movement task sends no mode, issue 30 case 1), so a path follower restarted later reads it and commands
-  TAKE_OFF with no task behind it."""
+  a movement task sends no mode, issue 30 case 1), so a path follower restarted later reads it and sends
+  SET_TRACKING 0, INVALIDATE_PATH, SET_MODE TAKE_OFF with no task behind them (issue 30 case 1's commands)."""
 
 
 def known_defect(breach_text: str) -> str | None:

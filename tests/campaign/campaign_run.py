@@ -119,7 +119,7 @@ def run_campaign(seed: int, n: int, profiles: list[Profile], workdir: Path, *, b
         if deadline is not None and time.monotonic() > deadline:
             result.skipped += len(todo)
             continue
-        robot = _launch(profile, workdir, log)
+        robot = _launch(profile, workdir, log, deadline)
         try:
             result.launches[name] = round(robot.ready_s, 1)
             log(f"  up and watched in {robot.ready_s:.1f} s (launch {robot.launch_s:.1f} s)")
@@ -145,7 +145,7 @@ def run_campaign(seed: int, n: int, profiles: list[Profile], workdir: Path, *, b
                 if seq.incident and not robot.recovered():
                     robot.close()
                     result.relaunches += 1
-                    robot = _launch(profile, workdir, log)
+                    robot = _launch(profile, workdir, log, deadline)
         finally:
             robot.close()
     result.wall_s = time.monotonic() - t0
@@ -155,10 +155,12 @@ def run_campaign(seed: int, n: int, profiles: list[Profile], workdir: Path, *, b
 LAUNCH_ATTEMPTS = 3
 
 
-def _launch(profile: Profile, workdir: Path, log: Callable[[str], None]) -> CampaignRobot:
+def _launch(profile: Profile, workdir: Path, log: Callable[[str], None], deadline: float | None) -> CampaignRobot:
     """The robot up and watched. A launch that fails to come up is tried again (on this loaded machine a process
-    may miss its manifest's 15 s readiness window); the third failure is raised."""
+    may miss its manifest's 15 s readiness window), not after the deadline; the last failure is raised."""
     for attempt in range(1, LAUNCH_ATTEMPTS + 1):
+        if attempt > 1 and deadline is not None and time.monotonic() > deadline:
+            raise AssertionError(f"{profile.manifest} did not come up before the wall budget ran out")
         log(f"launching {profile.manifest} in lockstep at --speed max (attempt {attempt}) ...")
         try:
             return CampaignRobot(profile, workdir / f"{profile.name}-{attempt}", log=log)
