@@ -60,7 +60,8 @@ class HealthConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     max_off_m: _Pos = 30.0
     off_s: _NonNeg = 3.0
     max_yaw_rate_dps: _Pos = 120.0
-    spin_s: _Pos = 1.0
+    spin_s: _Pos = 3.0
+    """With ``max_yaw_rate_dps`` 120: a full turn. A turn towards a waypoint (half a turn at most) is never a spin."""
     clear_s: _NonNeg = 2.0
     action_critical: HealthAction = "land"
     action_error: HealthAction = "hold"
@@ -214,7 +215,7 @@ class HealthMonitor:
         while len(h) > 2 and tel.stamp - h[1][0] >= self.cfg.spin_s:
             h.popleft()
         span = tel.stamp - h[0][0]
-        if span < self.cfg.spin_s:
+        if span < self.cfg.spin_s or len(h) < 3:  # one step between two samples cannot tell a turn's direction
             return None
         rate = (h[-1][1] - h[0][1]) / span
         if abs(rate) > self.cfg.max_yaw_rate_dps:

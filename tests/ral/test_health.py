@@ -184,6 +184,18 @@ def test_heading_spinning_across_north_is_found_and_a_turn_is_not() -> None:
     assert run(on_ground, turned_by_hand) == []
 
 
+def test_a_helicopter_turning_towards_its_next_waypoint_is_not_a_spin_on_the_defaults() -> None:
+    """Seen in a goto on the shipped UAV: 132° between two states a second apart while the DSP turned the nose to the
+    next waypoint. With the defaults (a full turn in spin_s) half a turn at any rate, sampled at 1 Hz, is no spin."""
+    mon = HealthMonitor(HealthConfig())
+    jump = [tel(0.0, heading=0.0), tel(1.0, heading=132.0), tel(2.0, heading=180.0), tel(3.0, heading=180.0),
+            tel(4.0, heading=180.0)]
+    assert run(mon, jump) == []
+    spinning = HealthMonitor(HealthConfig())
+    faults = run(spinning, [tel(10.0 + k * 0.5, heading=(75.0 * k) % 360.0) for k in range(10)])  # 150°/s
+    assert [f.detector for f in faults] == ["spin"] and faults[0].stamp == 13.0
+
+
 # ---------------------------------------------------------------- episodes and actions
 
 
