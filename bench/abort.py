@@ -88,13 +88,15 @@ class Launch:
     def wait_up(self, timeout_s: float = 90.0) -> None:
         assert self.proc.stdout is not None
         end = time.monotonic() + timeout_s
+        lines = []
         for line in self.proc.stdout:
             if "modules up" in line:
                 threading.Thread(target=self._drain, daemon=True).start()
                 return
+            lines.append(line.rstrip())
             if time.monotonic() > end:
                 break
-        raise RuntimeError("cromat launch did not bring every module up")
+        raise RuntimeError("cromat launch did not bring every module up:\n" + "\n".join(lines[-10:]))
 
     def _drain(self) -> None:
         assert self.proc.stdout is not None
@@ -223,6 +225,15 @@ def main(argv: list[str] | None = None) -> int:
             time.sleep(0.05)
         if watch.position is None:
             raise RuntimeError("no DSP telemetry")
+        # the RAL admits a path only once it knows the take-off point (from the telemetry the manager folds in,
+        # later than the DSP's own): on a loaded machine the first path came before it and was refused
+        states: list[gri.GriState] = []
+        gcs.watch(ROBOT, states.append)
+        t_end = time.monotonic() + 60
+        while not (states and states[-1].home is not None) and time.monotonic() < t_end:
+            time.sleep(0.05)
+        if not states or states[-1].home is None:
+            raise RuntimeError("the RAL does not know the take-off point: no GRI state with a home in 60 s")
         lat0 = round(watch.position[0] / GRID_DEG) * GRID_DEG
         lon0 = round(watch.position[1] / GRID_DEG) * GRID_DEG
         alt = watch.position[2] + 20.0
