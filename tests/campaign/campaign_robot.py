@@ -147,6 +147,36 @@ class Anchor:
         return lat, lon, self.alt + (height or 0.0)
 
 
+def task_request(s: Step, a: Anchor) -> gri.TaskRequest:
+    """The GRI request of a task step, its places turned into coordinates from the anchor."""
+    op = s.op
+    simple = {"take_off": lambda: gri.TakeOff(height=s["h"]), "land": gri.Land, "hold": gri.Hold,
+              "abort": gri.Abort, "track": gri.Track}
+    if op in simple:
+        return simple[op]()
+    if op in ("goto", "follow_path"):
+        wps = [gri.Waypoint(lat=lat, lon=lon, alt=alt) for lat, lon, alt in (a.at(c, s["h"]) for c in s["to"])]
+        if op == "goto":
+            return gri.Goto(waypoints=wps, speed=s["v"])
+        mode = s["mode"]
+        return gri.FollowPath(waypoints=wps, speed=s["v"], heading=0.5 if mode == 1 else None,
+                              follower="onboard" if mode == 3 else "dsp")
+    if op == "survey":
+        (n, e), (dn, de) = s["at"][0], s["size"][0]
+        corners = [(n, e), (n + dn, e), (n + dn, e + de), (n, e + de)]
+        return t.Survey(polygon=[t.Vertex(lat=a.at(c)[0], lon=a.at(c)[1]) for c in corners], height=s["h"],
+                        overlap=s["overlap"])
+    if op == "orbit":
+        lat, lon, _ = a.at(s["at"][0])
+        return t.Orbit(lat=lat, lon=lon, radius=s["r"], height=s["h"], turns=s["turns"])
+    if op == "pan_tilt":
+        return gri.SetPanTilt(pan=s["pan"], tilt=s["tilt"])
+    if op == "look_at":
+        lat, lon, alt = a.at(s["at"][0])
+        return gri.LookAt(lat=lat, lon=lon, alt=alt)
+    raise ValueError(f"no request for step {op!r}")
+
+
 @dataclass
 class Sequence:
     steps: list[Step]
@@ -338,43 +368,13 @@ class CampaignRobot:
         if op == "route":
             routes = self.gcs.route(ROBOT, "pan_tilt", "datos", s["datos"])
             return f"pan_tilt.datos = {routes.routes.get('pan_tilt', {}).get('datos')}"
-        return self._reply(self.gcs.send(ROBOT, self.request(s)))
+        return self._reply(self.gcs.send(ROBOT, task_request(s, self.anchor)))
 
     def _reply(self, reply: gri.TaskReply) -> str:
         if reply.accepted:
             self.last_task = reply.task_id
             return f"accepted task {reply.task_id}"
         return f"refused: {reply.reason}"
-
-    def request(self, s: Step) -> gri.TaskRequest:
-        """The GRI request of a task step, its places turned into coordinates from the anchor."""
-        a = self.anchor
-        op = s.op
-        simple = {"take_off": lambda: gri.TakeOff(height=s["h"]), "land": gri.Land, "hold": gri.Hold,
-                  "abort": gri.Abort, "track": gri.Track}
-        if op in simple:
-            return simple[op]()
-        if op in ("goto", "follow_path"):
-            wps = [gri.Waypoint(lat=lat, lon=lon, alt=alt) for lat, lon, alt in (a.at(c, s["h"]) for c in s["to"])]
-            if op == "goto":
-                return gri.Goto(waypoints=wps, speed=s["v"])
-            mode = s["mode"]
-            return gri.FollowPath(waypoints=wps, speed=s["v"], heading=0.5 if mode == 1 else None,
-                                  follower="onboard" if mode == 3 else "dsp")
-        if op == "survey":
-            (n, e), (dn, de) = s["at"][0], s["size"][0]
-            corners = [(n, e), (n + dn, e), (n + dn, e + de), (n, e + de)]
-            return t.Survey(polygon=[t.Vertex(lat=a.at(c)[0], lon=a.at(c)[1]) for c in corners], height=s["h"],
-                            overlap=s["overlap"])
-        if op == "orbit":
-            lat, lon, _ = a.at(s["at"][0])
-            return t.Orbit(lat=lat, lon=lon, radius=s["r"], height=s["h"], turns=s["turns"])
-        if op == "pan_tilt":
-            return gri.SetPanTilt(pan=s["pan"], tilt=s["tilt"])
-        if op == "look_at":
-            lat, lon, alt = a.at(s["at"][0])
-            return gri.LookAt(lat=lat, lon=lon, alt=alt)
-        raise ValueError(f"no request for step {op!r}")
 
     def _until_done(self, sim_s: float) -> str:
         task = self.last_task
