@@ -56,15 +56,20 @@ class Fleet:
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
     quad_dir, uav_dir = tmp_path_factory.mktemp("uquad"), tmp_path_factory.mktemp("uav")
-    quad = Launch(uquad_manifest(quad_dir), quad_dir)
-    uav = gcs = gw = None
+    manifest, _record = sim_manifest(uav_dir)
+    uav = Launch(manifest, uav_dir)
+    quad = gcs = gw = None
     try:
-        quad.wait_line("modules up in", 120)
-        # the UAV's router meshes with the uQuad's (a fleet of two): one router reaches both robots
-        peer = f'listen = ["tcp/127.0.0.1:7447"]\npeers = ["tcp/127.0.0.1:{quad.port}"]'
-        manifest, _record = sim_manifest(uav_dir, edit=lambda t: t.replace('listen = ["tcp/127.0.0.1:7447"]', peer))
-        uav = Launch(manifest, uav_dir)
         uav.wait_line("modules up in", 120)
+        # the uQuad's router meshes with the UAV's (a fleet of two): one router reaches both robots. The UAV starts
+        # first: the uQuad's processes run at a flight computer's priority (nice -10) and would starve its start
+        quad_manifest = uquad_manifest(quad_dir)
+        text = quad_manifest.read_text()
+        listen = 'listen = ["tcp/127.0.0.1:7448"]'
+        assert listen in text
+        quad_manifest.write_text(text.replace(listen, f'{listen}\npeers = ["tcp/127.0.0.1:{uav.port}"]'))
+        quad = Launch(quad_manifest, quad_dir)
+        quad.wait_line("modules up in", 120)
         gcs = Gcs(session_config([f"tcp/127.0.0.1:{quad.port}"]), name="observer", timeout_s=10.0)
         gw, udp, tcp = gateway(quad.port, "--manifest", str(ROOT / "bbcs_conf" / "uav1_sim.toml"), "--robot",
                                "uav1=1", "--manifest", str(ROOT / "bbcs_conf" / "uquad1_sim.toml"), "--robot",
@@ -78,7 +83,7 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
             print("gateway output (the last 60 lines):", *gw.lines[-60:], sep="\n")
         if gcs is not None:
             gcs.close()
-        for la in (uav, quad):
+        for la in (quad, uav):
             if la is not None:
                 la.stop()
                 la.cleanup()
