@@ -123,11 +123,12 @@ trajectory generator, a bridge task's references to the path follower). Besides 
 may write them."""
 
 
-SET_POINT_RATES_HZ = {"pan_tilt": 50.0}
+SET_POINT_RATES_HZ = {"pan_tilt": 200.0}
 """DSP senders whose batches are set-points (the newest supersedes the rest), and the most batches a second the
-router lets through on their command key (Zenoh's downsampling at its ingress, per link and so per identity).
-pan & tilt follows targets at the vision rate (10 Hz); a flood of 53-95 k/s queued on the DSP's link ahead of the
-abort (issue 32 item 1). Not the path follower's: a dropped waypoint or abort batch is never acceptable."""
+router lets through on their command key (Zenoh's downsampling at its ingress, per link and so per identity): a
+put within 5 ms of the last one passed is dropped. pan & tilt follows targets at the vision rate (10 Hz); a flood of
+53-95 k/s queued on the DSP's link ahead of the abort (issue 32 item 1). Not the path follower's: a dropped waypoint
+or abort batch is never acceptable."""
 
 
 def _own(robot: str, name: str) -> list[str]:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,7 @@ import pytest
 import zenoh
 import zenoh.ext
 
+from bbcs import acl
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
@@ -378,7 +380,9 @@ def test_dsp_commands_reach_the_simulator_only_from_their_owner(rig: Rig, who: S
             who("pan_tilt").put(f"{R}/dsp/commands_pan_tilt", _batch("path_follower", p.SetMode(mode=p.Mode.LANDING)))
             wait_until(lambda: any(b"NOT_OWNER" in v or b"does not own" in v
                                    for v in observer.values(f"{R}/dsp/errors")), 30, "the DSP's NOT_OWNER report")
-            # accepted: each owner's own class on its own key; the record then shows exactly these
+            # accepted: each owner's own class on its own key; the record then shows exactly these (the router
+            # passes one put on pan & tilt's key per 1/SET_POINT_RATES_HZ: this one comes after its refused one)
+            time.sleep(2 / acl.SET_POINT_RATES_HZ["pan_tilt"])
             who("pan_tilt").put(f"{R}/dsp/commands_pan_tilt", _batch("x", p.SetPanTiltAngles(pan_deg=10, tilt_deg=5)))
             wait_until(lambda: "SET_PT_ANGLES" in names(), 30, "the pan & tilt command at the simulator")
             who("path_follower").put(f"{R}/dsp/commands_path_follower", _batch("x", p.Abort()))
