@@ -124,7 +124,7 @@ def run_campaign(seed: int, n: int, profiles: list[Profile], workdir: Path, *, b
             result.launches[name] = round(robot.ready_s, 1)
             log(f"  up and watched in {robot.ready_s:.1f} s (launch {robot.launch_s:.1f} s)")
             for k, (index, steps) in enumerate(todo):
-                if deadline is not None and time.monotonic() > deadline:
+                if not _time_for_one(result, deadline):
                     result.skipped += len(todo) - k
                     log(f"wall budget of {budget_s:g} s spent: {len(todo) - k} sequences not run")
                     break
@@ -140,7 +140,7 @@ def run_campaign(seed: int, n: int, profiles: list[Profile], workdir: Path, *, b
                 if kinds or seq.incident:
                     failure = Failure(name, index, list(steps), kinds, info["breaches"], seq.incident)
                     if kinds and shrink_budget > 0 and index >= 0:
-                        _shrink(robot, failure, shrink_budget, deadline, log)
+                        _shrink(robot, failure, shrink_budget, deadline, result, log)
                     result.failures.append(failure)
                 if seq.incident and not robot.recovered():
                     robot.close()
@@ -171,12 +171,20 @@ def _launch(profile: Profile, workdir: Path, log: Callable[[str], None], deadlin
     raise AssertionError("unreachable")
 
 
-def _shrink(robot: CampaignRobot, failure: Failure, budget: int, deadline: float | None,
+def _time_for_one(result: CampaignResult, deadline: float | None) -> bool:
+    """Whether a sequence as long on the wall as the mean so far still ends before the deadline."""
+    if deadline is None:
+        return True
+    walls = [s["wall_s"] for s in result.sequences]
+    return time.monotonic() + (sum(walls) / len(walls) if walls else 0.0) <= deadline
+
+
+def _shrink(robot: CampaignRobot, failure: Failure, budget: int, deadline: float | None, result: CampaignResult,
             log: Callable[[str], None]) -> None:
     wanted = set(failure.kinds)
 
     def fails(candidate: list[Step]) -> bool:
-        if deadline is not None and time.monotonic() > deadline:
+        if not _time_for_one(result, deadline):
             return False
         seq = robot.run(Sequence(list(candidate)))
         got = {b.kind for b in seq.breaches}
