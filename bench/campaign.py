@@ -28,7 +28,7 @@ from campaign_steps import PROFILES, parse_steps, show_steps  # noqa: E402
 
 DEFAULT_SEQUENCES = 8
 DEFAULT_SEED = 31
-DEFAULT_BUDGET_S = 150.0
+DEFAULT_BUDGET_S = 140.0
 """Wall seconds after which no new sequence starts (the launch included): the default run ends within 3 minutes
 on this loaded 2-core machine however slow it is that day (sequences not run are counted as skipped)."""
 SMOKE_BUDGET_S = 75.0
