@@ -28,6 +28,7 @@ from test_gcs_survey import POLYGON  # noqa: E402
 from modules.dsp.sim.record import read_record  # noqa: E402
 
 N_MODULES = 6
+GOTO_SPEED = 5.0
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -42,6 +43,8 @@ class Flight:
     events: list[str]
     cpu_s: dict[str, float] | None = None
     """Processor seconds each process of the launch had used by the end (where the time goes)."""
+    home: tuple[float, float, float] | None = None
+    """The take-off point the GRI reported (lat, lon, alt)."""
 
     def commands(self) -> list[tuple[str, Any]]:
         """The mission's part of the record as command sequence and fields (its times left out: they are not the
@@ -93,6 +96,15 @@ def stop(procs: list[subprocess.Popen]) -> None:
         p.wait(10)
 
 
+def goal_of(home: tuple[float, float, float] | None) -> tuple[float, float, float]:
+    """The goto's goal: two 10^-4-degree grid cells (22 m) north of the take-off point's cell, 10 m above it (on
+    the grid, so what the DSP receives equals what the ground station sent)."""
+    assert home is not None
+    lat, lon, alt = home
+    return (round(round(lat / GRID_DEG) * GRID_DEG + 2 * GRID_DEG, 4), round(round(lon / GRID_DEG) * GRID_DEG, 4),
+            alt + 10.0)
+
+
 def _done(robot: SimRobot, task_id: int, timeout_s: float, what: str) -> str:
     event = robot.wait_event(lambda e: e.task_id == task_id and e.kind in ("task_completed", "task_failed"),
                              timeout_s, what)
@@ -117,9 +129,8 @@ def fly_mission(tmp_path: Path, *, watch_s: float = 20.0, timeout_s: float = 240
         reply = gcs.send(ROBOT, gri.TakeOff(height=10.0))
         assert reply.accepted, reply.reason
         kinds.append(_done(robot, reply.task_id, timeout_s, "take-off ended"))
-        goal = gri.Waypoint(lat=round(round(home.lat / GRID_DEG) * GRID_DEG + 2 * GRID_DEG, 4),
-                            lon=round(round(home.lon / GRID_DEG) * GRID_DEG, 4), alt=home.alt + 10.0)
-        reply = gcs.send(ROBOT, gri.Goto(waypoints=[goal], speed=5.0))
+        lat, lon, alt = goal_of((home.lat, home.lon, home.alt))
+        reply = gcs.send(ROBOT, gri.Goto(waypoints=[gri.Waypoint(lat=lat, lon=lon, alt=alt)], speed=GOTO_SPEED))
         assert reply.accepted, reply.reason
         kinds.append(_done(robot, reply.task_id, timeout_s, "goto ended"))
         reply = gcs.send(ROBOT, gri.Land())
@@ -130,7 +141,7 @@ def fly_mission(tmp_path: Path, *, watch_s: float = 20.0, timeout_s: float = 240
                          f"{watch_s:g} simulated seconds of watching after the landing")
         end = robot.state
         return Flight(record=read_record(record), sim_s=end.stamp - sim0, wall_s=time.monotonic() - wall0,
-                      events=kinds, cpu_s=cpu_by_process(la.pgid))
+                      events=kinds, cpu_s=cpu_by_process(la.pgid), home=(home.lat, home.lon, home.alt))
     finally:
         if gcs is not None:
             gcs.close()
