@@ -47,6 +47,7 @@ from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.trajectory import GeoPoint as TrajPoint
 from bbcs.contracts.trajectory import OrbitRequest, SurveyRequest, TrajectoryRequest, TrajectoryStatus
 from bbcs.module import Module
+from bbcs.params import raise_first, struct_param_errors
 from bbcs.signing import FleetTrust
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from ral import faults as telemetry_faults
@@ -54,7 +55,6 @@ from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.fleet import FleetLink, can_do_from, goto_of, own_state_of
 from ral.fleet_protocol import Execute, FleetConfig, OwnState
 from ral.health import HealthConfig, HealthFault, HealthMonitor, load_health, ral_conf_errors
-from ral.params import raise_first, struct_param_errors
 from ral.tasks import (
     JudgeConfig,
     Limits,
@@ -150,7 +150,7 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
 
     @classmethod
     def from_params(cls, params: dict[str, str]) -> tuple[RalConfig, dict[str, str]]:
-        """The RAL's configuration; a :class:`ral.params.ParamError` (exit ``EXIT_CONFIG``: not restarted) naming
+        """The RAL's configuration; a :class:`bbcs.params.ParamError` (exit ``EXIT_CONFIG``: not restarted) naming
         every problem :meth:`param_errors` finds."""
         raise_first(cls.param_errors(params), source="manifest params of the RAL")
         plain = {k: v for k, v in params.items() if not k.startswith("task.")}

@@ -1,9 +1,9 @@
 """Checking a module's manifest ``params`` (strings) against the struct they configure, every problem at once.
 
 ``cromat launch --check`` (module_manager/manifest.py) calls a module class's ``param_errors(params)`` hook and
-names each problem with the manifest's file:line; the module itself raises the first of them as a
-:class:`ParamError` (a ``ConfError``: the module exits with ``EXIT_CONFIG`` and is not restarted), so the check
-and the module never disagree.
+names each problem with the manifest's file:line; the module itself loads its params with :func:`load_params`
+(the same check, raised as a :class:`ParamError`, a ``ConfError``: the module exits with ``EXIT_CONFIG`` and is
+not restarted), so the check and the module never disagree. Ranges and choices live in the struct's types.
 """
 
 from __future__ import annotations
@@ -11,11 +11,13 @@ from __future__ import annotations
 import difflib
 import enum
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, TypeVar
 
 import msgspec
 
 from bbcs.conf import ConfError
+
+S = TypeVar("S", bound=msgspec.Struct)
 
 
 class ParamError(ConfError, ValueError):
@@ -60,3 +62,10 @@ def raise_first(errors: list[tuple[str, str]], *, source: str) -> None:
     """Raise every problem as one :class:`ParamError` (the module's log names them all), or nothing."""
     if errors:
         raise ParamError("; ".join(f"{key}: {reason}" for key, reason in errors), path=source)
+
+
+def load_params(cls: type[S], params: Mapping[str, str], *, what: str) -> S:
+    """``params`` as ``cls`` (every field defaulted), or a :class:`ParamError` naming every problem
+    :func:`struct_param_errors` finds: the module's own load, the very check ``cromat launch --check`` runs."""
+    raise_first(struct_param_errors(cls, params, what=what), source=f"manifest params of {what}")
+    return msgspec.convert(dict(params), cls, strict=False)
