@@ -20,7 +20,7 @@ simulated scene: ``target_east``, ``target_north`` (m from the first telemetry p
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated
 
 import msgspec
 
@@ -30,6 +30,7 @@ from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.module import Module
+from bbcs.params import load_params, struct_param_errors
 from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 
 if TYPE_CHECKING:  # the vision parts (numpy) are imported where they are used: the Module Manager imports this
@@ -37,6 +38,27 @@ if TYPE_CHECKING:  # the vision parts (numpy) are imported where they are used: 
     from modules.vision.pipeline import VisionResult
     from modules.vision.pose import AircraftPose, Gimbal
     from modules.vision.source import CameraSource
+
+
+class VisionParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """The vision module's manifest ``params``: checked by ``cromat launch --check`` and loaded by the module
+    through the same :func:`bbcs.params.load_params`."""
+
+    camera: Annotated[str, msgspec.Meta(pattern=r"^(sim|folder:.+|v4l2:.*)$")] = "sim"
+    """``sim`` | ``folder:PATH`` | ``v4l2:DEVICE``."""
+    rate: Annotated[float, msgspec.Meta(ge=0.1, le=200)] = 10.0
+    """Frames per second."""
+    ground_alt: float = 0.0
+    """Ground altitude, metres."""
+    path_period: Annotated[float, msgspec.Meta(gt=0)] = 2.0
+    """Seconds between short paths."""
+    target_east: float = 20.0
+    target_north: float = 0.0
+    target_ve: float = 0.0
+    target_vn: float = 0.0
+    target_radius: Annotated[float, msgspec.Meta(gt=0)] = 2.0
+    noise: Annotated[float, msgspec.Meta(ge=0)] = 2.0
+    """Grey levels of the simulated camera's noise."""
 
 
 class VisionStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -93,16 +115,19 @@ class Vision(Module):
     )
     error_slot = "error"
 
+    @staticmethod
+    def param_errors(params: dict[str, str]) -> list[tuple[str, str]]:
+        """Every problem of the manifest's vision ``params`` (``cromat launch --check``, with file:line)."""
+        return struct_param_errors(VisionParams, params, what="vision")
+
     def __init__(self, context) -> None:  # type: ignore[no-untyped-def]
         super().__init__(context)
-        p = context.params
-        self.rate = float(p.get("rate", "10"))
-        if not 0.1 <= self.rate <= 200:
-            raise ValueError(f"vision: rate {self.rate} frames/s outside [0.1, 200]")
+        self.cfg = load_params(VisionParams, context.params, what="vision")  # ParamError: exit 78, no restart
+        self.rate = self.cfg.rate
         self.tick_period = 1.0 / self.rate
-        self.ground_alt = float(p.get("ground_alt", "0"))
-        self.path_period = float(p.get("path_period", "2"))
-        self.camera_spec = p.get("camera", "sim")
+        self.ground_alt = self.cfg.ground_alt
+        self.path_period = self.cfg.path_period
+        self.camera_spec = self.cfg.camera
         from modules.vision.geometry import CameraModel
         from modules.vision.pipeline import VisionConfig, VisionPipeline
 
@@ -128,14 +153,13 @@ class Vision(Module):
         from modules.vision.scene import LinearTarget
         from modules.vision.sim_camera import SimulatedCamera
 
-        p = self.context.params
+        p = self.cfg
         self._simulated = True
         world = LocalFrame(first.position.lat, first.position.lon, self.ground_alt)
-        target = LinearTarget(start=(float(p.get("target_east", "20")), float(p.get("target_north", "0"))),
-                              velocity=(float(p.get("target_ve", "0")), float(p.get("target_vn", "0"))),
-                              radius_m=float(p.get("target_radius", "2.0")))
+        target = LinearTarget(start=(p.target_east, p.target_north), velocity=(p.target_ve, p.target_vn),
+                              radius_m=p.target_radius)
         return SimulatedCamera(world, camera=self.pipeline.config.camera, ground_alt=self.ground_alt,
-                               targets=[target], noise_sigma=float(p.get("noise", "2")),
+                               targets=[target], noise_sigma=p.noise,
                                clock=self.bbcs_clock.monotonic)  # the scene moves in the robot's time
 
     def on_telemetry(self, value: RobotTelemetry) -> None:
