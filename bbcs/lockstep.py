@@ -42,7 +42,7 @@ SIM_ENV = "CROMAT_SIM"
 MANAGER_MEMBER = "manager"
 """The manager's member name (no module may be called so: the manager's own slots live under it). Not
 ``@manager``: a key chunk starting with ``@`` is matched by no wildcard."""
-DEFAULT_STEP_S = 0.1
+DEFAULT_STEP_S = 0.2
 DEFAULT_DEADLINE_S = 20.0
 RETRY_FIRST_S = 0.002
 RETRY_MAX_S = 0.05

@@ -126,8 +126,8 @@ class SimSection(_Section):
     speed: Positive | Literal["max"] | None = None
     """Simulated seconds per wall second at most, or "max"; unset: each simulator's own ``--time-scale``
     (``cromat launch --speed`` overrides both)."""
-    step_s: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.1
-    """Simulated seconds between two barriers."""
+    step_s: Annotated[float, msgspec.Meta(gt=0.0, le=1.0)] = 0.2
+    """Simulated seconds between two barriers (each costs a few bus round trips to every module)."""
     deadline_s: Positive = 20.0
     """Wall seconds a step waits for a module before it goes on without it (a loaded machine may take seconds)."""
 

@@ -6,7 +6,6 @@ and any module. Its one input is fixed, not routed: the DSP process's telemetry 
 
 from __future__ import annotations
 
-import time
 from typing import ClassVar
 
 from bbcs import dsp_client
@@ -27,7 +26,7 @@ class TelemetryModule(Module):
         self.fields_dropped = 0
 
     def on_dsp_telemetry(self, t: p.Telemetry) -> None:
-        value, dropped = to_robot_telemetry(t, time.time())
+        value, dropped = to_robot_telemetry(t, self.bbcs_clock.time())  # stamped on the robot's clock
         if dropped:
             self.fields_dropped += len(dropped)
             self.log.warning(

@@ -100,7 +100,7 @@ class DspSimulator:
                  rx_faults: FaultInjector | None = None, record_path: str | os.PathLike[str] | None = None,
                  fail_at: list[tuple[float, int]] | None = None, seed: int | None = None,
                  bad_telemetry: BadTelemetry | None = None, clock: Callable[[], float] = time.monotonic,
-                 truth: TruthSender | None = None, stepper: Stepper | None = None, frame_s: float = 0.1,
+                 truth: TruthSender | None = None, stepper: Stepper | None = None, frame_s: float = 0.2,
                  speed: float | None = 1.0) -> None:
         if rate_hz <= 0 or time_scale <= 0:
             raise ValueError("rate_hz and time_scale must be positive")
