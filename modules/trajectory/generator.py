@@ -5,52 +5,45 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
+import msgspec
 import numpy as np
 
 from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
 from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, SmoothRequest, SurveyRequest, TrajectoryRequest
+from bbcs.params import load_params, struct_param_errors
 from modules.trajectory import planning
 from modules.trajectory.planning import LocalFrame, PlanningError
 
 
-@dataclass(frozen=True)
-class Limits:
-    """The aircraft and the datum of the path follower's ``altura``."""
+class Limits(msgspec.Struct, frozen=True, kw_only=True):
+    """The aircraft and the datum of the path follower's ``altura``: the trajectory module's manifest ``params``
+    (ranges in the types; ``cromat launch --check`` and the module load them through the same function)."""
 
-    speed: float = 10.0
+    speed: Annotated[float, msgspec.Meta(gt=0)] = 10.0
     """Survey speed, m/s: with ``max_bank_deg`` it sets the turn radius."""
-    max_bank_deg: float = 25.0
+    max_bank_deg: Annotated[float, msgspec.Meta(gt=0, lt=90)] = 25.0
     ground_altitude: float = 0.0
     """Added to a request's height above the ground to give the waypoints' ``altura``."""
-    line_extension: float = 5.0
+    line_extension: Annotated[float, msgspec.Meta(ge=0)] = 5.0
     """Lines run this far past the polygon before a turn starts (turns are flown outside it)."""
-    arc_step_deg: float = 10.0
-    max_points: int = 2000
+    arc_step_deg: Annotated[float, msgspec.Meta(gt=0, le=45)] = 10.0
+    max_points: Annotated[int, msgspec.Meta(ge=2)] = 2000
 
     @property
     def turn_radius(self) -> float:
         return planning.min_turn_radius(self.speed, self.max_bank_deg)
 
     @classmethod
+    def param_errors(cls, params: dict[str, str]) -> list[tuple[str, str]]:
+        """Every problem of the manifest's trajectory ``params``, (key, reason)."""
+        return struct_param_errors(cls, params, what="trajectory")
+
+    @classmethod
     def from_params(cls, params: dict[str, str]) -> Limits:
-        """Module params (strings); unknown names or bad values are a ValueError naming them."""
-        fields = {"speed": float, "max_bank_deg": float, "ground_altitude": float, "line_extension": float,
-                  "arc_step_deg": float, "max_points": int}
-        unknown = set(params) - set(fields)
-        if unknown:
-            raise ValueError(f"unknown trajectory param(s): {', '.join(sorted(unknown))}")
-        values = {}
-        for key, value in params.items():
-            try:
-                values[key] = fields[key](value)
-            except ValueError:
-                raise ValueError(f"trajectory param {key}={value!r} is not a number") from None
-        limits = cls(**values)
-        if not (limits.speed > 0 and 0 < limits.max_bank_deg < 90 and limits.line_extension >= 0
-                and 0 < limits.arc_step_deg <= 45 and limits.max_points >= 2):
-            raise ValueError(f"trajectory params out of range: {limits}")
-        return limits
+        """Module params (strings); every unknown name or bad value in one ``ParamError`` (exit 78)."""
+        return load_params(cls, params, what="trajectory")
 
 
 @dataclass(frozen=True)

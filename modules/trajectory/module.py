@@ -34,10 +34,12 @@ class TrajectoryModule(Module):
         OutputSlot("smooth", DatosSegCam, kind=Kind.STREAM),
         OutputSlot("status", TrajectoryStatus, kind=Kind.STREAM),
     )
+    param_errors = staticmethod(Limits.param_errors)
+    """The trajectory's check of its manifest params (``cromat launch --check``, with file:line)."""
 
     def __init__(self, context: ModuleContext) -> None:
         super().__init__(context)
-        self.limits = Limits.from_params(dict(context.params))  # a bad param stops the module before start
+        self.limits = Limits.from_params(dict(context.params))  # ParamError: exit 78, not restarted
 
     def on_request(self, req: TrajectoryRequest) -> None:
         try:

@@ -5,7 +5,9 @@ from __future__ import annotations
 import pytest
 
 from bbcs.contracts.trajectory import GeoPoint, SmoothRequest, SurveyRequest, TrajectoryRequest
+from bbcs.params import ParamError
 from modules.trajectory.generator import Limits, plan
+from modules.trajectory.module import TrajectoryModule
 from modules.trajectory.planning import PlanningError
 
 POLYGON = [GeoPoint(lat=37.4260, lon=-6.0040), GeoPoint(lat=37.4260, lon=-5.9960),
@@ -14,12 +16,15 @@ POLYGON = [GeoPoint(lat=37.4260, lon=-6.0040), GeoPoint(lat=37.4260, lon=-5.9960
 
 def test_params_are_parsed_and_bad_ones_named() -> None:
     assert Limits.from_params({"speed": "15", "max_points": "50"}).speed == 15.0
-    with pytest.raises(ValueError, match="unknown trajectory param"):
+    shipped = {"speed": "10", "max_bank_deg": "25", "ground_altitude": "12", "line_extension": "10"}
+    assert TrajectoryModule.param_errors(shipped) == [] and Limits.from_params(shipped).ground_altitude == 12.0
+    with pytest.raises(ParamError, match=r"sped: unknown trajectory parameter \(did you mean speed\?"):
         Limits.from_params({"sped": "15"})
-    with pytest.raises(ValueError, match="not a number"):
+    with pytest.raises(ParamError, match="speed: bad value 'fast'"):
         Limits.from_params({"speed": "fast"})
-    with pytest.raises(ValueError, match="out of range"):
-        Limits.from_params({"max_bank_deg": "95"})
+    errors = dict(TrajectoryModule.param_errors({"max_bank_deg": "95", "max_points": "1", "arc_step_deg": "0"}))
+    assert "bad value '95'" in errors["max_bank_deg"] and "< 90" in errors["max_bank_deg"]
+    assert "bad value '1'" in errors["max_points"] and "bad value '0'" in errors["arc_step_deg"]
 
 
 def test_survey_lines_too_close_for_the_turn_radius_are_refused() -> None:
