@@ -40,6 +40,7 @@ from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
 from modules.dsp.intake import CommandIntake, Flood
 from modules.dsp.link import DspLink, open_link, startup
+from modules.dsp.params import dsp_param_errors, load_dsp_params
 from modules.dsp.refusals import Refusal, RefusalCounter, RefusalReport
 
 EXIT_LINK_FAILED = 3
@@ -68,6 +69,8 @@ class DspModule(Module):
     """A wildcard put by the dsp identity (``dsp/*``) would reach every sender's input: refused (bbcs/ingress.py)."""
     conf_errors = staticmethod(conf_errors)
     """Checks the robot .conf's DSP part at ``cromat launch --check`` / ``cromat conf check``."""
+    param_errors = staticmethod(dsp_param_errors)
+    """Checks the manifest's DSP ``params`` at ``cromat launch --check`` (file:line)."""
     tick_period = 1.0
     exit_code: ClassVar[int] = 0
 
@@ -143,12 +146,16 @@ class DspModule(Module):
         return code or cls.exit_code
 
     def _load_conf(self) -> DspConfig:
+        try:
+            params = load_dsp_params(self.context.params)
+        except ConfError as exc:
+            self._fatal(BusErrorCode.MALFORMED, str(exc), DspConfigError)
         path = self.context.conf
         if not path:
             self._fatal(BusErrorCode.MALFORMED, "no robot .conf given (--conf FILE or the manager's context)",
                         DspConfigError)
         try:
-            return load_dsp_config(path, port=self.context.params.get("port") or None)
+            return load_dsp_config(path, port=params.port or None)
         except ConfError as exc:
             self._fatal(BusErrorCode.MALFORMED, f"robot configuration: {exc}", DspConfigError)
 

@@ -212,3 +212,14 @@ def test_silent_dsp_exits_with_a_clear_error(processes, router) -> None:
 def test_stops_cleanly(rig) -> None:
     proc, _, _ = rig
     assert stop_process(proc, STOP_S) == 0
+
+
+def test_misspelt_param_exits_with_the_configuration_status(processes, router) -> None:
+    """A manifest param the DSP does not know is a configuration error (exit 78, never restarted), the nearest
+    known name given, before the port is opened."""
+    args = ["-m", "modules.dsp", "--robot", ROBOT, "--connect", f"tcp/127.0.0.1:{router}",
+            "--conf", str(UAV1), "--param", "prot=/dev/ttyDSP-never-opened"]
+    proc = processes.start(args, stderr=subprocess.PIPE, text=True)
+    assert proc.wait(20) == EXIT_CONFIG
+    err = proc.stderr.read()
+    assert "prot: unknown dsp parameter (did you mean port?" in err and "cannot open DSP port" not in err
