@@ -47,6 +47,7 @@ from modules.uquad.geo import Home
 from modules.uquad.gps import FakeGps, LocalGps, NmeaReader
 from modules.uquad.imu_protocol import ImuParser
 from modules.uquad.motor_client import MotorClient
+from modules.uquad.params import load_uquad_params, uquad_param_errors
 from modules.uquad.planner import Mode, apply_task, heading_deg
 from modules.uquad.structs import ControlEntradaUquad, ImuRaw, MotorCommandLog, UquadMode, UquadState
 from modules.uquad.transport import Stream, read_available
@@ -78,24 +79,22 @@ class UquadModule(Module):
     error_slot = "error"
     conf_errors = staticmethod(conf_errors)
     """The uQuad's check of its part of the robot .conf (``cromat launch --check``, ``cromat conf check``)."""
+    param_errors = staticmethod(uquad_param_errors)
+    """The uQuad's check of its manifest ``params`` (``cromat launch --check``, with file:line)."""
 
     def __init__(self, context: Any) -> None:
         super().__init__(context)
         if not context.conf:
             raise ConfError("the uquad module needs the robot .conf", path="<none>")
+        p = load_uquad_params(context.params)  # ParamError: exit 78, not restarted
         self.cfg = load_config(context.conf)
-        p = context.params
-        self.imu_url = p.get("imu") or self.cfg.values.IMU_PORT
-        self.gps_url = p.get("gps") or self.cfg.values.GPS_PORT
-        self.motor_url = p.get("motor", "sim")
-        self.clock_mode = p.get("clock", "wall")
-        if self.clock_mode not in ("wall", "imu"):
-            raise ValueError(f"param clock must be 'wall' or 'imu', not {self.clock_mode!r}")
-        self.record_raw = p.get("record_raw", "")
-        self.nice = int(p.get("nice", "0"))
-        if not -20 <= self.nice <= 19:
-            raise ValueError(f"param nice must be in [-20, 19], not {self.nice}")
-        self.core = FlightCore(self.cfg, load_calibration(self.cfg.imu_calib_file), p.get("controller", "hover"))
+        self.imu_url = p.imu or self.cfg.values.IMU_PORT
+        self.gps_url = p.gps or self.cfg.values.GPS_PORT
+        self.motor_url = p.motor
+        self.clock_mode = p.clock
+        self.record_raw = p.record_raw
+        self.nice = p.nice
+        self.core = FlightCore(self.cfg, load_calibration(self.cfg.imu_calib_file), p.controller)
         self.home = Home(self.cfg.home_lat, self.cfg.home_lon, self.cfg.home_alt)
         self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._outbox: queue.Queue[tuple[str, Any] | None] = queue.Queue(OUTBOX_SIZE)

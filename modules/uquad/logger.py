@@ -14,9 +14,11 @@ from typing import IO, Any, ClassVar
 
 import msgspec
 
+from bbcs.errors import EXIT_CONFIG
 from bbcs.module import Control, Module
 from bbcs.slots import InputSlot, Kind, Safety
 from modules.uquad.config import load_config
+from modules.uquad.params import load_logger_params, logger_param_errors
 from modules.uquad.structs import ImuRaw, MotorCommandLog, UquadState
 
 
@@ -31,9 +33,18 @@ class _Logger(Module):
     data_type: ClassVar[str] = ""
     flush_every: ClassVar[int] = 100
 
+    @classmethod
+    def param_errors(cls, params: dict[str, str]) -> list[tuple[str, str]]:
+        """Every problem of the logger's manifest ``params`` (``cromat launch --check``, with file:line)."""
+        return logger_param_errors(params, cls.data_type)
+
+    def __init__(self, context: Any) -> None:
+        super().__init__(context)
+        self.log_params = load_logger_params(context.params, self.data_type)  # ParamError: exit 78, not restarted
+
     def on_start(self) -> None:
-        folder = self.context.params.get("dir") or (load_config(self.context.conf).values.LOG_DIR
-                                                    if self.context.conf else "runs")
+        folder = self.log_params.dir or (load_config(self.context.conf).values.LOG_DIR
+                                     if self.context.conf else "runs")
         path = Path(folder)
         path.mkdir(parents=True, exist_ok=True)
         self.path = path / f"{self.robot}_{self.data_type}.jsonl"
@@ -82,8 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     context = load_context(argv, "python -m modules.uquad.logger", "log")
     kind = context.params.get("kind", "")
     if kind not in LOGGERS:
-        print(f"param kind must be one of {sorted(LOGGERS)}, got {kind!r}", file=sys.stderr)
-        return 2
+        print(f"configuration error: param kind must be one of {sorted(LOGGERS)}, got {kind!r}", file=sys.stderr)
+        return EXIT_CONFIG  # not restarted: the manifest must change
     return LOGGERS[kind].main(argv)
 
 
