@@ -25,6 +25,7 @@ from typing import Annotated
 import msgspec
 
 from bbcs.conf import ConfDocument, ConfError, load_conf
+from bbcs.params import load_params, raise_first, struct_param_errors
 from modules.lidar_logger.georef import Mounting
 from modules.lidar_logger.logger import LoggerSettings
 from modules.lidar_logger.vehicles import VEHICLES, vehicle_key
@@ -69,6 +70,53 @@ class LidarConf(msgspec.Struct, frozen=True, kw_only=True, rename="upper", forbi
             event_timeout_s=self.event_timeout_s, binary=self.binary_log, vehicle=vehicle_key(self.vehicle),
             lever_arm=self.lever_arm_m, mounting=self.mounting_struct,
             sync_scanner_clock=self.sync_scanner_clock, progress=progress)
+
+
+LIST_PARAMS = ("mounting", "lever_arm")
+"""Params given as comma-separated numbers (``mounting=0,90,0,0.1,0,-0.15``)."""
+
+
+class LidarParams(msgspec.Struct, frozen=True, kw_only=True):
+    """The lidar logger's manifest ``params``: the ``LIDAR: logger`` group's keys in lower case, each optional
+    (the .conf's value, if any, stays), with the group's types and ranges. ``cromat launch --check``
+    (:func:`lidar_param_errors`) and the module (:func:`load_lidar_params`) read them through the same function."""
+
+    vehicle: str | None = None
+    mtig_port: str | None = None
+    mtig_baud: Annotated[int, msgspec.Meta(gt=0)] | None = None
+    ldmrs_host: str | None = None
+    ldmrs_port: Annotated[int, msgspec.Meta(ge=1, le=65535)] | None = None
+    duration_min: Annotated[float, msgspec.Meta(ge=0)] | None = None
+    event_timeout_s: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    out_dir: str | None = None
+    binary_log: bool | None = None
+    sync_scanner_clock: bool | None = None
+    mounting: tuple[float, float, float, float, float, float] | None = None
+    lever_arm: tuple[float, float, float] | None = None
+
+
+def _split_lists(params: dict[str, str]) -> dict[str, object]:
+    return {key: (value.split(",") if key in LIST_PARAMS else value) for key, value in params.items()}
+
+
+def lidar_param_errors(params: dict[str, str]) -> list[tuple[str, str]]:
+    """Every problem of the manifest's lidar logger ``params``, (key, reason); an unknown vehicle is one."""
+    errors = struct_param_errors(LidarParams, _split_lists(params), what="lidar_logger")  # type: ignore[arg-type]
+    vehicle = params.get("vehicle")
+    if vehicle is not None:
+        try:
+            vehicle_key(vehicle)
+        except ValueError as exc:
+            errors.append(("vehicle", f"bad value {vehicle!r}: {exc}"))
+    return errors
+
+
+def load_lidar_params(params: dict[str, str]) -> dict[str, object]:
+    """The params given, as typed overrides for :func:`merge_lidar_conf`; a ``ParamError`` (exit 78) naming
+    every problem :func:`lidar_param_errors` finds."""
+    raise_first(lidar_param_errors(params), source="manifest params of lidar_logger")
+    loaded = load_params(LidarParams, _split_lists(params), what="lidar_logger")  # type: ignore[arg-type]
+    return {key: value for key, value in msgspec.structs.asdict(loaded).items() if value is not None}
 
 
 def conf_errors(doc: ConfDocument) -> list[ConfError]:

@@ -23,12 +23,20 @@ from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
+from bbcs.conf import ConfError
 from bbcs.context import ModuleContext
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.lidar import LidarScan
 from bbcs.module import Module
 from bbcs.slots import OutputSlot, Safety
-from modules.lidar_logger.config import LidarConf, conf_errors, load_lidar_conf, merge_lidar_conf
+from modules.lidar_logger.config import (
+    LidarConf,
+    conf_errors,
+    lidar_param_errors,
+    load_lidar_conf,
+    load_lidar_params,
+    merge_lidar_conf,
+)
 from modules.lidar_logger.logdata import ScanRecord
 from modules.lidar_logger.logger import LidarLogger
 from modules.lidar_logger.mtdata import Pose
@@ -36,8 +44,6 @@ from modules.lidar_logger.scan_slot import to_lidar_scan
 
 LIDAR_RUN_FAILED = 100
 """ERROR code: the acquisition run stopped on a device, file or configuration error."""
-LIST_PARAMS = ("mounting", "lever_arm")
-
 Count = Annotated[int, msgspec.Meta(ge=0)]
 
 
@@ -57,10 +63,9 @@ class LidarStatus(msgspec.Struct, frozen=True, kw_only=True):
 
 
 def conf_from_context(context: ModuleContext) -> LidarConf:
-    """The robot .conf's LIDAR group (if any) with the module params on top."""
+    """The robot .conf's LIDAR group (if any) with the module params on top; a bad param is a ``ParamError``."""
+    overrides = load_lidar_params(dict(context.params))
     base = load_lidar_conf(context.conf, required=False) if context.conf else None
-    overrides: dict[str, object] = {
-        key: (value.split(",") if key in LIST_PARAMS else value) for key, value in context.params.items()}
     return merge_lidar_conf(base, overrides)
 
 
@@ -77,11 +82,18 @@ class LidarLoggerModule(Module):
     conf_errors = staticmethod(conf_errors)
     """The logger's check of the robot .conf's ``LIDAR: logger`` group (``cromat launch --check``, ``cromat conf
     check``)."""
+    param_errors = staticmethod(lidar_param_errors)
+    """The logger's check of its manifest ``params`` (``cromat launch --check``, with file:line)."""
 
     def __init__(self, context: ModuleContext) -> None:
         super().__init__(context)
-        # configuration errors surface here, before anything starts (Module.main exits 2 with the message)
-        settings = conf_from_context(context).to_settings(progress=True)
+        # configuration errors surface here, before anything starts: exit 78 (EXIT_CONFIG), never restarted
+        try:
+            settings = conf_from_context(context).to_settings(progress=True)
+        except ValueError as exc:  # no vehicle, no device address: the manifest or the .conf must change
+            if isinstance(exc, ConfError):
+                raise
+            raise ConfError(f"lidar_logger: {exc}", path=context.conf or "manifest params") from None
         self._mounting = settings.mounting
         self.logger = LidarLogger(settings, on_pose=self._publish_pose, on_scan=self._publish_scan,
                                   on_refused=self._report_refused)

@@ -8,6 +8,7 @@ import msgspec
 
 from bbcs import keys
 from bbcs.contracts.errors import ErrorReport
+from bbcs.errors import EXIT_CONFIG
 from bbcs.testing import stop_process, wait_until
 from modules.lidar_logger.config import read_config_file
 from modules.lidar_logger.ldmrs_proto import Cmd
@@ -117,12 +118,13 @@ def test_a_failed_run_is_reported_on_the_error_slot_and_the_module_stays_up(
 
 
 def test_bad_settings_stop_the_module_before_it_starts(processes, router) -> None:
+    """A bad param is a configuration error: exit 78 (EXIT_CONFIG), which the manager never restarts."""
     proc = start_module(processes, router, "vehicle=Cessna", "mtig_port=/dev/null", "ldmrs_host=127.0.0.1")
-    assert proc.wait(30) == 2
+    assert proc.wait(30) == EXIT_CONFIG
     proc2 = start_module(
         processes, router, "vehicle=CB5000", "mtig_port=/dev/null", "ldmrs_host=x", "wingspan=12"
     )
-    assert proc2.wait(30) == 2
+    assert proc2.wait(30) == EXIT_CONFIG
 
 
 def test_corrupt_mtig_frames_are_reported_coalesced_on_the_error_slot(
