@@ -30,6 +30,7 @@ from module_manager.supervision import Policy
 MANAGER_MODULE = "manager"
 """Module chunk of the manager's own slots (mode slots): ``cromat/<robot>/manager/<slot>``."""
 
+_PORT_PLACEHOLDER = re.compile(r"\{port:[A-Za-z0-9_]+\}")
 NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
 
@@ -679,7 +680,9 @@ class _Checker:
         """The module's check of its ``params`` (its class's ``param_errors`` hook, e.g. the RAL's): every problem,
         each at its manifest file:line (a module without the hook reads its params itself, unchecked here)."""
         param_errors = getattr(cls, "param_errors", None)
-        problems = list(param_errors(dict(params))) if callable(param_errors) else []
+        # ``{port:NAME}`` is a free port chosen at launch: checked as one (the rest of the value as written)
+        params = {key: _PORT_PLACEHOLDER.sub("1024", value) for key, value in params.items()}
+        problems = list(param_errors(params)) if callable(param_errors) else []
         if not problems:
             return
         where = [(f"modules.{name}.params.{key}", reason) for key, reason in problems]
