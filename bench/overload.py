@@ -120,7 +120,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--aborts", type=int, default=20)
     ap.add_argument("--seconds", type=float, default=8.0, help="length of each loaded phase (floods stop then)")
     ap.add_argument("--out", help="result file (default bench/results/overload.json)")
+    ap.add_argument("--smoke", action="store_true", help="3 aborts and 1 s phases: the suite's check that it runs")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.aborts, args.seconds = 3, 1.0
     procs = Processes()
     busy: list[subprocess.Popen] = []
     sessions: list[object] = []
