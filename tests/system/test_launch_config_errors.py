@@ -49,3 +49,33 @@ def test_check_and_launch_name_each_bad_ral_param_at_its_line_and_start_nothing(
         assert not wait_tcp("127.0.0.1", la.port, 0.5), "the robot router listens"
     finally:
         la.cleanup()
+
+
+def test_check_and_launch_name_a_misspelt_vision_param_at_its_line_and_start_nothing(tmp_path: Path) -> None:
+    """The vision module checks its params like the RAL: a misspelt ``target_east`` and a rate out of range are
+    named at the manifest's line (the nearest known name given), and the robot does not come up half-started."""
+    def edit(text: str) -> str:
+        old = 'rate = "10", ground_alt = "12", target_east = "30"'
+        assert text.count(old) == 1, old
+        return text.replace(old, 'rate = "500", ground_alt = "12", target_est = "30"')
+
+    manifest, record = sim_manifest(tmp_path, edit=edit)
+    line = next(i for i, t in enumerate(manifest.read_text().splitlines(), 1) if "target_est" in t)
+    check = subprocess.run([sys.executable, "-m", "module_manager.cli", str(manifest), "--check"], cwd=str(ROOT),
+                           env=child_env(), capture_output=True, text=True, timeout=60)
+    assert check.returncode == 2 and "ok" not in check.stdout, check.stdout
+    assert (f"{manifest}:{line}: modules.vision.params.target_est: unknown vision parameter "
+            "(did you mean target_east?") in check.stderr, check.stderr
+    assert f"{manifest}:{line}: modules.vision.params.rate: bad value '500'" in check.stderr, check.stderr
+
+    la = Launch(manifest, tmp_path)
+    try:
+        assert la.proc.wait(60) == 2
+        la.reader.join(10)
+        out = "\n".join(la.lines)
+        assert f"{manifest}:{line}: modules.vision.params.target_est: unknown vision parameter" in out, out
+        assert group_members(la.pgid) == [], "a process of the launch is running"
+        assert not la.log_dir.exists() and not record.exists(), "something was started"
+        assert not wait_tcp("127.0.0.1", la.port, 0.5), "the robot router listens"
+    finally:
+        la.cleanup()
