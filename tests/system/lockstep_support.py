@@ -165,9 +165,10 @@ def survey_manifest(tmp_path: Path) -> tuple[Path, Path]:
     return path, record
 
 
-def fly_survey(tmp_path: Path, *, timeout_s: float = 300.0) -> Flight:
+def fly_survey(tmp_path: Path, *, timeout_s: float = 300.0, survey: bool = True) -> Flight:
     """Take-off, the survey of test_gcs_survey's polygon (0.0007 x 0.0008 degrees: 62 m x 89 m) at 25 m with
-    10 % overlap, landing, on uav1_lidar_sim.toml at ``--speed max``."""
+    10 % overlap, landing, on uav1_lidar_sim.toml at ``--speed max``; ``survey=False``: take-off and landing only
+    (bench/sim.py --smoke)."""
     tmp_path.mkdir(parents=True, exist_ok=True)
     manifest, record = survey_manifest(tmp_path)
     la = Launch(manifest, tmp_path, "--speed", "max")
@@ -180,7 +181,8 @@ def fly_survey(tmp_path: Path, *, timeout_s: float = 300.0) -> Flight:
                                  timeout_s, "a GRI state with position and the survey task")
         wall0, sim0 = time.monotonic(), first.stamp
         kinds = []
-        for task in (gri.TakeOff(height=10.0), t.Survey(polygon=POLYGON, height=25.0, overlap=0.1), gri.Land()):
+        middle = [t.Survey(polygon=POLYGON, height=25.0, overlap=0.1)] if survey else []
+        for task in (gri.TakeOff(height=10.0), *middle, gri.Land()):
             reply = gcs.send(ROBOT, task)
             assert reply.accepted, reply.reason
             kinds.append(_done(robot, reply.task_id, timeout_s, f"{type(task).__name__} ended"))
