@@ -22,7 +22,7 @@ import zenoh
 import zenoh.ext
 
 from bbcs import dsp_client
-from bbcs.conf import ConfError, load_conf
+from bbcs.conf import load_conf
 from bbcs.context import ModuleContext
 from bbcs.contracts import dsp as p
 from bbcs.contracts import gri, mri
@@ -30,6 +30,7 @@ from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.safety import BREACH_SLOT, CODE_OF, STATUS_SLOT, Breach, MonitorStatus
 from bbcs.contracts.vehicle_truth import decode_truth
 from bbcs.module import Module
+from bbcs.params import load_params, struct_param_errors
 from bbcs.slots import InputSlot, Kind, OutputSlot
 from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor
 
@@ -45,8 +46,26 @@ class _Limits(msgspec.Struct, kw_only=True):
     GEOFENCE: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
 
 
+class MonitorParams(msgspec.Struct, frozen=True, kw_only=True):
+    """The monitor's manifest ``params`` (``cromat launch --check`` and the module read them the same way);
+    unset tolerances keep :class:`MonitorConfig`'s defaults."""
+
+    goal_tolerance_m: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    gri_position_m: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    abort_latency_s: Annotated[float, msgspec.Meta(gt=0)] | None = None
+    loc_attitude_deg: Annotated[float, msgspec.Meta(gt=0, le=180)] | None = None
+    truth_udp: Annotated[str, msgspec.Meta(pattern=r"^(((127\.0\.0\.1|localhost)?:)?[0-9]{1,5})?$")] = ""
+    """The simulator's truth datagrams: a port (or ``127.0.0.1:PORT``) on this machine; empty: none."""
+
+
+def monitor_param_errors(params: dict[str, str]) -> list[tuple[str, str]]:
+    """Every problem of the monitor's manifest ``params``, (key, reason)."""
+    return struct_param_errors(MonitorParams, params, what="safety_monitor")
+
+
 def load_config(context: ModuleContext) -> MonitorConfig:
     """The monitor's configuration from the robot .conf (limits) and its params; ConfError names file and line."""
+    params = load_params(MonitorParams, context.params, what="safety_monitor")
     fence = clearance = None
     if context.conf:
         doc = load_conf(context.conf)
@@ -56,25 +75,17 @@ def load_config(context: ModuleContext) -> MonitorConfig:
         raw = doc.to_struct(_Limits)
         clearance = raw.MIN_CLEARANCE
         fence = (raw.GEOFENCE[0], raw.GEOFENCE[1], raw.GEOFENCE[2]) if raw.GEOFENCE is not None else None
-    kw: dict[str, Any] = {}
-    for name in ("goal_tolerance_m", "gri_position_m", "abort_latency_s", "loc_attitude_deg"):
-        if name in context.params:
-            try:
-                kw[name] = float(context.params[name])
-            except ValueError:
-                raise ConfError(f"safety_monitor param {name}={context.params[name]!r} is not a number") from None
+    kw: dict[str, Any] = {name: getattr(params, name) for name in
+                          ("goal_tolerance_m", "gri_position_m", "abort_latency_s", "loc_attitude_deg")
+                          if getattr(params, name) is not None}
     return MonitorConfig(robot=context.robot, geofence=fence, min_clearance_m=clearance,
                          monitor_name=context.module, **kw)
 
 
 def truth_port(context: ModuleContext) -> int | None:
-    raw = context.params.get("truth_udp", "")
-    if not raw:
-        return None
-    host, _, port = raw.rpartition(":")
-    if host not in ("", "127.0.0.1", "localhost") or not port.isdigit():
-        raise ConfError(f"safety_monitor param truth_udp={raw!r}: a port (or 127.0.0.1:PORT) on this machine")
-    return int(port)
+    """The truth UDP port on 127.0.0.1, or None; a ``ParamError`` for anything else."""
+    raw = load_params(MonitorParams, context.params, what="safety_monitor").truth_udp
+    return int(raw.rpartition(":")[2]) if raw else None
 
 
 class SafetyMonitorModule(Module):
@@ -88,6 +99,8 @@ class SafetyMonitorModule(Module):
     )
     error_slot = "error"
     tick_period = 0.1
+    param_errors = staticmethod(monitor_param_errors)
+    """The monitor's check of its manifest ``params`` (``cromat launch --check``, with file:line)."""
 
     def __init__(self, context: ModuleContext, clock: Callable[[], float] = time.time) -> None:
         super().__init__(context)

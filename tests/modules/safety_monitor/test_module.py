@@ -8,7 +8,8 @@ import pytest
 
 from bbcs.conf import ConfError
 from bbcs.context import ModuleContext
-from modules.safety_monitor.module import load_config, truth_port
+from bbcs.params import ParamError
+from modules.safety_monitor.module import SafetyMonitorModule, load_config, truth_port
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -30,6 +31,16 @@ def test_a_bad_conf_or_param_is_refused_naming_it(tmp_path: Path) -> None:
         load_config(context(conf=str(bad)))
     with pytest.raises(ConfError, match="abort_latency_s"):
         load_config(context(abort_latency_s="soon"))
-    with pytest.raises(ConfError, match="on this machine"):
+    with pytest.raises(ConfError, match="truth_udp: bad value '10.0.0.1:9000'"):
         truth_port(context(truth_udp="10.0.0.1:9000"))
     assert truth_port(context(truth_udp="127.0.0.1:9000")) == 9000 and truth_port(context()) is None
+    assert truth_port(context(truth_udp="9001")) == 9001
+
+
+def test_param_hook_names_the_nearest_key_and_agrees_with_the_load() -> None:
+    assert SafetyMonitorModule.param_errors({"truth_udp": "9000", "goal_tolerance_m": "12"}) == []
+    errors = dict(SafetyMonitorModule.param_errors({"goal_tolerance": "12", "abort_latency_s": "-1"}))
+    assert "did you mean goal_tolerance_m?" in errors["goal_tolerance"]
+    assert "bad value '-1'" in errors["abort_latency_s"]
+    with pytest.raises(ParamError, match="goal_tolerance: unknown safety_monitor parameter"):
+        load_config(context(goal_tolerance="12"))
