@@ -88,7 +88,9 @@ _HELD, _LIVE, _DRAINING, _CLOSED = range(4)
 
 WAKE = b"bbcs-wake"
 """Attachment of the empty, session-local sample that wakes a loop blocked on its channel input (never data:
-a datum is never empty msgpack)."""
+a datum is never empty msgpack). Any empty payload is no datum and is dropped unseen: a wake, or a state slot's
+value withdrawn by its publisher (a Zenoh delete, live or replayed to a late joiner by the publisher's cache as
+an empty put; the Module Manager withdraws the mode of a movement task that has ended)."""
 CHANNEL_BATCH = 256
 """Samples the loop takes from its channel input in one go before it looks at timers and other inputs."""
 
@@ -493,7 +495,7 @@ class Module:
                     try:
                         value = decode(payload)
                     except msgspec.MsgspecError as exc:
-                        if payload or not _is_wake(sample):
+                        if payload:  # empty: no datum (see WAKE)
                             self._reject(reader.spec.name, reader.key, exc, payload)
                     else:
                         try:
@@ -517,7 +519,7 @@ class Module:
         try:
             value = reader.decode(payload)
         except msgspec.MsgspecError as exc:
-            if payload or not _is_wake(sample):
+            if payload:  # empty: no datum (see WAKE)
                 self._reject(reader.spec.name, reader.key, exc, payload)
             return
         self._activity += 1
@@ -775,7 +777,7 @@ class Module:
             self.dropped_after_switch += 1
             return
         payload = sample.payload.to_bytes()
-        if not payload and _is_wake(sample):
+        if not payload:  # no datum (see WAKE)
             return
         try:
             value = reader.decode(payload)
@@ -1018,11 +1020,6 @@ def _stop_on_signal_or_orphan(module: Module, stopped: threading.Event, parent: 
 
     threading.Thread(target=watch, name=f"{module.module}-stop-watch", daemon=True).start()
     return restore
-
-
-def _is_wake(sample: Any) -> bool:
-    attachment = sample.attachment
-    return attachment is not None and attachment.to_bytes() == WAKE
 
 
 class _Marker:

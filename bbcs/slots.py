@@ -260,6 +260,11 @@ class Publisher(Generic[T]):
         self._putting = False
         self.published += 1
 
+    def withdraw(self) -> None:
+        """Delete the slot's value: a state publisher's cache then answers late joiners with an empty payload,
+        which a bbcs input treats as no value (bbcs.module), as it does the live delete."""
+        self._pub.delete()
+
     def close(self) -> None:
         if not self._closed:
             self._closed = True

@@ -904,6 +904,14 @@ class Manager:
                     return False, f"module {mode.module} did not answer mode {wanted} within {ACK_TIMEOUT_S:g} s", None
                 self.changed.wait(min(left, 0.1))
 
+    def withdraw_mode(self, slot: str) -> None:
+        """Delete a mode slot's latched value (its task ended): its module is told nothing (no mode, no answer
+        awaited) and a module restarted later gets no mode to run again (docs/gcs.md, "When a task ends")."""
+        with self.lock:
+            if self.modes.get(slot) is not None:
+                self._mode_pubs[slot].withdraw()
+                self.modes[slot] = None
+
     def apply_changes(self, changes: Changes, *, ending: bool = False) -> tuple[bool, str, int | None]:
         """A task's routes and modes. Starting (``ending`` False): routes first, so that the mode acts on the
         task's data; ending: modes first, so that a module stops acting before an input is routed back (a routed
@@ -914,6 +922,8 @@ class Manager:
                 mode_ok, mode_why, mode_code = self.publish_mode(slot, value)
                 if not mode_ok:
                     ok, why, code = False, "; ".join(w for w in (why, mode_why) if w), mode_code
+        for slot in changes.withdraw:
+            self.withdraw_mode(slot)
         if ending:
             routes_ok, routes_why = self.apply_routes(dict(changes.routes), wait=False)
             if not routes_ok:

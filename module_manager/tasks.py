@@ -8,11 +8,12 @@ an older one; ended tasks are kept (bounded) with their status and reason.
 What ending a task does depends on its type (docs/gcs.md, "When a task ends"). A ``movement`` task moves the
 robot: the mode it set is never re-published at its end, because the value before it belongs to a task that has
 already ended (the take-off before a landing) and would fly again. Completed or replaced, nothing is sent (the
-robot holds where the task left it, or the new task takes over); failed, cancelled or aborted, the modes of the
-manifest's stop task (``hold``, else ``abort``) are sent: the robot stops flying the rest of its path and
-station-keeps. Its routes go back to what they were (an input reads its usual slot again; a
-route sends nothing by itself). Any other type (pan & tilt, perception) restores its saved routes and modes: the
-gimbal goes back to its rest mode, or to the task of another type still running under it.
+robot holds where the task left it, or the new task takes over), and the mode it set is withdrawn from its slot
+unless the new task sets that slot (``Changes.withdraw``): a module restarted later must not fly it again;
+failed, cancelled or aborted, the modes of the manifest's stop task (``hold``, else ``abort``) are sent: the
+robot stops flying the rest of its path and station-keeps. Its routes go back to what they were (an input reads
+its usual slot again; a route sends nothing by itself). Any other type (pan & tilt, perception) restores its
+saved routes and modes: the gimbal goes back to its rest mode, or to the task of another type still running under it.
 """
 
 from __future__ import annotations
@@ -57,6 +58,9 @@ class Changes:
     routes: dict[RouteKey, int] = field(default_factory=dict)
     modes: dict[str, dict[str, int] | None] = field(default_factory=dict)
     """mode slot → fields to publish (None: the slot had no value before; nothing to publish)."""
+    withdraw: frozenset[str] = frozenset()
+    """mode slots whose latched value is withdrawn (a delete: no value, nothing sent): the movement task that set
+    it has ended and nothing replaced it, so a module restarted later does not run that task again."""
 
 
 @dataclass
@@ -105,7 +109,8 @@ class TaskBook:
         self._running[t.type] = _Running(task, saved_routes, saved_modes)
         self.version += 1
         return Changes(routes={**restore.routes, **wanted_routes},
-                       modes={**restore.modes, **{slot: dict(v) for slot, v in t.modes.items()}})
+                       modes={**restore.modes, **{slot: dict(v) for slot, v in t.modes.items()}},
+                       withdraw=restore.withdraw - set(t.modes))
 
     def end(self, task_type: str, now: float = 0.0, status: str = "cancelled", detail: str = "") -> Changes:
         """Changes that end the running task of ``task_type`` (:func:`ending`); KeyError if none runs."""
@@ -117,7 +122,8 @@ class TaskBook:
             return Changes(routes=dict(running.saved_routes), modes=dict(running.saved_modes))
         stop = self.tasks[self.stop].modes if effect == "stop" and self.stop is not None else {}
         modes: dict[str, dict[str, int] | None] = {slot: dict(v) for slot, v in stop.items()}
-        return Changes(routes=dict(running.saved_routes), modes=modes)
+        withdraw = frozenset(self.tasks[running.task.name].modes) - set(modes)
+        return Changes(routes=dict(running.saved_routes), modes=modes, withdraw=withdraw)
 
     def fail_needing(self, modules: set[str], uses: dict[str, set[str]], now: float, detail: str) -> list[Changes]:
         """End (failed) every running task whose manifest task uses one of ``modules``; the changes to apply."""

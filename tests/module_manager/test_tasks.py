@@ -119,6 +119,8 @@ class Robot:
             if value is not None:
                 self.modes[slot] = value
                 self.sent.append({slot: value})
+        for slot in ch.withdraw:  # what a module (re)started now would get: nothing
+            self.modes[slot] = None
 
     def start(self, name: str, params=None, replaced_as: str = "replaced") -> None:  # noqa: ANN001
         self.apply(self.book.start(name, params, 0.0, dict(self.routes), dict(self.modes), replaced_as=replaced_as))
@@ -182,6 +184,35 @@ def test_abort_and_its_completion_leave_the_aircraft_holding():
     assert robot.end("movement", "completed") == [], "the abort done: no take-off mode afterwards"
     robot.start("hold", t.Hold())
     assert robot.end("movement", "cancelled") == [], "cancelling a hold sends nothing: it already holds"
+
+
+def test_the_mode_of_an_ended_movement_task_is_withdrawn_not_kept_for_a_restarted_module():
+    """Issue 30: a path follower restarted after a completed take-off got the take-off mode from its slot and sent
+    SET_MODE TAKE_OFF with no task running. The slot holds a movement task's mode while it runs, nothing after."""
+    take_off = {"pf_mode": {**PF, "modo_de_funcionamiento": 4}}
+    for status in ("completed", "failed", "cancelled", "aborted"):
+        robot = Robot({n: d for n, d in UAV.items() if n not in ("hold", "abort")})  # no stop task: "leave"
+        robot.start("take_off", t.TakeOff(height=10.0))
+        assert {"pf_mode": robot.modes["pf_mode"]} == take_off, "running: a restarted follower still gets it"
+        assert robot.end("movement", status) == [] and robot.modes["pf_mode"] is None, status
+    robot = Robot()
+    robot.start("take_off", t.TakeOff(height=10.0))
+    robot.start("goto", GOTO)
+    assert not robot.book.start("land", t.Land(), 0.0, {}, dict(robot.modes)).withdraw, \
+        "replaced by a task that sets the slot: its mode is the new task's"
+    robot = Robot()
+    robot.start("goto", GOTO)
+    assert robot.end("movement", "failed") == [HOLD] and robot.modes["pf_mode"] == HOLD["pf_mode"], \
+        "a failed task's hold stays in the slot: a restarted follower holds again"
+    robot.start("look_at", t.LookAt(lat=37.41, lon=-6.0, alt=12.0))
+    robot.end("pan_tilt", "cancelled")
+    assert robot.modes["pt_mode"] == {"m": 2}, "other types restore, never withdraw"
+    assert robot.modes["pf_mode"] == HOLD["pf_mode"]
+    replaced = TaskBook({"go": TaskDef(type="movement", modes={"a": {"m": 1}, "b": {"m": 1}}),
+                         "turn": TaskDef(type="movement", modes={"a": {"m": 2}})})
+    replaced.start("go", None, 0.0, {}, {"a": None, "b": None})
+    ch = replaced.start("turn", None, 1.0, {}, {"a": {"m": 1}, "b": {"m": 1}})
+    assert ch.withdraw == {"b"} and ch.modes == {"a": {"m": 2}}, "a slot the new task leaves alone is withdrawn"
 
 
 def test_a_replacing_task_sends_only_its_own_mode():

@@ -135,17 +135,17 @@ def names(cmds: list[dict]) -> list[str]:
     return [c["name"] for c in cmds]
 
 
-def ral_status(robot: SimRobot) -> mri.ModuleStatus | None:
-    """The RAL's status from the manager; None while the manager does not answer (it answers MRI requests one at a
-    time, and a module restart holds it until the module is up)."""
+def ral_status(robot: SimRobot, module: str = "ral") -> mri.ModuleStatus | None:
+    """The RAL's (or ``module``'s) status from the manager; None while the manager does not answer (it answers MRI
+    requests one at a time, and a module restart holds it until the module is up)."""
     try:
-        return {m.name: m for m in robot.gcs.modules(ROBOT).modules}["ral"]
+        return {m.name: m for m in robot.gcs.modules(ROBOT).modules}[module]
     except NoReply:
         return None
 
 
-def restarted(robot: SimRobot, old_pid: int | None) -> bool:
-    status = ral_status(robot)
+def restarted(robot: SimRobot, old_pid: int | None, module: str = "ral") -> bool:
+    status = ral_status(robot, module)
     return status is not None and status.pid != old_pid and status.state == "up"
 
 
@@ -198,6 +198,24 @@ def test_after_a_goto_nothing_is_sent_and_the_aircraft_stays(fly: Callable[..., 
     assert done.kind == "task_completed", done
     at = assert_quiet(robot, truth, "the goto", len(robot.commands()))
     assert abs(at.alt - goal[-1].alt) < 2.0, f"held at the goto's altitude, not {at.alt - at.home[2]:.1f} m"
+
+
+def test_a_path_follower_killed_after_the_take_off_comes_back_sending_nothing(fly: Callable[..., Flight]) -> None:
+    """The campaign's finding (4 runs in 5): the path follower killed after a completed take-off came back with the
+    take-off mode from its slot and sent SET_TRACKING 0, INVALIDATE_PATH, SET_MODE TAKE_OFF with no task running.
+    The take-off's mode is withdrawn when it completes: the restarted follower gets no mode and sends nothing."""
+    robot, truth = fly()
+    robot.ensure_airborne()
+    mark = len(robot.commands())
+    status = ral_status(robot, "path_follower")
+    assert status is not None and status.pid is not None and status.state == "up", status
+    assert status.last_error is None, "the withdrawn mode is no datum: nothing to reject"
+    os.kill(status.pid, signal.SIGKILL)
+    wait_until(lambda: restarted(robot, status.pid, "path_follower"), 60, "the path follower restarted")
+    at = assert_quiet(robot, truth, "the path follower's restart", mark)
+    assert at.alt - at.home[2] > 8.0, "still hovering at the take-off height"
+    after = ral_status(robot, "path_follower")
+    assert after is not None and after.last_error is None, after
 
 
 # ------------------------------------------------------------------ case 2: a long path is not failed while flown
