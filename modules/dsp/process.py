@@ -90,7 +90,6 @@ class DspModule(Module):
         except DspLinkError as exc:
             self._fatal(LinkErrorCode.LINK_DOWN, str(exc))
         self.link.clock = self.bbcs_clock  # ACK timeouts on the robot's clock (simulated time in lockstep)
-        self.link.clock = self.bbcs_clock  # ACK timeouts on the robot's clock (simulated time in lockstep)
         try:
             acks = startup(self.link, self.conf)
         except (DspLinkError, p.DspValueError) as exc:
