@@ -146,12 +146,13 @@ def test_vision_tracks_a_walking_target_until_the_gcs_takes_datos_back(tmp_path:
         assert routes.routes["pan_tilt"]["datos"] == 10
         at_swap = sum(c["name"] == "SET_PT_TARGET" for c in robot.commands())
         assert at_swap >= before_swap
-        seen = len(vision_targets)
-        wait_until(lambda: len(vision_targets) >= seen + 15, 20, "vision publishing 15 more target points")
+        # routed back, pan & tilt re-reads the RAL's last angles at once (docs/bus.md: a source routed back gives its
+        # current value), so the gimbal may leave the target and vision stop finding it: what must hold is that
+        # nothing of vision's reaches the DSP after the swap
         reply = gcs.send(ROBOT, gri.SetPanTilt(pan=0.0, tilt=-10.0))
         assert reply.accepted, reply.reason
         robot.wait_state(lambda s: s.pan_deg is not None and abs(s.pan_deg) < 2.0, 20, "GCS angles in force")
-        # those 15 target points did not reach the DSP: had the swap not held, 15 more SET_PT_TARGET would be in
+        # vision's target points did not reach the DSP: had the swap not held, more SET_PT_TARGET would be in
         # the record; a few taken from vision before the swap may still have been on their way through the pan &
         # tilt and DSP queues (a loaded machine), and nothing of vision's follows the GCS's angles
         cmds = robot.commands()
