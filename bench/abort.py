@@ -22,7 +22,6 @@ import argparse
 import json
 import os
 import re
-import signal
 import subprocess
 import sys
 import tempfile
@@ -31,7 +30,7 @@ import time
 from pathlib import Path
 
 import msgspec
-from benchlib import ROOT, pct, write_results
+from benchlib import ROOT, pct, stop_group, write_results
 
 from bbcs import keys
 from bbcs.contracts import gri, mri
@@ -104,13 +103,7 @@ class Launch:
             pass
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait(10)
+        stop_group(self.proc)
 
 
 class DspWatch:

@@ -1,4 +1,5 @@
-"""What every benchmark shares: the project on ``sys.path``, one percentile, and writing ``bench/results/NAME.json``.
+"""What every benchmark shares: the project on ``sys.path``, one percentile, stopping a launched process group, and
+writing ``bench/results/NAME.json``.
 
 Benchmarks run as ``python bench/NAME.py`` from a checkout, so this file sits beside them and is imported first.
 """
@@ -6,6 +7,9 @@ Benchmarks run as ``python bench/NAME.py`` from a checkout, so this file sits be
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -35,3 +39,14 @@ def write_results(name: str, result: dict[str, Any], out: str | Path | None = No
     path.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
     return path
+
+
+def stop_group(proc: subprocess.Popen, grace_s: float = 30.0) -> None:
+    """SIGTERM to a launch (``start_new_session``), then SIGKILL to its whole process group after ``grace_s``."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
