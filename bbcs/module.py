@@ -23,6 +23,10 @@ blocks (on the full channel, or in the callback), so Zenoh stops reading that li
 is slowed down (reported by the publisher as back-pressure).
 A safe state input first gets the publisher's cached last value (late joiner).
 
+**Safety first.** Local events and safe inputs are handled in arrival order; an unsafe input (bulk: perception,
+targets) waits until no safe work is queued, one of them still handled per cycle (bbcs/priority.py). The
+heartbeat goes out on Zenoh's ``interactive_high`` priority, ahead of bulk data on a busy link.
+
 **Routing switch (one clear point).** On a new CONTROL_ENTRADA the new source is subscribed at once but held;
 the old subscriber is undeclared and every datum it had already received is handled; ``on_route_change`` runs;
 the acknowledgement is published on ``@route``; only then is the new source's data handled.
@@ -53,6 +57,7 @@ from bbcs.context import ModuleContext, load_context
 from bbcs.errors import EXIT_CONFIG, BusErrorCode, RouteError, SessionError, SlotError
 from bbcs.events import Event, Input, RouteChange, Stop, Tick
 from bbcs.ingress import ExactKeyGuard
+from bbcs.priority import SafetyFirst
 from bbcs.routing import IGNORE, RouteAck
 from bbcs.session import open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec, declare_reader
@@ -219,6 +224,8 @@ class Module:
         self._bbcs_stopping = False
         self._closed = False
         self._bbcs_queue: queue.SimpleQueue[tuple[_Reader | None, Any]] = queue.SimpleQueue()
+        self._bulk: SafetyFirst[_Reader] = SafetyFirst()
+        """Unsafe inputs whose newest value waits: handled once no safe work is queued (bbcs/priority.py)."""
         self._outputs_by_name: dict[str, Any] = {}
         self._readers: dict[str, _Reader] = {}
         self._routes: dict[str, int] = {}
@@ -392,6 +399,11 @@ class Module:
         q = self._bbcs_queue
         get = q.get
         empty = q.empty
+        bulk = self._bulk
+
+        def safe_waiting() -> bool:
+            return not empty()
+
         handle = self._handle_sample
         drain = self._drain_channel
         handle_one = self._handle_channel_sample
@@ -415,6 +427,9 @@ class Module:
                     break
                 reader, item = get()
                 if reader is not None:
+                    if reader.unsafe:  # bulk: after the safe work (bbcs/priority.py)
+                        bulk.defer(reader)
+                        continue
                     handle(reader, item)
                 else:
                     self._handle_local(item)
@@ -423,6 +438,10 @@ class Module:
             if channel is not None and not self._bbcs_stopping and (n := drain(channel, CHANNEL_BATCH)):
                 busy = True
                 self._activity += n
+            if bulk and not self._bbcs_stopping:
+                for reader in bulk.take(safe_waiting):
+                    handle(reader, None)
+                busy = True
             if busy or self._bbcs_stopping:
                 continue
             if self._ask is not None:  # lockstep: idle, every due timer run: the step is handled here
@@ -435,7 +454,9 @@ class Module:
                     reader, item = get(True, max(0.0, deadline - monotonic()))
                 except queue.Empty:
                     continue
-                if reader is not None:
+                if reader is not None and reader.unsafe:
+                    bulk.defer(reader)  # handled at the next cycle, once what is queued meanwhile is
+                elif reader is not None:
                     handle(reader, item)
                 else:
                     self._handle_local(item)
@@ -573,8 +594,9 @@ class Module:
             self._outputs_by_name[name] = Publisher(s, spec.key(self.robot, self.module), spec)
         self._ack_pub = Publisher(s, keys.route_ack_key(self.robot, self.module),
                                   SlotSpec("route", RouteAck, Direction.OUT, Kind.STATE, Safety.SAFE))
-        self._heartbeat_pub = Publisher(s, keys.heartbeat_key(self.robot, self.module),
-                                        SlotSpec("heartbeat", Heartbeat, Direction.OUT, Kind.STATE, Safety.UNSAFE))
+        self._heartbeat_pub = Publisher(s, keys.heartbeat_key(self.robot, self.module),  # ahead of bulk data
+                                        SlotSpec("heartbeat", Heartbeat, Direction.OUT, Kind.STATE, Safety.UNSAFE,
+                                                 priority="interactive_high"))
         self._entities.append(declare_schema_queryable(s, keys.schema_key(self.robot, self.module),
                                                        self.describe))
         self._declare_inputs()
@@ -888,6 +910,8 @@ class Module:
         marker = _Marker()
         self._bbcs_queue.put((None, marker))
         deferred: list[tuple[Any, Any]] = []
+        for reader in self._bulk.drain():  # bulk inputs set aside before the switch point: handled before it
+            self._handle_sample(reader, None)
         while True:
             reader, item = self._bbcs_queue.get()
             if item is marker:
