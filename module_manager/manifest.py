@@ -33,6 +33,10 @@ MANAGER_MODULE = "manager"
 _PORT_PLACEHOLDER = re.compile(r"\{port:[A-Za-z0-9_]+\}")
 NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
 Positive = Annotated[float, msgspec.Meta(gt=0.0)]
+Nice = Annotated[int, msgspec.Meta(ge=-20, le=19)]
+"""A process's nice value, -20 (first) to 19 (last): module_manager/process.py, ``Priority``."""
+RealTime = Annotated[int, msgspec.Meta(ge=1, le=99)]
+"""SCHED_RR priority of a process, 1-99 (module_manager/process.py, ``Priority``)."""
 
 
 class ManifestError(Exception):
@@ -168,6 +172,12 @@ class ModuleDef(_Section):
     """Processors the module (every thread of it, its standbys too) may run on; None: any the manager may use.
     Two modules that exchange latency-critical slots measure about twice as fast on one shared processor as on
     two (docs/performance.md, "Placing modules on processors")."""
+    nice: Nice | None = None
+    """The module's nice value (every thread of it, its standbys too); None: the manager's. A value the OS refuses
+    (below the inherited nice without CAP_SYS_NICE or RLIMIT_NICE) is said at launch; the module runs all the same."""
+    realtime: RealTime | None = None
+    """SCHED_RR at this priority (1-99) where the OS allows it (CAP_SYS_NICE or RLIMIT_RTPRIO); refused: said at
+    launch, the module runs under the normal policy."""
 
 
 class ReadyDef(_Section):
@@ -186,6 +196,10 @@ class ProcessDef(_Section):
     env: dict[str, str] = msgspec.field(default_factory=dict)
     cpus: list[Annotated[int, msgspec.Meta(ge=0)]] | None = None
     """Processors the process may run on (as a module's ``cpus``)."""
+    nice: Nice | None = None
+    """As a module's ``nice``."""
+    realtime: RealTime | None = None
+    """As a module's ``realtime``."""
 
 
 class ModeDef(_Section):
