@@ -4,7 +4,7 @@ the same environment defaults ``CROMAT_GCS_CONNECT``, ``CROMAT_GCS_CA``, ``CROMA
 
 One endpoint: a Zenoh client of that router. Several: a Zenoh client reaches only the first router it gets to, so
 the tool joins as a peer linked to every router named (listening nowhere, no multicast): each router's robots are
-then seen together.
+then seen together. ``ral.gcs.api.session_config`` decides this once, for ``cromat gcs`` and every tool alike.
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import os
 
-import msgspec
 import zenoh
 
 from bbcs.errors import SessionError
@@ -64,8 +63,6 @@ def config_from(args: argparse.Namespace) -> SessionConfig:
                              connect_timeout_s=args.timeout)
     except UsageError as exc:
         raise ToolError(str(exc)) from None
-    if len(cfg.connect) > 1:  # a client reaches one router only: a peer linked to each, listening nowhere
-        cfg = msgspec.structs.replace(cfg, mode="peer", listen=[], multicast_scouting=False)
     return cfg
 
 

@@ -56,7 +56,10 @@ def session_config(
     config_file: str | None = None,
     connect_timeout_s: float = 5.0,
 ) -> SessionConfig:
-    """A client configuration: ``connect`` endpoints (``tls/HOST:PORT`` needs ``ca`` and usually cert+key)."""
+    """A client configuration: ``connect`` endpoints (``tls/HOST:PORT`` needs ``ca`` and usually cert+key).
+
+    Several endpoints: a Zenoh client reaches only the first router it gets to, so the station joins as a peer
+    linked to every router named (listening nowhere, no multicast): each router's robots are seen together."""
     endpoints = connect or ["tcp/127.0.0.1:7447"]
     tls = None
     if any(e.startswith("tls/") for e in endpoints) or ca:
@@ -66,8 +69,10 @@ def session_config(
             raise UsageError("--cert and --key go together")
         tls = TlsConfig(root_ca=ca, cert=cert, key=key, mtls=bool(cert))
     return SessionConfig(
-        mode="client",
+        mode="client" if len(endpoints) == 1 else "peer",
         connect=endpoints,
+        listen=[],
+        multicast_scouting=False,
         tls=tls,
         config_file=config_file,
         connect_timeout_s=connect_timeout_s,
@@ -141,8 +146,16 @@ class _Callback:
         self._feed.remove(self._callback)
 
 
+def _alive_rals(session: zenoh.Session, timeout_s: float) -> set[str]:
+    found = set()
+    for reply in session.liveliness().get(keys.alive_pattern("*", "ral"), timeout=timeout_s):
+        if reply.ok is not None:
+            found.add(keys.parse_alive_key(str(reply.ok.key_expr))[0])
+    return found
+
+
 class Gcs:
-    """One ground station's connection to the robots behind one router."""
+    """One ground station's connection to the robots behind the routers it is given."""
 
     def __init__(
         self, config: SessionConfig, *, name: str = "gcs", link: Sequence[str] = (), timeout_s: float = 5.0
@@ -151,6 +164,7 @@ class Gcs:
         the link is per robot, so a robot not named here never counts this station as its ground station."""
         self.name = keys.validate_name(name, "GCS name")
         self.timeout_s = timeout_s
+        self.config = config
         try:
             self.session = open_session(config)
         except SessionError as exc:
@@ -174,6 +188,9 @@ class Gcs:
         robot = keys.validate_name(robot, "robot name")
         if robot in self.linked:
             return
+        if robot in self._linked_events:  # linked before, then released: its feed still runs, name it again
+            self.linked.append(robot)
+            return
         # declared before the token and the heartbeat naming the robot: on this one session the subscription
         # reaches the router first, so the robot's answer to the link cannot pass it by
         feed = _EventFeed(self.session, robot, LINK_EVENTS_KEPT)
@@ -186,6 +203,13 @@ class Gcs:
                                                           encoding=wire.encoding_for(gri.GcsHeartbeat))
             self._beat = threading.Thread(target=self._heartbeat, name="gcs.heartbeat", daemon=True)
             self._beat.start()
+
+    def release_link(self, robot: str) -> None:
+        """Stop being a ground station of ``robot``: the heartbeats no longer name it, so its failsafe sees the link
+        lost after its ``heartbeat_timeout_s`` (a gateway whose own operator went quiet, docs/mavlink.md). Its
+        events are still heard; :meth:`hold_link` links it again."""
+        if robot in self.linked:
+            self.linked.remove(robot)
 
     def _heartbeat(self) -> None:
         seq = 0
