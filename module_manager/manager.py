@@ -41,7 +41,7 @@ from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import links, lockstep, mesh, peer_mesh, route_audit, secure
 from module_manager.lines import print_line
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, cpu_list, route_problem
-from module_manager.process import Child, stop_children
+from module_manager.process import Child, Priority, stop_children
 from module_manager.standby import context_line, standby_argv
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
 from module_manager.tasks import Changes, TaskBook
@@ -125,6 +125,12 @@ class _Module:
 def _cpus(cpus: list[int] | None) -> frozenset[int] | None:
     """A manifest ``cpus`` list as the affinity a child gets (None: the manager's own)."""
     return frozenset(cpus) if cpus else None
+
+
+def _priority(spec: Any) -> Priority | None:
+    """A manifest entry's ``nice``/``realtime`` as the priority a child gets (None: the manager's own)."""
+    priority = Priority(spec.nice, spec.realtime)
+    return priority if priority else None
 
 
 def _on(cpus: list[int] | None) -> str:
@@ -291,8 +297,10 @@ class Manager:
         for name, spec in self.m.raw.processes.items():
             argv = [self.expand(a) for a in spec.command]
             child = Child(name, argv, self.child_env(spec.env), cwd=str(self.m.dir), log_dir=self.log_dir,
-                          watch_stdout=spec.ready.kind == "stdout", cpus=_cpus(spec.cpus))
+                          watch_stdout=spec.ready.kind == "stdout", cpus=_cpus(spec.cpus), priority=_priority(spec))
             self.processes[name] = child
+            if child.priority_refused:
+                self.out(f"  {name:<11} {child.priority_refused}")
             started.append((name, spec, argv, child))
         for name, spec, argv, child in started:
             ready = spec.ready
@@ -471,12 +479,14 @@ class Manager:
             mod.sup.spawned(now)
             if self.all_up_at is None and mod.child is not None:
                 self.out(f"  {info.name:<11} starting, pid {mod.child.pid}{_on(info.spec.cpus)} (imports done ahead)")
+            if mod.child is not None and mod.child.priority_refused:
+                self.out(f"  {info.name:<11} {mod.child.priority_refused}")
             return
         env = self.child_env(info.spec.env)
         env[CONTEXT_ENV] = encode_context(ctx)
         try:
             mod.child = Child(info.name, [sys.executable, "-m", info.spec.entry], env, cwd=str(self.m.dir),
-                              log_dir=self.log_dir, cpus=_cpus(info.spec.cpus))
+                              log_dir=self.log_dir, cpus=_cpus(info.spec.cpus), priority=_priority(info.spec))
         except OSError as exc:
             mod.child = None
             mod.sup.spawn_failed(now, f"cannot start: {exc}")
@@ -484,6 +494,8 @@ class Manager:
         mod.sup.spawned(now)
         if self.all_up_at is None:
             self.out(f"  {info.name:<11} starting, pid {mod.child.pid}{_on(info.spec.cpus)}")
+        if mod.child.priority_refused:
+            self.out(f"  {info.name:<11} {mod.child.priority_refused}")
 
     def prewarm_modules(self) -> None:
         """Before the router: one standby per module, so every module's interpreter start and imports overlap the
@@ -500,7 +512,7 @@ class Manager:
         """A warm standby of ``mod`` (module_manager/standby.py): its interpreter and imports, waiting for a context."""
         return Child(mod.info.name, standby_argv(sys.executable, mod.info.spec.entry),
                      self.child_env(mod.info.spec.env), cwd=str(self.m.dir), log_dir=self.log_dir, stdin_pipe=True,
-                     cpus=_cpus(mod.info.spec.cpus))
+                     cpus=_cpus(mod.info.spec.cpus), priority=_priority(mod.info.spec))
 
     def _take_standby(self, mod: _Module, context: str) -> bool:
         """Hand the context to the module's warm standby, which becomes the module; False if there is none alive."""

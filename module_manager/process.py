@@ -1,5 +1,12 @@
 """Child processes of the manager: spawned so that none outlives it, stopped TERM-then-KILL.
 
+A child may also get a scheduling priority from the manifest (``nice``, ``realtime``): set between fork and exec
+like its processors, so every thread it starts inherits it. The OS may refuse it (a negative nice or a real-time
+policy needs CAP_SYS_NICE or a large enough RLIMIT_NICE / RLIMIT_RTPRIO): the child then runs at the priority it
+inherited, says so on its stderr (its log), and :attr:`Child.priority_refused` says what was refused and why, which
+the launch prints. A refusal never stops the launch: the priority is a latency aid under load, not a condition for
+flying, and a laptop without those rights must still run the shipped simulations.
+
 Every child stays in the manager's process group (Ctrl+C in a terminal reaches all of them) and asks the kernel
 for SIGTERM when its parent dies (``prctl(PR_SET_PDEATHSIG)``), so a SIGKILLed manager leaves no orphan.
 The parent-death signal fires when the *thread* that forked the child ends: the manager spawns from its main
@@ -10,11 +17,13 @@ from __future__ import annotations
 
 import ctypes
 import os
+import resource
 import signal
 import subprocess
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
@@ -28,7 +37,60 @@ except OSError:  # not Linux/glibc: no parent-death signal, the process group st
     _libc = None
 
 
-def _child_setup(parent: int, cpus: frozenset[int] | None = None) -> None:
+@dataclass(frozen=True)
+class Priority:
+    """A child's scheduling priority (the manifest's ``nice`` and ``realtime``): None leaves it as inherited."""
+
+    nice: int | None = None
+    """-20 (first) to 19 (last): the CFS weight of every thread of the child."""
+    realtime: int | None = None
+    """1-99: SCHED_RR at this priority, ahead of every normal process (the kernel still keeps 5 % of each second
+    for the rest, ``sched_rt_runtime_us``)."""
+
+    def __bool__(self) -> bool:
+        return self.nice is not None or self.realtime is not None
+
+    def describe(self) -> str:
+        return ", ".join(([f"nice {self.nice}"] if self.nice is not None else [])
+                         + ([f"real-time {self.realtime}"] if self.realtime is not None else []))
+
+
+def _apply_priority(priority: Priority) -> None:
+    """In the child, before exec: set what it can of ``priority``; a refusal is said on stderr, never fatal."""
+    if priority.nice is not None:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, priority.nice)
+        except OSError as exc:
+            os.write(2, f"cromat: nice {priority.nice} refused ({exc.strerror}): running at the nice inherited\n"
+                     .encode())
+    if priority.realtime is not None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority.realtime))
+        except OSError as exc:
+            os.write(2, f"cromat: real-time priority {priority.realtime} refused ({exc.strerror}): running under "
+                        f"the normal policy\n".encode())
+
+
+def priority_refused(pid: int, priority: Priority) -> str | None:
+    """What of ``priority`` process ``pid`` did not get, and why (None: it got all of it, or it is gone)."""
+    out = []
+    try:
+        if priority.nice is not None and (got := os.getpriority(os.PRIO_PROCESS, pid)) != priority.nice:
+            limit = resource.getrlimit(resource.RLIMIT_NICE)[0]
+            out.append(f"nice {priority.nice} refused by the OS (it runs at nice {got}): going below the nice it "
+                       f"inherits needs CAP_SYS_NICE or RLIMIT_NICE of {20 - priority.nice}; this launch's "
+                       f"RLIMIT_NICE is {'unlimited' if limit == resource.RLIM_INFINITY else limit}")
+        if priority.realtime is not None and os.sched_getscheduler(pid) != os.SCHED_RR:
+            limit = resource.getrlimit(resource.RLIMIT_RTPRIO)[0]
+            out.append(f"real-time priority {priority.realtime} refused by the OS (it runs under the normal "
+                       f"policy): it needs CAP_SYS_NICE or RLIMIT_RTPRIO of {priority.realtime}; this launch's "
+                       f"RLIMIT_RTPRIO is {'unlimited' if limit == resource.RLIM_INFINITY else limit}")
+    except (ProcessLookupError, PermissionError):
+        return None
+    return "; ".join(out) or None
+
+
+def _child_setup(parent: int, cpus: frozenset[int] | None = None, priority: Priority | None = None) -> None:
     """Runs in the child between fork and exec: die with the parent; run on ``cpus`` only (the manifest's
     ``cpus``). The affinity is set before exec, so every thread the program starts later (Zenoh's included)
     inherits it."""
@@ -38,6 +100,8 @@ def _child_setup(parent: int, cpus: frozenset[int] | None = None) -> None:
         except OSError as exc:  # the processors went away since the manifest was checked (a cpuset changed)
             os.write(2, f"cannot run on cpus {sorted(cpus)}: {exc}\n".encode())
             os._exit(CPUS_REFUSED)
+    if priority:
+        _apply_priority(priority)
     if _libc is not None:
         _libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     if os.getppid() != parent:  # the parent died before prctl took effect
@@ -49,9 +113,11 @@ class Child:
 
     def __init__(self, name: str, argv: list[str], env: dict[str, str], cwd: str | None = None,
                  log_dir: Path | None = None, watch_stdout: bool = False, stdin_pipe: bool = False,
-                 echo: Callable[[str], None] | None = None, cpus: frozenset[int] | None = None) -> None:
+                 echo: Callable[[str], None] | None = None, cpus: frozenset[int] | None = None,
+                 priority: Priority | None = None) -> None:
         """``echo``: called with every stdout line (``watch_stdout``), besides the log: what the launch must show.
-        ``cpus``: the processors the child (all its threads) may run on; None: the manager's own."""
+        ``cpus``: the processors the child (all its threads) may run on; None: the manager's own.
+        ``priority``: its scheduling priority (module docstring); what the OS refused is in ``priority_refused``."""
         self.name = name
         self._echo = echo
         self.argv = argv
@@ -67,8 +133,10 @@ class Child:
         stdin = subprocess.PIPE if stdin_pipe else subprocess.DEVNULL
         self.proc = subprocess.Popen(argv, env=env, cwd=cwd, stdin=stdin,
                                      stdout=subprocess.PIPE if watch_stdout else out,
-                                     stderr=out, preexec_fn=lambda: _child_setup(parent, cpus))
+                                     stderr=out, preexec_fn=lambda: _child_setup(parent, cpus, priority))
         self.pid = self.proc.pid
+        self.priority_refused = priority_refused(self.pid, priority) if priority else None
+        """What of ``priority`` the OS refused, and why (None: all of it was set, or none was asked)."""
         self.started = time.monotonic()
         self.pidfd: int | None = None
         """Readable once the process exits (Linux ``pidfd_open``): the manager sleeps on it to reap at once."""
