@@ -311,13 +311,83 @@ def load_manifest(path: str | Path, *, check_pki: bool = True) -> Manifest:
     return parse_manifest(text, p, check_pki=check_pki)
 
 
-def parse_manifest(text: str, path: Path, *, check_pki: bool = True) -> Manifest:
+INCLUDE_KEY = "include"
+"""Top-level key naming files (relative to the including file) whose values this manifest starts from."""
+
+
+@dataclass(frozen=True)
+class _Source:
+    """One file of a manifest: its text, and the file that included it (None: the manifest launched)."""
+
+    path: Path
+    text: str
+    included_by: Path | None = None
+
+
+def _toml(text: str, path: Path, included_by: Path | None) -> dict[str, Any]:
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
-        raise ManifestError(f"not valid TOML: {exc}", path=str(path),
+        by = f" (included by {included_by})" if included_by is not None else ""
+        raise ManifestError(f"not valid TOML{by}: {exc}", path=str(path),
                             line=int(m.group(1)) if m else None) from exc
+
+
+def merge_tables(low: dict[str, Any], high: dict[str, Any]) -> dict[str, Any]:
+    """``high`` over ``low``: a table present in both is merged key by key (deeply); any other value of ``high``
+    (a string, a number, a list, an array of tables) replaces ``low``'s whole."""
+    out = dict(low)
+    for key, value in high.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge_tables(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _with_includes(text: str, path: Path, chain: tuple[Path, ...] = (),
+                   included_by: Path | None = None) -> tuple[dict[str, Any], list[_Source]]:
+    """The file's values over those of the files it includes (in order, a later one over an earlier one), and
+    its sources, most authoritative first (where a key is looked for to name its line)."""
+    data = _toml(text, path, included_by)
+    here = path.resolve()
+    names = data.pop(INCLUDE_KEY, [])
+    line = _locate(text, INCLUDE_KEY)
+    if not (isinstance(names, list) and all(isinstance(n, str) and n for n in names)):
+        raise ManifestError("must be a list of file names, e.g. include = [\"common.toml\"]", path=str(path),
+                            key=INCLUDE_KEY, line=line)
+    merged: dict[str, Any] = {}
+    sources: list[_Source] = []
+    for name in names:
+        target = (path.parent / name).resolve()
+        if target in (*chain, here):
+            cycle = " -> ".join(str(p) for p in (*chain, here, target)[list((*chain, here)).index(target):])
+            raise ManifestError(f"include cycle: {cycle}", path=str(path), key=INCLUDE_KEY, line=line)
+        try:
+            inc_text = target.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ManifestError(f"cannot read included file {target}: {exc.strerror or exc}", path=str(path),
+                                key=INCLUDE_KEY, line=line) from exc
+        inc_data, inc_sources = _with_includes(inc_text, target, (*chain, here), path)
+        merged = merge_tables(merged, inc_data)
+        sources = inc_sources + sources
+    return merge_tables(merged, data), [_Source(path, text, included_by), *sources]
+
+
+def _where(sources: list[_Source], key: str) -> tuple[str, int | None, str]:
+    """(file, line, note) of ``key``: the first source (most authoritative) that writes it; else the launched file
+    with its nearest table (the loader's best effort, as without includes). ``note`` names the including file."""
+    for source in sources:
+        line = _locate(source.text, key, exact=True)
+        if line is not None:
+            note = f" (in {source.path.name}, included by {source.included_by})" if source.included_by else ""
+            return str(source.path), line, note
+    return str(sources[0].path), _locate(sources[0].text, key), ""
+
+
+def parse_manifest(text: str, path: Path, *, check_pki: bool = True) -> Manifest:
+    data, sources = _with_includes(text, path)
     try:
         raw = msgspec.convert(data, ManifestFile)
     except msgspec.ValidationError as exc:
@@ -333,8 +403,9 @@ def parse_manifest(text: str, path: Path, *, check_pki: bool = True) -> Manifest
             missing = msg.split("`")[1]
             key = f"{key}.{missing}" if key else missing
             msg = "required key missing"
-        raise ManifestError(msg, path=str(path), key=_dotted(key), line=_locate(text, _dotted(key))) from exc
-    return _Checker(text, path, raw, check_pki).check()
+        where, line, note = _where(sources, _dotted(key))
+        raise ManifestError(msg + note, path=where, key=_dotted(key), line=line) from exc
+    return _Checker(text, path, raw, check_pki, sources).check()
 
 
 _NAMED_TABLES: dict[str, type[msgspec.Struct]] = {"modules": ModuleDef, "processes": ProcessDef, "tasks": TaskDef}
@@ -359,8 +430,9 @@ def _dotted(key: str) -> str:
     return re.sub(r"\[(\d+)\]", r".\1", key)
 
 
-def _locate(text: str, key: str) -> int | None:
-    """Best-effort line of ``key`` (dotted path) in the TOML text; None when it cannot be found."""
+def _locate(text: str, key: str, *, exact: bool = False) -> int | None:
+    """Best-effort line of ``key`` (dotted path) in the TOML text; None when it cannot be found (``exact``: None
+    also when only an enclosing table is found)."""
     if not key:
         return None
     parts = key.split(".")
@@ -389,6 +461,8 @@ def _locate(text: str, key: str) -> int | None:
                 return i
             if len(rest) > 1 and re.match(rf'^\s*"?{re.escape(first)}"?\s*\.', line):
                 return i
+    if exact:
+        return None
     if best is None and parts:
         for i, line in enumerate(lines, 1):
             if re.match(rf'^\s*"?{re.escape(parts[-1])}"?\s*=', line):
@@ -399,15 +473,18 @@ def _locate(text: str, key: str) -> int | None:
 class _Checker:
     """Cross-checks after decoding: names, files, types, slot numbers, routes, modes, tasks."""
 
-    def __init__(self, text: str, path: Path, raw: ManifestFile, check_pki: bool = True) -> None:
+    def __init__(self, text: str, path: Path, raw: ManifestFile, check_pki: bool = True,
+                 sources: list[_Source] | None = None) -> None:
         self.text = text
         self.path = path
         self.raw = raw
         self.check_pki = check_pki
         self.conf_doc: ConfDocument | None = None
+        self.sources = sources or [_Source(path, text)]
 
     def fail(self, key: str, message: str) -> ManifestError:
-        return ManifestError(message, path=str(self.path), key=key, line=_locate(self.text, key))
+        where, line, note = _where(self.sources, key)
+        return ManifestError(message + note, path=where, key=key, line=line)
 
     def name(self, value: str, key: str, what: str) -> None:
         try:
