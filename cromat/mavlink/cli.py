@@ -19,7 +19,7 @@ from bbcs.conf.errors import ConfError
 from bbcs.signing import SigningError, StationSigner
 from cromat.mavlink.dialect import read_key
 from cromat.mavlink.endpoints import QGC_PORT, EndpointError, SerialPort, TcpServer, UdpTarget, parse_host_port
-from cromat.mavlink.gateway import Gateway
+from cromat.mavlink.gateway import GCS_TIMEOUT_S, Gateway
 from cromat.mavlink.vehicle import RobotSpec, describe, spec_from_manifest
 from ral.gcs.api import Gcs, Unreachable, UsageError, session_config
 
@@ -57,6 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--signing-key", metavar="FILE",
                    help="MAVLink 2 signing key (32 bytes, 64 hex digits, or a passphrase); unsigned, forged and "
                         "replayed frames are then dropped, and every frame sent is signed")
+    p.add_argument("--gcs-timeout", type=float, default=GCS_TIMEOUT_S, metavar="S",
+                   help="the robots' GRI link is held while a MAVLink ground station's HEARTBEAT came within S "
+                        f"seconds (default {GCS_TIMEOUT_S:g}); then released: the robots' failsafe counts from there")
     p.add_argument("-v", "--verbose", action="store_true", help="log every robot and refusal")
     return p
 
@@ -113,6 +116,9 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - a manifest error (module_manager's ManifestError) names file:line
         print(f"cromat mavlink: {exc}", file=sys.stderr)
         return 2
+    if not args.gcs_timeout > 0:
+        print(f"cromat mavlink: --gcs-timeout {args.gcs_timeout:g}: give a positive number of seconds", file=sys.stderr)
+        return 2
     try:
         endpoints = open_endpoints(args)
     except EndpointError as exc:
@@ -126,7 +132,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cromat mavlink: {exc}", file=sys.stderr)
         return 3
     gateway = Gateway(gcs, endpoints, specs, discover=args.all or not specs, signing_key=key,
-                      announce=lambda line: print(f"cromat mavlink: {line}", flush=True), signer=signer)
+                      announce=lambda line: print(f"cromat mavlink: {line}", flush=True), signer=signer,
+                      gcs_timeout_s=args.gcs_timeout)
     stop = threading.Event()
 
     def on_signal(*_: object) -> None:

@@ -83,6 +83,7 @@ class Context:
     """The .conf's TAKEOFF_HEIGHT (or the uQuad's TAKEOFF_HEIGHT_DEFAULT), when the gateway has the .conf."""
     max_speed: float | None = None
     rtl_height: float = 10.0
+    """The return to launch's height above home (the .conf's RETURN_HEIGHT; 10 m without it)."""
     plan: Plan | None = None
     mission_index: int = 0
     """Index of the plan's waypoint a mission start begins at (MISSION_SET_CURRENT moves it)."""
@@ -149,11 +150,29 @@ def _rtl(ctx: Context) -> Outcome:
         return d
     if ctx.home is None:
         return Deny(f"{ctx.robot}: no home reported yet, nowhere to return to")
-    alt = ctx.home.alt + ctx.rtl_height
-    if ctx.position is not None:
-        alt = max(alt, ctx.position.alt)
-    return Send(gri.Goto(waypoints=[gri.Waypoint(lat=ctx.home.lat, lon=ctx.home.lon, alt=alt)], speed=_speed(ctx)),
-                "rtl")
+    home, here = ctx.home, ctx.position
+    alt = home.alt + ctx.rtl_height
+    legs = []
+    if here is not None:  # PX4's rule: climb to the return height where it is first, never descend to it
+        if here.alt < alt - CLIMB_TOLERANCE_M and _metres(here, home) > HOME_RADIUS_M:
+            legs.append(gri.Waypoint(lat=here.lat, lon=here.lon, alt=alt))
+        alt = max(alt, here.alt)
+    legs.append(gri.Waypoint(lat=home.lat, lon=home.lon, alt=alt))
+    # the gateway lands it once this goto completes (RETURN_ACTION land, the default): gateway._rtl_home
+    return Send(gri.Goto(waypoints=legs, speed=_speed(ctx)), "rtl")
+
+
+CLIMB_TOLERANCE_M = 2.0
+"""A return climbs first where it is only when more than this under its return height (the RAL's own return's
+``altitude_tolerance_m``)."""
+HOME_RADIUS_M = 8.0
+"""Within this of home a return flies straight to home (the RAL's ``position_tolerance_m``)."""
+
+
+def _metres(a: GeoPoint, b: GeoPoint) -> float:
+    n = (b.lat - a.lat) * 111_320.0
+    e = (b.lon - a.lon) * 111_320.0 * math.cos(math.radians(a.lat))
+    return math.hypot(n, e)
 
 
 def _reposition(ctx: Context, cmd: Command) -> Outcome:

@@ -34,6 +34,10 @@ REPLACE_JOB = -1
 """Not a MAVLink command: the follow_path of a mission uploaded while the last one flew."""
 FENCE_JOB = -2
 """Not a MAVLink command: a fence upload's world-model edits."""
+RTL_LAND_JOB = -3
+"""Not a MAVLink command: the landing that ends a return to launch once the robot is home."""
+GCS_TIMEOUT_S = 3.0
+"""A MAVLink ground station is heard while its HEARTBEATs (1 Hz) come within this (three missed: gone)."""
 CAPABILITIES = (mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | mav.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2
                 | mav.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE)
@@ -64,9 +68,10 @@ class Gateway:
     def __init__(self, gcs: Gcs, endpoints: Sequence[Endpoint], specs: Sequence[RobotSpec] = (), *,
                  discover: bool = True, signing_key: bytes | None = None, clock: Callable[[], float] = time.monotonic,
                  retry_s: float = 1.5, announce: Callable[[str], None] = lambda line: None,
-                 signer: Any = None) -> None:
+                 signer: Any = None, gcs_timeout_s: float = GCS_TIMEOUT_S) -> None:
         """``specs``: robots named by the operator (manifest or flag); ``discover``: also every other robot whose GRI
-        state appears (a fleet), each with the next free system id."""
+        state appears (a fleet), each with the next free system id. ``gcs_timeout_s``: the GRI link of every robot
+        served is held only while a MAVLink ground station's HEARTBEAT came within this (the operator is there)."""
         self.gcs = gcs
         self.endpoints = list(endpoints)
         self.specs = {s.name: s for s in specs}
@@ -75,6 +80,9 @@ class Gateway:
         self.retry_s = retry_s
         self.announce = announce
         self.signer = signer
+        self.gcs_timeout_s = gcs_timeout_s
+        self.gcs_heard: float | None = None
+        """When a MAVLink ground station's HEARTBEAT last came (the gateway's clock); None: never."""
         """A ``bbcs.signing.StationSigner`` (the station's TLS identity): signs fence edits, which a secured fleet's
         world model adopts only signed."""
         self.inbox: queue.Queue[tuple[str, Any]] = queue.Queue()
@@ -178,13 +186,33 @@ class Gateway:
         self.vehicles[robot] = v
         self.by_sysid[sysid] = v
         self.workers[robot] = _Worker(robot, self._send_request)
-        try:
-            self.gcs.hold_link(robot)
+        try:  # the link is held by _hold_links, while a MAVLink ground station is heard
             self.gcs.events(robot, lambda event: self.inbox.put(("event", event)))
         except GcsError as exc:
             log.warning("robot %s: %s", robot, exc)
         self.announce(f"robot {robot} is MAVLink system {sysid}")
         return v
+
+    def _hold_links(self, now: float) -> None:
+        """The GRI link of every robot served while a MAVLink ground station is heard, none otherwise: the gateway
+        stands for its operator, so a QGroundControl gone quiet is a lost ground-station link to the robot (its
+        heartbeat timeout, then its failsafe), as a ``cromat gcs link`` stopped would be."""
+        heard = self.gcs_heard is not None and now - self.gcs_heard <= self.gcs_timeout_s
+        for v in self.vehicles.values():
+            if v.linked == heard:
+                continue
+            try:
+                if heard:
+                    self.gcs.hold_link(v.robot)
+                else:
+                    self.gcs.release_link(v.robot)
+            except GcsError as exc:
+                log.warning("robot %s: %s", v.robot, exc)
+                continue
+            v.linked = heard
+            self.announce(f"link to {v.robot} held: a MAVLink ground station is heard" if heard else
+                          f"link to {v.robot} released: no MAVLink ground station heard for "
+                          f"{self.gcs_timeout_s:g} s")
 
     def _on_event(self, event: gri.GriEvent) -> None:
         v = self.vehicles.get(event.robot)
@@ -192,6 +220,21 @@ class Gateway:
             return
         v.on_event(event)
         self._text(v, statustext.event_text(event))
+        if event.kind == "task_completed" and event.task_id and event.task_id == v.rtl_task and v.rtl_landing is None:
+            self._rtl_home(v)
+
+    def _rtl_home(self, v: Vehicle) -> None:
+        """A return to launch reached home: RETURN_ACTION ``land`` (the default, as PX4's RTL) lands there with a
+        GRI ``land``; ``hover`` leaves the robot holding over home."""
+        if v.spec.return_action == "hover":
+            self._text(v, statustext.Text(mav.MAV_SEVERITY_INFO, f"{v.robot}: home reached, holding there "
+                                          "(RETURN_ACTION hover)"))
+            return
+        if "land" not in (v.state.available if v.state else {}):
+            self._deny(v, f"home reached; {v.robot} ({v.kind}) offers no land task: holding there")
+            return
+        v.rtl_landing = 0
+        self.workers[v.robot].jobs.put((v.robot, RTL_LAND_JOB, cm.Send(gri.Land(), "rtl"), (0, 0), ()))
 
     # ---------------------------------------------------------------- output
 
@@ -224,6 +267,7 @@ class Gateway:
     # ---------------------------------------------------------------- periodic
 
     def _periodic(self, now: float) -> None:
+        self._hold_links(now)
         for v in list(self.vehicles.values()):
             if v.state is not None:
                 for name in v.schedule.due(now):
@@ -288,6 +332,10 @@ class Gateway:
 
     def _on_message(self, msg: Message) -> None:
         kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            if msg.type == mav.MAV_TYPE_GCS:  # a ground station is there (a vehicle's heartbeat is not one)
+                self.gcs_heard = self.clock()
+            return
         handler = _HANDLERS.get(kind)
         if handler is None:
             return
@@ -347,6 +395,15 @@ class Gateway:
         kind = gri.kind_of(outcome.request)
         accepted = not isinstance(reply, str) and reply.accepted
         reason = reply if isinstance(reply, str) else reply.reason
+        if command == RTL_LAND_JOB:  # the return's landing: no COMMAND_ACK (the RTL's was sent), the verdict told
+            if accepted:
+                assert not isinstance(reply, str)
+                v.rtl_landing = v.rtl_task = reply.task_id  # shown as RTL until it lands
+                self._text(v, statustext.Text(mav.MAV_SEVERITY_INFO, f"{v.robot}: home reached, landing"))
+            else:
+                v.rtl_landing = None
+                self._deny(v, f"home reached, land refused: {reason}")
+            return
         if command == REPLACE_JOB:  # a mission uploaded while one flew: its MISSION_ACK is the RAL's verdict
             items, plan_ = v.replacing or ([], None)
             v.replacing = None

@@ -36,6 +36,8 @@ class RobotSpec:
     battery_empty_v: float | None = None
     rtl_height: float = 10.0
     """The .conf's RETURN_HEIGHT (m above home): the return-to-launch flies home at least this high."""
+    return_action: str = "land"
+    """The .conf's RETURN_ACTION: ``land`` once home (the default, PX4's), or ``hover`` there."""
 
 
 def spec_from_manifest(path: str) -> RobotSpec:
@@ -53,9 +55,10 @@ def spec_from_manifest(path: str) -> RobotSpec:
         return number(value) if isinstance(value, str) else None
 
     rtl = num(doc.get("RETURN_HEIGHT")) or num(ral.get("return_height_m"))  # the .conf's, as the RAL's return
+    action = doc.get("RETURN_ACTION")
     return RobotSpec(name=m.robot, params=table, takeoff_height=num(takeoff), max_speed=num(max_speed),
                      battery_full_v=num(ral.get("battery_full_v")), battery_empty_v=num(ral.get("battery_empty_v")),
-                     rtl_height=rtl or 10.0)
+                     rtl_height=rtl or 10.0, return_action="hover" if action == "hover" else "land")
 
 
 @dataclass
@@ -86,6 +89,11 @@ class Vehicle:
         self.pausing_at: int | None = None
         self.speed: float | None = None
         self.rtl_task = 0
+        """The running return to launch's task (its goto, then its landing): shown as RTL."""
+        self.rtl_landing: int | None = None
+        """The return's landing: None before home is reached, 0 while asked, then its task id."""
+        self.linked = False
+        """The gateway holds this robot's GRI link (a MAVLink ground station is heard)."""
         self.reached = 0
         """Mission items told reached (MISSION_ITEM_REACHED) for the current run."""
         self.seen_errors: set[tuple[str, int, float]] = set()
@@ -185,6 +193,7 @@ class Vehicle:
                 self.run.ended = True
         elif role == "rtl":
             self.rtl_task = reply.task_id
+            self.rtl_landing = None
 
     def on_event(self, event: gri.GriEvent) -> None:
         run = self.run

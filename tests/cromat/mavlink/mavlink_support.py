@@ -94,7 +94,10 @@ async def first(gen: Any, pred: Callable[[Any], bool] = lambda _: True, timeout_
 class Mav:
     """A pymavlink ground station (``mavutil``), over TCP to the gateway; ``messages`` keeps what it received."""
 
-    def __init__(self, tcp_port: int, *, sysid: int = 250, key: bytes | None = None) -> None:
+    def __init__(self, tcp_port: int, *, sysid: int = 250, key: bytes | None = None,
+                 heartbeats: bool = False) -> None:
+        """``heartbeats``: send a ground station's HEARTBEAT every second, as QGroundControl does, until
+        :meth:`quiet` or :meth:`close` (the gateway holds the robots' GRI link only while one is heard)."""
         os.environ.setdefault("MAVLINK20", "1")
         from pymavlink import mavutil
 
@@ -108,6 +111,29 @@ class Mav:
         self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._read, daemon=True)
         self._thread.start()
+        self._beating = threading.Event()
+        self._beat_thread: threading.Thread | None = None
+        if heartbeats:
+            self._beating.set()
+            self._beat_thread = threading.Thread(target=self._beat, daemon=True)
+            self._beat_thread.start()
+
+    def _beat(self) -> None:
+        from pymavlink import mavutil
+
+        m = mavutil.mavlink
+        while self._beating.is_set() and not self._stop.is_set():
+            try:
+                self.mav.heartbeat_send(m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, m.MAV_STATE_ACTIVE)
+            except OSError:
+                return
+            self._stop.wait(1.0)
+
+    def quiet(self) -> None:
+        """Stop sending heartbeats (the ground station goes quiet; its connection stays open)."""
+        self._beating.clear()
+        if self._beat_thread is not None:
+            self._beat_thread.join(3.0)
 
     def _read(self) -> None:
         while not self._stop.is_set():
@@ -142,6 +168,7 @@ class Mav:
 
     def close(self) -> None:
         self._stop.set()
+        self.quiet()
         self._thread.join(2.0)
         self.conn.close()
 

@@ -46,8 +46,17 @@ def test_land_rtl_reposition() -> None:
     rtl = map_command(ctx(), cmd(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH))
     assert isinstance(rtl, Send) and rtl.role == "rtl"
     assert rtl.request == gri.Goto(waypoints=[gri.Waypoint(lat=HOME.lat, lon=HOME.lon, alt=30.0)])
+    # under the return height (home + 10 m) and far from home: climbs where it is first, then flies home
     low = map_command(ctx(position=GeoPoint(lat=37.4, lon=-6.0, alt=14.0)), cmd(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH))
-    assert isinstance(low, Send) and low.request.waypoints[0].alt == 22.0  # type: ignore[union-attr]
+    assert isinstance(low, Send) and low.request == gri.Goto(waypoints=[  # type: ignore[union-attr]
+        gri.Waypoint(lat=37.4, lon=-6.0, alt=22.0), gri.Waypoint(lat=HOME.lat, lon=HOME.lon, alt=22.0)])
+    # under it but over home (within 8 m): straight to home at the return height
+    near = GeoPoint(lat=HOME.lat + 3e-5, lon=HOME.lon, alt=14.0)
+    assert map_command(ctx(position=near), cmd(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)) == Send(
+        gri.Goto(waypoints=[gri.Waypoint(lat=HOME.lat, lon=HOME.lon, alt=22.0)]), "rtl")
+    # the .conf's RETURN_HEIGHT; above it, home at the height it has (never a descent before home)
+    high = map_command(ctx(rtl_height=3.0), cmd(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH))
+    assert isinstance(high, Send) and [w.alt for w in high.request.waypoints] == [30.0]  # type: ignore[union-attr]
     assert isinstance(map_command(ctx(home=None), cmd(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)), Deny)
     # COMMAND_INT reposition, altitude relative to home; speed param1
     go = map_command(ctx(), cmd(mav.MAV_CMD_DO_REPOSITION, 3.0, NAN, NAN, NAN, 37.42, -6.0, 20.0,

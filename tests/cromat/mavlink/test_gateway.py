@@ -39,6 +39,9 @@ class StandInGcs:
     def hold_link(self, robot: str) -> None:
         self.linked.append(robot)
 
+    def release_link(self, robot: str) -> None:
+        self.linked.remove(robot)
+
     def events(self, robot: str, callback: Callable[[gri.GriEvent], None]) -> None:
         self.on_event = callback
 
@@ -112,7 +115,7 @@ def pump(gw: Gateway, until: Callable[[], bool], what: str) -> None:
 
 def test_a_command_is_the_rals_verdict_and_a_refusal_says_why() -> None:
     gw, gcs, wire, _ = setup()
-    assert gcs.linked == ["uav1"] and wire.of("HEARTBEAT")[0].get_srcSystem() == 3
+    assert wire.of("HEARTBEAT")[0].get_srcSystem() == 3
     wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0))
     pump(gw, lambda: bool(wire.of("COMMAND_ACK")), "the land's ACK")
     assert gcs.requests == [gri.Land()] and wire.of("COMMAND_ACK")[0].result == mav.MAV_RESULT_ACCEPTED
@@ -197,3 +200,62 @@ def test_parameters_and_a_refused_set() -> None:
     pump(gw, lambda: bool(wire.of("PARAM_ERROR")), "the refusal")
     assert wire.of("PARAM_ERROR")[0].error == mav.MAV_PARAM_ERROR_DOES_NOT_EXIST
     assert any("no such parameter" in t for t in wire.texts())
+
+
+def gcs_heartbeat(kind: int = mav.MAV_TYPE_GCS) -> object:
+    return mav.MAVLink_heartbeat_message(kind, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE, 3)
+
+
+def test_the_link_is_held_only_while_a_mavlink_ground_station_is_heard() -> None:
+    gw, gcs, wire, now = setup()
+    assert gcs.linked == []  # served, its telemetry sent, but no operator yet: the robot's failsafe is not armed
+    wire.write(gcs_heartbeat(mav.MAV_TYPE_QUADROTOR))  # another vehicle's heartbeat is no ground station
+    gw.turn(0.05)
+    assert gcs.linked == []
+    wire.write(gcs_heartbeat())
+    gw.turn(0.05)
+    assert gcs.linked == ["uav1"]
+    now[0] += 2.9  # quiet, but within the timeout
+    gw.turn(0.0)
+    assert gcs.linked == ["uav1"]
+    now[0] += 0.2  # three heartbeats missed: the ground station is gone, the robot's link with it
+    gw.turn(0.0)
+    assert gcs.linked == []
+    wire.write(gcs_heartbeat())  # back
+    gw.turn(0.05)
+    assert gcs.linked == ["uav1"]
+
+
+def test_a_return_to_launch_lands_once_home_is_reached() -> None:
+    gw, gcs, wire, _ = setup()
+    gcs.verdict = lambda r: gri.TaskReply(accepted=True, task_id=11 if isinstance(r, gri.Goto) else 12)
+    wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0))
+    pump(gw, lambda: bool(wire.of("COMMAND_ACK")), "the RTL's ACK")
+    assert isinstance(gcs.requests[0], gri.Goto) and wire.of("COMMAND_ACK")[0].result == mav.MAV_RESULT_ACCEPTED
+    # another task's end is not the return's
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=2.0, kind="task_completed", task_id=9))
+    gw.turn(0.05)
+    assert len(gcs.requests) == 1
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=3.0, kind="task_completed", task_id=11))
+    pump(gw, lambda: any("home reached, landing" in t for t in wire.texts()), "the landing told")
+    assert gcs.requests[1:] == [gri.Land()]
+    assert gw.vehicles["uav1"].rtl_task == 12  # the landing is shown as the return's (RTL mode)
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=4.0, kind="task_completed", task_id=12))
+    gw.turn(0.05)
+    assert len(gcs.requests) == 2  # landed: nothing more
+
+
+def test_a_return_that_does_not_complete_does_not_land_and_hover_holds() -> None:
+    gw, gcs, wire, _ = setup()
+    gcs.verdict = lambda r: gri.TaskReply(accepted=True, task_id=11)
+    wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0))
+    pump(gw, lambda: bool(wire.of("COMMAND_ACK")), "the RTL's ACK")
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=2.0, kind="task_replaced", task_id=11))
+    gw.turn(0.05)
+    assert len(gcs.requests) == 1
+    gw.vehicles["uav1"].spec.return_action = "hover"  # the .conf's RETURN_ACTION: hover
+    wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 1))
+    pump(gw, lambda: len(wire.of("COMMAND_ACK")) == 2, "the second RTL's ACK")
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=3.0, kind="task_completed", task_id=11))
+    pump(gw, lambda: any("holding there" in t for t in wire.texts()), "the hover told")
+    assert len(gcs.requests) == 2 and all(isinstance(r, gri.Goto) for r in gcs.requests)
