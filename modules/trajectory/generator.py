@@ -12,9 +12,10 @@ import numpy as np
 
 from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
 from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, SmoothRequest, SurveyRequest, TrajectoryRequest
+from bbcs.geodesy import LocalFrame
 from bbcs.params import load_params, struct_param_errors
 from modules.trajectory import planning
-from modules.trajectory.planning import LocalFrame, PlanningError
+from modules.trajectory.planning import PlanningError
 
 
 class Limits(msgspec.Struct, frozen=True, kw_only=True):
@@ -63,13 +64,13 @@ def _frame(points: list[GeoPoint]) -> LocalFrame:
 
 
 def _local(frame: LocalFrame, points: list[GeoPoint]) -> np.ndarray:
-    return frame.to_local(np.array([p.lat for p in points]), np.array([p.lon for p in points]))
+    return frame.to_enu([p.lat for p in points], [p.lon for p in points], 0.0)[:, :2]
 
 
 def _datos(frame: LocalFrame, en: np.ndarray, altura: float, limits: Limits) -> DatosSegCam:
     if len(en) > limits.max_points:
         raise PlanningError(f"the path needs {len(en)} waypoints, more than max_points={limits.max_points}")
-    lat, lon = frame.to_geo(en)
+    lat, lon, _ = frame.to_geo(en[:, 0], en[:, 1])
     return DatosSegCam(n_points=len(en), puntos=[
         DatoPuntoSegCam(latitud=float(a), longitud=float(o), altura=altura) for a, o in zip(lat, lon, strict=True)])
 

@@ -1,5 +1,5 @@
-"""Path planning as pure functions in a local east/north frame (metres): lawnmower surveys, orbits,
-smoothing corners into turns the aircraft can fly. No bus, no clock: tested directly.
+"""Path planning as pure functions in a local east/north frame (metres, bbcs.geodesy.LocalFrame): lawnmower
+surveys, orbits, smoothing corners into turns the aircraft can fly. No bus, no clock: tested directly.
 
 Terms:
 - **swath**: the ground width the LD-MRS sees across the track, 2·h·tan(half angle) over flat ground
@@ -19,39 +19,10 @@ import numpy as np
 LDMRS_HALF_ANGLE_DEG = 50.0
 """The logger's scan field: +50° to -50° (docs/lidar_logger.md §3)."""
 G = 9.80665
-_WGS84_A = 6378137.0
-_WGS84_E2 = 6.69437999014e-3
 
 
 class PlanningError(ValueError):
     """A request that cannot be turned into a flyable path; the message says why."""
-
-
-@dataclass(frozen=True)
-class LocalFrame:
-    """East/north metres around (lat0, lon0) with the WGS84 radii of curvature there. Within a few km the
-    error against exact geodesy stays under the decimetre (d²/R), well inside a waypoint's tolerance."""
-
-    lat0: float
-    lon0: float
-
-    @property
-    def _radii(self) -> tuple[float, float]:
-        s = math.sin(math.radians(self.lat0))
-        w = math.sqrt(1.0 - _WGS84_E2 * s * s)
-        meridian = _WGS84_A * (1.0 - _WGS84_E2) / w**3
-        normal = _WGS84_A / w
-        return meridian, normal * math.cos(math.radians(self.lat0))
-
-    def to_local(self, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
-        m, p = self._radii
-        return np.column_stack((np.radians(np.asarray(lon) - self.lon0) * p,
-                                np.radians(np.asarray(lat) - self.lat0) * m))
-
-    def to_geo(self, en: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        m, p = self._radii
-        en = np.asarray(en, dtype=np.float64)
-        return self.lat0 + np.degrees(en[:, 1] / m), self.lon0 + np.degrees(en[:, 0] / p)
 
 
 def swath_width(height: float, half_angle_deg: float = LDMRS_HALF_ANGLE_DEG) -> float:

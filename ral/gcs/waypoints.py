@@ -12,6 +12,7 @@ from pathlib import Path
 import msgspec
 
 from bbcs.contracts import gri
+from bbcs.geojson import PolygonFileError, read_polygon
 
 _LAT = {"lat", "latitude", "latitud"}
 _LON = {"lon", "lng", "long", "longitude", "longitud"}
@@ -96,37 +97,8 @@ def load_waypoints(path: str | Path) -> list[gri.Waypoint]:
 
 
 def load_polygon(path: str | Path) -> list[gri.Vertex]:
-    """A survey polygon: the outer ring of a GeoJSON ``Polygon`` (or a ``Feature`` / one-feature
-    ``FeatureCollection`` holding one), ``[lon, lat]`` positions, the closing point dropped."""
-    p = Path(path)
-    if not p.is_file():
-        raise WaypointFileError(f"{p}: no such polygon file")
+    """A survey or no-fly-zone polygon file, read by :func:`bbcs.geojson.read_polygon`, as GRI vertices."""
     try:
-        doc = json.loads(p.read_text())
-    except json.JSONDecodeError as exc:
-        raise WaypointFileError(f"{p}:{exc.lineno}: not valid JSON: {exc.msg}") from None
-    geom = doc
-    if isinstance(geom, dict) and geom.get("type") == "FeatureCollection":
-        feats = geom.get("features") or []
-        if len(feats) != 1:
-            raise WaypointFileError(f"{p}: a FeatureCollection must hold exactly one polygon, it holds {len(feats)}")
-        geom = feats[0]
-    if isinstance(geom, dict) and geom.get("type") == "Feature":
-        geom = geom.get("geometry") or {}
-    if not isinstance(geom, dict) or geom.get("type") != "Polygon" or not geom.get("coordinates"):
-        kind = geom.get("type") if isinstance(geom, dict) else type(geom).__name__
-        raise WaypointFileError(f"{p}: GeoJSON {kind!r} is not a Polygon (or a Feature of one)")
-    ring = list(geom["coordinates"][0])
-    if len(ring) > 1 and ring[0] == ring[-1]:
-        ring = ring[:-1]
-    vertices = []
-    for i, c in enumerate(ring):
-        if not isinstance(c, list) or len(c) < 2:
-            raise WaypointFileError(f"{p}: vertex {i} must be [lon, lat], got {c!r}")
-        try:
-            vertices.append(msgspec.convert({"lat": c[1], "lon": c[0]}, gri.Vertex))
-        except msgspec.ValidationError as exc:
-            raise WaypointFileError(f"{p}: vertex {i}: {exc}") from None
-    if len(vertices) < 3:
-        raise WaypointFileError(f"{p}: a polygon needs at least 3 vertices, it has {len(vertices)}")
-    return vertices
+        return [gri.Vertex(lat=lat, lon=lon) for lat, lon in read_polygon(path)]
+    except PolygonFileError as exc:
+        raise WaypointFileError(str(exc)) from None

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bbcs.geodesy import WGS84_A, WGS84_F
 from modules.lidar_logger.geodesy import (
-    WGS84_A,
-    WGS84_F,
     ecef_from_enu,
     ecef_from_nwu,
     ecef_to_lla,

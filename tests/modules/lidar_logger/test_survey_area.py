@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from bbcs.contracts.vehicle_truth import VehicleTruth
+from bbcs.geodesy import LocalFrame
 from modules.lidar_logger import cli
 from modules.lidar_logger.area import AreaError, load_polygon, polygon_enu
 from modules.lidar_logger.dtm import attitude_rates, ground_candidates
@@ -22,7 +23,8 @@ from modules.lidar_logger.sim.survey_flight import flight_scans, write_run
 from modules.lidar_logger.sim.terrain_check import dtm_error
 
 HOME = (37.4117, -6.0025, 12.0)
-M_PER_DEG = 6378137.0 * math.pi / 180.0
+FRAME = LocalFrame(*HOME)
+"""The DSP simulator's frame at home (bbcs.geodesy), in which these flights are written."""
 
 
 def wobbling_world() -> World:
@@ -33,8 +35,8 @@ def wobbling_world() -> World:
         t = k * 0.02
         n = e = 3.5 * t
         flight.add(VehicleTruth(
-            seq=k, time_s=t, time_scale=1.0, home=HOME, lat=HOME[0] + n / M_PER_DEG,
-            lon=HOME[1] + e / (M_PER_DEG * math.cos(math.radians(HOME[0]))), alt=HOME[2] + 25.0,
+            seq=k, time_s=t, time_scale=1.0, home=HOME, lat=FRAME.to_geo(e, n)[0],
+            lon=FRAME.to_geo(e, n)[1], alt=HOME[2] + 25.0,
             vel_neu=(3.5, 3.5, 0.0), roll=4.0 * math.sin(2 * math.pi * 1.5 * t),
             pitch=-3.0 + 4.0 * math.cos(2 * math.pi * 1.5 * t), heading=45.0))
     world.flight = flight
@@ -156,7 +158,7 @@ def test_a_bad_polygon_file_is_refused_naming_it(wobbly_log, tmp_path, capsys) -
     bad.write_text(json.dumps({"type": "LineString", "coordinates": [[0, 0], [1, 1]]}))
     out = tmp_path / "never.tif"
     assert cli.main(["dtm", str(folder), "--cell", "2", "--polygon", str(bad), "--out", str(out)]) == 1
-    assert "line.geojson: not a GeoJSON Polygon" in capsys.readouterr().err and not out.exists()
+    assert "line.geojson: GeoJSON 'LineString' is not a Polygon" in capsys.readouterr().err and not out.exists()
     with pytest.raises(AreaError, match="3 vertices"):
         load_polygon(_write(tmp_path / "two.geojson", {"type": "Polygon", "coordinates": [[[0, 0], [1, 1]]]}))
     with pytest.raises(AreaError, match="valid"):

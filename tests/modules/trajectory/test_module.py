@@ -12,8 +12,9 @@ import pytest
 from bbcs import keys
 from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, SurveyRequest, TrajectoryRequest, TrajectoryStatus
+from bbcs.geodesy import LocalFrame
 from bbcs.testing import stop_process, wait_until
-from modules.trajectory.planning import LocalFrame, line_spacing
+from modules.trajectory.planning import line_spacing
 
 POLYGON = [GeoPoint(lat=37.4260, lon=-6.0040), GeoPoint(lat=37.4260, lon=-5.9960),
            GeoPoint(lat=37.4290, lon=-5.9960), GeoPoint(lat=37.4290, lon=-6.0040)]
@@ -56,7 +57,7 @@ def test_a_survey_request_gives_a_lawnmower_on_the_survey_slot(generator) -> Non
     assert path.n_points == len(path.puntos) == status.n_points > 10
     assert {p.altura for p in path.puntos} == {92.0}  # ground_altitude + height
     frame = LocalFrame(37.4275, -6.0)
-    en = frame.to_local([p.latitud for p in path.puntos], [p.longitud for p in path.puntos])
+    en = frame.to_enu([p.latitud for p in path.puntos], [p.longitud for p in path.puntos], 0.0)[:, :2]
     # the lines stay within the polygon's span plus the 10 m extension and the turns outside it
     assert en[:, 0].min() > -360 - 10 - 60 and en[:, 0].max() < 360 + 10 + 60
     assert not got["orbit"]
@@ -76,5 +77,6 @@ def test_a_refused_request_says_why_and_publishes_no_path(generator) -> None:
     wait_until(lambda: got["orbit"], 20, "the orbit")
     assert len(got["orbit"]) == 1 and not got["survey"]
     frame = LocalFrame(37.4, -6.0)
-    en = frame.to_local([p.latitud for p in got["orbit"][0].puntos], [p.longitud for p in got["orbit"][0].puntos])
+    en = frame.to_enu([p.latitud for p in got["orbit"][0].puntos], [p.longitud for p in got["orbit"][0].puntos],
+                     0.0)[:, :2]
     assert all(math.isclose(r, 100.0, rel_tol=1e-6) for r in (en**2).sum(axis=1) ** 0.5)

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from modules.trajectory.planning import (
-    LocalFrame,
     PlanningError,
     lawnmower,
     line_spacing,
@@ -108,14 +107,6 @@ def test_the_survey_smoothed_at_the_turn_radius_stays_near_its_lower_bound() -> 
     s = lawnmower(RECT, 70.0)
     flown = smooth(s.waypoints, 30.0)
     assert path_length(flown) <= 1.02 * s.lower_bound_m
-
-
-def test_local_frame_round_trip_and_scale() -> None:
-    f = LocalFrame(37.4261, -6.0032)
-    en = np.array([[1000.0, -2000.0], [0.0, 0.0]])
-    lat, lon = f.to_geo(en)
-    assert np.allclose(f.to_local(lat, lon), en, atol=1e-6)
-    assert lat[0] == pytest.approx(37.4261 - 2000 / 111_000, abs=3e-4)
 
 
 def test_turns_are_flown_outside_the_polygon_when_lines_are_extended_by_the_radius() -> None:
