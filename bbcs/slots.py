@@ -16,10 +16,18 @@ queryable would need all of that written again.
 that many wait, the input's Zenoh callback blocks and Zenoh stops reading that link: the reliable, BLOCK
 publisher is slowed down, nothing is dropped. The publisher reports it: a ``put`` that blocks longer than
 ``BACKPRESSURE_S`` is logged with the slot's name and counted in :attr:`Publisher.backpressure_events`.
+
+*The outbox* (``OutputSlot(..., outbox=N)``): for reports a safety process sends beside its real work (the DSP
+process's error and sent streams, issue 32). A safe put can block for as long as a consumer is slow; a thread that
+must keep a heartbeat or an abort path going cannot wait for that. With an outbox, ``publish`` encodes and hands the
+bytes to a queue of ``N`` that a thread of the publisher's own puts, in order: the caller never blocks. A value that
+finds the outbox full is dropped and counted (:attr:`Publisher.dropped`); the owner reports the count, once, not
+once per value (:meth:`Publisher.take_dropped`).
 """
 
 from __future__ import annotations
 
+import collections
 import datetime
 import enum
 import logging
@@ -93,6 +101,9 @@ class SlotSpec(Generic[T]):
     The DSP's commands (abort among them) and its telemetry go ahead of bulk and perception data (issue 32)."""
     express: bool = False
     """Send at once instead of batching with what follows (Zenoh's express): for rare, urgent outputs."""
+    outbox: int = 0
+    """An output's outbox (module docstring): 0, put on the caller's thread; N, at most N values wait for the
+    publisher's own thread and one more is dropped and counted, so the caller never blocks."""
 
     def __post_init__(self) -> None:
         keys.validate_name(self.name, "slot name")
@@ -106,6 +117,8 @@ class SlotSpec(Generic[T]):
             raise SlotError(f"slot {self.name!r}: a stream is always safe (every message, in order)")
         if self.queue < 1:
             raise SlotError(f"slot {self.name!r}: queue bound must be at least 1")
+        if self.outbox < 0 or (self.outbox and self.direction is not Direction.OUT):
+            raise SlotError(f"slot {self.name!r}: an outbox is a bound >= 1 on an output slot")
         if self.priority is not None and self.priority.upper() not in PRIORITIES:
             raise SlotError(f"slot {self.name!r}: priority {self.priority!r} is not one of "
                             f"{', '.join(p.lower() for p in PRIORITIES)}")
@@ -139,11 +152,11 @@ def InputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE, safety: Safe
 
 def OutputSlot(name: str, type: type[T], *, kind: Kind = Kind.STATE,  # noqa: N802
                safety: Safety = Safety.SAFE, peer: str | None = None, priority: str | None = None,
-               express: bool = False) -> SlotSpec[T]:
+               express: bool = False, outbox: int = 0) -> SlotSpec[T]:
     """Declare an output slot (``peer``: write into that module's input slot of the same name; ``priority``,
-    ``express``: :class:`SlotSpec`)."""
+    ``express``, ``outbox``: :class:`SlotSpec`)."""
     return SlotSpec(name, type, Direction.OUT, Kind(kind), Safety(safety), peer=peer, priority=priority,
-                    express=express)
+                    express=express, outbox=outbox)
 
 
 class _BlockWatch:
@@ -242,12 +255,25 @@ class Publisher(Generic[T]):
         self._putting = False
         if spec.safety is Safety.SAFE:
             _block_watch.add(self)
+        self.dropped = 0
+        """Values an outbox had no room for (module docstring)."""
+        self._reported_drops = 0
+        self._outbox: collections.deque[bytes] | None = None
+        if spec.outbox:
+            self._outbox = collections.deque()
+            self._outbox_ready = threading.Condition(threading.Lock())
+            self._outbox_thread = threading.Thread(target=self._send_outbox, name=f"outbox-{spec.name}",
+                                                   daemon=True)
+            self._outbox_thread.start()
 
     def publish(self, value: T) -> None:
         """Encode and put ``value``. Types are checked where they are cheap: the struct class must match."""
         if type(value) is not self._type:
             raise SlotError(f"slot {self.spec.name!r} carries {self.spec.type.__name__}, "
                             f"not {type(value).__name__}")
+        if self._outbox is not None:
+            self._post(encode(value))
+            return
         self._putting = True  # what the back-pressure watch looks at (a safe put can block)
         self._put(encode(value))
         self._putting = False
@@ -255,10 +281,54 @@ class Publisher(Generic[T]):
 
     def publish_raw(self, payload: bytes) -> None:
         """Put bytes already encoded (bench and bridging code); no type check."""
+        if self._outbox is not None:
+            self._post(payload)
+            return
         self._putting = True
         self._pub.put(payload)
         self._putting = False
         self.published += 1
+
+    def _post(self, payload: bytes) -> None:
+        """Into the outbox, never waiting: dropped and counted when ``spec.outbox`` values already wait."""
+        box = self._outbox
+        assert box is not None
+        with self._outbox_ready:
+            if len(box) >= self.spec.outbox or self._closed:
+                self.dropped += 1
+                return
+            box.append(payload)
+            self._outbox_ready.notify()
+
+    def _send_outbox(self) -> None:
+        box = self._outbox
+        assert box is not None
+        while True:
+            with self._outbox_ready:
+                while not box and not self._closed:
+                    self._outbox_ready.wait()
+                if self._closed:
+                    return
+                payload = box[0]
+            self._putting = True
+            try:
+                self._put(payload)
+            except Exception as exc:  # the session is closing: what waits is lost with it
+                log.debug("slot %s: outbox put failed: %s", self.key, exc)
+            self._putting = False
+            with self._outbox_ready:
+                if box:
+                    box.popleft()
+            self.published += 1
+
+    def waiting(self) -> int:
+        """Values in the outbox not yet put (0 without one)."""
+        return len(self._outbox) if self._outbox is not None else 0
+
+    def take_dropped(self) -> int:
+        """Values dropped since the last call: what the owner reports once, as a count."""
+        n, self._reported_drops = self.dropped - self._reported_drops, self.dropped
+        return n
 
     def withdraw(self) -> None:
         """Delete the slot's value: a state publisher's cache then answers late joiners with an empty payload,
@@ -269,6 +339,10 @@ class Publisher(Generic[T]):
         if not self._closed:
             self._closed = True
             _block_watch.discard(self)
+            if self._outbox is not None:
+                with self._outbox_ready:
+                    self._outbox_ready.notify_all()
+                self._outbox_thread.join(1.0)  # one stuck in a blocked put is a daemon: not waited for longer
             self._pub.undeclare()
 
 

@@ -44,6 +44,8 @@ from modules.dsp.params import dsp_param_errors, load_dsp_params
 from modules.dsp.refusals import Refusal, RefusalCounter, RefusalReport
 
 EXIT_LINK_FAILED = 3
+REPORT_OUTBOX = 256
+"""Reports that may wait for a slow consumer before more are dropped and counted (issue 32 item 1)."""
 
 
 class DspStartupError(RuntimeError):
@@ -59,10 +61,13 @@ class DspModule(Module):
     slots = (
         *(InputSlot(commands_slot(sender), contract.DspCommands, kind=Kind.STREAM) for sender in COMMAND_RIGHTS),
         OutputSlot(contract.TELEMETRY_SLOT, p.Telemetry, safety=Safety.UNSAFE, priority="interactive_low"),
-        OutputSlot(contract.ERRORS_SLOT, contract.DspErrorReport, kind=Kind.STREAM),
+        # reports through outboxes: the loop (heartbeat), the sender (abort) and the reader never wait for a slow
+        # consumer of them (bbcs/slots.py); what finds an outbox full is counted and reported once a second
+        OutputSlot(contract.ERRORS_SLOT, contract.DspErrorReport, kind=Kind.STREAM, outbox=REPORT_OUTBOX),
         OutputSlot(contract.LINK_SLOT, LinkStats, safety=Safety.UNSAFE, priority="interactive_low"),
-        OutputSlot(contract.SENT_SLOT, contract.DspSent, kind=Kind.STREAM),  # each command put on the line
-        OutputSlot("error", ErrorReport),
+        OutputSlot(contract.SENT_SLOT, contract.DspSent, kind=Kind.STREAM,  # each command put on the line
+                   outbox=4 * REPORT_OUTBOX),
+        OutputSlot("error", ErrorReport, outbox=REPORT_OUTBOX),
     )
     error_slot = "error"
     exact_key_inputs = frozenset(commands_slot(sender) for sender in COMMAND_RIGHTS)
@@ -125,6 +130,7 @@ class DspModule(Module):
         if due is not None:
             self._report_refusals(due)
         self.publish(contract.LINK_SLOT, self.link.stats())
+        self._report_lost_reports()
         failure = self.link.failure
         if failure is not None and not self.stopping:
             self.report_error(LinkErrorCode.LINK_DOWN, str(failure))
@@ -210,6 +216,14 @@ class DspModule(Module):
                           len(flushed))
         for old in flushed:
             self._publish_report(LinkErrorCode.FLUSHED, f"batch flushed by an ABORT from {batch.sender}", old)
+
+    def _report_lost_reports(self) -> None:
+        """Reports a slow consumer made the outboxes drop since the last tick: one count, never one per report."""
+        lost = {name: n for name in (contract.ERRORS_SLOT, contract.SENT_SLOT, "error")
+                if (n := self.output(name).take_dropped())}
+        if lost:
+            self.report_error(LinkErrorCode.FLOODED, "reports dropped, their consumers holding the bus back: "
+                              + ", ".join(f"{n} on {name}" for name, n in lost.items()))
 
     def _report_floods(self, floods: list[Flood]) -> None:
         """One report per flooding sender and window, naming it, with what it lost (never one per batch)."""
