@@ -4,7 +4,7 @@
     cromat lidar run --conf bbcs_conf/uav1.conf              (settings from the LIDAR: logger group)
     cromat lidar read Scan_Y2010_M09_D10_H07M30S07 [--npz scans.npz] [--json]
     cromat lidar georef Scan_Y2010_M09_D10_H07M30S07 --out cloud.ply [--ascii]     (.las / .laz: LAS 1.4)
-    cromat lidar dtm Scan_A Scan_B --cell 1 --out dtm.tif [--hillshade dtm.png] [--las ground.laz]
+    cromat lidar dtm Scan_A Scan_B --cell 1 --out dtm.tif [--hillshade dtm.png] [--picture map.png] [--las ground.laz]
 
 Exit codes: 0 finished (duration or Ctrl+C), 3 stopped because the scanner went silent, 1 error, 2 usage.
 """
@@ -20,6 +20,7 @@ import numpy as np
 
 from bbcs.conf import ConfError
 from bbcs.stop_signals import forward_stop_signals
+from modules.lidar_logger import picture
 from modules.lidar_logger.area import AreaError, load_polygon, polygon_enu
 from modules.lidar_logger.clock import SYSTEM_CLOCK, ScaledClock
 from modules.lidar_logger.config import load_lidar_conf, merge_lidar_conf, read_config_file
@@ -79,7 +80,9 @@ def _parser() -> argparse.ArgumentParser:
     dtm.add_argument("logs", nargs="+", help="run folders or log files; all in the first one's ENU frame")
     dtm.add_argument("--cell", type=float, required=True, help="cell size, metres")
     dtm.add_argument("--out", required=True, help="GeoTIFF of heights to write")
-    dtm.add_argument("--hillshade", help="PNG hillshade to write")
+    dtm.add_argument("--hillshade", help="PNG hillshade to write, one pixel per cell (aligned with the GeoTIFF)")
+    dtm.add_argument("--picture", help="PNG map for a person to read: heights in colour with their legend, the "
+                                       "relief, the --polygon outline, a scale bar and a north arrow")
     dtm.add_argument("--las", help="the ground points as LAS/LAZ")
     dtm.add_argument("--max-above", type=float, default=0.5,
                      help="ground filter: drop points this far above a cell's low surface (m)")
@@ -233,6 +236,10 @@ def _dtm(args: argparse.Namespace) -> int:
         report["polygon"] = coverage(dtm, polygon_mask(dtm, polygon_enu(area, origin))).as_dict()
     if args.hillshade:
         report["hillshade"] = str(write_png(args.hillshade, hillshade(dtm)))
+    if args.picture:
+        drawn = picture.draw(dtm, polygon_enu(area, origin) if area is not None else None,
+                             height_offset=float(origin[2]))
+        report["picture"] = str(write_png(args.picture, drawn.image))
     if args.las:
         report["las"] = str(write_las(args.las, enu, origin, ground=np.ones(len(enu), dtype=bool)))
     if args.json:

@@ -69,16 +69,17 @@ def read_geotiff(path: str | os.PathLike[str]) -> tuple[np.ndarray, tuple[float,
 
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
-    """An 8-bit grey PNG (GDAL's PNG driver, through rasterio)."""
+    """An 8-bit PNG (GDAL's PNG driver, through rasterio): grey for (rows, cols), RGB for (rows, cols, 3)."""
     rasterio, _ = _rasterio()
     from rasterio.errors import NotGeoreferencedWarning
 
     path = Path(path)
-    rows, cols = image.shape
+    bands = image[..., None] if image.ndim == 2 else image
+    rows, cols, count = bands.shape
     with warnings.catch_warnings():  # a picture: no georeferencing wanted
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path, "w", driver="PNG", width=cols, height=rows, count=1, dtype="uint8") as ds:
-            ds.write(image.astype(np.uint8), 1)
+        with rasterio.open(path, "w", driver="PNG", width=cols, height=rows, count=count, dtype="uint8") as ds:
+            ds.write(np.moveaxis(bands.astype(np.uint8), -1, 0))
     return path
 
 
