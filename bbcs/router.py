@@ -1,7 +1,9 @@
 """``cromat router``: the robot's Zenoh router, a small process of its own, started first.
 
 It is zenoh-python in router mode, so a laptop needs nothing but this package. Access control and TLS come
-from a Zenoh JSON5 file (``--config``) or the TLS options.
+from a Zenoh JSON5 file (``--config``) or the TLS options. A config with write-rate limits (Zenoh's
+``downsampling``, as the generated robot policy has) also names the floods those limits cut, in this log, once a
+second per sender and key (bbcs/router_floods.py).
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ import os
 import sys
 import threading
 
-from bbcs import router_audit
+from bbcs import router_audit, router_floods
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.stop_signals import exit_deadline, forward_stop_signals
@@ -61,9 +63,12 @@ def main(argv: list[str] | None = None) -> int:
     cfg = SessionConfig(mode="router", listen=args.listen or ["tcp/127.0.0.1:7447"], connect=args.connect,
                         multicast_scouting=args.scouting, tls=tls, config_file=args.config,
                         admin_space=args.admin_space, zid=robot_router_zid(args.robot) if args.robot else None)
-    if args.log_refusals or args.robot:  # before the session: Zenoh's log goes through the reader
+    floods = router_floods.FloodLog() if _limits_writes(args.config) else None
+    if args.log_refusals or args.robot or floods is not None:  # before the session: Zenoh's log through the reader
         sys.stdout = os.fdopen(os.dup(1), "w", buffering=1)
-        router_audit.install(sys.stdout, log_filter=None if args.log_refusals else router_audit.LINK_LOG_FILTER)
+        log_filter = router_audit.LOG_FILTER if args.log_refusals else router_audit.LINK_LOG_FILTER
+        router_audit.install(sys.stdout, log_filter=log_filter + (f",{router_floods.LOG_TARGET}" if floods else ""),
+                             consume=floods.feed if floods is not None else None)
     stop = threading.Event()
     restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a handler
     try:
@@ -74,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         print(f"cromat router: listening on {', '.join(cfg.listen)} (zid {session.zid()})", flush=True)
+        if floods is not None:
+            floods.names = router_floods.link_names(session)
+            router_floods.start_reporting(floods, sys.stdout, stop)
         stop.wait()
     finally:
         # stopping: a second signal ends the process, and so does the kernel if closing and exiting take longer
@@ -82,6 +90,18 @@ def main(argv: list[str] | None = None) -> int:
         exit_deadline(EXIT_DEADLINE_S)
         session.close()
     return 0
+
+
+def _limits_writes(config: str | None) -> bool:
+    """True if the Zenoh config file has write-rate limits (a ``downsampling`` section)."""
+    if not config:
+        return False
+    try:
+        with open(config, encoding="utf-8") as f:
+            text = f.read()
+        return '"downsampling"' in text or "downsampling:" in text
+    except OSError:  # the session's own open reports the unreadable file
+        return False
 
 
 if __name__ == "__main__":

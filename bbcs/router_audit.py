@@ -144,12 +144,13 @@ class RefusalLog:
         return out
 
 
-def install(out: TextIO, log: RefusalLog | None = None, log_filter: str | None = None) -> RefusalLog:
+def install(out: TextIO, log: RefusalLog | None = None, log_filter: str | None = None,
+            consume: Callable[[bytes], bool] | None = None) -> RefusalLog:
     """Route this process's stdout (where Zenoh logs) through a reader that reports refusals on ``out``.
 
     Call before the Zenoh session is opened; ``out`` must be a stream on a *duplicate* of the real stdout.
     ``log_filter``: Zenoh's log filter (default ``LOG_FILTER``, with the ACL's denials; ``LINK_LOG_FILTER``:
-    refused links only).
+    refused links only). ``consume``: sees every line first; True keeps it out of the rest (bbcs/router_floods.py).
     """
     import zenoh
 
@@ -162,6 +163,8 @@ def install(out: TextIO, log: RefusalLog | None = None, log_filter: str | None =
     def pump() -> None:
         with os.fdopen(read_fd, "rb", buffering=1 << 16) as pipe:
             for raw in pipe:
+                if consume is not None and consume(raw):
+                    continue
                 if _ALLOWED in raw and _CACHED_HIT in raw:  # the bulk: an allowed message, nothing to parse
                     continue
                 line = raw.decode(errors="replace")

@@ -178,6 +178,10 @@ class ModuleDef(_Section):
     realtime: RealTime | None = None
     """SCHED_RR at this priority (1-99) where the OS allows it (CAP_SYS_NICE or RLIMIT_RTPRIO); refused: said at
     launch, the module runs under the normal policy."""
+    write_hz: dict[str, Positive] = msgspec.field(default_factory=dict)
+    """Output slot → the most puts a second a secured robot's router passes from this module on that slot's key
+    (Zenoh's downsampling at the router's ingress, per link): a flood above is dropped where it enters and named in
+    the router's log (issue 32)."""
 
 
 class ReadyDef(_Section):
@@ -724,6 +728,11 @@ class _Checker:
             raise self.fail(f"{key}.class", f"{spec.cls!r} is not a bbcs Module subclass")
         self.slot_publishers(name, cls)
         self.cpus(spec.cpus, f"{key}.cpus")
+        outputs = {s.name for s in getattr(cls, "slots", ()) if s.direction.value == "out" and s.peer is None}
+        for slot in spec.write_hz:
+            if slot not in outputs:
+                raise self.fail(f"{key}.write_hz", f"write_hz: {slot!r} is not an output slot of {name} on its own "
+                                                   f"key (outputs: {', '.join(sorted(outputs)) or 'none'})")
         conf_errors = getattr(cls, "conf_errors", None)  # the module's check of its part of the robot .conf
         problems = conf_errors(self.conf_doc) if callable(conf_errors) and self.conf_doc is not None else []
         if problems:

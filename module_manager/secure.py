@@ -12,7 +12,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bbcs import acl
+from bbcs import acl, keys
+from bbcs.contracts.dsp import commands_slot
 from bbcs.session import SessionConfig, TlsConfig
 from module_manager.manifest import MANAGER_MODULE, Manifest
 
@@ -52,10 +53,22 @@ def router_config(manifest: Manifest, listen: list[str]) -> dict[str, Any]:
         key=str(pki / f"{ROUTER}.key"), robot=manifest.robot, gcs=list(tls.gcs), modules=modules,
         ral=ral_module or tls.ral, manager=MANAGER_MODULE, identities=cn,
         controls={n: manifest.modules[n].control_slot for n in modules},
-        mesh_robots=list(tls.mesh_robots), hubs=list(tls.hubs), revoked=revoked_names(pki))
+        mesh_robots=list(tls.mesh_robots), hubs=list(tls.hubs), revoked=revoked_names(pki),
+        write_rates=write_rates(manifest, modules))
     if not tls.acl:
         del cfg["access_control"]
     return cfg
+
+
+def write_rates(manifest: Manifest, modules: list[str]) -> dict[str, float]:
+    """The router's write-rate limits: the DSP set-point senders' (bbcs.acl.SET_POINT_RATES_HZ) and each module's
+    ``write_hz`` on its own slot keys."""
+    rates = {keys.slot_pattern(manifest.robot, acl.DSP_MODULE, commands_slot(s)): hz
+             for s, hz in acl.SET_POINT_RATES_HZ.items() if s in modules}
+    for name in modules:
+        for slot, hz in manifest.modules[name].spec.write_hz.items():
+            rates[keys.slot_key(manifest.robot, name, slot)] = hz
+    return rates
 
 
 def revoked_names(pki: Path) -> list[str]:
