@@ -594,11 +594,12 @@ class Gateway:
         threading.Thread(target=self._apply_fence, args=(v.robot, a, puts), daemon=True).start()
 
     def _apply_fence(self, robot: str, a: mission.Uploaded, puts: list[Any]) -> None:
-        """Off the loop (world requests wait for the RAL): the old zones of this vehicle out, the new ones in."""
-        from bbcs.contracts import world as w
-        from ral.gcs.fleet_cmd import world_request, world_snapshot
-
+        """Off the loop (world requests wait for the RAL): the old zones of this vehicle out, the new ones in. Always
+        answered: whatever goes wrong is the upload's refusal, with its reason (else the ground station times out)."""
         try:
+            from bbcs.contracts import world as w
+            from ral.gcs.fleet_cmd import world_request, world_snapshot
+
             old = [e.id for e in world_snapshot(self.gcs, robot).entries
                    if e.id.startswith(fence.fence_id(robot, 0)[:-1]) and not e.deleted]
             for entry_id in old:
@@ -610,6 +611,10 @@ class Gateway:
         except GcsError as exc:
             reason = f"fence upload refused: {exc} (the robot has no world model, or it refused the zone)"
             self.inbox.put(("reply", (robot, FENCE_JOB, a, a.partner, reason)))
+            return
+        except Exception as exc:  # noqa: BLE001 - a fault of the gateway's side: logged, and the upload refused
+            log.exception("fence upload for %s", robot)
+            self.inbox.put(("reply", (robot, FENCE_JOB, a, a.partner, f"fence upload failed in the gateway: {exc}")))
             return
         self.inbox.put(("reply", (robot, FENCE_JOB, a, a.partner, "")))
 

@@ -38,13 +38,19 @@ class Site:
 def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
     tmp = tmp_path_factory.mktemp("uav")
     la, record = launch_robot(tmp)
-    gcs = gw = None
+    gcs = gw = qgc = None
     try:
         gcs = connect(la.port, "observer", link=False)
         gw, udp, tcp = gateway(la.port, "--manifest", str(ROOT / "bbcs_conf" / "uav1_sim.toml"), "-v")
         gw.wait_line(f"robot {ROBOT} is MAVLink system 1", 30)
+        # an operator's ground station open throughout (QGroundControl's heartbeats): the gateway holds the robot's
+        # link while one is heard, so the gaps between MAVSDK sessions are no link loss (test_secure.py has that)
+        qgc = Mav(tcp, sysid=249, heartbeats=True)
+        gw.wait_line(f"link to {ROBOT} held", 20)
         yield Site(SimRobot(la, gcs, record), udp, tcp, gw)
     finally:
+        if qgc is not None:
+            qgc.close()
         if gw is not None:
             gw.close()
             (tmp / "gateway.log").write_text("\n".join(gw.lines) + "\n")  # kept with the robot's logs
@@ -237,10 +243,18 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
     assert [c["name"] for c in robot.commands()[after:]] == []
     assert not any(e.kind in ("failsafe", "task_failed") for e in robot.events), robot.events
 
+    rtl_texts: list[str] = []
+
     async def gimbal_rtl_land():  # noqa: ANN202
         m, system = await _system(site.udp)
         try:
             tel, act, gimbal = TelemetryAsync(system), ActionAsync(system), GimbalAsync(system)
+
+            async def collect() -> None:
+                async for st in tel.subscribe_status_text():
+                    rtl_texts.append(st.text)
+
+            collector = asyncio.ensure_future(collect())
             mark = len(robot.commands())
             await gimbal.set_angles(0, 0.0, -30.0, 40.0, GimbalMode.YAW_FOLLOW, SendMode.ONCE)
             wait_until(lambda: any(c["name"] == "SET_PT_ANGLES" for c in robot.commands()[mark:]), 15,
@@ -248,6 +262,8 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
             pt = [c["fields"] for c in robot.commands()[mark:] if c["name"] == "SET_PT_ANGLES"][0]
             assert (round(pt["pan_deg"]), round(pt["tilt_deg"])) == (40, -30)
 
+            # return to launch: home at the return altitude (above RETURN_HEIGHT already: no climb), then it lands
+            # there by itself (RETURN_ACTION land), as a MAVLink user expects of RTL: no land command is sent
             mark = len(robot.commands())
             await act.return_to_launch()
             wait_until(lambda: any(c["name"] == "ADD_WAYPOINT" for c in robot.commands()[mark:]), 15, "RTL path")
@@ -256,17 +272,21 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
             assert home_wp[0]["alt"] >= home.alt + 10.0 - 0.01
             await first(tel.subscribe_position(), lambda p: _metres(p.latitude_deg, p.longitude_deg, home.lat,
                                                                      home.lon) < 8.0, 60)
-            mark = len(robot.commands())
-            await act.land()
-            await first(tel.subscribe_in_air(), lambda x: not x, 90)
+            await first(tel.subscribe_in_air(), lambda x: not x, 120)
             return mark
         finally:
+            collector.cancel()
             m.destroy()
 
-    mark = run_async(gimbal_rtl_land, 200)
-    assert [c["fields"]["mode"] for c in robot.commands()[mark:] if c["name"] == "SET_MODE"] == [5]
+    mark = run_async(gimbal_rtl_land, 240)
+    rtl = [(c["name"], c["fields"].get("mode")) for c in robot.commands()[mark:]]
+    modes = [m for n, m in rtl if n == "SET_MODE"]
+    assert modes[-1:] == [5] and modes.count(5) == 1, rtl  # one landing (the goto's waypoint mode before it)
+    assert rtl.index(("ADD_WAYPOINT", None)) < rtl.index(("SET_MODE", 5)), rtl  # after the flight home
+    assert any("home reached, landing" in x for x in rtl_texts), rtl_texts  # told as STATUSTEXT
     landed = robot.wait_state(lambda s: s.airborne is False, 30, "landed in the GRI")
     assert landed.position is not None
+    assert _metres(landed.position.lat, landed.position.lon, home.lat, home.lon) < 8.0  # landed home
     after = len(robot.commands())
     time.sleep(WATCH_S)
     assert [c["name"] for c in robot.commands()[after:]] == []
