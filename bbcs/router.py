@@ -69,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
         log_filter = router_audit.LOG_FILTER if args.log_refusals else router_audit.LINK_LOG_FILTER
         router_audit.install(sys.stdout, log_filter=log_filter + (f",{router_floods.LOG_TARGET}" if floods else ""),
                              consume=floods.feed if floods is not None else None)
+        if floods is not None:  # a flood's lines never stall the router: past a full pipe they are lost, not waited
+            os.set_blocking(1, False)  # for (Zenoh writes its log on fd 1 from the thread routing the message)
     stop = threading.Event()
     restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a handler
     try:

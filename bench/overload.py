@@ -25,6 +25,7 @@ Writes bench/results/overload.json with summary keys ``abort_p99_ms_flood``, ``a
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import select
 import subprocess
@@ -115,6 +116,21 @@ def aborts(abort: Publisher, record: Path, n: int, spacing_s: float) -> list[flo
     return out
 
 
+DSP_NICE = -5
+"""The shipped manifests' ``nice`` for the DSP process (set here on every thread once it runs)."""
+
+
+def renice(pid: int, nice: int) -> int | None:
+    """Every thread of ``pid`` to ``nice`` (what a manifest's ``nice`` does before exec); None if refused."""
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            os.setpriority(os.PRIO_PROCESS, int(task.name), nice)
+    except OSError as exc:
+        print(f"DSP process: nice {nice} refused ({exc.strerror}): measured at the default")
+        return None
+    return nice
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--aborts", type=int, default=20)
@@ -134,6 +150,10 @@ def main(argv: list[str] | None = None) -> int:
         pki, cfg = tmp / "robot", tmp / "router.json5"
         assert certs.main([str(pki), "--gcs", "gcs", "--modules", "dsp,pan_tilt,path_follower,vision", "--robot",
                            ROBOT, "--acl", str(cfg), "--listen", f"tls/127.0.0.1:{port}"]) == 0
+        # as the shipped uav1_secure.toml: vision's write_hz (its target at 50 puts/s, cut at the router)
+        router_cfg = json.loads("\n".join(ln for ln in cfg.read_text().splitlines() if not ln.startswith("//")))
+        router_cfg["downsampling"][0]["rules"].append({"key_expr": f"{R}/vision/target", "freq": 50.0})
+        cfg.write_text(json.dumps(router_cfg))
         record = tmp / "dsp.jsonl"
         try:
             procs.start(["-m", "bbcs.router", "--config", str(cfg), "--listen", f"tls/127.0.0.1:{port}"],
@@ -152,6 +172,7 @@ def main(argv: list[str] | None = None) -> int:
             sessions += [gcs, follower]
             telemetry = Telemetry(gcs)
             wait_until(lambda: len(telemetry.t) > 10, 60, "DSP telemetry at the ground station")
+            nice = renice(dsp.pid, DSP_NICE)
             abort = Publisher(follower, f"{R}/dsp/{bus.commands_slot('path_follower')}",
                               commands_output("path_follower"))
             time.sleep(1.0)
@@ -200,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         "telemetry_max_gap_ms_flood": round(max(phases["flood"]["telemetry_max_gap_ms"],
                                                 phases["flood_own_slot"]["telemetry_max_gap_ms"]), 1),
         "dsp_restarts": restarts,
+        "dsp_nice": nice,
     }
     print(f"{'phase':16} {'abort p50':>10} {'p99':>8} {'max':>8} {'telemetry gap':>14} {'flood/s':>9}")
     for name, ph in phases.items():
