@@ -19,6 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("cromat.tools.replay", "republish an MCAP recording onto a router (1x, Nx, as fast as possible)"),
     "foxglove": ("cromat.tools.foxglove_bridge", "bridge a robot's bus to a Foxglove WebSocket server"),
     "bag": ("cromat.tools.bag", "look into MCAP recordings: info, filter, cat, export to CSV (like ros2 bag)"),
+    "param": ("cromat.tools.param_cli", "a running module's parameters: list, get, set (like ros2 param)"),
     "mavlink": ("cromat.mavlink.cli", "a MAVLink gateway: every robot a vehicle for QGroundControl, MAVSDK, pymavlink"),
 }
 

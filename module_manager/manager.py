@@ -41,6 +41,7 @@ from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import links, lockstep, mesh, peer_mesh, route_audit, secure
 from module_manager.lines import print_line
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, cpu_list, route_problem
+from module_manager.params import ParamDesk
 from module_manager.process import Child, Priority, stop_children
 from module_manager.standby import context_line, standby_argv
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
@@ -180,6 +181,8 @@ class Manager:
         self._mode_ack_decode = msgspec.msgpack.Decoder(mri.ModeAck).decode
         self.epoch = time.time()
         self.errors: deque[mri.ErrorEvent] = deque(maxlen=MAX_ERRORS)
+        self.params = ParamDesk(manifest.robot)
+        """Run-time parameter values and changes (``cromat param``, module_manager/params.py)."""
         self.router: Child | None = None
         self.processes: dict[str, Child] = {}
         self.session: zenoh.Session | None = None
@@ -469,7 +472,8 @@ class Manager:
                             slot_table=self.m.slot_table,
                             routes=dict(mod.routes), conf=str(self.m.conf),
                             params={**{k: self.expand(v) for k, v in info.spec.params.items()},
-                                    **secure.ral_fleet_params(self.m, info.name)},  # signed fleet tasks
+                                    **secure.ral_fleet_params(self.m, info.name),  # signed fleet tasks
+                                    **self.params.overrides_of(info.name)},  # set at run time: kept on restarts
                             restart_count=action.restart_count)
         now = self.clock()
         mod.run_count = action.restart_count + 1
@@ -691,7 +695,8 @@ class Manager:
             return mri.RobotState(robot=self.m.robot, kind=self.m.kind, stamp=time.time(), telemetry=self.telemetry,
                                   modules=[self.module_status(n) for n in self.modules], tasks=self.tasks.active(),
                                   ended=list(self.tasks.ended), task_version=self.tasks.version,
-                                  task_epoch=self.epoch, errors=list(self.errors), home=self.home)
+                                  task_epoch=self.epoch, errors=list(self.errors), home=self.home,
+                                  param_changes=self.params.recent())
 
     # ------------------------------------------------------------------------------------------ main loop
 
@@ -971,7 +976,7 @@ class Manager:
             return mri.MriReply(ok=False, reason=f"unreadable {verb} request: {exc}")
         expected = {"modules": (mri.ListModules,), "routes": (mri.ListRoutes,), "route": (mri.SwapRoute,),
                     "module": (mri.ModuleCommand,), "task": (mri.SetTask, mri.EndTask), "tasks": (mri.ListTasks,),
-                    "mode": (mri.SetModuleMode,)}.get(verb)
+                    "mode": (mri.SetModuleMode,), "param": (mri.ListParams, mri.GetParam, mri.SetParam)}.get(verb)
         if expected is None:
             return mri.MriReply(ok=False, reason=f"unknown MRI verb {verb!r}; known: {', '.join(mri.VERBS)}")
         if not isinstance(req, expected):
@@ -992,6 +997,9 @@ class Manager:
             return mri.MriReply(ok=True, data=self.task_list())
         if isinstance(req, mri.SetTask | mri.EndTask):
             return self.task_request(req)
+        if isinstance(req, mri.ListParams | mri.GetParam | mri.SetParam):
+            return self.params.handle(req, {n: m.info for n, m in self.modules.items()}, self.expand,
+                                      self._not_up, self.session, self._touch_locked, self.out)
         assert isinstance(req, mri.SetModuleMode)
         slot = next((n for n, m in self.m.modes.items() if m.module == req.module), None)
         if slot is None:
@@ -1001,6 +1009,15 @@ class Manager:
         except msgspec.ValidationError as exc:
             return mri.MriReply(ok=False, reason=f"mode for {req.module!r} refused: {exc}")
         return mri.MriReply(ok=ok, reason=why, code=code)
+
+    def _not_up(self, name: str) -> str | None:
+        with self.lock:
+            sup = self.modules[name].sup
+            return None if sup.phase is Phase.UP else sup.state
+
+    def _touch_locked(self) -> None:
+        with self.lock:
+            self._touch()
 
     def route_list(self) -> mri.RouteList:
         with self.lock:

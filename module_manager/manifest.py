@@ -259,6 +259,10 @@ class ModuleInfo:
     """initial route of every routed input (-1 where the manifest gives none)."""
     error_slot: str | None
     error_type: type[msgspec.Struct] | None
+    params_type: type[msgspec.Struct] | None = None
+    """The class's ``params_type``: the struct its ``params`` load into (None: undeclared; ``cromat param``)."""
+    runtime_params: frozenset[str] = frozenset()
+    """The class's ``runtime_params``: the parameters it takes while running; every other one is start-up only."""
 
 
 @dataclass(frozen=True)
@@ -770,11 +774,19 @@ class _Checker:
             watchdog_s=s.watchdog_s if spec.watchdog_s is None else spec.watchdog_s,
             unreachable_debounce_s=s.unreachable_debounce_s,
             standby=s.standby if spec.standby is None else spec.standby)
+        params_type = getattr(cls, "params_type", None)
+        runtime = frozenset(getattr(cls, "runtime_params", frozenset()))
+        if params_type is not None and not (isinstance(params_type, type) and issubclass(params_type, msgspec.Struct)):
+            raise self.fail(f"{key}.class", f"{spec.cls}.params_type is not a msgspec struct")
+        unknown = sorted(runtime - set(params_type.__struct_fields__ if params_type is not None else ()))
+        if unknown:
+            raise self.fail(f"{key}.class", f"{spec.cls}.runtime_params names {', '.join(unknown)}, not fields of "
+                                            "its params_type")
         return ModuleInfo(name=name, spec=spec, policy=policy,
                           control_type=control.type if control is not None else None,
                           control_slot=control.slot if control is not None else "control_entrada",
                           control_fields=fields, inputs=inputs, routes=routes, error_slot=error_slot,
-                          error_type=error_type)
+                          error_type=error_type, params_type=params_type, runtime_params=runtime)
 
     def params(self, name: str, cls: Any, params: dict[str, str]) -> None:
         """The module's check of its ``params`` (its class's ``param_errors`` hook, e.g. the RAL's): every problem,

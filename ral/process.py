@@ -51,6 +51,7 @@ from bbcs.params import raise_first, struct_param_errors
 from bbcs.signing import FleetTrust
 from bbcs.slots import Direction, Kind, OutputSlot, Publisher, Safety, SlotSpec
 from ral import faults as telemetry_faults
+from ral import param_events
 from ral.failsafe import FailsafeAction, FailsafeConfig, LinkEvent, LinkMonitor
 from ral.fleet import FleetLink, can_do_from, goto_of, own_state_of
 from ral.fleet_protocol import Execute, FleetConfig, OwnState
@@ -224,6 +225,7 @@ class Ral(Module):
         self._finished: set[int] = set()
         self._progress: dict[int, Progress] = {}
         self._seen_errors = 0.0
+        self._seen_params = param_events.Seen()
         self._telemetry_fault = telemetry_faults.TelemetryFault()
         """Refused DSP telemetry frames: they fail a task only when the fault persists (ral/faults.py)."""
         self._jobs: queue.Queue[Any] = queue.Queue()
@@ -517,6 +519,7 @@ class Ral(Module):
             if ms.telemetry is not None:
                 self._fold_telemetry(ms.telemetry, now)
             self._check_errors(ms)
+            param_events.relay(ms, self._seen_params, self.emit)
             with self.lock:
                 running = list(self._live.values())
             self._telemetry_fault, ends = telemetry_faults.judge(self._telemetry_fault, ms, running, now)

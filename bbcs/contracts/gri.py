@@ -176,6 +176,7 @@ EventKind = Literal[
     "manager_lost",
     "manager_back",
     "module_restarted",
+    "param_changed",
 ]
 
 

@@ -13,6 +13,7 @@ msgpack; every reply is an :class:`MriReply` (``ok``, or ``ok=False`` with a rea
 | ``task``    | :class:`SetTask` / :class:`EndTask` | :class:`TaskList` |
 | ``tasks``   | :class:`ListTasks`   | :class:`TaskList` |
 | ``mode``    | :class:`SetModuleMode` | none |
+| ``param``   | :class:`ListParams` / :class:`GetParam` / :class:`SetParam` (contracts/params.py) | :class:`ParamList` |
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import msgspec
 import zenoh
 
 from bbcs import bounded, keys
+from bbcs.contracts.params import GetParam, ListParams, ParamChange, ParamList, SetParam
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.safety import Severity
 from bbcs.contracts.tasks import Origin, TaskInfo, TaskParams
@@ -32,7 +34,7 @@ EndStatus = Literal["cancelled", "completed", "failed", "aborted"]
 TaskType = str
 """A task type the manifest declares (UAV: ``perception``, ``movement``, ``pan_tilt``)."""
 
-VERBS = ("modules", "routes", "route", "module", "task", "tasks", "mode")
+VERBS = ("modules", "routes", "route", "module", "task", "tasks", "mode", "param")
 STATE = "state"
 MANAGER_ACK_S = 5.0
 """How long the manager waits for the modules' RouteAcks of one change (one deadline for all of them)."""
@@ -95,7 +97,8 @@ class SetModuleMode(msgspec.Struct, frozen=True, kw_only=True, tag=True):
     mode: dict[str, int]
 
 
-MriRequest = ListModules | ListRoutes | ListTasks | SwapRoute | ModuleCommand | SetTask | EndTask | SetModuleMode
+MriRequest = (ListModules | ListRoutes | ListTasks | SwapRoute | ModuleCommand | SetTask | EndTask | SetModuleMode
+              | ListParams | GetParam | SetParam)
 
 
 class ModuleStatus(msgspec.Struct, frozen=True, kw_only=True, tag=True):
@@ -170,6 +173,9 @@ class RobotState(msgspec.Struct, frozen=True, kw_only=True):
     home: GeoPoint | None = None
     """The take-off point: the last position the robot's telemetry gave on the ground. Kept by the manager, so a
     RAL restarted in flight still knows it (heights above home, ``return``)."""
+    param_changes: list[ParamChange] = msgspec.field(default_factory=list)
+    """The most recent accepted run-time parameter changes, oldest first (bounded; ``seq`` grows by one each):
+    the RAL relays each new one as a ``param_changed`` GRI event."""
 
 
 MODE_ACK_SLOT = "mode_ack"
@@ -193,7 +199,7 @@ class MriReply(msgspec.Struct, frozen=True, kw_only=True):
     reason: str = ""
     code: int | None = None
     """The refusing module's error code, when a module refused the request."""
-    data: ModuleList | RouteList | ModuleStatus | TaskList | None = None
+    data: ModuleList | RouteList | ModuleStatus | TaskList | ParamList | None = None
 
 
 _request_decoder = msgspec.msgpack.Decoder(MriRequest)

@@ -101,6 +101,9 @@ class SafetyMonitorModule(Module):
     tick_period = 0.1
     param_errors = staticmethod(monitor_param_errors)
     """The monitor's check of its manifest ``params`` (``cromat launch --check``, with file:line)."""
+    params_type = MonitorParams
+    runtime_params: frozenset[str] = frozenset()
+    """None at run time (``cromat param``): its truth link and limits are set up when it starts."""
 
     def __init__(self, context: ModuleContext, clock: Callable[[], float] = time.time) -> None:
         super().__init__(context)

@@ -21,6 +21,7 @@ from bbcs.context import ModuleContext
 from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import TrajectoryRequest, TrajectoryStatus
 from bbcs.module import Module
+from bbcs.params import ParamServer
 from bbcs.slots import InputSlot, Kind, OutputSlot
 from modules.trajectory.generator import Limits, plan
 
@@ -36,10 +37,20 @@ class TrajectoryModule(Module):
     )
     param_errors = staticmethod(Limits.param_errors)
     """The trajectory's check of its manifest params (``cromat launch --check``, with file:line)."""
+    params_type = Limits
+    runtime_params = frozenset(Limits.__struct_fields__)
+    """Every limit is settable at run time (``cromat param set``): each request is planned with the limits in
+    force when it is handled, and a path already sent is not changed."""
 
     def __init__(self, context: ModuleContext) -> None:
         super().__init__(context)
         self.limits = Limits.from_params(dict(context.params))  # ParamError: exit 78, not restarted
+
+    def on_start(self) -> None:
+        self.param_server = ParamServer(self, lambda: self.limits, self._set_limits, self.runtime_params)
+
+    def _set_limits(self, limits: Limits) -> None:
+        self.limits = limits
 
     def on_request(self, req: TrajectoryRequest) -> None:
         try:

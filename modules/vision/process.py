@@ -115,6 +115,10 @@ class Vision(Module):
     )
     error_slot = "error"
 
+    params_type = VisionParams
+    runtime_params: frozenset[str] = frozenset()
+    """None at run time (``cromat param``): the camera and detector are set up when it starts."""
+
     @staticmethod
     def param_errors(params: dict[str, str]) -> list[tuple[str, str]]:
         """Every problem of the manifest's vision ``params`` (``cromat launch --check``, with file:line)."""
