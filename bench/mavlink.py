@@ -201,11 +201,21 @@ def cpu_share(work: Path, robots: int, window_s: float) -> dict[str, float]:
                 stop.wait(0.2)
 
         def drain() -> None:
+            """QGroundControl's side: reads every frame and sends its ground station's HEARTBEAT each second to
+            the gateway (which then holds the ten robots' GRI links, as with an operator connected)."""
+            qgc = mavutil.mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+            beat = qgc.heartbeat_encode(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                        mavutil.mavlink.MAV_STATE_ACTIVE)
+            next_beat = 0.0
             while not stop.is_set():
                 try:
-                    received[0] += len(sink.recv(65536)) > 0
+                    data, addr = sink.recvfrom(65536)
                 except OSError:
                     continue
+                received[0] += len(data) > 0
+                if time.monotonic() >= next_beat:
+                    next_beat = time.monotonic() + 1.0
+                    sink.sendto(beat.pack(qgc), addr)
 
         threading.Thread(target=publish, daemon=True).start()
         threading.Thread(target=drain, daemon=True).start()
@@ -213,6 +223,8 @@ def cpu_share(work: Path, robots: int, window_s: float) -> dict[str, float]:
                   f"127.0.0.1:{sink.getsockname()[1]}")
         for n in names:
             gw.wait_line(f"robot {n} is MAVLink system", 60)
+        for n in names:
+            gw.wait_line(f"link to {n} held", 30)
         time.sleep(min(2.0, window_s))
         c0, f0, t0 = gw.cpu_s(), received[0], time.monotonic()
         time.sleep(window_s)
