@@ -55,6 +55,12 @@ def check_lla(lat: float, lon: float, alt: float = 0.0) -> None:
         raise ValueError(f"altitude {alt!r} is not finite")
 
 
+def valid_lat_lon(lat: float, lon: float) -> bool:
+    """Whether a position is inside the contracts' ranges (for checks that report their own error)."""
+    return (math.isfinite(lat) and math.isfinite(lon) and LAT_RANGE[0] <= lat <= LAT_RANGE[1]
+            and LON_RANGE[0] <= lon <= LON_RANGE[1])
+
+
 def wrap_lon(lon_deg: T) -> T:
     """Longitude(s) into [-180, 180): a frame near the antimeridian sees both sides as neighbours."""
     return (lon_deg + 180.0) % 360.0 - 180.0
@@ -131,10 +137,16 @@ def bearing_deg(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
     return -180.0 if b >= 180.0 else b
 
 
+def local_en(lat0: float, lon0: float, lat: float, lon: float) -> tuple[float, float]:
+    """East, north metres of (lat, lon) from (lat0, lon0), at the scale of ``lat0`` (as :class:`LocalFrame`)."""
+    n_per_deg, e_per_deg = metres_per_degree(lat0)
+    return wrap_lon(lon - lon0) * e_per_deg, (lat - lat0) * n_per_deg
+
+
 def offset(lat: float, lon: float, north_m: float, east_m: float) -> tuple[float, float]:
-    """The position ``north_m``/``east_m`` metres from (lat, lon)."""
-    lat2, lon2, _ = LocalFrame(lat, lon).to_geo(east_m, north_m)
-    return lat2, lon2
+    """The position ``north_m``/``east_m`` metres from (lat, lon): the inverse of :func:`local_en`."""
+    n_per_deg, e_per_deg = metres_per_degree(lat)
+    return lat + north_m / n_per_deg, wrap_lon(lon + east_m / e_per_deg)
 
 
 # ---------------------------------------------------------------- exact: Earth-centred, Earth-fixed

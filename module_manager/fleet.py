@@ -31,7 +31,6 @@ the run dir (a fleet CA in ``ca/``, each robot's identities in ``<name>/pki``, t
 from __future__ import annotations
 
 import argparse
-import math
 import re
 import shutil
 import signal
@@ -45,6 +44,7 @@ from pathlib import Path
 
 from bbcs import keys
 from bbcs.acl import MESH_ROUTER_PREFIX
+from bbcs.geodesy import offset
 from bbcs.net import free_port, wait_tcp
 from bbcs.stop_signals import forward_stop_signals
 from module_manager.lines import print_line
@@ -247,7 +247,7 @@ def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str], pla
     conf_src: Path | None = base.conf
     east = ((n - 1) if place is None else place) * spec.spacing_m
     lat, lon, alt = spec.home
-    lon += east / (111_320.0 * math.cos(math.radians(lat)))
+    lat, lon = offset(lat, lon, 0.0, east)
     has_dsp_sim = re.search(r'(?m)^command = \[[^\n]*"modules\.dsp\.sim"', text) is not None
     text, k = re.subn(r'(\[robot\][^\[]*?\nname = )"[^"]*"', rf'\g<1>"{name}"', text, count=1)
     if k != 1:

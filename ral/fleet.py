@@ -33,11 +33,11 @@ from bbcs import keys
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetState, FleetTask
+from bbcs.geodesy import distance_m
 from bbcs.signing import FleetTrust, task_check
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from ral.fleet_protocol import Execute, FleetConfig, FleetNode, OwnState
 from ral.signed import ReplayMemory, SignatureGate
-from ral.tasks import distance_m
 
 log = logging.getLogger("ral.fleet")
 DEFAULT_SPEED = 5.0

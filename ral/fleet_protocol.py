@@ -31,9 +31,8 @@ from dataclasses import dataclass, field
 import msgspec
 
 from bbcs.contracts.fleet import BidState, FleetBid, FleetDecision, FleetState, FleetTarget, FleetTask
+from bbcs.geodesy import distance_m, local_en
 from ral.allocation import Bid, Target, allocate
-
-EARTH_RADIUS_M = 6_371_000.0
 
 
 @dataclass(frozen=True)
@@ -92,14 +91,8 @@ class _Run:
     withdrawn: bool = False
 
 
-def _local(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
-    k = math.pi / 180.0 * EARTH_RADIUS_M
-    return (lon - lon0) * k * math.cos(math.radians(lat0)), (lat - lat0) * k
-
-
 def horizontal_m(lat: float, lon: float, lat2: float, lon2: float) -> float:
-    x, y = _local(lat2, lon2, lat, lon)
-    return math.hypot(x, y)
+    return distance_m(lat, lon, lat2, lon2)
 
 
 def abstention(task: FleetTask, own: OwnState, withdrawn: bool) -> str:
@@ -125,13 +118,13 @@ def decide(task: FleetTask, bids: Iterable[FleetBid], round_: int) -> FleetDecis
     origin = min(task.targets, key=lambda t: t.id)
     targets = [Target(id=t.id, x=xy[0], y=xy[1], kind=t.kind, deadline=t.deadline)
                for t in task.targets if t.id not in done
-               for xy in [_local(t.lat, t.lon, origin.lat, origin.lon)]]
+               for xy in [local_en(origin.lat, origin.lon, t.lat, t.lon)]]
     bidding = [b for b in blist if b.state is not None]
     abids = []
     for b in bidding:
         s = b.state
         assert s is not None
-        x, y = _local(s.lat, s.lon, origin.lat, origin.lon)
+        x, y = local_en(origin.lat, origin.lon, s.lat, s.lon)
         abids.append(Bid(robot=b.robot, x=x, y=y, speed=s.speed, battery=s.battery, busy_s=s.busy_s,
                          can_do=frozenset(s.can_do)))
     keep = {b.robot: [t for t in b.remaining if t not in done] for b in bidding}

@@ -22,9 +22,9 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from bbcs import geodesy
 from bbcs.contracts.geo import GeoPoint
 
-EARTH_RADIUS_M = 6_371_000.0
 WINDOW = 8
 """Samples kept per peer (NTP's clock filter keeps 8)."""
 MAX_AGE_S = 30.0
@@ -158,15 +158,8 @@ def plan_sync_start(*, robot: str, reference: str, start_at: float, own_now: flo
 def offset_point(leader: GeoPoint, north_m: float, east_m: float, up_m: float) -> tuple[float, float, float]:
     """The point ``north_m``/``east_m``/``up_m`` from ``leader`` (local tangent plane: metres-accurate over the
     few hundred metres a formation spans)."""
-    lat = leader.lat + math.degrees(north_m / EARTH_RADIUS_M)
-    lon = leader.lon + math.degrees(east_m / (EARTH_RADIUS_M * math.cos(math.radians(leader.lat))))
+    lat, lon = geodesy.offset(leader.lat, leader.lon, north_m, east_m)
     return lat, lon, leader.alt + up_m
-
-
-def ground_distance_m(a_lat: float, a_lon: float, b_lat: float, b_lon: float) -> float:
-    lat0 = math.radians((a_lat + b_lat) / 2)
-    return math.hypot(math.radians(b_lat - a_lat) * EARTH_RADIUS_M,
-                      math.radians(b_lon - a_lon) * EARTH_RADIUS_M * math.cos(lat0))
 
 
 def formation_goal(leader: GeoPoint, north_m: float, east_m: float, up_m: float) -> tuple[float, float, float]:
@@ -183,14 +176,14 @@ def formation_resend(last_goal: tuple[float, float, float] | None, goal: tuple[f
         return True
     if now - last_sent_at < min_period_s:
         return False
-    moved = ground_distance_m(last_goal[0], last_goal[1], goal[0], goal[1]) + abs(goal[2] - last_goal[2])
+    moved = geodesy.distance_m(last_goal[0], last_goal[1], goal[0], goal[1]) + abs(goal[2] - last_goal[2])
     return moved > move_m
 
 
 def separation_error_m(follower: GeoPoint, leader: GeoPoint, north_m: float, east_m: float, up_m: float) -> float:
     """How far the follower is from where its separation puts it (the achieved formation error)."""
     lat, lon, alt = formation_goal(leader, north_m, east_m, up_m)
-    return math.hypot(ground_distance_m(follower.lat, follower.lon, lat, lon), follower.alt - alt)
+    return math.hypot(geodesy.distance_m(follower.lat, follower.lon, lat, lon), follower.alt - alt)
 
 
 # ---------------------------------------------------------------- the fleet bench's measurement

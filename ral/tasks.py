@@ -23,22 +23,14 @@ import msgspec
 from bbcs.conf import ConfDocument, ConfError, load_conf
 from bbcs.contracts import tasks as t
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
+from bbcs.geodesy import distance_m, local_en, valid_lat_lon
 
-EARTH_RADIUS_M = 6_371_000.0
 HEADING_TASK = "follow_path_heading"
 """The manifest task a follow_path with a heading runs (path mode 1, HEADING routed to the RAL)."""
 ONBOARD_TASK = "follow_path_onboard"
 """The manifest task a follow_path with ``follower = "onboard"`` runs (path mode 3, with or without a heading)."""
 MIN_PROGRESS_M = 0.5
 """Movement smaller than this (towards the target, or in altitude) is not progress."""
-
-
-def distance_m(a_lat: float, a_lon: float, b_lat: float, b_lon: float) -> float:
-    """Horizontal distance (equirectangular; metres-accurate over the few km a task spans)."""
-    lat0 = math.radians((a_lat + b_lat) / 2)
-    dn = math.radians(b_lat - a_lat) * EARTH_RADIUS_M
-    de = math.radians(b_lon - a_lon) * EARTH_RADIUS_M * math.cos(lat0)
-    return math.hypot(dn, de)
 
 
 @dataclass(frozen=True)
@@ -310,9 +302,8 @@ class Verdict:
 
 
 def _local(ref: GeoPoint | t.Waypoint, lat: float, lon: float) -> tuple[float, float]:
-    """North, east metres of (lat, lon) from ``ref`` (equirectangular, as :func:`distance_m`)."""
-    north = math.radians(lat - ref.lat) * EARTH_RADIUS_M
-    east = math.radians(lon - ref.lon) * EARTH_RADIUS_M * math.cos(math.radians(ref.lat))
+    """North, east metres of (lat, lon) from ``ref`` (bbcs.geodesy's scale at ``ref``, as :func:`distance_m`)."""
+    east, north = local_en(ref.lat, ref.lon, lat, lon)
     return north, east
 
 
@@ -475,7 +466,7 @@ def limits_conf_errors(doc: ConfDocument) -> list[ConfError]:
                                 path=doc.path, line=entry.line, column=entry.column))
     if raw.GEOFENCE is not None:
         lat, lon, radius = raw.GEOFENCE
-        if not (-90 <= lat <= 90 and -180 <= lon <= 180 and radius > 0):
+        if not (valid_lat_lon(lat, lon) and radius > 0):
             entry = doc.entries["GEOFENCE"]
             errors.append(ConfError("GEOFENCE must be [latitude, longitude, radius in m > 0]", path=doc.path,
                                     line=entry.line, column=entry.column))

@@ -1,7 +1,7 @@
 """Plane geometry on WGS84 points for the world model's rules: inside a polygon, a leg crossing one.
 
-Points are projected on a local tangent plane (equirectangular around a reference latitude): metres-accurate over
-the few kilometres a zone or a flight spans, which is what these checks need.
+Points are projected on a local tangent plane (bbcs.geodesy's WGS84 scale at a reference latitude): metres-accurate
+over the few kilometres a zone or a flight spans, which is what these checks need.
 """
 
 from __future__ import annotations
@@ -9,22 +9,20 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-EARTH_RADIUS_M = 6_371_000.0
+from bbcs.geodesy import local_en, offset
+
 LatLon = tuple[float, float]
 XY = tuple[float, float]
 
 
 def project(points: Sequence[LatLon], lat0: float, lon0: float) -> list[XY]:
     """(lat, lon) → (east, north) metres from (lat0, lon0)."""
-    k = math.cos(math.radians(lat0))
-    return [(math.radians(lon - lon0) * EARTH_RADIUS_M * k, math.radians(lat - lat0) * EARTH_RADIUS_M)
-            for lat, lon in points]
+    return [local_en(lat0, lon0, lat, lon) for lat, lon in points]
 
 
 def unproject(x: float, y: float, lat0: float, lon0: float) -> LatLon:
     """(east, north) metres from (lat0, lon0) → (lat, lon): the inverse of :func:`project`."""
-    return (lat0 + math.degrees(y / EARTH_RADIUS_M),
-            lon0 + math.degrees(x / (EARTH_RADIUS_M * math.cos(math.radians(lat0)))))
+    return offset(lat0, lon0, y, x)
 
 
 def inside(p: XY, poly: Sequence[XY]) -> bool:
@@ -78,7 +76,4 @@ def polygons_overlap(p: Sequence[XY], q: Sequence[XY]) -> bool:
 def circle(lat: float, lon: float, radius_m: float, n: int = 32) -> list[LatLon]:
     """A circle as an ``n``-gon that contains it (vertices pushed out so the edges stay outside the circle)."""
     r = radius_m / math.cos(math.pi / n)
-    k = math.cos(math.radians(lat))
-    return [(lat + math.degrees(r * math.cos(a) / EARTH_RADIUS_M),
-             lon + math.degrees(r * math.sin(a) / (EARTH_RADIUS_M * k)))
-            for a in (2 * math.pi * i / n for i in range(n))]
+    return [unproject(r * math.sin(a), r * math.cos(a), lat, lon) for a in (2 * math.pi * i / n for i in range(n))]

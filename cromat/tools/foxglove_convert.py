@@ -8,16 +8,13 @@ from typing import Any
 
 import numpy as np
 
-EARTH_RADIUS_M = 6_371_000.0
+from bbcs.geodesy import local_en
 
 
 def local_enu(origin: tuple[float, float, float], point: tuple[float, float, float]) -> tuple[float, float, float]:
-    """East, north, up metres of ``point`` from ``origin`` (lat, lon, alt); flat earth, fine over kilometres."""
-    lat0, lon0, alt0 = origin
-    lat, lon, alt = point
-    east = math.radians(lon - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
-    north = math.radians(lat - lat0) * EARTH_RADIUS_M
-    return east, north, alt - alt0
+    """East, north, up metres of ``point`` from ``origin`` (lat, lon, alt) in the project's geodesy."""
+    east, north = local_en(origin[0], origin[1], point[0], point[1])
+    return east, north, point[2] - origin[2]
 
 
 def enu_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> tuple[float, float, float, float]:

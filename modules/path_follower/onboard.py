@@ -22,11 +22,11 @@ import numpy as np
 
 from bbcs.contracts import dsp as p
 from bbcs.contracts.error_codes import FollowerError
+from bbcs.geodesy import local_en
 from control.heli import GuidedParams, guided_model, guided_params
 from control.laws import AntiWindup, integral_action, integrate_scalar, total_action
 from modules.path_follower.logic import Decision, FollowerState
 
-METRES_PER_DEG = 6378137.0 * math.pi / 180.0
 BRIDGE_GAIN = 0.8  # 1/s: the DSP's bridge law, speed = min(v_max, √(2·a·d), k·d) toward the REFS target
 BRIDGE_BRAKE = 1.5  # m/s²
 NOMINAL_RPM = 1500.0
@@ -137,8 +137,8 @@ class OnboardFollower:
     def to_local(self, lat: float, lon: float, alt: float) -> np.ndarray:
         assert self.origin is not None
         lat0, lon0, alt0 = self.origin
-        return np.array([(lat - lat0) * METRES_PER_DEG,
-                         (lon - lon0) * METRES_PER_DEG * math.cos(math.radians(lat0)), alt - alt0])
+        east, north = local_en(lat0, lon0, lat, lon)
+        return np.array([north, east, alt - alt0])
 
     def _extend(self, start: np.ndarray | None = None) -> None:
         """Segments (with their LQR gains) for every point not yet in one."""

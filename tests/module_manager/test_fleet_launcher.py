@@ -3,11 +3,11 @@ renamed, meshed on the hub, its simulator at its own home; a bad fleet manifest 
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import pytest
 
+from bbcs.geodesy import distance_m
 from module_manager.fleet import FleetError, load_fleet, members, robot_manifest, robot_name
 from module_manager.manifest import load_manifest
 
@@ -74,7 +74,7 @@ def test_a_mixed_fleet_places_each_kind_on_one_line_with_its_own_home_and_files(
     lon = float(conf.split("\nHOME_LON: ")[1].split()[0])
     assert lat == pytest.approx(37.4117) and float(conf.split("\nHOME_ALT: ")[1].split()[0]) == 12.0
     # one spacing (60 m) east of the third UAV
-    assert (lon - uav3_lon) * 111_320.0 * math.cos(math.radians(lat)) == pytest.approx(60.0, abs=0.5)
+    assert distance_m(lat, uav3_lon, lat, lon) == pytest.approx(60.0, abs=0.5)
     assert "\nROBOT: quad01\n" in conf and f"\nLOG_DIR: {tmp_path / 'quad01' / 'data'}" in conf
     for name in ("uquad1_imu_calib.conf", "uquad1_K_prop.txt", "uquad1_K_int.txt"):
         copy = tmp_path / "quad01" / name

@@ -11,8 +11,8 @@ import pytest
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
+from bbcs.geodesy import LocalFrame
 from ral.tasks import (
-    EARTH_RADIUS_M,
     Geofence,
     JudgeConfig,
     Limits,
@@ -69,8 +69,9 @@ def check(request: t.TaskParams, limits: Limits = LIMITS, **kw) -> Plan | Reject
 
 
 def test_distance_is_metres() -> None:
-    assert distance_m(0.0, 0.0, 0.001, 0.0) == pytest.approx(111.2, abs=0.2)
-    assert distance_m(60.0, 0.0, 60.0, 0.002) == pytest.approx(111.2, abs=0.3)
+    # WGS84: a degree of latitude is 110,574 m at the equator; a degree of longitude 55,800 m at 60° N
+    assert distance_m(0.0, 0.0, 0.001, 0.0) == pytest.approx(110.574, abs=0.01)
+    assert distance_m(60.0, 0.0, 60.0, 0.002) == pytest.approx(111.60, abs=0.05)
 
 
 def test_admission_maps_kind_to_manifest_task_and_type() -> None:
@@ -263,13 +264,10 @@ def test_a_survey_completes_at_the_generated_paths_last_waypoint_only() -> None:
 
 # ---------------------------------------------------------------- progress along the path (issue 30, case 2)
 
-M_PER_DEG_LAT = math.radians(1.0) * EARTH_RADIUS_M
-
-
 def at(north: float, east: float, alt: float = 32.0) -> t.Waypoint:
-    """A point ``north``/``east`` metres from HOME, ``alt`` m above sea level."""
-    return t.Waypoint(lat=HOME.lat + north / M_PER_DEG_LAT,
-                      lon=HOME.lon + east / (M_PER_DEG_LAT * math.cos(math.radians(HOME.lat))), alt=alt)
+    """A point ``north``/``east`` metres from HOME, ``alt`` m above sea level (the project's geodesy)."""
+    lat, lon, _ = LocalFrame(HOME.lat, HOME.lon).to_geo(east, north)
+    return t.Waypoint(lat=lat, lon=lon, alt=alt)
 
 
 def fly(path: list[t.Waypoint], speed: float, start: t.Waypoint, *, queue: bool = True, dt: float = 1.0,
@@ -283,11 +281,10 @@ def fly(path: list[t.Waypoint], speed: float, start: t.Waypoint, *, queue: bool 
         out.append((now, tel(start.lat, start.lon, start.alt, queued=min(k, len(path)) if queue else 0)))
         now += dt
     here = (0.0, 0.0, start.alt)
-    ref = start
+    ref = LocalFrame(start.lat, start.lon)
 
     def local(w: t.Waypoint) -> tuple[float, float, float]:
-        n = (w.lat - ref.lat) * M_PER_DEG_LAT
-        e = (w.lon - ref.lon) * M_PER_DEG_LAT * math.cos(math.radians(ref.lat))
+        e, n, _ = ref.to_local(w.lat, w.lon)
         return n, e, w.alt
 
     for i, w in enumerate(path):
@@ -299,8 +296,7 @@ def fly(path: list[t.Waypoint], speed: float, start: t.Waypoint, *, queue: bool 
             here = goal if dist <= step else tuple(h + x * step / dist for h, x in zip(here, d, strict=True))
             now += dt
             left = len(path) - i - (1 if here == goal else 0)
-            lat = ref.lat + here[0] / M_PER_DEG_LAT
-            lon = ref.lon + here[1] / (M_PER_DEG_LAT * math.cos(math.radians(ref.lat)))
+            lat, lon, _ = ref.to_geo(here[1], here[0])
             out.append((now, tel(lat, lon, here[2], queued=left if queue else 0)))
             if here == goal:
                 break

@@ -12,20 +12,26 @@ from pathlib import Path
 import pytest
 
 from bbcs.contracts.fleet import MAX_TARGETS, FleetTask
+from bbcs.geodesy import LocalFrame
 from ral.survey_area import AreaError, area_targets, parse_area
 from ral.world_geometry import inside, project
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_fleet_protocol import LAT0, LON0, M, Net  # noqa: E402
+from test_fleet_protocol import LAT0, LON0, Net  # noqa: E402
 
-KM = math.cos(math.radians(LAT0))
+FRAME = LocalFrame(LAT0, LON0)
 
 
 def corner(north_m: float, east_m: float) -> tuple[float, float]:
-    return LAT0 + north_m * M, LON0 + east_m * M / KM
+    """The point ``north_m``/``east_m`` metres from (LAT0, LON0) in the project's geodesy, which the grid uses."""
+    lat, lon, _ = FRAME.to_geo(east_m, north_m)
+    return lat, lon
 
 
-FIELD = [corner(0, 0), corner(0, 300), corner(200, 300), corner(200, 0)]  # 300 m east-west, 200 m north-south
+W, H = 299.5, 199.5
+"""The field: just under 6 × 4 spacings of 50 m east-west × north-south (a side of exactly a whole number of
+spacings leaves the cell count to rounding; the sphere this test was first written on made it 299.7 × 199.4 m)."""
+FIELD = [corner(0, 0), corner(0, W), corner(H, W), corner(H, 0)]
 
 
 def xy(targets) -> list[tuple[float, float]]:
@@ -44,13 +50,14 @@ def test_a_rectangle_becomes_a_grid_of_cells_that_covers_it() -> None:
     assert max(abs(d - 50.0) for d in nearest) < 0.5, "neighbours one spacing apart"
     rng = random.Random(3)  # every point of the field is within half a cell's diagonal of a cell centre
     for _ in range(500):
-        p = (rng.uniform(0, 300), rng.uniform(0, 200))
+        p = (rng.uniform(0, W), rng.uniform(0, H))
         assert min(math.dist(p, q) for q in pts) <= 50.0 * math.sqrt(2) / 2 + 0.5
     assert pts[5][0] > pts[0][0] and pts[6][0] > pts[11][0], "rows alternate direction (a lawnmower order)"
 
 
 def test_a_concave_area_has_no_cell_in_its_notch() -> None:
-    ell = [corner(0, 0), corner(0, 200), corner(100, 200), corner(100, 100), corner(200, 100), corner(200, 0)]
+    s, h = H, H / 2  # a 4 × 4-cell square, less its north-east quarter
+    ell = [corner(0, 0), corner(0, s), corner(h, s), corner(h, h), corner(s, h), corner(s, 0)]
     cells = area_targets("ell", ell, 40.0, 50.0)
     pts = xy(cells)
     assert len(cells) == 12  # 16 cells of the 200 m square, less the 4 in the missing quarter

@@ -9,6 +9,7 @@ import random
 import pytest
 
 from bbcs.contracts.geo import GeoPoint
+from bbcs.geodesy import distance_m
 from bbcs.testing import wait_until
 from ral import sync
 from ral.sync_bus import ClockService, ClockTracker
@@ -97,7 +98,7 @@ def test_sync_start_refusals_say_why(kwargs: dict, why: str) -> None:
 def test_formation_goal_and_resend_rule() -> None:
     leader = GeoPoint(lat=37.4, lon=-6.0, alt=50.0)
     goal = sync.formation_goal(leader, north_m=0.0, east_m=20.0, up_m=5.0)
-    assert sync.ground_distance_m(leader.lat, leader.lon, goal[0], goal[1]) == pytest.approx(20.0, abs=0.01)
+    assert distance_m(leader.lat, leader.lon, goal[0], goal[1]) == pytest.approx(20.0, abs=0.01)
     assert goal[2] == 55.0 and goal[0] == pytest.approx(leader.lat)
     follower = GeoPoint(lat=goal[0], lon=goal[1], alt=goal[2])
     assert sync.separation_error_m(follower, leader, 0.0, 20.0, 5.0) == pytest.approx(0.0, abs=1e-6)
