@@ -40,7 +40,7 @@ def command_of(msg: object) -> Command:
     return Command(m.command, tuple(float(v) for v in params))  # type: ignore[attr-defined]
 
 
-Role = Literal["task", "mission", "rtl", "pause"]
+Role = Literal["task", "mission", "rtl", "pause", "mission_takeoff"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,6 +121,16 @@ def _mission_from(ctx: Context, index: int) -> Outcome:
         return Deny(f"{ctx.robot}: the mission has no waypoint at or after that item")
     if (d := _needs(ctx, "follow_path", "fly a mission")) is not None:
         return d
+    if plan.takeoff and ctx.airborne is False:  # its NAV_TAKEOFF first; the gateway starts the path once it is done
+        if (d := _needs(ctx, "take_off", "take off")) is not None:
+            return d
+        height = plan.takeoff_height or ctx.takeoff_height or gri.TakeOff().height
+        return Send(gri.TakeOff(height=height), "mission_takeoff", index)
+    return mission_path(ctx, plan, index)
+
+
+def mission_path(ctx: Context, plan: Plan, index: int) -> Send:
+    """The mission's path from its waypoint ``index`` on, as one follow_path."""
     speed = plan.speed if plan.speed is not None else _speed(ctx)
     return Send(gri.FollowPath(waypoints=list(plan.waypoints[index:]), speed=speed), "mission", index)
 
@@ -143,6 +153,11 @@ def _takeoff(ctx: Context, cmd: Command) -> Outcome:
     else:  # PX4's rule: no altitude, or one below the vehicle, means the vehicle's own take-off height
         height = ctx.takeoff_height if ctx.takeoff_height is not None else gri.TakeOff().height
     return Send(gri.TakeOff(height=height))
+
+
+def rtl(ctx: Context) -> Outcome:
+    """Return to launch: the goto home (the gateway lands the robot once it completes)."""
+    return _rtl(ctx)
 
 
 def _rtl(ctx: Context) -> Outcome:

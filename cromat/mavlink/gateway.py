@@ -36,6 +36,9 @@ FENCE_JOB = -2
 """Not a MAVLink command: a fence upload's world-model edits."""
 RTL_LAND_JOB = -3
 """Not a MAVLink command: the landing that ends a return to launch once the robot is home."""
+MISSION_STEP_JOB = -4
+"""Not a MAVLink command: a mission's next task (its path after its take-off; its landing or return after its path);
+the job's key is what the STATUSTEXT calls it."""
 GCS_TIMEOUT_S = 3.0
 """A MAVLink ground station is heard while its HEARTBEATs (1 Hz) come within this (three missed: gone)."""
 CAPABILITIES = (mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -222,6 +225,37 @@ class Gateway:
         self._text(v, statustext.event_text(event))
         if event.kind == "task_completed" and event.task_id and event.task_id == v.rtl_task and v.rtl_landing is None:
             self._rtl_home(v)
+        self._mission_steps(v, event)
+
+    def _mission_steps(self, v: Vehicle, event: gri.GriEvent) -> None:
+        """A mission is a sequence of GRI tasks when it has a take-off or an end (plan.py): the next one starts when
+        the last completes; one that fails, is replaced or cancelled ends the sequence (the robot does what the
+        RAL does then)."""
+        ended = event.kind in ("task_completed", "task_failed", "task_cancelled", "task_replaced", "aborted")
+        if v.mission_takeoff is not None and event.task_id == v.mission_takeoff[0] and ended:
+            offset = v.mission_takeoff[1]
+            v.mission_takeoff = None
+            if event.kind == "task_completed" and v.plan is not None and offset < len(v.plan.waypoints):
+                self._step(v, cm.mission_path(v.context(), v.plan, offset), "take-off done, flying the mission")
+            return
+        run = v.run
+        if (event.kind == "task_completed" and run is not None and event.task_id == run.task_id and v.plan is not None
+                and v.plan.finish and not run.finished):
+            run.finished = True
+            if v.plan.finish == "land":
+                if "land" in (v.state.available if v.state else {}):
+                    self._step(v, cm.Send(gri.Land()), "mission complete, landing")
+                else:
+                    self._deny(v, f"mission complete; {v.robot} ({v.kind}) offers no land task: holding there")
+                return
+            outcome = cm.rtl(v.context())
+            if isinstance(outcome, cm.Send):
+                self._step(v, outcome, "mission complete, returning to launch")
+            else:
+                self._deny(v, f"mission complete, return refused: {outcome.reason}")  # type: ignore[union-attr]
+
+    def _step(self, v: Vehicle, outcome: cm.Send, what: str) -> None:
+        self.workers[v.robot].jobs.put((v.robot, MISSION_STEP_JOB, outcome, (0, 0), what))
 
     def _rtl_home(self, v: Vehicle) -> None:
         """A return to launch reached home: RETURN_ACTION ``land`` (the default, as PX4's RTL) lands there with a
@@ -371,7 +405,7 @@ class Gateway:
             v.pending.add(key)
             self.workers[v.robot].jobs.put((v.robot, cmd.command, outcome, partner, key))
 
-    def _send_request(self, job: tuple[str, int, cm.Send, mission.Partner, tuple]) -> None:
+    def _send_request(self, job: tuple[str, int, cm.Send, mission.Partner, tuple | str]) -> None:
         """On the vehicle's worker: the RAL's verdict, handed back to the loop."""
         robot, command, outcome, partner, key = job
         try:
@@ -381,7 +415,7 @@ class Gateway:
         self.inbox.put(("reply", (robot, command, outcome, partner, reply, key)))
 
     def _on_reply(self, robot: str, command: int, outcome: Any, partner: mission.Partner,
-                  reply: gri.TaskReply | str, key: tuple = ()) -> None:
+                  reply: gri.TaskReply | str, key: tuple | str = ()) -> None:
         v = self.vehicles[robot]
         v.pending.discard(key)
         log.info("%s: %s answered %s", robot, pl.command_name(command) if command >= 0 else command, reply)
@@ -395,6 +429,14 @@ class Gateway:
         kind = gri.kind_of(outcome.request)
         accepted = not isinstance(reply, str) and reply.accepted
         reason = reply if isinstance(reply, str) else reply.reason
+        if command == MISSION_STEP_JOB:  # no COMMAND_ACK (the start's was sent): the verdict told as STATUSTEXT
+            if accepted:
+                assert not isinstance(reply, str)
+                v.started(outcome.role, outcome.offset, reply, outcome.request)
+                self._text(v, statustext.Text(mav.MAV_SEVERITY_INFO, f"{v.robot}: {key}"))
+            else:
+                self._deny(v, f"{key}: {kind} refused: {reason}")
+            return
         if command == RTL_LAND_JOB:  # the return's landing: no COMMAND_ACK (the RTL's was sent), the verdict told
             if accepted:
                 assert not isinstance(reply, str)

@@ -7,9 +7,15 @@ speed). Its items:
 | --- | --- |
 | ``NAV_WAYPOINT`` (16) | a waypoint (hold time, acceptance radius, pass radius and yaw: not carried, must be 0/NaN) |
 | ``DO_CHANGE_SPEED`` (178) | the path's speed (one speed for the whole path: a second, different one is refused) |
+| ``NAV_TAKEOFF`` (22), first | started on the ground: a GRI ``take_off`` first (its height above home; 0/NaN: |
+|                              | the robot's own), then the path; started airborne: skipped |
+| ``NAV_LAND`` (21), last | once the path completes, a GRI ``land``; a latitude/longitude is one more waypoint |
+|                         | (at the last one's altitude), landed at |
+| ``NAV_RETURN_TO_LAUNCH`` (20), last | once the path completes, the gateway's return to launch (home, then land) |
 
-Anything else (take-off, land, loiter, RTL, ROI, DO_ commands) is refused with the item and command named: a path
-task cannot carry it, and silently dropping part of a mission would fly something the operator did not plan.
+QGroundControl's plans are shaped so (take-off, waypoints, land or return). Anything else (loiter, ROI, jumps, DO_
+commands, a take-off or landing in the middle) is refused with the item and command named: a path task cannot
+carry it, and silently dropping part of a mission would fly something the operator did not plan.
 
 Altitude frames are converted explicitly: ``GLOBAL``/``GLOBAL_INT`` are metres above mean sea level (the DSP's
 reference) and taken as they are; ``GLOBAL_RELATIVE_ALT``/``_INT`` are metres above home, so ``home.alt`` (the GRI
@@ -74,6 +80,12 @@ class Plan:
     speed: float | None
     count: int
     """Items in the mission (MISSION_CURRENT's ``total``)."""
+    takeoff: bool = False
+    """The mission begins with NAV_TAKEOFF: started on the ground, it takes off first."""
+    takeoff_height: float | None = None
+    """That take-off's height above home (None: the robot's own take-off height)."""
+    finish: str = ""
+    """What follows the path's completion: ``land``, ``rtl`` or nothing."""
 
 
 class PlanError(ValueError):
@@ -109,9 +121,26 @@ def plan_of(items: list[Item], home_alt: float | None) -> Plan:
     waypoints: list[gri.Waypoint] = []
     seqs: list[int] = []
     speed: float | None = None
+    takeoff, takeoff_height, finish = False, None, ""
+    last = items[-1].seq if items else -1
     for it in items:
         what = f"mission item {it.seq} ({command_name(it.command)})"
-        if it.command == mav.MAV_CMD_NAV_WAYPOINT:
+        if it.command == mav.MAV_CMD_NAV_TAKEOFF:
+            if waypoints or takeoff:
+                raise PlanError(f"{what}: a take-off is the mission's first flight item, once")
+            takeoff, takeoff_height = True, _takeoff_height(it, home_alt, what)
+        elif it.command in (mav.MAV_CMD_NAV_LAND, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH):
+            if it.seq != last or not waypoints:
+                raise PlanError(f"{what}: a landing or return ends the mission, after its waypoints "
+                                "(a cromat path cannot carry one in its middle)")
+            finish = "rtl" if it.command == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH else "land"
+            end = waypoints[-1]
+            lat, lon = it.x / 1e7, it.y / 1e7
+            if finish == "land" and (it.x or it.y) and math.hypot(
+                    (lat - end.lat) * 111_320.0, (lon - end.lon) * 111_320.0 * math.cos(math.radians(lat))) > 1.0:
+                waypoints.append(gri.Waypoint(lat=lat, lon=lon, alt=end.alt))  # its point, at the last altitude
+                seqs.append(it.seq)
+        elif it.command == mav.MAV_CMD_NAV_WAYPOINT:
             if not (_blank(it.param1) and _blank(it.param2) and _blank(it.param3) and _blank(it.param4)):
                 raise PlanError(f"{what}: hold time, acceptance/pass radius and yaw are not carried by a cromat path "
                                 "(leave them 0)")
@@ -132,7 +161,21 @@ def plan_of(items: list[Item], home_alt: float | None) -> Plan:
             raise PlanError(f"{what}: a cromat path carries waypoints and one speed only; this item is not mapped")
     if not waypoints:
         raise PlanError("the mission has no waypoint")
-    return Plan(tuple(waypoints), tuple(seqs), speed, len(items))
+    return Plan(tuple(waypoints), tuple(seqs), speed, len(items), takeoff, takeoff_height, finish)
+
+
+def _takeoff_height(it: Item, home_alt: float | None, what: str) -> float | None:
+    """A NAV_TAKEOFF item's altitude as a height above home; 0/NaN: the robot's own take-off height."""
+    if _blank(it.z):
+        return None
+    if it.frame in RELATIVE_FRAMES:
+        return it.z
+    amsl = to_altitude_amsl(it.frame, it.z, home_alt, what)
+    if home_alt is None:
+        raise PlanError(f"{what}: its altitude is above mean sea level, and the robot has not reported its home yet")
+    if amsl <= home_alt:
+        raise PlanError(f"{what}: altitude {amsl:g} m AMSL is not above home ({home_alt:g} m)")
+    return amsl - home_alt
 
 
 # ---------------------------------------------------------------- progress of the running path

@@ -70,6 +70,8 @@ class MissionRun:
     sent: int
     completed: bool = False
     ended: bool = False
+    finished: bool = False
+    """The mission's end (its landing or return) was started after this run completed."""
 
 
 class Vehicle:
@@ -93,6 +95,8 @@ class Vehicle:
         self.rtl_landing: int | None = None
         """The return's landing: None before home is reached, 0 while asked, then its task id."""
         self.linked = False
+        self.mission_takeoff: tuple[int, int] | None = None
+        """The take-off a mission began with (its task id, the plan index its path starts at), until it ends."""
         """The gateway holds this robot's GRI link (a MAVLink ground station is heard)."""
         self.reached = 0
         """Mission items told reached (MISSION_ITEM_REACHED) for the current run."""
@@ -194,6 +198,9 @@ class Vehicle:
         elif role == "rtl":
             self.rtl_task = reply.task_id
             self.rtl_landing = None
+        elif role == "mission_takeoff":
+            self.mission_takeoff = (reply.task_id, offset)
+            self.paused_at = None
 
     def on_event(self, event: gri.GriEvent) -> None:
         run = self.run

@@ -122,3 +122,16 @@ def test_speed_gimbal_roi_and_what_is_not_mapped() -> None:
 def test_no_task_before_the_robot_offers_it(kind: str) -> None:
     out = map_command(ctx(kind=kind, available=frozenset()), cmd(mav.MAV_CMD_NAV_LAND))
     assert isinstance(out, Deny) and kind in out.reason
+
+
+def test_a_mission_with_a_take_off_started_on_the_ground_takes_off_first() -> None:
+    plan = Plan(waypoints=PLAN.waypoints, seqs=(1, 2, 3, 4), speed=None, count=6, takeoff=True, takeoff_height=15.0,
+                finish="land")
+    start = map_command(ctx(plan=plan, airborne=False), cmd(mav.MAV_CMD_MISSION_START, 0, 0))
+    assert start == Send(gri.TakeOff(height=15.0), "mission_takeoff", 0)
+    own = Plan(waypoints=PLAN.waypoints, seqs=(1, 2, 3, 4), speed=None, count=6, takeoff=True)
+    assert map_command(ctx(plan=own, airborne=False), cmd(mav.MAV_CMD_MISSION_START, 0, 0)) == Send(
+        gri.TakeOff(height=10.0), "mission_takeoff", 0)  # the robot's own take-off height
+    # airborne: the take-off item is skipped, the path flown
+    flying = map_command(ctx(plan=plan), cmd(mav.MAV_CMD_MISSION_START, 0, 0))
+    assert isinstance(flying, Send) and flying.role == "mission" and isinstance(flying.request, gri.FollowPath)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
+import msgspec
 import pytest
 
 from bbcs.contracts import gri
@@ -259,3 +260,61 @@ def test_a_return_that_does_not_complete_does_not_land_and_hover_holds() -> None
     gcs.on_event(gri.GriEvent(robot="uav1", stamp=3.0, kind="task_completed", task_id=11))
     pump(gw, lambda: any("holding there" in t for t in wire.texts()), "the hover told")
     assert len(gcs.requests) == 2 and all(isinstance(r, gri.Goto) for r in gcs.requests)
+
+
+def test_a_plan_with_take_off_and_return_is_a_sequence_of_gri_tasks() -> None:
+    gw, gcs, wire, _ = setup()
+    gcs.on_state(msgspec.structs.replace(state(), telemetry=msgspec.structs.replace(state().telemetry,
+                                                                                    airborne=False)))
+    ids = {gri.TakeOff: 21, gri.FollowPath: 22, gri.Goto: 23, gri.Land: 24}
+    gcs.verdict = lambda r: gri.TaskReply(accepted=True, task_id=ids[type(r)])
+    rel = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    items = [mav.MAVLink_mission_item_int_message(3, 1, 0, rel, mav.MAV_CMD_NAV_TAKEOFF, 0, 1, 0, 0, 0, 0, 0, 0,
+                                                  12.0, 0)]
+    items += [mav.MAVLink_mission_item_int_message(3, 1, seq, rel, mav.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 0, 0, 0,
+                                                   374117000 + 3000 * seq, -60025000, 15.0, 0) for seq in (1, 2)]
+    items += [mav.MAVLink_mission_item_int_message(3, 1, 3, mav.MAV_FRAME_MISSION, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH,
+                                                   0, 1, 0, 0, 0, 0, 0, 0, 0, 0)]
+    wire.write(mav.MAVLink_mission_count_message(3, 1, len(items), 0))
+    for it in items:
+        pump(gw, lambda s=it.seq: any(r.seq == s for r in wire.of("MISSION_REQUEST_INT")), f"request {it.seq}")
+        wire.write(it)
+    pump(gw, lambda: bool(wire.of("MISSION_ACK")), "the upload's ACK")
+    assert wire.of("MISSION_ACK")[0].type == mav.MAV_MISSION_ACCEPTED
+    wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_MISSION_START, 0, 0, 0, 0, 0, 0, 0, 0))
+    pump(gw, lambda: bool(wire.of("COMMAND_ACK")), "the start's ACK")
+    assert gcs.requests == [gri.TakeOff(height=12.0)]  # on the ground: the take-off item first
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=2.0, kind="task_completed", task_id=21))
+    pump(gw, lambda: len(gcs.requests) == 2, "the path after the take-off")
+    path = gcs.requests[1]
+    assert isinstance(path, gri.FollowPath) and [w.alt for w in path.waypoints] == [27.0, 27.0]
+    pump(gw, lambda: any("take-off done, flying the mission" in t for t in wire.texts()), "told")
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=3.0, kind="task_completed", task_id=22))
+    pump(gw, lambda: len(gcs.requests) == 3, "the return after the path")
+    assert isinstance(gcs.requests[2], gri.Goto)
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=4.0, kind="task_completed", task_id=23))
+    pump(gw, lambda: len(gcs.requests) == 4, "the return's landing")
+    assert gcs.requests[3] == gri.Land()
+    assert len(wire.of("COMMAND_ACK")) == 1  # one command, one ACK: the rest told as STATUSTEXT
+
+
+def test_a_mission_whose_take_off_fails_flies_nothing_more() -> None:
+    gw, gcs, wire, _ = setup()
+    gcs.on_state(msgspec.structs.replace(state(), telemetry=msgspec.structs.replace(state().telemetry,
+                                                                                    airborne=False)))
+    gcs.verdict = lambda r: gri.TaskReply(accepted=True, task_id=21)
+    rel = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    items = [mav.MAVLink_mission_item_int_message(3, 1, 0, rel, mav.MAV_CMD_NAV_TAKEOFF, 0, 1, 0, 0, 0, 0, 0, 0,
+                                                  12.0, 0),
+             mav.MAVLink_mission_item_int_message(3, 1, 1, rel, mav.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 0, 0, 0,
+                                                  374120000, -60025000, 15.0, 0)]
+    wire.write(mav.MAVLink_mission_count_message(3, 1, 2, 0))
+    for it in items:
+        pump(gw, lambda s=it.seq: any(r.seq == s for r in wire.of("MISSION_REQUEST_INT")), f"request {it.seq}")
+        wire.write(it)
+    pump(gw, lambda: bool(wire.of("MISSION_ACK")), "the upload's ACK")
+    wire.write(mav.MAVLink_command_long_message(3, 1, mav.MAV_CMD_MISSION_START, 0, 0, 0, 0, 0, 0, 0, 0))
+    pump(gw, lambda: bool(wire.of("COMMAND_ACK")), "the start's ACK")
+    gcs.on_event(gri.GriEvent(robot="uav1", stamp=2.0, kind="task_failed", task_id=21))
+    gw.turn(0.1)
+    assert gcs.requests == [gri.TakeOff(height=12.0)]

@@ -38,8 +38,11 @@ def test_speed_items_and_unmapped_items() -> None:
     with pytest.raises(PlanError, match="second speed"):
         plan_of([speed, wp(1), other], HOME_ALT)
     land = Item(seq=1, frame=mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=mav.MAV_CMD_NAV_LAND)
-    with pytest.raises(PlanError, match="item 1 \\(NAV_LAND\\)"):
-        plan_of([wp(0), land], HOME_ALT)
+    with pytest.raises(PlanError, match="item 1 \\(NAV_LAND\\)"):  # a landing in the middle of the path
+        plan_of([wp(0), land, wp(2)], HOME_ALT)
+    loiter = Item(seq=1, frame=mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=mav.MAV_CMD_NAV_LOITER_TIME)
+    with pytest.raises(PlanError, match="item 1 \\(NAV_LOITER_TIME\\)"):
+        plan_of([wp(0), loiter], HOME_ALT)
     with pytest.raises(PlanError, match="hold time"):
         plan_of([wp(0, param1=5.0)], HOME_ALT)
     assert plan_of([wp(0, param4=math.nan)], HOME_ALT).waypoints  # QGroundControl's NaN yaw: nothing asked
@@ -77,3 +80,31 @@ def test_fence_polygons_become_world_zones_and_circles_are_refused() -> None:
         zones_of("uav1", [circle], "mavlink")
     with pytest.raises(PlanError, match="consecutive"):
         zones_of("uav1", items[:2], "mavlink")
+
+
+def test_a_qgroundcontrol_plan_takes_off_flies_and_lands_or_returns() -> None:
+    rel = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    takeoff = Item(seq=0, frame=rel, command=mav.MAV_CMD_NAV_TAKEOFF, x=374117000, y=-60025000, z=12.0)
+    land_there = Item(seq=3, frame=rel, command=mav.MAV_CMD_NAV_LAND, x=374130000, y=-60025000)
+    plan = plan_of([takeoff, wp(1), wp(2), land_there], HOME_ALT)
+    assert (plan.takeoff, plan.takeoff_height, plan.finish, plan.count) == (True, 12.0, "land", 4)
+    assert plan.seqs == (1, 2, 3) and plan.waypoints[-1].lat == pytest.approx(37.413)
+    assert plan.waypoints[-1].alt == plan.waypoints[-2].alt == 27.0  # flown to at the last altitude, landed at
+    land_here = Item(seq=2, frame=rel, command=mav.MAV_CMD_NAV_LAND)  # no point: where the path ends
+    assert plan_of([wp(0), wp(1), land_here], HOME_ALT).seqs == (0, 1)
+    rtl = Item(seq=2, frame=mav.MAV_FRAME_MISSION, command=mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+    back = plan_of([wp(0), wp(1), rtl], HOME_ALT)
+    assert (back.takeoff, back.finish) == (False, "rtl")
+    # AMSL take-off altitude: its height above home; 0: the robot's own height
+    amsl = Item(seq=0, frame=mav.MAV_FRAME_GLOBAL_INT, command=mav.MAV_CMD_NAV_TAKEOFF, z=32.0)
+    assert plan_of([amsl, wp(1)], HOME_ALT).takeoff_height == 20.0
+    assert plan_of([Item(seq=0, frame=rel, command=mav.MAV_CMD_NAV_TAKEOFF), wp(1)], HOME_ALT).takeoff_height is None
+    with pytest.raises(PlanError, match="not above home"):
+        plan_of([Item(seq=0, frame=mav.MAV_FRAME_GLOBAL_INT, command=mav.MAV_CMD_NAV_TAKEOFF, z=5.0), wp(1)], HOME_ALT)
+    # a take-off after a waypoint, a landing with no path, an RTL not last: refused with the item named
+    with pytest.raises(PlanError, match="item 1 \\(NAV_TAKEOFF\\)"):
+        plan_of([wp(0), Item(seq=1, frame=rel, command=mav.MAV_CMD_NAV_TAKEOFF, z=10.0), wp(2)], HOME_ALT)
+    with pytest.raises(PlanError, match="item 1 \\(NAV_LAND\\)"):
+        plan_of([takeoff, Item(seq=1, frame=rel, command=mav.MAV_CMD_NAV_LAND)], HOME_ALT)
+    with pytest.raises(PlanError, match="item 1 \\(NAV_RETURN_TO_LAUNCH\\)"):
+        plan_of([wp(0), Item(seq=1, frame=2, command=mav.MAV_CMD_NAV_RETURN_TO_LAUNCH), wp(2)], HOME_ALT)

@@ -406,3 +406,53 @@ def test_signed_link_refuses_unsigned_forged_and_replayed_commands(site: Site, t
         gw.close()
     log = "\n".join(gw.lines)
     assert "replayed" in log and "bad signature" in log and "unsigned" in log, log
+
+
+def test_a_qgroundcontrol_shaped_plan_takes_off_flies_returns_and_lands(site: Site) -> None:
+    """A plan as QGroundControl makes one: take-off, waypoints, return to launch; started on the ground with MAVSDK's
+    ``start_mission`` (AUTO.MISSION): the DSP gets the take-off, the path's waypoints in order, the way home and the
+    landing, one after the other, and the robot ends on the ground at home."""
+    from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync
+    from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+    robot = site.robot
+    start = robot.wait_state(lambda s: s.position is not None and s.home is not None and s.airborne is False, 60,
+                             "on the ground, its position known")
+    assert start.home is not None and start.position is not None
+    lat0, lon0 = _grid(start.position.lat, start.position.lon)
+    path = [(lat0 + 2 * GRID_DEG, lon0), (lat0 + 2 * GRID_DEG, lon0 + 2 * GRID_DEG)]
+
+    def item(seq: int, command: int, lat: float = 0.0, lon: float = 0.0, z: float = 0.0, frame: int = 6):
+        return MissionItem(seq=seq, frame=frame, command=command, current=int(seq == 0), autocontinue=1, param1=0.0,
+                           param2=0.0, param3=0.0, param4=float("nan"), x=round(lat * 1e7), y=round(lon * 1e7), z=z,
+                           mission_type=0)
+
+    plan = [item(0, 22, z=12.0), *[item(i + 1, 16, la, lo, 15.0) for i, (la, lo) in enumerate(path)], item(3, 20)]
+
+    async def session():  # noqa: ANN202
+        m, system = await _system(site.udp)
+        try:
+            tel, mission = TelemetryAsync(system), MissionRawAsync(system)
+            await mission.upload_mission(plan)
+            await mission.start_mission()
+            await first(tel.subscribe_in_air(), lambda x: x, 30)
+            await first(tel.subscribe_in_air(), lambda x: not x, 200)
+        finally:
+            m.destroy()
+
+    mark = len(robot.commands())
+    run_async(session, 240)
+    flown = [(c["name"], c["fields"]) for c in robot.commands()[mark:]]
+    modes = [f["mode"] for n, f in flown if n == "SET_MODE"]
+    assert modes[0] == 4 and modes[-1] == 5, flown  # the take-off first, the landing last
+    wps = [(round(f["lat"], 4), round(f["lon"], 4)) for n, f in flown if n == "ADD_WAYPOINT"]
+    home = start.home
+    assert wps[:2] == [(round(a, 4), round(b, 4)) for a, b in path], wps  # the plan's waypoints, in order
+    assert _metres(*wps[-1], home.lat, home.lon) < 12.0, wps  # then home
+    first_wp = next(i for i, (n, _) in enumerate(flown) if n == "ADD_WAYPOINT")
+    land = max(i for i, (n, f) in enumerate(flown) if n == "SET_MODE" and f["mode"] == 5)
+    take_off = min(i for i, (n, f) in enumerate(flown) if n == "SET_MODE" and f["mode"] == 4)
+    assert take_off < first_wp < land
+    landed = robot.wait_state(lambda s: s.airborne is False, 30, "landed in the GRI")
+    assert landed.position is not None and _metres(landed.position.lat, landed.position.lon, home.lat,
+                                                   home.lon) < 8.0
