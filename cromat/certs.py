@@ -379,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         print(f"cromat certs: revoked {', '.join(args.revoke)}; revocation list {out / CRL} and names "
               f"{out / REVOKED_NAMES} (copy both to every robot's folder; a running RAL reads the list again when it "
-              f"changes; a robot's router denies the names from its next start: restart it, or relaunch)")
+              f"changes; a launched robot's router, watching revoked.txt, denies the names within a second)")
         return 0
     try:
         if (out / f"{CA}.key").exists():

@@ -258,6 +258,7 @@ class Manager:
             argv.append("--admin-space")
         if self.m.pki is not None and self.m.raw.bus.tls is not None and self.m.raw.bus.tls.acl:
             argv.append("--log-refusals")  # a secure robot's refusals go to the router's log (docs/security.md)
+            argv += ["--revoked", str(self.m.pki / "revoked.txt")]  # a station revoked while it runs: denied at once
         for peer in self.m.raw.bus.peers:
             argv += ["--connect", self.expand(peer)]
         argv += ["--robot", self.m.robot]  # its Zenoh id from the name: the mesh refuses a second robot of it
