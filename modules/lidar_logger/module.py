@@ -72,9 +72,9 @@ def conf_from_context(context: ModuleContext) -> LidarConf:
 class LidarLoggerModule(Module):
     name: ClassVar[str] = "lidar_logger"
     slots = (
-        OutputSlot("pose", Pose, safety=Safety.UNSAFE),
-        OutputSlot("status", LidarStatus, safety=Safety.UNSAFE),
-        OutputSlot("scan", LidarScan, safety=Safety.UNSAFE),
+        OutputSlot("pose", Pose, safety=Safety.UNSAFE, priority="data_low"),
+        OutputSlot("status", LidarStatus, safety=Safety.UNSAFE, priority="data_low"),
+        OutputSlot("scan", LidarScan, safety=Safety.UNSAFE, priority="data_low"),
         OutputSlot("error", ErrorReport),
     )
     error_slot = "error"

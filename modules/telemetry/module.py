@@ -18,7 +18,8 @@ from modules.telemetry.convert import to_robot_telemetry
 
 class TelemetryModule(Module):
     name: ClassVar[str] = "telemetry"
-    slots = (OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE), dsp_client.telemetry_input())
+    slots = (OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE, priority="interactive_low"),  # ahead of bulk
+             dsp_client.telemetry_input())
 
     def on_start(self) -> None:
         assert self.session is not None

@@ -68,7 +68,7 @@ class UquadModule(Module):
         InputSlot("modo", UquadMode),
         InputSlot("path", DatosSegCam, kind=Kind.STREAM),
         InputSlot("task", TaskData, kind=Kind.STREAM),
-        OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE),
+        OutputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE, priority="interactive_low"),
         OutputSlot("imu_raw", ImuRaw, kind=Kind.STREAM),
         OutputSlot("state", UquadState, safety=Safety.UNSAFE),
         OutputSlot("control", MotorCommandLog, kind=Kind.STREAM),

@@ -108,9 +108,9 @@ class Vision(Module):
     name = "vision"
     slots = (
         InputSlot("telemetry", RobotTelemetry, safety=Safety.UNSAFE, peer="telemetry"),
-        OutputSlot("target", DatosPT, safety=Safety.UNSAFE),
+        OutputSlot("target", DatosPT, safety=Safety.UNSAFE, priority="data_low"),
         OutputSlot("path", DatosSegCam, kind=Kind.STREAM),
-        OutputSlot("status", VisionStatus, safety=Safety.UNSAFE),
+        OutputSlot("status", VisionStatus, safety=Safety.UNSAFE, priority="data_low"),
         OutputSlot("error", ErrorReport),
     )
     error_slot = "error"
