@@ -88,8 +88,13 @@ def main(argv: list[str] | None = None) -> int:
         log_filter = router_audit.LOG_FILTER if args.log_refusals else router_audit.LINK_LOG_FILTER
         router_audit.install(sys.stdout, log_filter=log_filter + (f",{router_floods.LOG_TARGET}" if floods else ""),
                              consume=floods.feed if floods is not None else None)
-        if floods is not None:  # a flood's lines never stall the router: past a full pipe they are lost, not waited
-            os.set_blocking(1, False)  # for (Zenoh writes its log on fd 1 from the thread routing the message)
+        if floods is not None:  # room for a flood's burst of lines while the reader catches up (1 MiB, Linux)
+            try:
+                import fcntl
+
+                fcntl.fcntl(1, getattr(fcntl, "F_SETPIPE_SZ", 1031), 1 << 20)
+            except OSError:  # over /proc/sys/fs/pipe-max-size for this user: the default 64 KiB
+                pass
     stop = threading.Event()
     restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a handler
     try:

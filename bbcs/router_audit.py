@@ -27,9 +27,9 @@ import re
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TextIO
+from typing import BinaryIO, TextIO
 
 LOG_FILTER = "warn,zenoh::net::routing::interceptor::access_control=trace"
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
@@ -145,12 +145,13 @@ class RefusalLog:
 
 
 def install(out: TextIO, log: RefusalLog | None = None, log_filter: str | None = None,
-            consume: Callable[[bytes], bool] | None = None) -> RefusalLog:
+            consume: Callable[[bytes], bytes] | None = None) -> RefusalLog:
     """Route this process's stdout (where Zenoh logs) through a reader that reports refusals on ``out``.
 
     Call before the Zenoh session is opened; ``out`` must be a stream on a *duplicate* of the real stdout.
     ``log_filter``: Zenoh's log filter (default ``LOG_FILTER``, with the ACL's denials; ``LINK_LOG_FILTER``:
-    refused links only). ``consume``: sees every line first; True keeps it out of the rest (bbcs/router_floods.py).
+    refused links only). ``consume``: takes whole lines in chunks first and returns what the rest should see
+    (bbcs/router_floods.py).
     """
     import zenoh
 
@@ -160,11 +161,20 @@ def install(out: TextIO, log: RefusalLog | None = None, log_filter: str | None =
     os.dup2(write_fd, 1)
     os.close(write_fd)
 
+    def lines_of(pipe: BinaryIO) -> Iterator[bytes]:
+        if consume is None:
+            yield from pipe
+            return
+        tail = b""
+        while chunk := pipe.read1(1 << 20):  # whole chunks: ``consume`` takes its lines out at C speed
+            data = tail + chunk
+            cut = data.rfind(b"\n") + 1
+            data, tail = consume(data[:cut]), data[cut:]
+            yield from data.splitlines(keepends=True)
+
     def pump() -> None:
         with os.fdopen(read_fd, "rb", buffering=1 << 16) as pipe:
-            for raw in pipe:
-                if consume is not None and consume(raw):
-                    continue
+            for raw in lines_of(pipe):
                 if _ALLOWED in raw and _CACHED_HIT in raw:  # the bulk: an allowed message, nothing to parse
                     continue
                 line = raw.decode(errors="replace")
