@@ -52,13 +52,13 @@ class Rig:
         for _ in range(round(seconds / DT)):
             self.m.step(DT)
 
-    def airborne_at_start(self) -> None:
+    def airborne_at_start(self, seconds: float = 25.0) -> None:
         """Start-up as the DSP process does it, then a take-off to 10 m and a few seconds to settle."""
         for cmd in (p.SetSpeed(speed=0.0), p.SetTelemetryMask(mask=0x7FF),
                     p.SetStateTransmission(enable=True, period_ms=50), p.SetHelicopterType(heli_type=2),
                     p.SetMode(mode=p.Mode.TAKE_OFF)):
             assert self.send(cmd) == 0, cmd
-        self.run(25.0)
+        self.run(seconds)
 
 
 def lawnmower(m: DspMachine) -> list[tuple[float, float, float]]:
@@ -84,7 +84,7 @@ def path_errors(polyline: np.ndarray, pos: np.ndarray) -> tuple[float, float]:
 
 def fly(mode: int, args: argparse.Namespace) -> dict[str, float]:
     rig = Rig((args.wind_north, args.wind_east), args.gust, args.seed)
-    rig.airborne_at_start()
+    rig.airborne_at_start(args.climb_s)
     m = rig.m
     points = lawnmower(m)
     start = m.vehicle.state.pos.copy()
@@ -144,12 +144,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--period-ms", type=float, default=50.0, help="control period = telemetry period")
     ap.add_argument("--timeout", type=float, default=400.0, help="simulated seconds per run at most")
+    ap.add_argument("--climb-s", type=float, default=25.0, help="simulated seconds of take-off before the path")
     ap.add_argument("--out", default=None)
     ap.add_argument("--smoke", action="store_true",
-                    help="20 simulated seconds per run: proves the bench still runs (CI), judges nothing")
+                    help="a 10 s climb and 4 simulated seconds of path per run: proves the bench still runs (CI), "
+                         "judges nothing")
     args = ap.parse_args(argv)
     if args.smoke:
-        args.timeout = 20.0
+        args.climb_s, args.timeout = 10.0, 4.0
     wall = time.perf_counter()
     runs = {"mode0": fly(0, args), "mode3": fly(3, args)}
     print(f"{'':8} {'xtrack RMS m':>13} {'xtrack max m':>13} {'alt RMS m':>10} {'time s':>8} "

@@ -8,10 +8,12 @@ import itertools
 import json
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import jsonschema
 import msgspec
+import pytest
 from mcap.reader import make_reader
 
 from bbcs.contracts import gri
@@ -67,11 +69,22 @@ def log_times(path: Path) -> tuple[list[int], list[tuple[int, dict]]]:
     return times, events
 
 
-def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
-    la = start_uav(tmp_path / "uav")
+@pytest.fixture(scope="module")
+def uav(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """One launched UAV for both tests (a launch is most of a test's time): the split recording takes only its
+    DSP telemetry, which flows whether it is on the ground or has taken off."""
+    la = start_uav(tmp_path_factory.mktemp("uav"))
+    try:
+        yield f"tcp/127.0.0.1:{la.port}"
+    finally:
+        la.stop()
+        la.cleanup()
+
+
+def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path, uav):
     procs = Processes()
     try:
-        endpoint = f"tcp/127.0.0.1:{la.port}"
+        endpoint = uav
         out = tmp_path / "flight.mcap"
         # "all modules up" is not "the robot knows where it is": the recording starts once the GRI state has a fix
         with Gcs(session_config([endpoint])) as gcs:
@@ -173,54 +186,45 @@ def test_record_a_take_off_then_replay_it_as_another_robot(tmp_path):
             session.close()
     finally:
         procs.stop_all()
-        la.stop()
-        la.cleanup()
 
 
-def test_split_by_duration_and_replay_of_the_parts(tmp_path):
-    la = start_uav(tmp_path / "uav")
+def test_split_by_duration_and_replay_of_the_parts(tmp_path, uav):
+    endpoint = uav
+    out = tmp_path / "part.mcap"
+    r = cromat("record", "--connect", endpoint, "--robot", "uav1", "--select", "uav1/dsp/telemetry",
+               "-o", str(out), "--duration", "3.5", "--split-duration", "1", "--verify")
+    assert r.returncode == 0, r.stderr
+    parts = sorted(tmp_path.glob("part_*.mcap"))
+    assert len(parts) >= 3, r.stdout
+    total = 0
+    for part in parts:
+        assert f"verified {part}: ok: " in r.stdout
+        channels, _, counts = read_mcap(part)
+        assert set(counts) <= {"cromat/uav1/dsp/telemetry"}
+        total += sum(counts.values())
+    assert f"recorded {total} messages" in r.stdout
+    port_proc = Processes()
     try:
-        endpoint = f"tcp/127.0.0.1:{la.port}"
-        out = tmp_path / "part.mcap"
-        r = cromat("record", "--connect", endpoint, "--robot", "uav1", "--select", "uav1/dsp/telemetry",
-                   "-o", str(out), "--duration", "3.5", "--split-duration", "1", "--verify")
-        assert r.returncode == 0, r.stderr
-        parts = sorted(tmp_path.glob("part_*.mcap"))
-        assert len(parts) >= 3, r.stdout
-        total = 0
-        for part in parts:
-            assert f"verified {part}: ok: " in r.stdout
-            channels, _, counts = read_mcap(part)
-            assert set(counts) <= {"cromat/uav1/dsp/telemetry"}
-            total += sum(counts.values())
-        assert f"recorded {total} messages" in r.stdout
-        port_proc = Processes()
+        port = start_router(port_proc)
+        rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", *map(str, parts), "--fast")
+        assert rep.returncode == 0 and f"replayed {total} of {total} messages on 1 keys" in rep.stdout
+        # nobody listens: the replay says so, naming the key
+        assert ("1 of 1 keys had no subscriber when the replay began (--settle 1 s): "
+                "cromat/uav1/dsp/telemetry") in rep.stdout, rep.stdout
+        # a subscriber listens: the replay starts once the router routes to it (never the 60 s it may wait)
+        # and every message of every part reaches it
+        session = open_session(local_client(port))
+        got: list[bytes] = []
+        sub = session.declare_subscriber("cromat/uav1/dsp/telemetry", lambda s: got.append(s.payload.to_bytes()))
         try:
-            port = start_router(port_proc)
-            rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", *map(str, parts), "--fast")
+            rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", *map(str, parts), "--fast",
+                         "--settle", "60", timeout=40)
             assert rep.returncode == 0 and f"replayed {total} of {total} messages on 1 keys" in rep.stdout
-            # nobody listens: the replay says so, naming the key
-            assert ("1 of 1 keys had no subscriber when the replay began (--settle 1 s): "
-                    "cromat/uav1/dsp/telemetry") in rep.stdout, rep.stdout
-            # a subscriber listens: the replay starts once the router routes to it (never the 60 s it may wait)
-            # and every message of every part reaches it
-            session = open_session(local_client(port))
-            got: list[bytes] = []
-            sub = session.declare_subscriber("cromat/uav1/dsp/telemetry", lambda s: got.append(s.payload.to_bytes()))
-            try:
-                rep = cromat("replay", "--connect", f"tcp/127.0.0.1:{port}", *map(str, parts), "--fast",
-                             "--settle", "60", timeout=40)
-                assert rep.returncode == 0 and f"replayed {total} of {total} messages on 1 keys" in rep.stdout
-                assert "no subscriber" not in rep.stdout, rep.stdout
-                wait_until(lambda: len(got) >= total, 10, "every replayed message")
-                assert len(got) == total
-            finally:
-                sub.undeclare()
-                session.close()
+            assert "no subscriber" not in rep.stdout, rep.stdout
+            wait_until(lambda: len(got) >= total, 10, "every replayed message")
+            assert len(got) == total
         finally:
-            port_proc.stop_all()
+            sub.undeclare()
+            session.close()
     finally:
-        la.stop()
-        la.cleanup()
-
-
+        port_proc.stop_all()
