@@ -62,8 +62,12 @@ def valid_lat_lon(lat: float, lon: float) -> bool:
 
 
 def wrap_lon(lon_deg: T) -> T:
-    """Longitude(s) into [-180, 180): a frame near the antimeridian sees both sides as neighbours."""
-    return (lon_deg + 180.0) % 360.0 - 180.0
+    """Longitude(s) into [-180, 180): a frame near the antimeridian sees both sides as neighbours. A longitude
+    already inside is returned as it is (the modulo would round it)."""
+    lo, hi = LON_RANGE
+    if isinstance(lon_deg, np.ndarray):
+        return np.where((lon_deg >= lo) & (lon_deg < hi), lon_deg, (lon_deg - lo) % (hi - lo) + lo)
+    return lon_deg if lo <= lon_deg < hi else (lon_deg - lo) % (hi - lo) + lo
 
 
 def metres_per_degree(lat_deg: float, alt: float = 0.0) -> tuple[float, float]:

@@ -1,11 +1,12 @@
-"""Local east-north-up metres around a home point ↔ WGS84 degrees (equirectangular: cm-accurate over a few km)."""
+"""The uQuad's home: the local east-north-up frame its controller flies in, in the project's geodesy
+(:mod:`bbcs.geodesy`, WGS84 linearised at home: cm-accurate over a few km)."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from functools import cached_property
 
-EARTH_RADIUS_M = 6_371_000.0
+from bbcs.geodesy import LocalFrame
 
 
 @dataclass(frozen=True)
@@ -14,12 +15,14 @@ class Home:
     lon: float
     alt: float
 
+    @cached_property
+    def frame(self) -> LocalFrame:
+        return LocalFrame(self.lat, self.lon, self.alt)
+
     def to_local(self, lat: float, lon: float, alt: float) -> tuple[float, float, float]:
-        east = math.radians(lon - self.lon) * EARTH_RADIUS_M * math.cos(math.radians(self.lat))
-        north = math.radians(lat - self.lat) * EARTH_RADIUS_M
-        return east, north, alt - self.alt
+        """East, north, up metres from home."""
+        return self.frame.to_local(lat, lon, alt)
 
     def to_geo(self, east: float, north: float, up: float) -> tuple[float, float, float]:
-        lat = self.lat + math.degrees(north / EARTH_RADIUS_M)
-        lon = self.lon + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(self.lat))))
-        return lat, lon, self.alt + up
+        """Latitude, longitude, altitude of a local point."""
+        return self.frame.to_geo(east, north, up)

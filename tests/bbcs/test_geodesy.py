@@ -84,3 +84,10 @@ def test_a_frame_at_a_pole_and_a_point_past_it_are_refused() -> None:
         LocalFrame(89.5, 0.0)
     with pytest.raises(ValueError, match="latitude"):
         LocalFrame(88.9, 0.0).to_lla([0.0, 200_000.0, 0.0])
+
+
+def test_the_reference_maps_to_itself_exactly() -> None:
+    """A simulator at home reports home to the digit (a modulo on an in-range longitude would round it)."""
+    frame = LocalFrame(37.4117, -6.0025, 12.0)
+    assert frame.to_geo(0.0, 0.0, 0.0) == (37.4117, -6.0025, 12.0)
+    assert frame.to_local(37.4117, -6.0025, 12.0) == (0.0, 0.0, 0.0)

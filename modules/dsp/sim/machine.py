@@ -15,12 +15,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bbcs.geodesy import LocalFrame
 from modules.dsp import protocol as p
 from modules.dsp.codec import DspDecodeError, decode
 from modules.dsp.framing import Frame
 from modules.dsp.sim.vehicle import ROTOR_FLIGHT_RPM, Vehicle, VehicleParams, pid_gains, wrap_deg
 
-METRES_PER_DEG = 6378137.0 * math.pi / 180.0  # WGS-84 equatorial radius; ≈ 111,319.5 m per degree
 FLIGHT_MODES = frozenset({p.Mode.PATH_AUTO_HEADING, p.Mode.PATH_GIVEN_HEADING, p.Mode.ONBOARD_FOLLOWER,
                           p.Mode.TAKE_OFF, p.Mode.LANDING, p.Mode.BRIDGE})
 PATH_MODES = frozenset({p.Mode.PATH_AUTO_HEADING, p.Mode.PATH_GIVEN_HEADING})
@@ -96,20 +96,18 @@ class DspMachine:
         self._outbox: list[p.Message] = []
         self._battery_reported = False
         self._last_rx_error_s = -math.inf
-        self._cos_home = math.cos(math.radians(self.params.home_lat))
+        self._home = LocalFrame(self.params.home_lat, self.params.home_lon, self.params.home_alt)
 
     # --- geometry ------------------------------------------------------------------------------------------
 
     def to_local(self, lat: float, lon: float, alt: float) -> np.ndarray:
-        """Degrees/metres MSL → north, east, up from home (equirectangular: fine over a few km)."""
-        par = self.params
-        return np.array([(lat - par.home_lat) * METRES_PER_DEG,
-                         (lon - par.home_lon) * METRES_PER_DEG * self._cos_home, alt - par.home_alt])
+        """Degrees/metres MSL → north, east, up from home (bbcs.geodesy's frame at home: fine over a few km)."""
+        east, north, up = self._home.to_local(lat, lon, alt)
+        return np.array([north, east, up])
 
     def to_global(self, local: np.ndarray) -> tuple[float, float, float]:
-        par = self.params
-        return (par.home_lat + local[0] / METRES_PER_DEG,
-                par.home_lon + local[1] / (METRES_PER_DEG * self._cos_home), par.home_alt + local[2])
+        lat, lon, alt = self._home.to_geo(float(local[1]), float(local[0]), float(local[2]))
+        return lat, lon, alt
 
     # --- commands ------------------------------------------------------------------------------------------
 

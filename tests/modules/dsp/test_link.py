@@ -9,6 +9,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from bbcs.geodesy import metres_per_degree
 from bbcs.testing import wait_until
 from modules.dsp import codec
 from modules.dsp import protocol as p
@@ -17,7 +18,6 @@ from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
 from modules.dsp.framing import Frame, FrameParser
 from modules.dsp.link import DspLink, startup, startup_commands
 from modules.dsp.sim import DspSimulator, FaultInjector, PtyEndpoint, TcpEndpoint
-from modules.dsp.sim.machine import METRES_PER_DEG
 
 from .conftest import UAV1
 
@@ -296,7 +296,7 @@ def test_waypoint_goes_out_quantised_to_1e_4_degree(sim: DspSimulator) -> None:
         link.send(p.AddWaypoint(lat=37.41234567, lon=-6.00256789, alt=40.25))
     rec = sim.commands[-1]
     assert rec.fields == {"type": "AddWaypoint", "lat": 37.4123, "lon": -6.0026, "alt": 40.25}
-    error_m = abs(37.41234567 - 37.4123) * METRES_PER_DEG
+    error_m = abs(37.41234567 - 37.4123) * metres_per_degree(37.4123)[0]
     assert error_m < 5.6  # half a step of 1e-4 degree
 
 

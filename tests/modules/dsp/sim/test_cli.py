@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from bbcs.geodesy import LocalFrame
 from bbcs.testing import wait_until
 from modules.dsp import codec
 from modules.dsp import protocol as p
@@ -23,17 +24,19 @@ from modules.dsp.config import load_dsp_config
 from modules.dsp.errors import DspTimeout
 from modules.dsp.link import DspLink, startup, startup_commands
 from modules.dsp.sim.cli import main
-from modules.dsp.sim.machine import METRES_PER_DEG
 
 from ..conftest import UAV1
 
 HOME = (37.4117, -6.0025, 12.0)
 TOLERANCE_M = 2.0
-COS_HOME = math.cos(math.radians(HOME[0]))
+FRAME = LocalFrame(*HOME)
+"""The simulator's frame at home (bbcs.geodesy)."""
 
 
 def local(lat: float, lon: float, alt: float) -> tuple[float, float, float]:
-    return ((lat - HOME[0]) * METRES_PER_DEG, (lon - HOME[1]) * METRES_PER_DEG * COS_HOME, alt - HOME[2])
+    """North, east, up metres from home."""
+    east, north, up = FRAME.to_local(lat, lon, alt)
+    return north, east, up
 
 
 def start_sim(processes, *args: str) -> tuple[subprocess.Popen, str]:
@@ -118,8 +121,8 @@ def test_waypoint_list_is_flown_in_mode_0(processes) -> None:
     try:
         follow_paths(link, rec, 6.0)
         offsets = [(50, 0, 25), (50, 50, 30), (0, 50, 30), (-30, 20, 20)]
-        sent = [p.AddWaypoint(lat=HOME[0] + n / METRES_PER_DEG, lon=HOME[1] + e / (METRES_PER_DEG * COS_HOME),
-                              alt=alt + 0.0) for n, e, alt in offsets]
+        sent = [p.AddWaypoint(lat=FRAME.to_geo(e, n)[0], lon=FRAME.to_geo(e, n)[1], alt=alt + 0.0)
+                for n, e, alt in offsets]
         start = len(rec.frames)
         assert link.send_waypoints(sent) == 4
         wait_until(lambda: any(t.status.queue_length == 4 for t in rec.frames[start:]), what="the path queued")

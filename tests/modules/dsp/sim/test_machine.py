@@ -7,10 +7,11 @@ import math
 import numpy as np
 import pytest
 
+from bbcs.geodesy import offset
 from modules.dsp import codec
 from modules.dsp import protocol as p
 from modules.dsp.framing import Frame
-from modules.dsp.sim.machine import METRES_PER_DEG, DspMachine, DspParams
+from modules.dsp.sim.machine import DspMachine, DspParams
 from modules.dsp.sim.vehicle import VehicleParams
 
 E = p.ErrorCode
@@ -58,9 +59,8 @@ class Driver:
 
     def waypoint(self, north: float, east: float, up: float) -> p.AddWaypoint:
         par = self.m.params
-        east_deg = east / (METRES_PER_DEG * math.cos(math.radians(par.home_lat)))
-        return p.AddWaypoint(lat=round(par.home_lat + north / METRES_PER_DEG, 4),
-                             lon=round(par.home_lon + east_deg, 4), alt=par.home_alt + up)
+        lat, lon = offset(par.home_lat, par.home_lon, north, east)
+        return p.AddWaypoint(lat=round(lat, 4), lon=round(lon, 4), alt=par.home_alt + up)
 
 
 def test_initial_state_is_safe() -> None:
