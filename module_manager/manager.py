@@ -128,6 +128,11 @@ def _cpus(cpus: list[int] | None) -> frozenset[int] | None:
     return frozenset(cpus) if cpus else None
 
 
+FLOOD_LINE = "cromat router: flood: "
+"""How the router's log names a flood it cut (bbcs/router_floods.py)."""
+FLOOD_REPORT_S = 10.0
+
+
 def _priority(spec: Any) -> Priority | None:
     """A manifest entry's ``nice``/``realtime`` as the priority a child gets (None: the manager's own)."""
     priority = Priority(spec.nice, spec.realtime)
@@ -177,6 +182,8 @@ class Manager:
         self.home: GeoPoint | None = None
         """The take-off point (RobotState.home): the robot's record, so a RAL restarted in flight still has it."""
         self._mesh_refusals: set[str] = set()
+        self._floods_said: dict[str, float] = {}
+        """Identity and key of a flood the router cut → when the error list last got it (``_router_flood``)."""
         self._mode_acks: dict[str, mri.ModeAck | None] = {}
         self._mode_ack_decode = msgspec.msgpack.Decoder(mri.ModeAck).decode
         self.epoch = time.time()
@@ -277,6 +284,8 @@ class Manager:
     def _router_line(self, line: str) -> None:
         """The router's word that the mesh refused it (another robot of this name is linked there): shown on the
         launch's output, once per peer, besides the router's log (bbcs.router_audit)."""
+        if line.startswith(FLOOD_LINE):
+            self._router_flood(line)
         if not line.startswith(f"cromat router: {router_audit.MESH_REFUSED}: "):
             if self.log_dir is None:  # no router log: its lines go where they went before, our stdout
                 sys.stdout.write(line + "\n")
@@ -292,6 +301,21 @@ class Manager:
                     name=RouterErrorCode.DUPLICATE_ROBOT_NAME.name, stamp=time.time(),
                     detail=said.removeprefix(f"cromat router: {router_audit.MESH_REFUSED}: ")))
                 self._touch()
+
+    def _router_flood(self, line: str) -> None:
+        """A flood the router cut (bbcs/router_floods.py): into the manager's error list, so into the GRI state's
+        errors, naming the identity and the key; at most one entry per identity and key every FLOOD_REPORT_S."""
+        said = line.removeprefix(FLOOD_LINE)
+        who_key = said.split(" put ", 1)[0] + " " + said.rsplit(" on ", 1)[-1].split(" over ", 1)[0]
+        now = time.monotonic()
+        if now - self._floods_said.get(who_key, -FLOOD_REPORT_S) < FLOOD_REPORT_S:
+            return
+        self._floods_said[who_key] = now
+        with self.lock:
+            self.errors.append(mri.ErrorEvent(
+                module="router", code=int(RouterErrorCode.WRITE_FLOODED), name=RouterErrorCode.WRITE_FLOODED.name,
+                stamp=time.time(), detail=said))
+            self._touch()
 
     def start_processes(self) -> None:
         """Start every plain process (simulators) at once, then wait for each one's readiness: their start-up

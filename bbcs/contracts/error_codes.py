@@ -116,6 +116,9 @@ class RouterErrorCode(IntEnum):
     DUPLICATE_ROBOT_NAME = 801
     """The fleet mesh refused a link of this robot's router, or this router refused one: another robot of the same
     name (robot routers take their Zenoh id from the name, docs/fleet.md "Unique names")."""
+    WRITE_FLOODED = 802
+    """The router dropped an identity's puts over its write limit on a key (a flood cut where it enters; the detail
+    names the identity, the key and how many in a second: bbcs/router_floods.py)."""
 
 
 class UquadErrorCode(IntEnum):

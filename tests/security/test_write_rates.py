@@ -61,6 +61,32 @@ def test_the_flood_log_counts_per_sender_and_key_and_says_it_once_a_period() -> 
     assert log.due() == [] and log.total == 1000
 
 
+def test_the_manager_puts_a_flood_the_router_names_in_the_robots_errors(tmp_path: Path) -> None:
+    from bbcs.contracts.error_codes import RouterErrorCode
+    from module_manager.manager import Manager
+
+    mgr = Manager(load_manifest(write_manifest(tmp_path)), listen=["tcp/127.0.0.1:17447"])
+    now = [0.0]
+    log = FloodLog(clock=lambda: now[0])
+    log.names = lambda: {"3f2a9c1e0011": "vision"}
+    line = (b"TRACE downsampling: Message dropped by the downsampling interceptor: Push(cromat/uav1/vision/target) "
+            b"from:south:0:client/3f2a9c1e:1\n")
+    for second in range(1, 4):  # a flood lasting three seconds: the router says it three times
+        log.feed(line * 500)
+        now[0] = float(second)
+        for said in log.due():
+            mgr._router_line(said)
+    floods = [e for e in mgr.errors if e.code == RouterErrorCode.WRITE_FLOODED]
+    assert len(floods) == 1 and floods[0].module == "router", floods  # once per identity and key per 10 s
+    assert floods[0].detail.startswith("vision (3f2a9c1e) put 500 messages on cromat/uav1/vision/target")
+    log.feed(line.replace(b"target", b"status") * 3)
+    now[0] = 4.0
+    for said in log.due():
+        mgr._router_line(said)
+    assert [e.detail.split(" over ")[0] for e in mgr.errors if e.code == RouterErrorCode.WRITE_FLOODED][1] == \
+        "vision (3f2a9c1e) put 3 messages on cromat/uav1/vision/status"
+
+
 def test_write_hz_names_an_output_of_the_module(tmp_path: Path) -> None:
     line = 'task_types = ["perception"]'
     path = write_manifest(tmp_path, edit=lambda t: t.replace(line, f"{line}\nwrite_hz = {{ nosuch = 5 }}"))
