@@ -13,7 +13,9 @@ pipeline, and publishes only when the pipeline says so (target FOUND and geoloca
 | ``error`` | out | safe state | :class:`bbcs.contracts.errors.ErrorReport` |
 
 Parameters (manifest ``params`` or ``--param``): ``camera`` = ``sim`` (default) | ``folder:PATH`` |
-``v4l2:DEVICE``; ``rate`` frames/s (10); ``ground_alt`` metres (0); ``path_period`` s between paths (2);
+``v4l2:DEVICE``; ``rate`` frames/s (10); ``width``, ``height`` pixels (640 × 480) and ``hfov`` degrees (60): the
+camera's image and horizontal field of view (a simulated camera renders that image; a real one must deliver it);
+``ground_alt`` metres (0); ``path_period`` s between paths (2);
 simulated scene: ``target_east``, ``target_north`` (m from the first telemetry position), ``target_ve``,
 ``target_vn`` (m/s), ``target_radius`` (m), ``noise`` (grey levels).
 """
@@ -48,6 +50,12 @@ class VisionParams(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     """``sim`` | ``folder:PATH`` | ``v4l2:DEVICE``."""
     rate: Annotated[float, msgspec.Meta(ge=0.1, le=200)] = 10.0
     """Frames per second."""
+    width: Annotated[int, msgspec.Meta(ge=16, le=8192)] = 640
+    """Image width, pixels."""
+    height: Annotated[int, msgspec.Meta(ge=16, le=8192)] = 480
+    """Image height, pixels."""
+    hfov: Annotated[float, msgspec.Meta(ge=1.0, le=170.0)] = 60.0
+    """Horizontal field of view across the image width, degrees."""
     ground_alt: float = 0.0
     """Ground altitude, metres."""
     path_period: Annotated[float, msgspec.Meta(gt=0)] = 2.0
@@ -135,7 +143,8 @@ class Vision(Module):
         from modules.vision.geometry import CameraModel
         from modules.vision.pipeline import VisionConfig, VisionPipeline
 
-        self.pipeline = VisionPipeline(VisionConfig(camera=CameraModel(), ground_alt=self.ground_alt))
+        camera = CameraModel(width=self.cfg.width, height=self.cfg.height, hfov_deg=self.cfg.hfov)
+        self.pipeline = VisionPipeline(VisionConfig(camera=camera, ground_alt=self.ground_alt))
         self.latest: RobotTelemetry | None = None
         self.source: CameraSource | None = None
         self._last_path = 0.0

@@ -35,3 +35,13 @@ def test_module_load_raises_every_problem_as_a_config_error() -> None:
         load_params(VisionParams, {"rat": "10", "noise": "x"}, what="vision")
     text = str(err.value)
     assert "rat: unknown vision parameter (did you mean rate?" in text and "noise: bad value" in text
+
+
+def test_the_image_size_and_field_of_view_are_checked_and_build_the_camera() -> None:
+    errors = dict(Vision.param_errors({"width": "8", "height": "x", "hfov": "180"}))
+    assert "bad value '8'" in errors["width"] and ">= 16" in errors["width"]
+    assert "bad value 'x'" in errors["height"]
+    assert "bad value '180'" in errors["hfov"] and "<= 170" in errors["hfov"]
+    cfg = load_params(VisionParams, {"width": "320", "height": "240", "hfov": "45"}, what="vision")
+    assert (cfg.width, cfg.height, cfg.hfov) == (320, 240, 45.0)
+    assert (VisionParams().width, VisionParams().height, VisionParams().hfov) == (640, 480, 60.0)

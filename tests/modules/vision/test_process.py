@@ -8,6 +8,7 @@ import time
 
 import msgspec
 import numpy as np
+import pytest
 
 from bbcs import keys
 from bbcs.contracts.geo import Attitude, GeoPoint
@@ -37,10 +38,15 @@ def test_pose_needs_position_and_gimbal():
     assert (pose.lat, pose.alt, gimbal.pan) == (LAT0, ALT, 90.0)
 
 
-def test_vision_process_geolocates_the_simulated_target(processes, router, sessions):
+@pytest.mark.parametrize("image", [(), ("width=320", "height=240", "hfov=50")], ids=["640x480", "320x240"])
+def test_vision_process_geolocates_the_simulated_target(processes, router, sessions, image):
+    """At the default image and at a smaller one with another field of view (the camera model follows the
+    params: a wrong focal length would put the target metres off)."""
     s = sessions()
+    size = [arg for param in image for arg in ("--param", param)]
     processes.start(["-m", "modules.vision", "--robot", "r1", "--connect", f"tcp/127.0.0.1:{router}",
-                     "--param", "rate=20", "--param", f"target_east={TARGET_EAST}", "--param", "path_period=0.2"])
+                     "--param", "rate=20", "--param", f"target_east={TARGET_EAST}", "--param", "path_period=0.2",
+                     *size])
     targets: list[DatosPT] = []
     paths: list[DatosSegCam] = []
     states: list[str] = []
