@@ -1,10 +1,11 @@
 """What the flight-safety monitor decides, with no bus and no clock: observations in, breaches out.
 
 Every ``on_*`` call takes ``now``, the robot's clock when the observation arrived (the module passes its clock;
-tests pass numbers). Observations arrive in any order across their sources (a command's batch reaches the DSP
-before the RAL announces the task it serves), so a judgement waits until what could excuse it has had time to
-arrive, and ``tick(now)`` returns the breaches decided since the last call. Each episode (one command, one task,
-one excursion) gives at most one breach.
+tests pass numbers), and every stamp it is given is on that same clock (the module converts them:
+:mod:`modules.safety_monitor.clocks`). Observations arrive in any order across their sources (a command's batch
+reaches the DSP before the RAL announces the task it serves), so a judgement waits until what could excuse it has
+had time to arrive, and ``tick(now)`` returns the breaches decided since the last call. Each episode (one command,
+one task, one excursion) gives at most one breach.
 
 Position sources: the simulator's truth when it is flowing (simulation), else the DSP telemetry (a real robot);
 the GRI is judged against the truth only (there is no truth on a real robot).
@@ -108,6 +109,11 @@ class MonitorConfig:
     abort_wait_s: float = 2.0
     envelope_debounce_s: float = 1.0
     history_s: float = 60.0
+    stamp_lag_s: float = 0.0
+    """How much later than a process's stamp the physics it describes may be. 0 on a robot (one wall clock);
+    in a lockstep simulation one frame (``step_s``): a process's clock moves to a frame's time when the frame
+    ends, and the telemetry the frame produced may reach it before that (stamped with the previous frame's time),
+    while the truth is stamped with the physics' own time."""
 
 
 @dataclass
@@ -235,7 +241,8 @@ class SafetyMonitor:
             return
         # the telemetry's stamp is when the telemetry module converted the DSP's frame, a little after the DSP
         # measured it: the GRI is right if the aircraft was there at some instant of the lag before its stamp
-        window = [tr for s, tr in self.truth if tel.stamp - self.cfg.gri_lag_s <= s <= tel.stamp + SKEW_S]
+        window = [tr for s, tr in self.truth
+                  if tel.stamp - self.cfg.gri_lag_s <= s <= tel.stamp + SKEW_S + self.cfg.stamp_lag_s]
         if not window:
             return
         self.counts["gri_compared"] += 1
@@ -243,7 +250,9 @@ class SafetyMonitor:
         d, truth = min(((math.hypot(ground_distance_m(pos.lat, pos.lon, tr.lat, tr.lon), pos.alt - tr.alt), tr)
                         for tr in window), key=lambda x: x[0])
         ev = [f"GRI telemetry at {tel.stamp:.2f}: {pos.lat:.7f}, {pos.lon:.7f}, {pos.alt:.1f} m",
-              f"truth nearest to it in the {self.cfg.gri_lag_s:g} s before: {truth.lat:.7f}, {truth.lon:.7f}, "
+              f"truth nearest to it in the {self.cfg.gri_lag_s:g} s before"
+              + (f" (and {self.cfg.stamp_lag_s:g} s after)" if self.cfg.stamp_lag_s else "")
+              + f": {truth.lat:.7f}, {truth.lon:.7f}, "
               f"{truth.alt:.1f} m", f"distance {d:.1f} m (limit {self.cfg.gri_position_m:g} m)"]
         self._gri_pos = self._episode(self._gri_pos, d > self.cfg.gri_position_m, tel.stamp, 0.0,
                                       Invariant.GRI_TRUTH, "gri_position", Severity.ERROR,
@@ -252,7 +261,9 @@ class SafetyMonitor:
             expected = self._truth_airborne(tel.stamp)
             wrong = expected is not None and expected != tel.airborne
             ev = [f"GRI telemetry at {tel.stamp:.2f}: airborne={tel.airborne}",
-                  f"truth over the {self.cfg.airborne_window_s:g} s before: airborne={expected}"]
+                  f"truth over the {self.cfg.airborne_window_s:g} s before"
+                  + (f" (to {self.cfg.stamp_lag_s:g} s after)" if self.cfg.stamp_lag_s else "")
+                  + f": airborne={expected}"]
             self._gri_air = self._episode(self._gri_air, wrong, tel.stamp, 0.0, Invariant.GRI_TRUTH, "gri_airborne",
                                           Severity.ERROR, f"the GRI says airborne={tel.airborne}, the truth "
                                           f"{expected}", ev)
@@ -358,13 +369,24 @@ class SafetyMonitor:
         return None
 
     def _judge_completed(self, info: TaskInfo) -> None:
+        """Right if the aircraft was at the goal at the completion's stamp (within the stamp's frame: a robot-clock
+        stamp may be a frame earlier than the physics the RAL judged on); else a breach with the nearest miss."""
         assert info.ended is not None
-        where = self._position_at(info.ended)
-        if where is None:
+        judged = [j for j in (self._completed_at(info, pos, source) for pos, source in self._positions_at(info.ended))
+                  if j is not None]
+        if not judged or any(wrong is None for wrong, _ in judged):
             return
-        pos, source = where
+        wrong, ev = judged[0]
+        if len(judged) > 1:
+            ev.append(f"nor at any of the {len(judged) - 1} other truth samples up to {self.cfg.stamp_lag_s:g} s "
+                      "after it")
+        self._breach(Invariant.TASK_VERDICT, "completed_away_from_goal", Severity.ERROR, info.ended,
+                     f"task {info.id} {info.name}: {wrong}", ev, info.id)
+
+    def _completed_at(self, info: TaskInfo, pos: _Sample, source: str) -> tuple[str | None, list[str]] | None:
+        """(what is wrong with ``info`` completed at ``pos`` or None, evidence); None: not judged."""
         ev = [f"task {info.id} {info.name} ({info.kind or '-'}) completed at {info.ended:.3f}: {info.detail}",
-              f"{source} then: {pos.lat:.7f}, {pos.lon:.7f}, {pos.alt:.1f} m, airborne={pos.airborne}"]
+              f"{source} at {pos.t:.3f}: {pos.lat:.7f}, {pos.lon:.7f}, {pos.alt:.1f} m, airborne={pos.airborne}"]
         wrong = None
         if info.kind == "take_off" and isinstance(info.params, TakeOff) and self.home_alt is not None:
             height = pos.alt - self.home_alt
@@ -377,7 +399,7 @@ class SafetyMonitor:
         elif info.kind in GOAL_KINDS or info.name in GOAL_KINDS:
             goal = self.goal(info)
             if goal is None:
-                return
+                return None
             # the DSP flies to the waypoint as its protocol carries it (degrees x 10^4): either is the goal
             q = (round(goal[0] * p.LATLON_SCALE) / p.LATLON_SCALE, round(goal[1] * p.LATLON_SCALE) / p.LATLON_SCALE)
             d = min(ground_distance_m(pos.lat, pos.lon, goal[0], goal[1]),
@@ -388,10 +410,8 @@ class SafetyMonitor:
             if d > self.cfg.goal_tolerance_m or dz > self.cfg.goal_alt_tolerance_m:
                 wrong = f"completed {d:.1f} m from its goal ({dz:.1f} m in height)"
         else:
-            return
-        if wrong is not None:
-            self._breach(Invariant.TASK_VERDICT, "completed_away_from_goal", Severity.ERROR, info.ended,
-                         f"task {info.id} {info.name}: {wrong}", ev, info.id)
+            return None
+        return wrong, ev
 
     def progress(self, start: float, end: float, kind: str = "") -> list[str]:
         """How the aircraft progressed in [start, end] by the DSP's own account (empty: it did not): waypoints
@@ -426,7 +446,7 @@ class SafetyMonitor:
             r = info.started
             first = next((s.msg for s in self.sent if isinstance(s.msg.command, p.Abort)
                           and s.msg.stamp >= r - SKEW_S), None)
-            if first is not None and first.stamp - r <= self.cfg.abort_latency_s:
+            if first is not None and first.stamp - r - self.cfg.stamp_lag_s <= self.cfg.abort_latency_s:
                 self._aborts_due.discard(task_id)
                 continue
             if now < r + self.cfg.abort_wait_s:
@@ -437,7 +457,9 @@ class SafetyMonitor:
             if first is not None:
                 late = first.stamp - r
                 ev.append(f"first Abort sent to the DSP at {first.stamp:.3f} (batch {first.batch_id} of "
-                          f"{first.sender!r}): {late * 1000:.0f} ms")
+                          f"{first.sender!r}): {late * 1000:.0f} ms"
+                          + (f" ({self.cfg.stamp_lag_s * 1000:.0f} ms of it the stamps' frame)"
+                             if self.cfg.stamp_lag_s else ""))
                 self._breach(Invariant.ABORT_LATENCY, "abort_late", Severity.ERROR, r,
                              f"abort reached the DSP after {late * 1000:.0f} ms (limit "
                              f"{self.cfg.abort_latency_s * 1000:.0f} ms)", ev, info.id)
@@ -534,13 +556,10 @@ class SafetyMonitor:
     def _truth_flowing(self, now: float) -> bool:
         return bool(self.truth) and now - self.truth[-1][0] <= 1.0
 
-    def _truth_at(self, t: float) -> VehicleTruth | None:
-        best = min(self.truth, key=lambda s: abs(s[0] - t), default=None)
-        return best[1] if best is not None and abs(best[0] - t) <= 0.25 else None
-
     def _truth_airborne(self, t: float) -> bool | None:
-        """True/False when the truth was surely in the air/on the ground over the window before ``t``."""
-        window = [tr for s, tr in self.truth if t - self.cfg.airborne_window_s <= s <= t]
+        """True/False when the truth was surely in the air/on the ground over the window before ``t`` (and the
+        stamp's frame after it)."""
+        window = [tr for s, tr in self.truth if t - self.cfg.airborne_window_s <= s <= t + self.cfg.stamp_lag_s]
         if not window or self.truth[0][0] > t - self.cfg.airborne_window_s:
             return None
         heights = [tr.alt - tr.home[2] for tr in window]
@@ -550,16 +569,28 @@ class SafetyMonitor:
             return False
         return None
 
-    def _position_at(self, t: float) -> tuple[_Sample, str] | None:
-        if self.truth:
-            tr = self._truth_at(t)
-            if tr is not None:
+    def _positions_at(self, t: float) -> list[tuple[_Sample, str]]:
+        """Where the aircraft was at stamp ``t``: the truth over the stamp's frame (``t`` to ``t + stamp_lag_s``),
+        else the truth sample nearest to it (0.25 s at most), else the nearest DSP telemetry (1 s at most)."""
+        out = []
+        for s, tr in self.truth:
+            if t - SKEW_S <= s <= t + self.cfg.stamp_lag_s + SKEW_S:
                 h = tr.alt - tr.home[2]
-                return _Sample(t, tr.lat, tr.lon, tr.alt, airborne=h > self.cfg.ground_height_m, height=h), "truth"
-        best = min(self.telemetry, key=lambda s: abs(s.t - t), default=None)
+                out.append((_Sample(s, tr.lat, tr.lon, tr.alt, airborne=h > self.cfg.ground_height_m, height=h),
+                            "truth"))
+        if out:
+            return out
+        if self.truth:
+            best_truth = min(self.truth, key=lambda x: abs(x[0] - t))
+            if abs(best_truth[0] - t) <= 0.25:
+                s, tr = best_truth
+                h = tr.alt - tr.home[2]
+                return [(_Sample(s, tr.lat, tr.lon, tr.alt, airborne=h > self.cfg.ground_height_m, height=h),
+                         "truth")]
+        best = min(self.telemetry, key=lambda x: abs(x.t - t), default=None)
         if best is not None and abs(best.t - t) <= 1.0:
-            return best, "DSP telemetry"
-        return None
+            return [(best, "DSP telemetry")]
+        return []
 
     def _trim(self, q: deque, now: float, stamp) -> None:  # noqa: ANN001
         while q and now - stamp(q[0]) > self.cfg.history_s:

@@ -6,14 +6,19 @@ state and events (the RAL's keys), and in simulation the DSP simulator's truth d
 (``--param truth_udp=PORT``; the simulator is started with ``--truth-udp 127.0.0.1:PORT``). Outputs: every breach
 on ``breach`` (:class:`bbcs.contracts.safety.Breach`, its code on ``error`` too), what it has watched on ``status``.
 
+One clock: the monitor judges on the robot's clock (``bbcs_clock``: simulated time in a lockstep simulation, where it
+is a member the simulation waits for), and every stamp it is given is turned into robot time first
+(:mod:`modules.safety_monitor.clocks`: the truth's ``time_s`` from the epoch, the task book's and the DSP process's
+wall stamps by the step that was in force then).
+
 It commands nothing and serves no task type: a breach is reported, never acted on.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import socket
 import threading
-import time
 from collections.abc import Callable
 from typing import Annotated, Any, ClassVar
 
@@ -22,16 +27,20 @@ import zenoh
 import zenoh.ext
 
 from bbcs import dsp_client
+from bbcs.clock import SimTime
 from bbcs.conf import load_conf
 from bbcs.context import ModuleContext
 from bbcs.contracts import dsp as p
 from bbcs.contracts import gri, mri
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.safety import BREACH_SLOT, CODE_OF, STATUS_SLOT, Breach, MonitorStatus
+from bbcs.contracts.tasks import TaskInfo
 from bbcs.contracts.vehicle_truth import decode_truth
+from bbcs.lockstep import clock_key
 from bbcs.module import Module
 from bbcs.params import load_params, struct_param_errors
 from bbcs.slots import InputSlot, Kind, OutputSlot
+from modules.safety_monitor.clocks import RobotTime
 from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor
 
 STATUS_PERIOD_S = 1.0
@@ -105,10 +114,15 @@ class SafetyMonitorModule(Module):
     runtime_params: frozenset[str] = frozenset()
     """None at run time (``cromat param``): its truth link and limits are set up when it starts."""
 
-    def __init__(self, context: ModuleContext, clock: Callable[[], float] = time.time) -> None:
+    def __init__(self, context: ModuleContext) -> None:
         super().__init__(context)
-        self.clock = clock
-        self.monitor = SafetyMonitor(load_config(context))
+        self.clock = self.bbcs_clock.time
+        """The robot's clock: every judgement and every stamp the monitor compares is on it."""
+        self.robot_time = RobotTime(self.clock, simulated=self.sim is not None)
+        cfg = load_config(context)
+        if self.sim is not None:  # a process's clock moves at a frame's end: its stamps may be a frame early
+            cfg = dataclasses.replace(cfg, stamp_lag_s=self.sim.step_s)
+        self.monitor = SafetyMonitor(cfg)
         self._truth_port = truth_port(context)
         self._truth_sock: socket.socket | None = None
         self._truth_thread: threading.Thread | None = None
@@ -125,10 +139,14 @@ class SafetyMonitorModule(Module):
                 s, mri.mri_key(robot, mri.STATE), self._decoded(mri.RobotState, self._on_book),
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)),
             zenoh.ext.declare_advanced_subscriber(
-                s, gri.state_key(robot), self._decoded(gri.GriState, self.monitor.on_gri_state),
+                s, gri.state_key(robot), self._decoded(gri.GriState, self._on_gri_state),
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)),
-            s.declare_subscriber(gri.events_key(robot), self._decoded(gri.GriEvent, self.monitor.on_gri_event)),
+            s.declare_subscriber(gri.events_key(robot), self._decoded(gri.GriEvent, self._on_gri_event)),
         ]
+        if self.sim is not None:  # when each step reached this process: wall stamps are looked up there
+            decode_time = msgspec.msgpack.Decoder(SimTime).decode
+            self._watching.append(s.declare_subscriber(
+                clock_key(robot), lambda sample: self.robot_time.note_step(decode_time(sample.payload.to_bytes()))))
         if self._truth_port is not None:
             self._truth_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self._truth_sock.bind(("127.0.0.1", self._truth_port))
@@ -161,7 +179,31 @@ class SafetyMonitorModule(Module):
         return on_sample
 
     def _on_book(self, now: float, state: mri.RobotState) -> None:
-        self.monitor.on_book(now, state.stamp, state.tasks, state.ended, state.task_epoch)
+        rt = self.robot_time
+        rt.learn("manager", state.stamp)
+
+        def on_robot_clock(info: TaskInfo) -> TaskInfo:
+            return msgspec.structs.replace(info, started=rt.stamp("manager", info.started),
+                                           ended=None if info.ended is None else rt.stamp("manager", info.ended))
+
+        self.monitor.on_book(now, rt.stamp("manager", state.stamp), [on_robot_clock(i) for i in state.tasks],
+                             [on_robot_clock(i) for i in state.ended], state.task_epoch)
+
+    def _on_gri_state(self, now: float, state: gri.GriState) -> None:
+        rt = self.robot_time
+        rt.learn("ral", state.stamp)
+        # the RAL stamps its own errors; a module's error is stamped by the Module Manager as it arrives
+        errors = [msgspec.structs.replace(e, stamp=rt.stamp("ral" if e.module == "ral" else "manager", e.stamp))
+                  for e in state.errors]
+        tel = state.telemetry
+        if tel is not None:
+            rt.learn("telemetry", tel.stamp)
+            tel = msgspec.structs.replace(tel, stamp=rt.stamp("telemetry", tel.stamp))
+        self.monitor.on_gri_state(now, msgspec.structs.replace(state, stamp=rt.stamp("ral", state.stamp),
+                                                               errors=errors, telemetry=tel))
+
+    def _on_gri_event(self, now: float, event: gri.GriEvent) -> None:
+        self.monitor.on_gri_event(now, msgspec.structs.replace(event, stamp=self.robot_time.stamp("ral", event.stamp)))
 
     def _read_truth(self) -> None:
         assert self._truth_sock is not None
@@ -181,11 +223,18 @@ class SafetyMonitorModule(Module):
             if truth.time_s - last < TRUTH_EVERY_S and truth.time_s >= last:
                 continue
             last = truth.time_s
-            now = self.clock()
-            self.call_soon(lambda t=truth, n=now: self.monitor.on_truth(n, t))
+            if self.sim is None:  # the simulator's own time: stamped as it arrives (the wall clock)
+                self.call_soon(lambda t=truth: self.monitor.on_truth(self.clock(), t))
+                continue
+            # lockstep: the DSP simulator is the stepper, its time_s is the robot clock's t. Its physics runs ahead
+            # of the processes' clocks (they move at the frame's end), so the truth is stamped from its own time
+            stamp = self.robot_time.truth(truth.time_s)
+            if stamp is not None:
+                self.call_soon(lambda t=truth, n=stamp: self.monitor.on_truth(n, t))
 
     def on_dsp_sent(self, msg: p.DspSent) -> None:
-        self.monitor.on_sent(self.clock(), msg)
+        self.robot_time.learn("dsp", msg.stamp)
+        self.monitor.on_sent(self.clock(), msgspec.structs.replace(msg, stamp=self.robot_time.stamp("dsp", msg.stamp)))
 
     def on_dsp_telemetry(self, t: p.Telemetry) -> None:
         self.monitor.on_telemetry(self.clock(), t)
