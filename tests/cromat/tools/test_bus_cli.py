@@ -16,7 +16,7 @@ from bbcs.contracts.robot import RobotTelemetry
 from bbcs.session import local_client, open_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from uav_sim import cromat, start_uav  # noqa: E402
+from uav_sim import cromat, cromat_all, start_uav  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,8 @@ def uav(tmp_path_factory):
 
 
 def test_list_names_every_slot_with_type_writer_readers_and_rate(uav):
-    r = cromat("bus", "--connect", uav, "list", "--robot", "uav1", "--window", "2", "--json")
+    r, text = cromat_all(("bus", "--connect", uav, "list", "--robot", "uav1", "--window", "2", "--json"),
+                         ("bus", "--connect", uav, "list", "--robot", "uav1", "--window", "0"))
     assert r.returncode == 0, r.stderr
     rows = {row["key"]: row for row in map(json.loads, r.stdout.splitlines())}
     tel = rows["cromat/uav1/dsp/telemetry"]
@@ -42,27 +43,28 @@ def test_list_names_every_slot_with_type_writer_readers_and_rate(uav):
     assert mode["writers"] == ["(manager)"] and mode["readers"] == ["pan_tilt.control_modo#5"]
     assert rows["cromat/uav1/@ral/state"]["type"] == "bbcs.contracts.gri:GriState"
     assert rows["cromat/uav1/@ral/state"]["messages"] > 0
-    text = cromat("bus", "--connect", uav, "list", "--robot", "uav1", "--window", "0")
     assert "robot uav1: 6 modules alive: dsp, pan_tilt, path_follower, ral, telemetry, vision" in text.stdout
 
 
 def test_graph_shows_routes_by_name_as_text_and_dot(uav):
-    text = cromat("bus", "--connect", uav, "graph", "--robot", "uav1")
+    text, dot = cromat_all(("bus", "--connect", uav, "graph", "--robot", "uav1"),
+                           ("bus", "--connect", uav, "graph", "--robot", "uav1", "--dot"))
     assert text.returncode == 0, text.stderr
     assert "ral            --> [10] uav1/ral/pt_datos (DatosPT) --> pan_tilt.datos#10" in text.stdout
     assert "heading=ignored" in text.stdout
-    dot = cromat("bus", "--connect", uav, "graph", "--robot", "uav1", "--dot")
     assert dot.stdout.startswith("digraph cromat {")
     assert '"cromat/uav1/ral/pt_datos" -> "uav1/pan_tilt" [label="datos#10"];' in dot.stdout
     assert '"uav1/dsp" -> "cromat/uav1/dsp/telemetry";' in dot.stdout
 
 
 def test_echo_json_validates_against_the_served_schema(uav):
-    schema = cromat("bus", "--connect", uav, "schema", "uav1/telemetry/telemetry")
+    schema, r, human = cromat_all(
+        ("bus", "--connect", uav, "schema", "uav1/telemetry/telemetry"),
+        ("bus", "--connect", uav, "echo", "uav1/telemetry/telemetry", "--json", "--count", "3"),
+        ("bus", "--connect", uav, "echo", "uav1/vision/status", "--count", "1"))
     assert schema.returncode == 0, schema.stderr
     doc = json.loads(schema.stdout)
     assert doc["type"] == "bbcs.contracts.robot:RobotTelemetry"
-    r = cromat("bus", "--connect", uav, "echo", "uav1/telemetry/telemetry", "--json", "--count", "3")
     assert r.returncode == 0, r.stderr
     lines = [json.loads(line) for line in r.stdout.splitlines()]
     assert len(lines) == 3
@@ -72,15 +74,14 @@ def test_echo_json_validates_against_the_served_schema(uav):
         jsonschema.validate(line["data"], {k: v for k, v in doc.items() if k not in ("key", "type")})
         tel = msgspec.convert(line["data"], RobotTelemetry)
         assert tel.position is not None and abs(tel.position.lat - 37.4117) < 0.01  # the simulator's home
-    human = cromat("bus", "--connect", uav, "echo", "uav1/vision/status", "--count", "1")
     assert "(modules.vision.process:VisionStatus)" in human.stdout and "  state: " in human.stdout
 
 
 def test_schema_of_a_struct_and_of_nothing(uav):
-    r = cromat("bus", "schema", "bbcs.contracts.pan_tilt:DatosPT")
+    r, missing = cromat_all(("bus", "schema", "bbcs.contracts.pan_tilt:DatosPT"),
+                            ("bus", "--connect", uav, "schema", "uav1/nobody/here"))
     props = json.loads(r.stdout)["$defs"]["DatosPT"]["properties"]
     assert props["ref_pan"]["maximum"] == 180.0
-    missing = cromat("bus", "--connect", uav, "schema", "uav1/nobody/here")
     assert missing.returncode == 1 and "no module on the bus describes cromat/uav1/nobody/here" in missing.stderr
 
 
@@ -124,16 +125,16 @@ def test_pub_validates_before_sending(uav):
 def test_echo_shows_the_last_value_of_latched_slots_and_says_when_a_key_is_unknown(uav):
     """Issue 34 item 3: a safe state slot published before the echo began (the manager's mode slot, a module's
     mode acknowledgement) is shown at once, from its publisher's cache; a key nobody describes is said."""
-    mode = cromat("bus", "--connect", uav, "echo", "uav1/manager/pan_tilt_mode", "--json", "--count", "1",
-                  "--duration", "10")
+    mode, acks, ghost = cromat_all(
+        ("bus", "--connect", uav, "echo", "uav1/manager/pan_tilt_mode", "--json", "--count", "1", "--duration", "10"),
+        ("bus", "--connect", uav, "echo", "uav1/*/mode_ack", "--json", "--duration", "4"),
+        ("bus", "--connect", uav, "echo", "uav1/nobody/here", "--duration", "1"))
     assert mode.returncode == 0, mode.stderr
     line = json.loads(mode.stdout)
     assert line["type"] == "bbcs.contracts.pan_tilt:ModoFuncionamientoPT" and "problem" not in line, line
-    acks = cromat("bus", "--connect", uav, "echo", "uav1/*/mode_ack", "--json", "--duration", "4")
     assert acks.returncode == 0, acks.stderr
     acked = {json.loads(x)["key"]: json.loads(x)["data"] for x in acks.stdout.splitlines()}
     assert acked["cromat/uav1/pan_tilt/mode_ack"]["mode"] == line["data"], (acked, line)  # the mode it answered
-    ghost = cromat("bus", "--connect", uav, "echo", "uav1/nobody/here", "--duration", "1")
     assert ghost.returncode == 1 and ghost.stdout == ""
     assert "no module or service on the bus describes a key matching cromat/uav1/nobody/here" in ghost.stderr
     assert "nothing received on cromat/uav1/nobody/here" in ghost.stderr

@@ -30,6 +30,22 @@ def cromat(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str
                           capture_output=True, text=True, timeout=timeout)
 
 
+def cromat_all(*commands: tuple[str, ...], timeout: float = 60.0) -> list[subprocess.CompletedProcess[str]]:
+    """Run several ``cromat`` commands at once (most of each is a listening window), to completion, in order."""
+    procs = [spawn(*args) for args in commands]
+    done = []
+    try:
+        for args, proc in zip(commands, procs, strict=True):
+            out, err = proc.communicate(timeout=timeout)
+            done.append(subprocess.CompletedProcess([sys.executable, "-m", "cromat", *args], proc.returncode, out, err))
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+    return done
+
+
 def spawn(*args: str) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "cromat", *args], cwd=str(ROOT), env=child_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
