@@ -15,6 +15,8 @@ import socket
 import sys
 import threading
 import time
+import tomllib
+from collections import deque
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +48,9 @@ STUCK_WALL_S = 90.0
 """Wall seconds without simulated time moving after which the robot is taken as stuck (an incident)."""
 LAND_WAIT_SIM_S = 150.0
 SETTLE_SIM_S = 4.0
+HEALTHY_WALL_S = 60.0
+"""Wall seconds the reset waits for every module up: the manager restarts a killed module on the wall clock (its
+backoff, at most the manifest's backoff_max_s, then the process's start), however fast the simulation runs."""
 """Simulated seconds watched on the ground after a sequence: the monitor's last judgements are due by then
 (commands 3 s, an abort 2 s, a loss of control 3.5 s after the fact)."""
 
@@ -215,6 +220,10 @@ class CampaignRobot:
         self.sim_t = 0.0
         self._sim_seen = time.monotonic()
         self.link: Gcs | None = None
+        self.killed: dict[str, int] = {}
+        """Module → pid killed and not yet seen replaced by a new process that is up."""
+        self._kills: dict[str, deque[float]] = {}
+        """Module → wall times of its kills (the manager's restart intensity counts restarts on the wall)."""
         try:
             self._start(launch_timeout_s)
         except BaseException:
@@ -228,6 +237,8 @@ class CampaignRobot:
         workdir.mkdir(parents=True, exist_ok=True)
         truth, self.control = free_udp_port(), free_udp_port()
         manifest, self.record, tee = campaign_manifest(self.profile, workdir, truth, self.control)
+        sup = tomllib.loads(manifest.read_text()).get("supervision", {})
+        self.intensity, self.period_s = int(sup.get("intensity", 5)), float(sup.get("period_s", 10.0))
         if tee is not None:
             self.stack.callback(tee.close)
         t0 = time.monotonic()
@@ -296,17 +307,21 @@ class CampaignRobot:
                 self._event_keys.add(key)
                 self.events.append(event)
 
-    def _wait(self, pred, sim_s: float, what: str) -> gri.GriState:  # noqa: ANN001
-        """Until ``pred()`` holds, at most ``sim_s`` simulated seconds; Stuck when simulated time stops moving."""
+    def _wait(self, pred, sim_s: float, what: str, *, wall_s: float | None = None) -> gri.GriState:  # noqa: ANN001
+        """Until ``pred()`` holds, at most ``sim_s`` simulated seconds (``wall_s``: wall seconds instead, for what
+        the robot does on the wall clock); Stuck when simulated time stops moving."""
         end = self.sim_t + sim_s
+        wall_end = None if wall_s is None else time.monotonic() + wall_s
         while True:
             with self.lock:
                 state = self.state
             if pred():
                 assert state is not None or self.state is not None
                 return self.state  # type: ignore[return-value]
-            if self.sim_t >= end:
+            if wall_end is None and self.sim_t >= end:
                 raise Stuck(f"{what}: not within {sim_s:g} simulated seconds")
+            if wall_end is not None and time.monotonic() >= wall_end:
+                raise Stuck(f"{what}: not within {wall_s:g} wall seconds")
             if time.monotonic() - self._sim_seen > STUCK_WALL_S:
                 raise Stuck(f"{what}: simulated time stopped at {self.sim_t:.1f} s for {STUCK_WALL_S:g} wall s")
             if self.launch.proc.poll() is not None:
@@ -403,10 +418,21 @@ class CampaignRobot:
             return f"{module} has no process now"
         if status.pid not in group_members(self.launch.pgid):  # only a process of this launch, ever
             return f"{module}'s pid {status.pid} is not (or no longer) of this launch"
+        # the manager gives a module up after `intensity` restarts in `period_s` wall seconds (rightly: a crash
+        # loop); a campaign killing faster than that tests its own kill rate, so it leaves one restart spare
+        now = time.monotonic()
+        kills = self._kills.setdefault(module, deque())
+        while kills and kills[0] <= now - self.period_s:
+            kills.popleft()
+        if len(kills) >= self.intensity - 2:
+            return (f"{module} not killed: killed {len(kills)} times in the last {self.period_s:g} wall s (the "
+                    f"manager's restart intensity is {self.intensity})")
         try:
             os.kill(status.pid, signal.SIGKILL)
         except ProcessLookupError:
             return f"{module} (pid {status.pid}) already gone"
+        kills.append(now)
+        self.killed[module] = status.pid
         return f"killed {module} (pid {status.pid})"
 
     # ------------------------------------------------------------------ between sequences
@@ -421,22 +447,27 @@ class CampaignRobot:
             routes = self.gcs.routes(ROBOT).routes.get("pan_tilt", {})
             if routes.get("datos") != self.profile.routes[0]:
                 self.gcs.route(ROBOT, "pan_tilt", "datos", self.profile.routes[0])
+        tried: list[str] = []
         for _ in range(3):
             if self._on_ground():
                 break
             reply = self.gcs.send(ROBOT, gri.Land())
             if not reply.accepted:
+                tried.append(f"land refused at t={self.sim_t:.1f}: {reply.reason}")
+                self.wait_healthy()  # a module it needs may have gone down since (a restart is on the wall clock)
                 self.sleep_sim(2.0)
                 continue
             self.last_task = reply.task_id
-            self._until_done(LAND_WAIT_SIM_S)
+            tried.append(self._until_done(LAND_WAIT_SIM_S) + f" at t={self.sim_t:.1f}")
             try:
                 self._wait(self._on_ground, 20.0, "on the ground")
             except Stuck:
                 if time.monotonic() - self._sim_seen > STUCK_WALL_S:
                     raise
         if not self._on_ground():
-            raise Stuck("not back on the ground after three landings")
+            st = self.state
+            raise Stuck("not back on the ground after three landings (" + "; ".join(tried) + "; GRI airborne="
+                        + f"{st.airborne if st else None}, errors {[e.name for e in st.errors[-3:]] if st else []})")
         self.sleep_sim(SETTLE_SIM_S)
         try:
             self.monitor.settle(60.0)
@@ -454,17 +485,24 @@ class CampaignRobot:
             return False
         return True
 
-    def wait_healthy(self, sim_s: float = 60.0) -> None:
-        """Until a GRI state newer than now (the RAL alive) shows every module up, the manager up and our link."""
+    def wait_healthy(self, wall_s: float = HEALTHY_WALL_S) -> None:
+        """Until a GRI state newer than now (the RAL alive) shows every module up, each one killed as a new
+        process (a state published before the manager saw the kill still shows the old one up), the manager up and
+        our link. On the wall clock: the manager restarts modules on it."""
         with self.lock:
             since = self.state.stamp if self.state is not None else 0.0
 
         def healthy() -> bool:
             st = self.state
-            return st is not None and st.stamp > since and st.manager_up and st.link == "up" \
-                and all(m.state == "up" for m in st.modules)
+            if st is None or st.stamp <= since or not st.manager_up or st.link != "up" \
+                    or not all(m.state == "up" for m in st.modules):
+                return False
+            pids = {m.name: m.pid for m in st.modules}
+            return all(pids.get(name) not in (None, pid) for name, pid in self.killed.items())
 
-        self._wait(healthy, sim_s, "every module up, a fresh GRI state and the campaign's link")
+        self._wait(healthy, 0.0, "every module up (a killed one as a new process), a fresh GRI state and the "
+                   "campaign's link", wall_s=wall_s)
+        self.killed.clear()
 
     def _on_ground(self) -> bool:
         st = self.state
