@@ -24,8 +24,13 @@ sys.path.insert(0, str(ROOT))
 RESULTS = ROOT / "bench" / "results"
 
 
-def pct(values: list[float], q: float) -> float:
-    """The ``q``-th percentile (0–100) of ``values``: the sample at that rank, no interpolation."""
+def pct(values: list[float], q: float, *, empty: float | None = None) -> float:
+    """The ``q``-th percentile (0–100) of ``values``: the sample at that rank, no interpolation. The one percentile
+    of the benchmarks. No values: ``empty`` if given (e.g. NaN for a run that failed early), else ValueError."""
+    if not values:
+        if empty is None:
+            raise ValueError("a percentile of no values")
+        return empty
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))]
 

@@ -289,7 +289,7 @@ def scale_measure(window_s: float) -> dict[str, float]:
 
 def clock_offset(smoke: bool = False) -> dict[str, float]:
     """The clock-offset estimator's error over the bus (ral/sync.py, docs/sync.md); ``smoke``: 2 robots, 1 s."""
-    from ral.sync import measure_clock_offset_p99_ms
+    from clock_offset import measure_clock_offset_p99_ms
 
     return measure_clock_offset_p99_ms(n_robots=2, duration_s=1.0) if smoke else measure_clock_offset_p99_ms()
 
@@ -387,7 +387,7 @@ def main() -> int:
                         "the last survivor's decision of the new round, all survivors agreeing (one machine clock)",
         "alloc_bus_ms_10": "worst of the bus trials: from the ground station's put of 30 targets to the last of 10 "
                            "agents' decision (all agreeing)",
-        "clock_offset_p99_ms": "the RAL's clock-offset estimator (ral/sync.py measure_clock_offset_p99_ms: robots "
+        "clock_offset_p99_ms": "the RAL's clock-offset estimator (bench/clock_offset.py: robots "
                                "with skewed, drifting clocks on meshed routers, |estimate - truth|)",
     }
     write_results("fleet", {"summary": summary, "notes": notes, "rows": rows, "bus_trials": bus_rows,

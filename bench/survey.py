@@ -34,7 +34,7 @@ from benchlib import write_results
 from bbcs.contracts.trajectory import GeoPoint, SurveyRequest, TrajectoryRequest
 from modules.lidar_logger.dtm import Dtm, build_dtm, coverage, ground_candidates, polygon_mask
 from modules.lidar_logger.georef import georeference
-from modules.lidar_logger.logdata import load_log
+from modules.lidar_logger.logformats import load_log
 from modules.lidar_logger.sim import LdmrsOptions, World
 from modules.lidar_logger.sim.survey_flight import flight_scans, write_run
 from modules.lidar_logger.sim.world import Flight

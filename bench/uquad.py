@@ -137,11 +137,6 @@ def manifest(tmp: Path, *, speed: float = 1.0, clock: str = "wall", duration_s: 
     return path
 
 
-def _pct(values: list[float], q: float) -> float:
-    """A percentile, NaN when the flight produced no control actions (it failed before take-off)."""
-    return pct(values, q) if values else float("nan")
-
-
 def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     ab = b - a
     t = 0.0 if not ab.any() else float(np.clip(np.dot(p - a, ab) / np.dot(ab, ab), 0.0, 1.0))
@@ -208,7 +203,8 @@ def control_figures(tmp: Path) -> dict:
     controls = [json.loads(line) for line in (tmp / f"{ROBOT}_control.jsonl").read_text().splitlines()]
     ts = [c["ts"] for c in controls[10:]]
     return {"latencies_ms": [c["latency_s"] * 1000 for c in controls if c["latency_s"] >= 0],
-            "control_actions": len(controls), "ts_p50_ms": _pct(ts, 50) * 1000, "ts_p99_ms": _pct(ts, 99) * 1000}
+            "control_actions": len(controls),  # NaN percentiles: no control action (it failed before take-off)
+            "ts_p50_ms": pct(ts, 50, empty=math.nan) * 1000, "ts_p99_ms": pct(ts, 99, empty=math.nan) * 1000}
 
 
 def endurance(tmp: Path, minutes: float, speed: float, nice: int = 0) -> dict:
@@ -286,7 +282,8 @@ def main() -> int:
     lat = fl["latencies_ms"]
     rows = [
         ("loop body only (baseline, in-process)", f"p50 {base50:.2f} ms", f"p99 {base99:.2f} ms"),
-        ("IMU frame → motor command (real time)", f"p50 {_pct(lat, 50):.2f} ms", f"p99 {_pct(lat, 99):.2f} ms"),
+        ("IMU frame → motor command (real time)", f"p50 {pct(lat, 50, empty=math.nan):.2f} ms",
+         f"p99 {pct(lat, 99, empty=math.nan):.2f} ms"),
         ("measured control period Ts", f"p50 {fl['ts_p50_ms']:.2f} ms", f"p99 {fl['ts_p99_ms']:.2f} ms"),
         ("square position error (truth)", f"RMS {fl['pos_rms']:.3f} m" if fl["pos_rms"] is not None else "failed",
          f"max {fl['pos_max']:.3f} m" if fl["pos_max"] is not None else fl["failure"][:24]),
@@ -297,8 +294,8 @@ def main() -> int:
     for name, a, b in rows:
         print(f"{name:<48} {a:>16} {b:>24}")
     summary = {
-        "imu_to_motor_p50_ms": round(_pct(lat, 50), 3) if lat else None,
-        "imu_to_motor_p99_ms": round(_pct(lat, 99), 3) if lat else None,
+        "imu_to_motor_p50_ms": round(pct(lat, 50), 3) if lat else None,
+        "imu_to_motor_p99_ms": round(pct(lat, 99), 3) if lat else None,
         "imu_frames_lost": en["lost"],
         "square_pos_rms_m": round(fl["pos_rms"], 3) if fl["pos_rms"] is not None else None,
         "flight_failure": fl["failure"],

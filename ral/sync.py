@@ -10,8 +10,8 @@ Pure, with every clock injected: the bus adapter (:mod:`ral.sync_bus`) feeds sam
 - :func:`formation_goal` / :func:`formation_resend`: where a follower must be to keep its separation, and
   whether the leader moved enough to send it there again.
 
-:func:`measure_clock_offset_p99_ms` is the fleet bench's measurement (``clock_offset_p99_ms``): robots with known
-skewed clocks on real Zenoh, the estimate compared with the truth.
+The fleet bench's measurement of this estimator on real Zenoh (``clock_offset_p99_ms``) is bench code, in
+bench/clock_offset.py, so that the runtime package starts no routers.
 """
 
 from __future__ import annotations
@@ -184,27 +184,3 @@ def separation_error_m(follower: GeoPoint, leader: GeoPoint, north_m: float, eas
     """How far the follower is from where its separation puts it (the achieved formation error)."""
     lat, lon, alt = formation_goal(leader, north_m, east_m, up_m)
     return math.hypot(geodesy.distance_m(follower.lat, follower.lon, lat, lon), follower.alt - alt)
-
-
-# ---------------------------------------------------------------- the fleet bench's measurement
-
-
-def measure_clock_offset_p99_ms(n_robots: int = 5, duration_s: float = 6.0, skew_s: float = 2.0,
-                                drift_ppm: float = 50.0, seed: int = 17) -> dict[str, float]:
-    """``clock_offset_p99_ms`` for bench/fleet.py: ``n_robots`` RAL clock services, each its own Zenoh session
-    on its own router (routers meshed in a chain, as a fleet), clocks skewed by up to ±``skew_s`` and drifting
-    up to ±``drift_ppm``; every robot probes every other for ``duration_s``. Each estimate is compared with the
-    true offset at that instant. Returns p50/p99/max of |estimate − truth| in ms and the sample count."""
-    from ral.sync_bus import measure_offsets_on_bus
-
-    errors = measure_offsets_on_bus(n_robots=n_robots, duration_s=duration_s, skew_s=skew_s,
-                                    drift_ppm=drift_ppm, seed=seed)
-    ms = sorted(abs(e) * 1000.0 for e in errors)
-    if not ms:
-        raise RuntimeError("no clock offset estimate was made on the bus")
-
-    def pct(q: float) -> float:
-        return ms[min(len(ms) - 1, max(0, math.ceil(q / 100.0 * len(ms)) - 1))]
-
-    return {"clock_offset_p99_ms": pct(99), "clock_offset_p50_ms": pct(50), "clock_offset_max_ms": ms[-1],
-            "clock_offset_samples": float(len(ms)), "clock_robots": float(n_robots)}

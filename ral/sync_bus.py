@@ -11,8 +11,6 @@
 from __future__ import annotations
 
 import logging
-import random
-import subprocess
 import threading
 import time
 from collections.abc import Callable
@@ -26,7 +24,6 @@ from bbcs import bounded, keys, wire
 from bbcs.contracts import gri
 from bbcs.contracts import sync as s
 from bbcs.contracts import tasks as t
-from bbcs.session import local_client, open_session
 from ral import sync
 
 log = logging.getLogger(__name__)
@@ -324,59 +321,3 @@ class _Formation:
             self._wake.notify_all()
         self._thread.join(2.0)
         self._sub.undeclare()
-
-
-# ---------------------------------------------------------------- the bench's measurement
-
-
-def measure_offsets_on_bus(*, n_robots: int, duration_s: float, skew_s: float, drift_ppm: float,
-                           seed: int) -> list[float]:
-    """Estimate − truth (seconds) of every offset estimate made while ``n_robots`` skewed clocks, each behind its
-    own router (routers chained through Zenoh's routing), probe one another for ``duration_s``."""
-    from bbcs.net import free_port, wait_tcp
-    from bbcs.testing import Processes
-
-    rng = random.Random(seed)
-    clocks = {f"r{i}": sync.SkewedClock(offset_s=rng.uniform(-skew_s, skew_s),
-                                        drift_ppm=rng.uniform(-drift_ppm, drift_ppm)) for i in range(n_robots)}
-    procs = Processes()
-    sessions: list[zenoh.Session] = []
-    services: list[ClockService] = []
-    trackers: list[ClockTracker] = []
-    errors: list[float] = []
-    lock = threading.Lock()
-    try:
-        ports: list[int] = []
-        for _ in range(n_robots):
-            port = free_port()
-            extra = ["--connect", f"tcp/127.0.0.1:{ports[-1]}"] if ports else []
-            procs.start(["-m", "bbcs.router", "--listen", f"tcp/127.0.0.1:{port}", *extra],
-                        stdout=subprocess.DEVNULL)
-            wait_tcp("127.0.0.1", port, 10.0)
-            ports.append(port)
-        names = sorted(clocks)
-        for name, port in zip(names, ports, strict=True):
-            session = open_session(local_client(port))
-            sessions.append(session)
-            services.append(ClockService(session, name, clocks[name]))
-        for name, session in zip(names, sessions, strict=True):
-
-            def on_sample(peer: str, sample: sync.ClockSample, est: sync.Estimate, own: str = name) -> None:
-                base = time.time()
-                truth = clocks[peer].error_at(base) - clocks[own].error_at(base)
-                with lock:
-                    errors.append(est.offset_s - truth)
-
-            trackers.append(ClockTracker(session, name, clocks[name], peers=[p for p in names if p != name],
-                                         period_s=0.2, publish=False, on_sample=on_sample))
-        time.sleep(duration_s)
-    finally:
-        for tracker in trackers:
-            tracker.close()
-        for service in services:
-            service.close()
-        for session in sessions:
-            session.close()
-        procs.stop_all()
-    return errors
-

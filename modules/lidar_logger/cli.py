@@ -26,7 +26,8 @@ from modules.lidar_logger.clock import SYSTEM_CLOCK, ScaledClock
 from modules.lidar_logger.config import load_lidar_conf, merge_lidar_conf, read_config_file
 from modules.lidar_logger.dtm import attitude_rates, build_dtm, coverage, ground_candidates, hillshade, polygon_mask
 from modules.lidar_logger.georef import GeorefError, Mounting, georeference
-from modules.lidar_logger.logdata import LogFormatError, load_log
+from modules.lidar_logger.logdata import LogFormatError
+from modules.lidar_logger.logformats import load_log
 from modules.lidar_logger.logger import LidarLogger
 from modules.lidar_logger.ply import write_ply
 from modules.lidar_logger.raster import MissingExtraError, write_geotiff, write_las, write_png

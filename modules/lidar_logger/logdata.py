@@ -105,21 +105,3 @@ _ARRAY_FIELDS = (
 def point_scan_index(n_points: np.ndarray) -> np.ndarray:
     """For each point, the index of its scan (scans given by their point counts)."""
     return np.repeat(np.arange(len(n_points), dtype=np.int64), np.asarray(n_points, dtype=np.int64))
-
-
-def load_log(path: str | os.PathLike[str]) -> LidarLog:
-    """Load a text log, a binary log (either of its two files), or a run folder (binary preferred)."""
-    from modules.lidar_logger import binlog, textlog
-
-    p = Path(path)
-    if p.is_dir():
-        bins = sorted(p.glob(f"*{binlog.SCANS_SUFFIX}"))
-        if bins:
-            return binlog.read_binary_log(bins[0])
-        texts = sorted(q for q in p.glob("LogFile_*") if q.is_file() and not q.name.endswith(".bin"))
-        if texts:
-            return textlog.read_text_log(texts[0])
-        raise LogFormatError(f"{p}: no LogFile_* in this folder")
-    if p.name.endswith(binlog.SCANS_SUFFIX) or p.name.endswith(binlog.POINTS_SUFFIX):
-        return binlog.read_binary_log(p)
-    return textlog.read_text_log(p)

@@ -76,7 +76,7 @@ def write_polygon(path: Path) -> Path:
 def caught_up(run: Path) -> bool:
     """The newest logged scan ended within 0.3 s of the pose the logger attached to it: a loaded simulator
     that fell behind (it sends every rotation, late) has sent the whole flight so far."""
-    from modules.lidar_logger.logdata import load_log
+    from modules.lidar_logger.logformats import load_log
 
     log = load_log(run)
     return log.n_scans > 0 and float(log.end_time[-1] - log.pose_time[-1]) > -0.3

@@ -9,7 +9,8 @@ import pytest
 
 from modules.lidar_logger.binlog import BinaryLogWriter, iter_records, read_binary_log
 from modules.lidar_logger.ldmrs_scan import Scan, make_points, posix_to_ntp
-from modules.lidar_logger.logdata import LogFormatError, ScanRecord, load_log
+from modules.lidar_logger.logdata import LogFormatError, ScanRecord
+from modules.lidar_logger.logformats import load_log
 from modules.lidar_logger.mtdata import Pose, utc_from_posix
 from modules.lidar_logger.sim import LdmrsDevice, LdmrsOptions, World
 from modules.lidar_logger.textlog import TextLogWriter, format_scan, read_text_log

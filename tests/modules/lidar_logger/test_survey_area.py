@@ -16,7 +16,7 @@ from modules.lidar_logger import cli
 from modules.lidar_logger.area import AreaError, load_polygon, polygon_enu
 from modules.lidar_logger.dtm import attitude_rates, ground_candidates
 from modules.lidar_logger.georef import Mounting, georeference
-from modules.lidar_logger.logdata import load_log
+from modules.lidar_logger.logformats import load_log
 from modules.lidar_logger.sim import LdmrsOptions, World
 from modules.lidar_logger.sim.follow import FollowedFlight
 from modules.lidar_logger.sim.survey_flight import flight_scans, write_run
