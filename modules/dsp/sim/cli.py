@@ -15,6 +15,7 @@ import signal
 import sys
 import threading
 
+from bbcs.geodesy import valid_lat_lon
 from bbcs.lockstep import SimSettings, Stepper, settings_from_env
 from bbcs.session import SessionConfig, open_session
 from modules.dsp import protocol as p
@@ -40,7 +41,7 @@ def _home(text: str) -> tuple[float, float, float]:
         lat, lon, alt = (float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected LAT,LON,ALT, got {text!r}") from None
-    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+    if not valid_lat_lon(lat, lon):
         raise argparse.ArgumentTypeError(f"home {text!r} is not a valid position")
     return lat, lon, alt
 
