@@ -2,14 +2,12 @@
 manifest: the real Module Manager, RAL, modules and DSP simulator): what the DSP received (the simulator's
 ``--record``), what the aircraft did (the simulator's truth, ``--truth-udp``) and what the station was told.
 
-The simulator runs faster than the wall clock with its own ``--time-scale`` option (docs/dsp_protocol.md), as in
-every ``test_gcs_*`` file; the RAL's judge reads the wall clock, so a sped-up flight gives it more simulated time
-before ``stall_s``: the long goto flies at 2x only (the old judge failed it there too), the rest at 4x. (Lockstep,
-docs/simulation.md, would judge on simulated time, but on this loaded 2-core machine it ran slower than the wall
-clock: a 10 s take-off took over 30 s.) After a landing and after a goto the first two tests watch 20 seconds of
-the RAL's clock: nothing may reach the DSP and the aircraft may not move. Each test is one launch, under the suite's
-120 s per test on a loaded machine.
-"""
+Each flight runs in lockstep (``[sim] lockstep = true`` added to the shipped manifest, ``cromat launch --speed
+max``, docs/simulation.md): the simulator steps only once every module has handled the last step, so the RAL's
+judge, its timers and the failsafe run on the simulation's clock and the flight is the same on a loaded machine,
+only slower; on a quiet one it runs as fast as the modules follow. Durations the tests judge (the 20 s watch after
+a task, the long goto's flight time against ``stall_s``) are simulated seconds, read from the GRI state's stamps.
+The ground station is outside the simulation: its link failsafe is judged on the wall clock (case 10)."""
 
 from __future__ import annotations
 
@@ -18,7 +16,6 @@ import signal
 import socket
 import sys
 import threading
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -35,7 +32,7 @@ from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  
 
 M_PER_DEG = 111_320.0
 QUIET_S = 20.0
-"""How long nothing may follow a task's end (wall seconds)."""
+"""How long nothing may follow a task's end (simulated seconds)."""
 RETURN_HEIGHT = 10.0
 """uav1.conf's RETURN_HEIGHT."""
 
@@ -108,11 +105,11 @@ Flight = tuple[SimRobot, Truth]
 def fly(tmp_path: Path) -> Iterator[Callable[..., Flight]]:
     made: list[tuple[object, object, Truth]] = []
 
-    def make(time_scale: float = 4.0, link: bool = True, ral: dict[str, str] | None = None) -> Flight:
+    def make(link: bool = True, ral: dict[str, str] | None = None) -> Flight:
         truth = Truth()
         la = gcs = None
         try:
-            la, record = launch_robot(tmp_path, edit=truth.edit, time_scale=time_scale, ral=ral)
+            la, record = launch_robot(tmp_path, lockstep=True, edit=truth.edit, ral=ral)
             gcs = connect(la.port, "ground1", link=link)
         finally:
             made.append((la, gcs, truth))
@@ -224,17 +221,17 @@ def test_a_path_follower_killed_after_the_take_off_comes_back_sending_nothing(fl
 def test_a_four_waypoint_goto_111_m_apart_completes_on_the_default_stall_s(fly: Callable[..., Flight]) -> None:
     """The old judge (distance to the last waypoint + 50 m a queued one) failed this square at +30 s (31 s on this
     test at 2x) while it was flown at 5 m/s."""
-    robot, truth = fly(time_scale=2.0)
+    robot, truth = fly()
     up = robot.ensure_airborne()
     assert up.position is not None and up.home is not None
     square = grid_path(up.position, [(10, 0), (10, 13), (0, 13), (0, 0)])  # 111, 115, 111, 115 m
     square = [t.Waypoint(lat=w.lat, lon=w.lon, alt=up.home.alt + 20.0) for w in square]
     start = len(robot.events)
-    began = time.monotonic()
+    began = robot.state.stamp
     done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=square)), 110, start)
-    flown_s = time.monotonic() - began
-    assert done.kind == "task_completed", f"{done} after {flown_s:.0f} s"
-    assert flown_s > 30.0, "the square took longer than stall_s: the judge saw its progress"
+    flown_s = done.stamp - began
+    assert done.kind == "task_completed", f"{done} after {flown_s:.0f} simulated s"
+    assert flown_s > 30.0, "the square took longer than stall_s (simulated seconds): the judge saw its progress"
     at = truth.latest()
     assert horizontal_m(at, square[-1].lat, square[-1].lon) < 8.0 and abs(at.alt - square[-1].alt) < 2.0
 
@@ -257,8 +254,8 @@ def test_a_ral_restarted_or_killed_in_flight_accepts_and_flies_a_goto(fly: Calla
     # then killed in flight: it comes back knowing the take-off point (the manager's record)
     ral_pid = ral_status(robot).pid  # type: ignore[union-attr]
     assert ral_pid is not None
+    killed = robot.state.stamp
     os.kill(ral_pid, signal.SIGKILL)
-    killed = time.time()
     wait_until(lambda: restarted(robot, ral_pid), 60, "the RAL back after SIGKILL")
     robot.wait_state(lambda s: s.stamp > killed and s.home is not None and s.manager_up and bool(s.available),
                      30, "the new RAL's state, with the take-off point")

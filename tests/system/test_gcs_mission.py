@@ -38,9 +38,13 @@ def sim_manifest(
     ral: dict[str, str] | None = None,
     edit: Callable[[str], str] | None = None,
     time_scale: float = TIME_SCALE,
+    lockstep: bool = False,
 ) -> tuple[Path, Path]:
     """uav1_sim.toml with an absolute .conf, the simulator recording into ``tmp_path`` and sped up, and some
-    RAL parameters overridden. Returns (manifest, record file)."""
+    RAL parameters overridden. Returns (manifest, record file).
+
+    ``lockstep``: the robot in lockstep (``[sim] lockstep = true``, docs/simulation.md); the simulator's
+    ``--time-scale`` then only paces it when the launch gives no ``--speed``."""
     record = tmp_path / "dsp_record.jsonl"
     text = MANIFEST.read_text()
     text = text.replace('conf = "uav1.conf"', f'conf = "{MANIFEST.parent / "uav1.conf"}"')
@@ -52,6 +56,9 @@ def sim_manifest(
     for key, value in (ral or {}).items():
         text, n = _replace_param(text, key, value)
         assert n == 1, f"RAL parameter {key} not in the manifest"
+    if lockstep and "lockstep = true" not in text:
+        assert "\n[bus]\n" in text, "uav1_sim.toml has no [bus] table to put [sim] before"
+        text = text.replace("\n[bus]\n", "\n[sim]\nlockstep = true\n\n[bus]\n", 1)
     if edit is not None:
         text = edit(text)
     path = tmp_path / "uav1_sim.toml"
@@ -160,8 +167,9 @@ def grid_path(center: object, steps: list[tuple[int, int]] = LOOP, scale: int = 
 
 
 def launch_robot(tmp_path: Path, **manifest_kw) -> tuple[Launch, Path]:
+    """The robot launched (``sim_manifest``'s options); with ``lockstep=True`` at ``--speed max``."""
     manifest, record = sim_manifest(tmp_path, **manifest_kw)
-    la = Launch(manifest, tmp_path)
+    la = Launch(manifest, tmp_path, *(("--speed", "max") if manifest_kw.get("lockstep") else ()))
     try:
         la.wait_line(f"all {N_MODULES} modules up", 90)
     except BaseException:
