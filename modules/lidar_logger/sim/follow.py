@@ -32,6 +32,7 @@ import msgspec
 import numpy as np
 
 from bbcs.contracts.vehicle_truth import VehicleTruth, decode_truth
+from modules.lidar_logger.clock import ScaledClock
 from modules.lidar_logger.geodesy import ecef_from_enu, ecef_from_nwu, euler_to_matrix, lla_to_ecef
 
 DEFAULT_LAG_S = 0.25
@@ -41,12 +42,13 @@ HISTORY = 6000
 FLU_FROM_FRD = np.diag([1.0, -1.0, -1.0])
 
 
-class FollowClock:
-    """The DSP simulator's time, as ``Clock`` (modules/lidar_logger/clock.py) wants it."""
+class FollowClock(ScaledClock):
+    """The DSP simulator's time, as ``Clock`` (modules/lidar_logger/clock.py) wants it: a scaled clock whose scale
+    and origin follow the simulator's truth datagrams (its sleeps and waits are ScaledClock's)."""
 
     def __init__(self, lag: float = DEFAULT_LAG_S) -> None:
+        super().__init__(1.0)
         self.lag = lag
-        self.scale = 1.0
         self._lock = threading.Lock()
         self._newest: float | None = None
         self._newest_mono = 0.0
@@ -64,16 +66,6 @@ class FollowClock:
             ahead = (time.monotonic() - self._newest_mono) * self.scale
             self._last = max(self._last, min(self._newest, self._newest - self.lag + ahead))
             return self._last
-
-    def sleep(self, seconds: float) -> None:
-        if seconds > 0:
-            time.sleep(seconds / self.scale)
-
-    def wait(self, event: threading.Event, seconds: float) -> bool:
-        return event.wait(max(seconds, 0.0) / self.scale)
-
-    def wall(self, seconds: float) -> float:
-        return seconds / self.scale
 
 
 class FollowedFlight:
