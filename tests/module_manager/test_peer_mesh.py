@@ -9,7 +9,10 @@ import signal
 import socket
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+
+import pytest
 
 from bbcs.contracts import mri
 from bbcs.testing import wait_until
@@ -70,38 +73,43 @@ def modules(session) -> dict[str, mri.ModuleStatus]:
     return {m.name: m for m in reply.data.modules}
 
 
-def test_a_peer_links_launch_is_up_only_once_every_module_is_linked(tmp_path):
-    la = Launch(write_manifest(tmp_path, edit=peers), tmp_path)
+@pytest.fixture(scope="module")
+def peer_launch(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Launch]:
+    """One ``links = "peers"`` launch for the two tests below: the first reads its start-up, the second (after it
+    in this file) then kills and restarts a module of it."""
+    tmp = tmp_path_factory.mktemp("peers")
+    la = Launch(write_manifest(tmp, edit=peers), tmp)
     try:
         la.wait_line("all 3 modules up")
-        up = next(line for line in la.lines if "all 3 modules up" in line)
-        pids = {m.group(1): int(m.group(2)) for line in la.lines
-                if (m := re.match(r"\s+(\w+)\s+starting, pid (\d+)", line))}
-        assert set(pids) == {"src_a", "src_b", "sink"}, la.lines
-        assert unlinked_pairs(pids) == [], f"said up while modules were apart: {up}"
-        assert "not linked directly" not in up
+        yield la
     finally:
         la.cleanup()
 
 
-def test_a_restarted_peer_module_is_up_only_once_linked_to_every_module_up(tmp_path, clients):
-    la = Launch(write_manifest(tmp_path, edit=peers), tmp_path)
-    try:
-        la.wait_line("all 3 modules up")
-        s = clients(la.port)
-        before = modules(s)["sink"]
-        os.kill(before.pid, signal.SIGKILL)
-        seen: dict[str, int] = {}
+def test_a_peer_links_launch_is_up_only_once_every_module_is_linked(peer_launch: Launch):
+    la = peer_launch
+    up = next(line for line in la.lines if "all 3 modules up" in line)
+    pids = {m.group(1): int(m.group(2)) for line in la.lines
+            if (m := re.match(r"\s+(\w+)\s+starting, pid (\d+)", line))}
+    assert set(pids) == {"src_a", "src_b", "sink"}, la.lines
+    assert unlinked_pairs(pids) == [], f"said up while modules were apart: {up}"
+    assert "not linked directly" not in up
 
-        def sink_up_again() -> bool:
-            now = modules(s)
-            if now["sink"].state == "up" and now["sink"].pid != before.pid:
-                # the tables read at once: "up" must already mean linked
-                seen.update(apart=len(unlinked_pairs({n: m.pid for n, m in now.items()})))
-                return True
-            return False
 
-        wait_until(sink_up_again, 60, "the sink up again")
-        assert seen["apart"] == 0, "the restarted sink said up before linking to the others"
-    finally:
-        la.cleanup()
+def test_a_restarted_peer_module_is_up_only_once_linked_to_every_module_up(peer_launch: Launch, clients):
+    la = peer_launch
+    s = clients(la.port)
+    before = modules(s)["sink"]
+    os.kill(before.pid, signal.SIGKILL)
+    seen: dict[str, int] = {}
+
+    def sink_up_again() -> bool:
+        now = modules(s)
+        if now["sink"].state == "up" and now["sink"].pid != before.pid:
+            # the tables read at once: "up" must already mean linked
+            seen.update(apart=len(unlinked_pairs({n: m.pid for n, m in now.items()})))
+            return True
+        return False
+
+    wait_until(sink_up_again, 60, "the sink up again")
+    assert seen["apart"] == 0, "the restarted sink said up before linking to the others"
