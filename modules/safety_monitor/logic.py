@@ -355,11 +355,15 @@ class SafetyMonitor:
 
     def goal(self, info: TaskInfo) -> tuple[float, float, float] | None:
         """Where a task that ends at a place must end: the last waypoint the DSP was sent while it ran, else the
-        last of its parameters' waypoints."""
+        last of its parameters' waypoints. In lockstep a waypoint stamped in the very frame the task ended came
+        after its end (the next task's: stamps are exact to the frame, and the end is what let the next task
+        start), so only those before it count there."""
         end = info.ended if info.ended is not None else math.inf
         last = None
         for s in self.sent:
-            if isinstance(s.msg.command, p.AddWaypoint) and info.started - SKEW_S <= s.msg.stamp <= end + SKEW_S:
+            c = s.msg.stamp
+            before_end = c < end if self.cfg.stamp_lag_s else c <= end + SKEW_S
+            if isinstance(s.msg.command, p.AddWaypoint) and info.started - SKEW_S <= c and before_end:
                 last = s.msg.command
         if last is not None:
             return (last.lat, last.lon, last.alt)

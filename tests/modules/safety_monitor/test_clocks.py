@@ -190,3 +190,23 @@ def test_a_completion_judged_on_the_truth_of_its_stamps_frame() -> None:
         m0.on_truth(s, tr)
     m0.on_book(ended, ended, [], [goto_done(0.0, ended)])
     assert [b.kind for b in m0.tick(ended + 1.0)] == ["completed_away_from_goal"]
+
+
+def test_in_lockstep_the_next_tasks_waypoints_in_the_frame_of_the_end_are_not_the_goal() -> None:
+    """Found by the campaign: a follow_path completed at its goal, and the survey sent on its completion put its
+    first waypoint on the DSP's line in the same frame: both stamped with that frame's time, the survey's waypoint
+    was taken for the path's goal (96 m away)."""
+    for lag in (0.2, 0.0):
+        m = lagged(lag)
+        for i in range(300):
+            ts = i * 0.05
+            m.on_truth(ts, truth_at(ts, north_m=200.0))
+        goal = p.AddWaypoint(lat=HOME[0] + 200 * M, lon=HOME[1], alt=HOME[2] + 20.0)
+        survey = p.AddWaypoint(lat=HOME[0] + 300 * M, lon=HOME[1], alt=HOME[2] + 30.0)
+        m.on_sent(1.0, DspSent(sender="path_follower", batch_id=1, command=goal, stamp=1.0))
+        m.on_sent(10.0, DspSent(sender="path_follower", batch_id=2, command=survey, stamp=10.0 + (0.0 if lag else 0.3)))
+        path = TaskInfo(id=2, name="follow_path", task_type="movement", kind="follow_path", status="completed",
+                        started=0.8, ended=10.0)
+        m.on_book(10.0, 10.0, [], [path])
+        assert m.goal(path) == (goal.lat, goal.lon, goal.alt)
+        assert m.tick(12.0) == [], lag
