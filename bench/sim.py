@@ -2,7 +2,7 @@
 
 1. ``survey_sim_speedup``: the shipped ``bbcs_conf/uav1_lidar_sim.toml`` in lockstep at ``--speed max`` (the DSP
    simulator stepping on the barrier; the MTi-G/LD-MRS simulators following its truth), take-off, the survey of
-   the 62 m x 89 m polygon of the system tests (0.0007 x 0.0008 degrees, 25 m, 10 % overlap), landing: simulated
+   the shipped area ``bbcs_conf/uav1_survey_area.geojson`` (71 m x 89 m, 25 m, 10 % overlap), landing: simulated
    seconds (the GRI state's stamps) over wall seconds, from the take-off request to the GRI's "on the ground".
    Target: >= 10 on this 2-core machine.
 2. ``lockstep_same_record``: the shipped ``bbcs_conf/uav1_sim.toml`` in lockstep, take-off, a goto, landing and

@@ -18,18 +18,20 @@ from typing import Any
 
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
+from bbcs.geojson import read_polygon
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import Launch, cmdline, group_members  # noqa: E402
 from test_gcs_mission import GRID_DEG, ROBOT, SimRobot, connect, sim_manifest  # noqa: E402
-from test_gcs_survey import POLYGON  # noqa: E402
 
 from modules.dsp.sim.record import read_record  # noqa: E402
 
 N_MODULES = 6
 GOTO_SPEED = 5.0
 ROOT = Path(__file__).resolve().parents[2]
+SURVEY_AREA = ROOT / "bbcs_conf" / "uav1_survey_area.geojson"
+"""The shipped survey area: 71 m x 89 m north of the DSP simulator's home."""
 
 
 @dataclass
@@ -166,9 +168,9 @@ def survey_manifest(tmp_path: Path) -> tuple[Path, Path]:
 
 
 def fly_survey(tmp_path: Path, *, timeout_s: float = 300.0, survey: bool = True) -> Flight:
-    """Take-off, the survey of test_gcs_survey's polygon (0.0007 x 0.0008 degrees: 62 m x 89 m) at 25 m with
-    10 % overlap, landing, on uav1_lidar_sim.toml at ``--speed max``; ``survey=False``: take-off and landing only
-    (bench/sim.py --smoke)."""
+    """Take-off, the survey of the shipped area (``SURVEY_AREA``: 71 m x 89 m) at 25 m with 10 % overlap, landing,
+    on uav1_lidar_sim.toml at ``--speed max``; ``survey=False``: take-off and landing only (bench/sim.py
+    --smoke)."""
     tmp_path.mkdir(parents=True, exist_ok=True)
     manifest, record = survey_manifest(tmp_path)
     la = Launch(manifest, tmp_path, "--speed", "max")
@@ -181,7 +183,8 @@ def fly_survey(tmp_path: Path, *, timeout_s: float = 300.0, survey: bool = True)
                                  timeout_s, "a GRI state with position and the survey task")
         wall0, sim0 = time.monotonic(), first.stamp
         kinds = []
-        middle = [t.Survey(polygon=POLYGON, height=25.0, overlap=0.1)] if survey else []
+        area = [t.Vertex(lat=lat, lon=lon) for lat, lon in read_polygon(SURVEY_AREA)]
+        middle = [t.Survey(polygon=area, height=25.0, overlap=0.1)] if survey else []
         for task in (gri.TakeOff(height=10.0), *middle, gri.Land()):
             reply = gcs.send(ROBOT, task)
             assert reply.accepted, reply.reason
