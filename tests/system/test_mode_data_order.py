@@ -78,6 +78,9 @@ def test_case11_mode_and_data_in_order(uav: Stack) -> None:
                    "the module's answer to mode 1")
         late.join()
         uav.send("pt_gcs", TARGET)
+        # the barrier's PING proves only what the module had published before it: wait for the datum's command
+        wait_until(lambda: any(r["name"].startswith("SET_PT_") and r["name"] != "SET_PT_MODE"
+                               for r in uav.received(mark)), 15, "the datum's command at the DSP")
         uav.barrier()
         ordered = [r["name"] for r in uav.received(mark)]
         assert ordered == ["SET_PT_MODE", "SET_PT_TARGET"], ordered
