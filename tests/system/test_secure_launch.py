@@ -354,7 +354,9 @@ def test_gcs_survey_works_and_a_module_identity_cannot_request_a_trajectory(robo
                 return [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4))
                         for c in robot.commands()[mark:] if c["name"] == "ADD_WAYPOINT"]
             wait_until(lambda: added() == planned, 120, "the survey's waypoints at the DSP simulator")
-            assert [st.request_id for st in statuses if st.accepted and st.kind == "survey"], statuses
+            # the status comes on its own key: no order with the path or the DSP record, so it is waited for
+            wait_until(lambda: [st for st in statuses if st.accepted and st.kind == "survey"], 15,
+                       "the generator's status accepting the survey")
             # the forged request was never answered nor planned (its answer would have come before the RAL's)
             assert not [st for st in statuses if st.request_id == FORGED_ID]
             assert orbits == []
