@@ -184,7 +184,8 @@ def connect(port: int, name: str = "gcs", link: bool = True) -> Gcs:
 
 @pytest.fixture
 def robot(tmp_path: Path) -> Iterator[SimRobot]:
-    la, record = launch_robot(tmp_path)
+    """The shipped robot in lockstep at ``--speed max`` (docs/simulation.md)."""
+    la, record = launch_robot(tmp_path, lockstep=True)
     gcs = None
     try:
         gcs = connect(la.port, "ground1")
