@@ -12,8 +12,9 @@ second, naming the sender by its certificate name when its link has one (``sessi
 
 Cost: one line per dropped message crosses the pipe, read in chunks and counted by one regular expression (no
 Python per line). The pipe stays blocking: Zenoh's log writer reports a failed write on stderr, once per line, so
-a non-blocking pipe would move the flood to stderr; a reader that keeps up is the remedy, measured beside the
-overload bench (docs/security.md).
+a non-blocking pipe would move the flood to stderr. Measured (a TLS flood of pan & tilt's DSP key, 120-470 k/s
+from one Python process): the router spends 0.6 us per flooded message without these lines and 1.4-3.4 us with
+them, about 20 % of a processor more while a flood is being dropped, nothing otherwise.
 """
 
 from __future__ import annotations
