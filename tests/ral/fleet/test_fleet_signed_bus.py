@@ -38,9 +38,15 @@ def task(task_id: str, north_m: float) -> FleetTask:
     return FleetTask(id=task_id, targets=[FleetTarget(id="a", lat=LAT + north_m / 111_000.0, lon=LON, alt=ALT)])
 
 
+@pytest.fixture(scope="module")
+def issued(tmp_path_factory: pytest.TempPathFactory) -> Pki:
+    return Pki(tmp_path_factory.mktemp("pki"))
+
+
 @pytest.fixture
-def pki(tmp_path: Path) -> Pki:
-    return Pki(tmp_path)
+def pki(issued: Pki, tmp_path: Path) -> Pki:
+    """A fresh copy of the file's one issued PKI for each test (a test may revoke a station in it)."""
+    return Pki.copy_of(issued, tmp_path)
 
 
 class Robot:

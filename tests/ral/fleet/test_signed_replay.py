@@ -30,9 +30,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from station_pki import Pki  # noqa: E402
 
 
+@pytest.fixture(scope="module")
+def issued(tmp_path_factory: pytest.TempPathFactory) -> Pki:
+    return Pki(tmp_path_factory.mktemp("pki"))
+
+
 @pytest.fixture
-def pki(tmp_path: Path) -> Pki:
-    return Pki(tmp_path)
+def pki(issued: Pki, tmp_path: Path) -> Pki:
+    """A fresh copy of the file's one issued PKI for each test (a test may revoke a station in it)."""
+    return Pki.copy_of(issued, tmp_path)
 
 
 class Clock:
