@@ -45,6 +45,7 @@ from typing import Any
 from bbcs import keys
 from bbcs.contracts.dsp import COMMAND_RIGHTS, commands_slot
 from bbcs.contracts.dsp import MODULE as DSP_MODULE
+from bbcs.contracts.params import module_params_pattern
 from bbcs.contracts.sync import clock_key, sync_key
 from bbcs.contracts.world import world_model_key, world_request_key
 
@@ -113,9 +114,10 @@ READ_QUERIES = [keys.schema_pattern("*"), *SERVICE_SCHEMAS,
 (docs/sync.md) and its copy of the shared world model (docs/world.md)."""
 
 def _gcs_commands(r: str) -> list[str]:
-    """Queries that change a robot, the ground stations' only: tasks, route swaps, world edits, synchronised
-    starts."""
-    return [keys.ral_key(r, "task"), keys.manager_key(r, "route"), world_request_key(r), sync_key(r)]
+    """Queries that change a robot, the ground stations' only: tasks, route swaps, run-time parameters (``cromat
+    param``: its list and get ride the same verb as its set), world edits, synchronised starts."""
+    return [keys.ral_key(r, "task"), keys.manager_key(r, "route"), keys.manager_key(r, "param"), world_request_key(r),
+            sync_key(r)]
 
 RAL_REQUESTS = [("trajectory", "request"), ("path_follower", "refs")]
 """(module, slot): inputs read on the module's own key that the RAL writes (survey/orbit requests to the
@@ -132,8 +134,10 @@ or abort batch is never acceptable."""
 
 
 def _own(robot: str, name: str) -> list[str]:
+    """A module's own keys: its slots, route acknowledgements, heartbeat, schema and its run-time parameter server
+    (``<name>/@params``: named apart, ``*`` never matches an ``@`` chunk)."""
     own = [keys.slot_pattern(robot, name), keys.route_ack_pattern(robot, name), keys.heartbeat_pattern(robot, name)]
-    return [*own, *_adv(own), keys.schema_pattern(robot, name)]
+    return [*own, *_adv(own), keys.schema_pattern(robot, name), module_params_pattern(robot, name)]
 
 
 MESH_ROUTER_PREFIX = "router-"
@@ -220,7 +224,8 @@ def router_config(
         # an advanced subscriber's presence token (``…/@adv/sub/…``); a publisher's (``…/@adv/pub/…``) is the owner's
         _rule("history-sub", ["liveliness_token"], _adv_sub(_adv_keys())),
         _rule("read-queries", ["query"], READ_QUERIES),
-        _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
+        # a parameter change travels to a module and its answer back only as the manager asked (ingress rules)
+        _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys() + [module_params_pattern()], flow="egress"),
         _rule("gcs-command", ["query"], _gcs_commands(r)),
         _rule("gcs-link", ["put", "delete", "liveliness_token"], [keys.gcs_pattern(), keys.fleet_task_key("*")]),
         _rule("ral-write", WRITE + SERVE, [*_own(r, ral), keys.ral_pattern(r), *_adv([keys.ral_child_pattern(r)]),
@@ -234,6 +239,8 @@ def router_config(
             *_own(r, manager), *control_keys, *_adv(control_keys), keys.manager_pattern(r),
             *_adv([keys.manager_child_pattern(r)]), keys.schema_key_of(keys.manager_key(r))]),
         _rule("manager-token", ["liveliness_token"], [keys.alive_pattern(r)]),
+        # the manager alone hands a checked parameter change to a module (module_manager/params.py)
+        _rule("manager-params", ["query"], [module_params_pattern(r, "*")]),
     ]
     subjects: list[dict[str, Any]] = [
         {"id": "gcs", "cert_common_names": list(gcs)},
@@ -243,7 +250,7 @@ def router_config(
     policies: list[dict[str, Any]] = [
         {"id": "gcs", "subjects": ["gcs"], "rules": ["gcs-command", "gcs-link"]},
         {"id": "ral", "subjects": ["ral"], "rules": ["ral-write", "ral-token", "ral-mri", "ral-requests"]},
-        {"id": "manager", "subjects": ["manager"], "rules": ["manager-write", "manager-token"]},
+        {"id": "manager", "subjects": ["manager"], "rules": ["manager-write", "manager-token", "manager-params"]},
     ]
     for name in modules:
         own = _own(r, name)
@@ -379,7 +386,8 @@ def hub_config(*, listen: list[str], ca: str, cert: str, key: str, gcs: list[str
         _rule("history", ["query"], _adv_keys()),
         _rule("history-sub", ["liveliness_token"], _adv_sub(_adv_keys())),
         _rule("read-queries", ["query"], READ_QUERIES),
-        _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys(), flow="egress"),
+        # a parameter change travels to a module and its answer back only as the manager asked (ingress rules)
+        _rule("deliver", ALL_MESSAGES, _read_keys() + _adv_keys() + [module_params_pattern()], flow="egress"),
         _rule("gcs-command", ["query"], _gcs_commands("*")),
         _rule("gcs-link", ["put", "delete", "liveliness_token"], [keys.gcs_pattern(), keys.fleet_task_key("*")]),
     ]

@@ -83,3 +83,8 @@ class ParamApplied(msgspec.Struct, frozen=True, kw_only=True):
 def module_params_key(robot: str, module: str) -> str:
     """Where a module that takes run-time parameters answers the manager's :class:`SetParam`."""
     return f"{keys.module_prefix(robot, module)}/{PARAMS_SUFFIX}"
+
+
+def module_params_pattern(robot: str = "*", module: str = "*") -> str:
+    """:func:`module_params_key` with the robot or the module a ``*`` (the access policy's rules)."""
+    return f"{keys.slot_pattern(robot, module, '*').rsplit('/', 1)[0]}/{PARAMS_SUFFIX}"

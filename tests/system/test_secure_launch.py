@@ -188,6 +188,47 @@ def test_module_identity_is_denied_tasks_and_route_swaps_and_robot_unaffected(ro
         assert {m.name: m.state for m in gcs.modules(ROBOT).modules} == {name: "up" for name in MODULES}
 
 
+def test_only_a_ground_station_changes_a_run_time_parameter(robot: Robot) -> None:
+    """``cromat param`` on a secured robot (issue 34): the gcs identity lists, reads and sets the trajectory
+    generator's ``arc_step_deg`` (the manager hands the change to the module over ``trajectory/@params``, which
+    the policy grants the manager alone: an accepted set is the module's answer); the vision identity, asking the
+    manager or the module directly, gets no answer and the value stays."""
+    from bbcs.contracts.params import GetParam, ListParams, SetParam, module_params_key
+
+    def value(session: object) -> object:
+        reply = mri.call(session, ROBOT, "param", GetParam(module="trajectory", name="arc_step_deg"), 10.0)
+        assert reply.ok, reply.reason
+        return reply.data.params[0].value  # type: ignore[union-attr]
+
+    with robot.client("gcs", name="gcs", timeout_s=10.0) as gcs:
+        listed = mri.call(gcs.session, ROBOT, "param", ListParams(module="trajectory"), 10.0)
+        assert listed.ok and "arc_step_deg" in {p.name for p in listed.data.params}, listed  # type: ignore[union-attr]
+        before = value(gcs.session)
+        events: list[gri.GriEvent] = []
+        gcs.events(ROBOT, events.append)
+        changed = 9.0 if before != 9.0 else 8.0
+        try:
+            with robot.client("vision", name="intruder", timeout_s=3.0) as attacker:
+                with pytest.raises(mri.MriError, match="no MRI reply"):
+                    mri.call(attacker.session, ROBOT, "param",
+                             SetParam(module="trajectory", name="arc_step_deg", value="45"), 3.0)
+                direct = list(attacker.session.get(
+                    module_params_key(ROBOT, "trajectory"),
+                    payload=msgspec.msgpack.encode(SetParam(module="trajectory", name="arc_step_deg", value="45")),
+                    timeout=3.0))
+                assert not [r for r in direct if r.ok is not None], "the module answered another module's identity"
+            assert value(gcs.session) == before
+            reply = mri.call(gcs.session, ROBOT, "param",
+                             SetParam(module="trajectory", name="arc_step_deg", value=f"{changed:g}"), 10.0)
+            assert reply.ok, reply.reason
+            assert value(gcs.session) == changed
+            wait_until(lambda: any(e.kind == "param_changed" and "arc_step_deg" in e.detail for e in events), 15,
+                       "the change as a GRI event")
+        finally:
+            mri.call(gcs.session, ROBOT, "param",
+                     SetParam(module="trajectory", name="arc_step_deg", value=f"{before}"), 10.0)
+
+
 def test_client_without_certificate_is_refused(robot: Robot) -> None:
     with pytest.raises(Unreachable, match="refused|reach"):
         robot.client(None, connect_timeout_s=3.0, timeout_s=2.0)
