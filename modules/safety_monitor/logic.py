@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import DspSent
 from bbcs.contracts.gri import GriEvent, GriState
+from bbcs.contracts.robot import RobotTelemetry
 from bbcs.contracts.safety import Breach, Invariant, Severity
 from bbcs.contracts.tasks import FollowPath, Goto, TakeOff, TaskInfo
 from bbcs.contracts.vehicle_truth import VehicleTruth
@@ -94,6 +95,8 @@ class MonitorConfig:
     progress_m: float = 2.0
     gri_position_m: float = 5.0
     gri_lag_s: float = 0.5
+    truth_wait_s: float = 2.0
+    """How long after a GRI stamp's window the truth of it may still be on its way (then judged on what came)."""
     """How long before its stamp a GRI position may have been measured (the DSP → telemetry module pipeline)."""
     airborne_window_s: float = 2.0
     airborne_height_m: float = 1.0
@@ -167,6 +170,8 @@ class SafetyMonitor:
         self._loc_ok_since: float | None = None
         self._gri_pos: _Episode | None = None
         self._gri_air: _Episode | None = None
+        self._gri_pending: deque[RobotTelemetry] = deque(maxlen=1000)
+        """GRI telemetry not yet compared with the truth (waiting for the truth of its window)."""
         self._fence: _Episode | None = None
         self._clear: _Episode | None = None
         self._out: list[Breach] = []
@@ -237,7 +242,24 @@ class SafetyMonitor:
             if e.module != self.cfg.monitor_name:
                 self._note_report(e.stamp, f"GRI error {e.module} {e.code} {e.name} at {e.stamp:.2f}: {e.detail}")
         tel = state.telemetry
-        if tel is None or tel.position is None or not self.truth:
+        if tel is None or tel.position is None:
+            return
+        self._gri_pending.append(tel)
+
+    def _judge_gri(self, now: float) -> None:
+        """Each GRI telemetry against the truth once the truth covers its window (the truth of a frame may reach
+        the monitor after the GRI state stamped at its start), or ``truth_wait_s`` after it with what there is."""
+        latest = self.truth[-1][0] if self.truth else None
+        while self._gri_pending:
+            tel = self._gri_pending[0]
+            end = tel.stamp + SKEW_S + self.cfg.stamp_lag_s
+            if (latest is None or latest < end) and now < end + self.cfg.truth_wait_s:
+                return
+            self._gri_pending.popleft()
+            self._compare_gri(tel)
+
+    def _compare_gri(self, tel: RobotTelemetry) -> None:
+        if not self.truth or tel.position is None:
             return
         # the telemetry's stamp is when the telemetry module converted the DSP's frame, a little after the DSP
         # measured it: the GRI is right if the aircraft was there at some instant of the lag before its stamp
@@ -276,6 +298,7 @@ class SafetyMonitor:
     # ------------------------------------------------------------------ decisions
 
     def tick(self, now: float) -> list[Breach]:
+        self._judge_gri(now)
         self._judge_commands(now)
         self._judge_verdicts(now)
         self._judge_aborts(now)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import socket
 import threading
+import time
 from collections.abc import Callable
 from typing import Annotated, Any, ClassVar
 
@@ -45,6 +46,7 @@ from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor
 
 STATUS_PERIOD_S = 1.0
 TRUTH_EVERY_S = 0.05
+TRUTH_SILENT_S = 2.0
 """Simulated seconds between the truth samples kept (the simulator sends one per physics step)."""
 
 
@@ -129,6 +131,8 @@ class SafetyMonitorModule(Module):
         self._watching: list[Any] = []
         self._next_status = 0.0
         self.breaches: list[Breach] = []
+        self._truth_read: tuple[float, float] | None = None
+        """(time_s, wall monotonic) of the last truth datagram read (lockstep: the step waits for it)."""
 
     def on_start(self) -> None:
         s = self.session
@@ -221,6 +225,7 @@ class SafetyMonitorModule(Module):
                 self.log.warning("bad truth datagram dropped: %s", exc)
                 continue
             if truth.time_s - last < TRUTH_EVERY_S and truth.time_s >= last:
+                self._truth_read = (truth.time_s, time.monotonic())
                 continue
             last = truth.time_s
             if self.sim is None:  # the simulator's own time: stamped as it arrives (the wall clock)
@@ -231,6 +236,18 @@ class SafetyMonitorModule(Module):
             stamp = self.robot_time.truth(truth.time_s)
             if stamp is not None:
                 self.call_soon(lambda t=truth, n=stamp: self.monitor.on_truth(n, t))
+            self._truth_read = (truth.time_s, time.monotonic())  # after the hand-over: the loop is busy with it
+
+    def lockstep_busy(self) -> str:
+        """In lockstep the simulator sends the truth of a step before it asks the step, over UDP outside the bus:
+        the monitor has handled the step only once it has read the truth up to the step's time (so a verdict or a
+        GRI comparison is never made on a truth that is still in its socket). A truth silent for 2 wall seconds is
+        not waited for (the simulator sends none, or stopped)."""
+        read = self._truth_read
+        if read is None or time.monotonic() - read[1] > TRUTH_SILENT_S:
+            return ""
+        t = self.bbcs_clock.monotonic()
+        return f"truth read up to {read[0]:.2f} s of {t:.2f} s" if read[0] < t - 1e-6 else ""
 
     def on_dsp_sent(self, msg: p.DspSent) -> None:
         self.robot_time.learn("dsp", msg.stamp)

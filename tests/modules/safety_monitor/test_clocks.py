@@ -6,6 +6,7 @@ simulated time, so a completion stamped on the wall looked the aircraft up at an
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 
@@ -154,12 +155,17 @@ def test_a_take_off_frame_stamped_with_the_previous_frames_time_is_not_a_wrong_a
     """The frame measured at 10.05 s (0.25 m up) reached the telemetry module before the step to 10.2 s: stamped
     10.0, when the truth was still on the ground."""
     m = lagged(lag)
-    for i in range(205):
+    for i in range(201):
         ts = i * 0.05
         m.on_truth(ts, truth_at(ts, 0.0, height=0.0 if ts <= 10.0 else 5.0 * (ts - 10.0)))
     tel = RobotTelemetry(stamp=10.0, position=GeoPoint(lat=HOME[0], lon=HOME[1], alt=HOME[2] + 0.25), airborne=True)
-    m.on_gri_state(10.2, GriState(robot="uav1", stamp=10.2, telemetry=tel))
+    m.on_gri_state(10.0, GriState(robot="uav1", stamp=10.0, telemetry=tel))
+    assert m.tick(10.0) == [] and m.counts["gri_compared"] == 0  # before the truth of its frame: not judged yet
+    for i in range(201, 221):
+        ts = i * 0.05
+        m.on_truth(ts, truth_at(ts, 0.0, height=5.0 * (ts - 10.0)))
     assert [b.kind for b in m.tick(11.0)] == breaches
+    assert m.counts["gri_compared"] == 1
 
 
 def test_an_abort_one_frame_later_on_the_robot_clock_is_right_two_frames_is_late() -> None:
@@ -210,3 +216,17 @@ def test_in_lockstep_the_next_tasks_waypoints_in_the_frame_of_the_end_are_not_th
         m.on_book(10.0, 10.0, [], [path])
         assert m.goal(path) == (goal.lat, goal.lon, goal.alt)
         assert m.tick(12.0) == [], lag
+
+
+def test_in_lockstep_the_step_waits_until_its_truth_is_read(lockstep_module: SafetyMonitorModule) -> None:
+    """The simulator sends a step's truth over UDP before it asks the step: the monitor answers busy until it has
+    read the truth up to the step's time (a verdict is never made on a truth still in its socket)."""
+    m = lockstep_module
+    m.bbcs_clock.advance(SimTime(step=5, t=1.0, epoch=EPOCH))  # type: ignore[attr-defined]
+    assert m.lockstep_busy() == ""  # no truth seen: none is waited for
+    m._truth_read = (0.8, time.monotonic())
+    assert m.lockstep_busy() == "truth read up to 0.80 s of 1.00 s"
+    m._truth_read = (1.0, time.monotonic())
+    assert m.lockstep_busy() == ""
+    m._truth_read = (0.8, time.monotonic() - 3.0)  # silent for 3 wall s: not waited for
+    assert m.lockstep_busy() == ""
