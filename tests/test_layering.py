@@ -12,6 +12,7 @@ test fails on any import not listed *and* on a listed one that is gone (so the l
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,9 +27,15 @@ def owner(path: Path) -> str:
     return f"modules/{rel[1]}" if rel[0] == "modules" and len(rel) > 2 else rel[0]
 
 
+@functools.cache
+def parsed(path: Path) -> ast.Module:
+    """Each file parsed once for every check of this run (the source tree does not change while it runs)."""
+    return ast.parse(path.read_text(), str(path))
+
+
 def imported(path: Path) -> set[str]:
     names: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(parsed(path)):
         if isinstance(node, ast.Import):
             names.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -59,6 +66,7 @@ def allowed(src: str, dst: str) -> bool:
     return True
 
 
+@functools.cache
 def violations() -> dict[tuple[str, str], list[str]]:
     found: dict[tuple[str, str], list[str]] = {}
     for package in PACKAGES:
@@ -98,7 +106,7 @@ def test_the_checker_sees_a_forbidden_import(tmp_path):
 def hand_built_keys(path: Path) -> list[int]:
     """Lines of ``path`` whose string (plain or f-string) starts a key expression with ``cromat/``."""
     lines: set[int] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(parsed(path)):
         first = node.values[0] if isinstance(node, ast.JoinedStr) and node.values else node
         if isinstance(first, ast.Constant) and isinstance(first.value, str) and first.value.startswith("cromat/"):
             lines.add(node.lineno)
