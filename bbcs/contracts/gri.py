@@ -76,10 +76,9 @@ class RestartModule(msgspec.Struct, frozen=True, kw_only=True, tag="restart_modu
 
 Task = TaskParams
 """Tasks that occupy a task type until completed, replaced, cancelled, aborted or failed."""
-TaskRequest = (
-    TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | LookAt | SetPanTilt | Hold | Track
-    | Survey | Orbit | Manual | Abort | Cancel | RestartModule
-)
+TaskRequest = TaskParams | Abort | Cancel | RestartModule
+"""What a ground station may ask on ``@ral/task``: every task (declared once, :data:`bbcs.contracts.tasks.TaskParams`)
+and the three requests that are not tasks."""
 __all__ = [
     "MAX_WAYPOINTS", "TASK_KINDS", "AltitudeAMSL", "Bridge", "FollowPath", "FollowVisionPath", "Goto",
     "HeightAboveHome", "Hold", "Land", "Latitude", "LookAt", "Longitude", "Orbit", "SetPanTilt", "Speed", "Survey",
