@@ -207,26 +207,35 @@ HISTORY = [
 ]
 
 
-def late_history(session: zenoh.Session, key: str, expect_any: bool) -> list[bytes]:
-    """What a late-joining advanced subscriber gets as history on ``key``."""
-    got: list[bytes] = []
-    lock = threading.Lock()
+class LateHistory:
+    """A late-joining advanced subscriber on ``key``: what it gets as history."""
 
-    def on(sample: zenoh.Sample) -> None:
-        with lock:
-            got.append(sample.payload.to_bytes())
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.got: list[bytes] = []
+        self.lock = threading.Lock()
+        self.sub = zenoh.ext.declare_advanced_subscriber(
+            session, key, self._on, history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1))
 
-    sub = zenoh.ext.declare_advanced_subscriber(
-        session, key, on, history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1))
+    def _on(self, sample: zenoh.Sample) -> None:
+        with self.lock:
+            self.got.append(sample.payload.to_bytes())
+
+    def values(self) -> list[bytes]:
+        with self.lock:
+            return list(self.got)
+
+    def close(self) -> None:
+        self.sub.undeclare()
+
+
+def late_history(session: zenoh.Session, key: str) -> list[bytes]:
+    """What a late-joining advanced subscriber gets as history on ``key``, once it got any."""
+    late = LateHistory(session, key)
     try:
-        if expect_any:
-            wait_until(lambda: bool(got), 20, f"history on {key}")
-        else:  # the policy must have kept the forged value out: give a wrongly admitted one time to arrive
-            threading.Event().wait(2.0)
-        with lock:
-            return list(got)
+        wait_until(lambda: bool(late.values()), 20, f"history on {key}")
+        return late.values()
     finally:
-        sub.undeclare()
+        late.close()
 
 
 def advanced_publisher(session: zenoh.Session, key: str) -> object:
@@ -235,21 +244,60 @@ def advanced_publisher(session: zenoh.Session, key: str) -> object:
         sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=0.5), publisher_detection=True)
 
 
+FORGED_WINDOW_S = 2.0
+"""The policy must have kept a forged value out: a wrongly admitted one is given this long to arrive."""
+
+
+def one_key_each(cases: list[tuple[str, str, str]]) -> list[list[tuple[str, str, str]]]:
+    """``cases`` in batches with each key at most once, so no case's reader can see another case's forgery."""
+    batches: list[list[tuple[str, str, str]]] = []
+    for case in cases:
+        batch = next((b for b in batches if all(other[0] != case[0] for other in b)), None)
+        if batch is None:
+            batches.append(batch := [])
+        batch.append(case)
+    return batches
+
+
+@pytest.fixture(scope="module")
+def forged_history(rig: Rig) -> dict[tuple[str, str, str], list[bytes]]:
+    """What each HISTORY case's reader got as history after its attacker's forgery. The forgeries of a batch (one
+    per key) are made side by side, so their cases share one ``FORGED_WINDOW_S`` instead of one each: in each,
+    the attacker's advanced publisher puts b"forged", then the reader's late-joining subscriber waits the window;
+    every forged publisher is gone before any test's owner publishes."""
+    sessions = Sessions(rig)
+    got: dict[tuple[str, str, str], list[bytes]] = {}
+    try:
+        for batch in one_key_each(HISTORY):
+            forged = [advanced_publisher(sessions(attacker), key) for key, attacker, _ in batch]
+            late: list[LateHistory] = []
+            try:
+                for pub in forged:
+                    pub.put(b"forged")  # type: ignore[attr-defined]
+                late = [LateHistory(sessions(observer_for(attacker, owner)), key) for key, attacker, owner in batch]
+                threading.Event().wait(FORGED_WINDOW_S)
+                got.update((case, sub.values()) for case, sub in zip(batch, late, strict=True))
+            finally:
+                for sub in late:
+                    sub.close()
+                for pub in forged:
+                    pub.undeclare()  # type: ignore[attr-defined]
+    finally:
+        sessions.close()
+    return got
+
+
 @pytest.mark.parametrize(("key", "attacker", "owner"), HISTORY,
                          ids=[f"{a}->{k.split('/', 2)[2]}" for k, a, _ in HISTORY])
-def test_history_injection_is_refused_and_owner_history_served(who: Sessions, key: str, attacker: str,
-                                                              owner: str) -> None:
+def test_history_injection_is_refused_and_owner_history_served(
+        who: Sessions, forged_history: dict[tuple[str, str, str], list[bytes]], key: str, attacker: str,
+        owner: str) -> None:
     reader = observer_for(attacker, owner)
-    forged = advanced_publisher(who(attacker), key)
-    try:
-        forged.put(b"forged")  # type: ignore[attr-defined]
-        assert late_history(who(reader), key, expect_any=False) == []
-    finally:
-        forged.undeclare()  # type: ignore[attr-defined]
+    assert forged_history[(key, attacker, owner)] == []
     legit = advanced_publisher(who(owner), key)
     try:
         legit.put(b"legit")  # type: ignore[attr-defined]
-        assert late_history(who(reader), key, expect_any=True) == [b"legit"]
+        assert late_history(who(reader), key) == [b"legit"]
     finally:
         legit.undeclare()  # type: ignore[attr-defined]
 
