@@ -44,11 +44,19 @@ def wobbling_world() -> World:
 
 
 @pytest.fixture(scope="module")
-def wobbly_log(tmp_path_factory):
-    """Scans whose pose is the one a logger polling every 60 ms would attach: up to ~100 ms old."""
+def wobbly_scans() -> tuple[World, list]:
+    """The wobbling flight's scans from 2 s to 20 s, each with its true pose: cast once (seconds of ray casting) for
+    the tests that attach to them the pose a logger would have."""
     world = wobbling_world()
+    return world, list(flight_scans(world, LdmrsOptions(return_fraction=0.5, seed=5), t_start=2.0, t_end=20.0))
+
+
+@pytest.fixture(scope="module")
+def wobbly_log(wobbly_scans, tmp_path_factory):
+    """Scans whose pose is the one a logger polling every 60 ms would attach: up to ~100 ms old."""
+    world, scans = wobbly_scans
     records = []
-    for r in flight_scans(world, LdmrsOptions(return_fraction=0.5, seed=5), t_start=2.0, t_end=20.0):
+    for r in scans:
         t_end = r.scan.end_time - world.utc_start
         t_pose = math.floor(t_end / 0.06) * 0.06 - 0.03
         records.append(dataclasses.replace(r, pose=world.true_pose(t_pose)))
@@ -80,14 +88,16 @@ def test_interpolated_poses_follow_the_attitude_between_poses(wobbly_log) -> Non
     assert np.abs(interpolated).max() < 0.6 * np.abs(scan_pose).max()
 
 
-def test_points_in_a_gap_of_the_pose_track_are_left_out_and_counted(tmp_path) -> None:
+def test_points_in_a_gap_of_the_pose_track_are_left_out_and_counted(wobbly_scans, tmp_path) -> None:
     """A logger starved of CPU for two seconds attached one old pose to every scan of that time: the points
     measured then are left out (counted), not put metres off by two seconds of extrapolation, and the rest of
-    the flight keeps its accuracy."""
-    world = wobbling_world()
+    the flight keeps its accuracy. (The wobbling flight's scans ending before 14 s.)"""
+    world, scans = wobbly_scans
     records = []
-    for r in flight_scans(world, LdmrsOptions(return_fraction=0.5, seed=5), t_start=2.0, t_end=14.0):
+    for r in scans:
         t_end = r.scan.end_time - world.utc_start
+        if t_end >= 14.0:
+            break
         t_pose = 7.97 if 8.0 <= t_end < 10.0 else math.floor(t_end / 0.06) * 0.06 - 0.03
         records.append(dataclasses.replace(r, pose=world.true_pose(t_pose)))
     log = load_log(write_run(tmp_path / "Scan_gap", world, records))
