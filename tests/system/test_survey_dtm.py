@@ -57,10 +57,6 @@ def manifest(tmp_path: Path) -> Path:
     assert dsp + "]" in text, "the DSP simulator's command line in uav1_lidar_sim.toml changed"
     text = text.replace(dsp + "]", f'{dsp}, "--time-scale", "{TIME_SCALE:g}"]')
     assert '"--follow-udp", "{port:truth}"' in text, "the lidar simulators no longer follow the DSP simulator"
-    # a loaded 2-core machine: imports alone (casadi in the DSP simulator) can take tens of seconds
-    assert "start_timeout_s = 30.0" in text and "timeout_s = 15.0 }" in text
-    text = text.replace("start_timeout_s = 30.0", "start_timeout_s = 120.0").replace("timeout_s = 15.0 }",
-                                                                                      "timeout_s = 90.0 }")
     text = text.replace("params = { ldmrs_host", f'params = {{ out_dir = "{tmp_path / "lidar"}", ldmrs_host')
     path = tmp_path / "uav1_lidar_sim.toml"
     path.write_text(text)
