@@ -153,7 +153,7 @@ def robot_keys(r: str) -> list[str]:
     chunk, because ``*``/``**`` never match a verbatim ``@`` chunk. ``r`` may be ``*`` (any robot)."""
     own = [keys.slot_pattern(r), keys.route_ack_pattern(r), keys.heartbeat_pattern(r)]
     services = [keys.manager_pattern(r), keys.ral_pattern(r)]
-    return [*own, *_adv(own), keys.schema_pattern(r), *services,
+    return [*own, *_adv(own), keys.schema_pattern(r), module_params_pattern(r), *services,
             *_adv([keys.manager_child_pattern(r), keys.ral_child_pattern(r)]),
             *(keys.schema_key_of(k(r)) for k in (keys.ral_key, keys.manager_key))]
 

@@ -227,6 +227,15 @@ def main(argv: list[str] | None = None) -> int:
             time.sleep(0.05)
         if not states or states[-1].home is None:
             raise RuntimeError("the RAL does not know the take-off point: no GRI state with a home in 60 s")
+        # a path is flown from the air (the RAL refuses it on the ground): take off, until the take-off is done
+        reply = gcs.send(ROBOT, gri.TakeOff(height=10.0))
+        if not reply.accepted:
+            raise RuntimeError(f"take-off rejected: {reply.reason}")
+        t_end = time.monotonic() + 120
+        while not (states and states[-1].airborne and not any(x.kind == "take_off" for x in states[-1].tasks)):
+            if time.monotonic() > t_end:
+                raise RuntimeError("not airborne with the take-off done within 120 s")
+            time.sleep(0.05)
         lat0 = round(watch.position[0] / GRID_DEG) * GRID_DEG
         lon0 = round(watch.position[1] / GRID_DEG) * GRID_DEG
         alt = watch.position[2] + 20.0

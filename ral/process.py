@@ -252,6 +252,8 @@ class Ral(Module):
         self._generated: dict[int, tuple[t.Waypoint, ...]] = {}
         """Task id → the path the generator planned for it (what a survey/orbit is judged on, ``ral.tasks.judge``)."""
         self._pt_sent: dict[int, float] = {}
+        self._then: dict[int, t.TaskParams] = {}
+        """A task to start once the task of this id completes (a fleet target after the take-off it needed)."""
         """Pan & tilt tasks (id) whose angles have not been seen reached → when they were last sent
         (``ral.tasks.pan_tilt_check``)."""
         self.pt_resends = 0
@@ -696,7 +698,11 @@ class Ral(Module):
         reply = self._mri("task", request)
         if reply is not None and reply.ok and request.status == "failed":
             self._record_error(RalErrorCode.TASK_FAILED, f"task {request.task_id}: {request.detail}")
+        with self.lock:
+            then = self._then.pop(request.task_id, None)
         follow = after_completed(info, self.limits) if info is not None and request.status == "completed" else None
+        if request.status == "completed" and then is not None:
+            follow = then
         if follow is not None and info is not None and reply is not None and reply.ok:
             answer = self.handle(follow, origin=info.origin)
             self.log.info("%s after task %d: %s", t.kind_of(follow), request.task_id,
@@ -956,9 +962,20 @@ class Ral(Module):
                                 list(self._live.values()), available=not self.link.in_force, pack_v=pack)
 
     def _fleet_fly(self, job: Execute) -> None:
-        reply = self.handle(goto_of(job), origin="fleet")
-        self.log.info("fleet task %s round %d: %s %s", job.task.id, job.round, [x.id for x in job.targets],
-                      "accepted" if reply.accepted else f"refused: {reply.reason}")
+        goto = goto_of(job)
+        with self.lock:
+            grounded = self.telemetry is not None and self.telemetry.airborne is False
+            self._then.clear()  # a new job replaces whatever an earlier one was waiting to fly
+        first: t.TaskParams = goto
+        if grounded:  # a path is flown from the air (ral/tasks.py: PATH_TASKS): the take-off, then the targets
+            first = t.TakeOff(height=self.limits.takeoff_height_m or t.TakeOff().height)
+        reply = self.handle(first, origin="fleet")
+        if grounded and reply.accepted:
+            with self.lock:
+                self._then[reply.task_id] = goto
+        self.log.info("fleet task %s round %d: %s %s%s", job.task.id, job.round, [x.id for x in job.targets],
+                      "accepted" if reply.accepted else f"refused: {reply.reason}",
+                      " (taking off first)" if grounded and reply.accepted else "")
 
     # ------------------------------------------------------------ fleet time and shared world (issue 17)
     # ral/sync_bus.py (clock offsets, synchronised start, formation) and ral/world_bus.py (the world model)

@@ -96,6 +96,10 @@ def available_kinds(available: dict[str, str], task_names: dict[str, str]) -> di
     return out
 
 
+PATH_TASKS = (t.Goto, t.FollowPath, t.FollowVisionPath, t.Bridge, t.Survey, t.Orbit)
+"""Tasks that fly the robot somewhere: refused while it is on the ground (a take-off comes first)."""
+
+
 def admit(request: t.TaskParams, *, available: dict[str, str], task_names: dict[str, str], limits: Limits,
           cfg: JudgeConfig, telemetry: RobotTelemetry | None, home: GeoPoint | None) -> Plan | Rejected:
     """Check a decoded task against the robot; nothing changes here."""
@@ -144,6 +148,11 @@ def admit(request: t.TaskParams, *, available: dict[str, str], task_names: dict[
         why = _check_points(points, limits, cfg, telemetry, home)
         if why:
             return Rejected(f"{kind}: {why}")
+    if isinstance(request, PATH_TASKS) and telemetry is not None and telemetry.airborne is False:
+        # last, so a request's own faults are named first (they hold in the air too). A path flown from the ground
+        # climbs along it, low over the ground for its whole first leg, through the minimum clearance with no
+        # take-off behind it (the safety monitor's below_clearance, found by the campaign)
+        return Rejected(f"{kind}: the robot is on the ground (take off first)")
     return Plan(kind, name, task_type, params)
 
 

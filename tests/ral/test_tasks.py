@@ -62,7 +62,7 @@ def path(n: int = 3, alt: float = 30.0, speed: float | None = None) -> t.Goto:
 
 
 def check(request: t.TaskParams, limits: Limits = LIMITS, **kw) -> Plan | Rejected:
-    args = dict(available=AVAILABLE, task_names={}, limits=limits, cfg=CFG, telemetry=tel(airborne=False),
+    args = dict(available=AVAILABLE, task_names={}, limits=limits, cfg=CFG, telemetry=tel(airborne=True),
                 home=HOME)
     args.update(kw)
     return admit(request, **args)  # type: ignore[arg-type]
@@ -492,3 +492,20 @@ def test_pan_tilt_angles_are_sent_again_only_until_the_gimbal_is_seen_there():
     assert pan_tilt_check(req, gimbal(None, None), 10.0, 20.0) == "wait", "no gimbal telemetry: nothing to compare"
     assert pan_tilt_check(req, None, 10.0, 20.0) == "wait"
     assert pan_tilt_check(t.LookAt(lat=37.4, lon=-6.0, alt=0.0), away, 10.0, 20.0) == "wait", "angles tasks only"
+
+
+def test_a_path_task_on_the_ground_is_refused_take_off_first() -> None:
+    """The campaign's finding: a goto or an orbit sent to a robot on the ground was flown from there, the DSP climbing
+    along the path through the minimum clearance with no take-off behind it. Every task that flies the robot
+    somewhere now needs it in the air; take-off, landing, hold and the gimbal do not."""
+    ground = tel(airborne=False)
+    flying = [path(), t.FollowPath(waypoints=path().waypoints), t.Orbit(lat=37.41, lon=-6.0, radius=40.0,
+                                                                        height=20.0)]
+    for request in flying:
+        why = check(request, telemetry=ground)
+        assert isinstance(why, Rejected) and why.reason == f"{t.kind_of(request)}: the robot is on the ground " \
+            "(take off first)", (request, why)
+        assert isinstance(check(request), Plan), request  # the same in the air
+    for request in (t.TakeOff(), t.Land(), t.Hold(), t.SetPanTilt(pan=10.0, tilt=-10.0)):
+        assert isinstance(check(request, telemetry=ground), Plan), request
+    assert isinstance(check(path(), telemetry=tel(airborne=None)), Plan), "airborne unknown: not refused for it"
