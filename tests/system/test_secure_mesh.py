@@ -417,7 +417,12 @@ def test_a_peer_robots_router_cannot_remove_a_station_signed_zone_nor_add_its_ow
                     f"entry 'fake2' v1 from {PEER}'s snapshot refused: not signed by a ground station"):
             wait_until(lambda why=why: why in ral_log.read_text(errors="replace"), 10, f"{why!r} in the RAL's log")
             assert ral_log.read_text(errors="replace").count(why) == 1, why  # logged once, however often it came
-        # by effect: a goto into the zone is refused and sends nothing; a marker goto after it reaches the DSP
+        # by effect: a goto into the zone is refused and sends nothing; a marker goto after it reaches the DSP (a path
+        # is flown from the air: the take-off first)
+        took = gcs.send(ROBOT, t.TakeOff())
+        assert took.accepted, took.reason
+        wait_until(lambda: bool((st := gcs.state(ROBOT)).airborne) and not any(x.kind == "take_off" for x in st.tasks),
+                   120, "airborne, the take-off done")
         mark = len(robot.commands())
         into = t.Goto(waypoints=[t.Waypoint(lat=zone_at[0], lon=zone_at[1], alt=home.alt + 10.0)])
         reply = gcs.send(ROBOT, into)
