@@ -181,6 +181,37 @@ def _open(cfg: SessionConfig, conf: zenoh.Config) -> zenoh.Session:
                            f"listen: {', '.join(cfg.listen) or '-'}): {exc}") from exc
 
 
+def alive_everywhere(session: zenoh.Session, cfg: SessionConfig, selector: str, timeout_s: float) -> list[str]:
+    """The keys of the liveliness tokens matching ``selector`` behind every router ``cfg`` names.
+
+    With one router, ``session`` asks. With several, a client of each router asks in turn: a liveliness get from
+    a peer linked to several routers is answered by one of them only (zenoh 1.x, measured in
+    tests/ral/gcs/test_two_routers.py); a router unreachable now is skipped (its tokens are not there to list)."""
+    sessions: list[zenoh.Session] = []
+    if len(cfg.connect) <= 1:
+        sessions = [session]
+    found: set[str] = set()
+
+    def ask(one: zenoh.Session) -> None:
+        for reply in one.liveliness().get(selector, timeout=timeout_s):
+            if reply.ok is not None:
+                found.add(str(reply.ok.key_expr))
+
+    if sessions:
+        ask(session)
+        return sorted(found)
+    for endpoint in cfg.connect:
+        try:
+            one = open_session(msgspec.structs.replace(cfg, mode="client", connect=[endpoint]))
+        except SessionError:
+            continue
+        try:
+            ask(one)
+        finally:
+            one.close()
+    return sorted(found)
+
+
 def local_client(port: int, host: str = "127.0.0.1") -> SessionConfig:
     """A client of the router listening on ``tcp/host:port``: what tests and local modules use."""
     return SessionConfig(mode="client", connect=[f"tcp/{host}:{port}"])

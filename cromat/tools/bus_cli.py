@@ -30,7 +30,7 @@ from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from cromat.tools import keyexpr
 from cromat.tools.attendance import Declarations, declarations
 from cromat.tools.catalog import Catalog, Decoder, discover, stand_in, struct_type
-from cromat.tools.connection import ToolError, add_connection_options, connect
+from cromat.tools.connection import ToolError, add_connection_options, config_from, connect
 from cromat.tools.delivery import RouterEcho
 from cromat.tools.render import graph_dot, graph_text, yamlish
 from cromat.tools.stats import RateMeter
@@ -133,7 +133,7 @@ def _deadline(duration: float) -> float:
 # ---------------------------------------------------------------- commands
 
 def cmd_list(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
-    cat = discover(session, args.robot, args.timeout)
+    cat = discover(session, args.robot, args.timeout, config_from(args))
     declared = declarations(session, min(args.timeout, 2.0))  # before this tool subscribes: not counted
     meters: dict[str, RateMeter] = {}
     encodings: dict[str, str] = {}
@@ -206,7 +206,8 @@ def cmd_echo(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> i
     except Exception as exc:
         raise ToolError(f"{args.selection!r} is not a key expression: {exc}") from None
     robot = selection.split("/")[1] if selection.count("/") >= 1 else "*"
-    catalog = discover(session, robot if "@" not in robot and "*" not in robot else "*", args.timeout)
+    catalog = discover(session, robot if "@" not in robot and "*" not in robot else "*", args.timeout,
+                       config_from(args))
     decoders = Decoders(catalog)
     if not catalog.find(selection):
         print(f"cromat bus echo: no module or service on the bus describes a key matching {selection} "
@@ -293,7 +294,7 @@ def cmd_schema(session_factory: Any, args: argparse.Namespace, out: TextIO) -> i
     key = keyexpr.expand(args.target)
     session = session_factory()
     try:
-        cat = discover(session, key.split("/")[1], args.timeout)
+        cat = discover(session, key.split("/")[1], args.timeout, config_from(args))
         info = cat.slots.get(key) or cat.info(key)
         if not info.schema:  # no description: a sample's encoding names its struct (@ral/fleet, a replayed key)
             feed = Feed(session, [key], latched=True)
@@ -354,7 +355,7 @@ def cmd_pub(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> in
     parts = key.split("/")
     if len(parts) != 4 or any(c in key for c in "*$?#"):
         raise ToolError(f"{args.slot_key!r} is not one slot key (robot/module/slot)")
-    cat = discover(session, parts[1], args.timeout)
+    cat = discover(session, parts[1], args.timeout, config_from(args))
     info = cat.info(key)
     type_name_ = args.type or info.type
     typ = struct_type(type_name_) if type_name_ else None
@@ -400,7 +401,7 @@ def _wait_matching(session: zenoh.Session, key: str, timeout_s: float) -> None:
 
 
 def cmd_graph(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
-    cat = discover(session, args.robot, args.timeout)
+    cat = discover(session, args.robot, args.timeout, config_from(args))
     if not cat.modules:
         print(f"nothing alive on robot {args.robot!r} behind this router", file=sys.stderr)
         return 1

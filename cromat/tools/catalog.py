@@ -20,6 +20,7 @@ import zenoh
 from bbcs import keys
 from bbcs.codec import resolve_type
 from bbcs.contracts import mri
+from bbcs.session import SessionConfig, alive_everywhere
 from bbcs.wire import MSGPACK as ENCODING_PREFIX
 
 
@@ -143,14 +144,21 @@ class Decoder:
 
 # ---------------------------------------------------------------- discovery
 
-def alive_modules(session: zenoh.Session, robot: str, timeout_s: float) -> list[tuple[str, str]]:
+def alive_modules(session: zenoh.Session, robot: str, timeout_s: float,
+                  config: SessionConfig | None = None) -> list[tuple[str, str]]:
+    """(robot, module) of every liveliness token behind the router, or behind each router ``config`` names."""
+    selector = keys.alive_pattern(robot)
+    if config is not None:
+        tokens = alive_everywhere(session, config, selector, timeout_s)
+    else:
+        tokens = [str(r.ok.key_expr) for r in session.liveliness().get(selector, timeout=timeout_s)
+                  if r.ok is not None]
     found = set()
-    for reply in session.liveliness().get(keys.alive_pattern(robot), timeout=timeout_s):
-        if reply.ok is not None:
-            try:
-                found.add(keys.parse_alive_key(str(reply.ok.key_expr)))
-            except Exception:
-                continue
+    for key in tokens:
+        try:
+            found.add(keys.parse_alive_key(key))
+        except Exception:
+            continue
     return sorted(found)
 
 
@@ -188,10 +196,12 @@ def _slot_table(session: zenoh.Session, robot: str, timeout_s: float, cat: Catal
     return table
 
 
-def discover(session: zenoh.Session, robot: str = "*", timeout_s: float = 3.0) -> Catalog:
-    """Ask the bus what runs on ``robot`` (``*``: every robot behind the router)."""
+def discover(session: zenoh.Session, robot: str = "*", timeout_s: float = 3.0,
+             config: SessionConfig | None = None) -> Catalog:
+    """Ask the bus what runs on ``robot`` (``*``: every robot behind the router, or behind each router ``config``
+    names: the session's own configuration, given when it names several)."""
     cat = Catalog()
-    alive = alive_modules(session, robot, timeout_s)
+    alive = alive_modules(session, robot, timeout_s, config)
     for r, m in alive:
         cat.modules[(r, m)] = ModuleInfo(r, m)
     for r in sorted({r for r, _ in alive}):

@@ -61,7 +61,7 @@ from bbcs.contracts.lidar import LidarScan  # noqa: E402
 from bbcs.stop_signals import forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, Decoder, discover
-from cromat.tools.connection import ToolError, add_connection_options, connect
+from cromat.tools.connection import ToolError, add_connection_options, config_from, connect
 from cromat.tools.error_names import error_name
 from cromat.tools.foxglove_convert import (  # noqa: E402
     KINEMATICS_SCHEMA,
@@ -280,7 +280,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     bridge = None
     writer = None
     try:
-        catalog = discover(session, args.robot, args.timeout)
+        catalog = discover(session, args.robot, args.timeout, config_from(args))
         try:
             server = foxglove.start_server(name=f"cromat {args.robot}", host="127.0.0.1", port=0, context=ctx)
             relay = FoxgloveRelay(args.host, args.port, server.port)

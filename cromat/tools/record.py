@@ -27,7 +27,7 @@ import zenoh.ext
 from bbcs.stop_signals import forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, discover, struct_type
-from cromat.tools.connection import ToolError, add_connection_options, connect
+from cromat.tools.connection import ToolError, add_connection_options, config_from, connect
 from cromat.tools.extras import require
 from cromat.tools.progress import StatusLine
 
@@ -335,7 +335,7 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
     stop = threading.Event()
     restore_signals = forward_stop_signals(lambda _signum: stop.set())  # never a lock in a signal handler
     try:
-        catalog = discover(session, args.robot, args.timeout)
+        catalog = discover(session, args.robot, args.timeout, config_from(args))
         split = bool(args.split_size or args.split_duration)
         sink = McapSink(Path(args.output), catalog, split=split, compression=args.compression,
                         meta={"robot": args.robot, "selections": " ".join(selections),

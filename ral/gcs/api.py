@@ -23,7 +23,7 @@ import zenoh.ext
 from bbcs import keys, wire
 from bbcs.contracts import gri, mri
 from bbcs.errors import SessionError
-from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs.session import SessionConfig, TlsConfig, alive_everywhere, open_session
 from bbcs.slots import declare_replaying_subscriber
 from ral.gcs import diagnose
 
@@ -146,14 +146,6 @@ class _Callback:
         self._feed.remove(self._callback)
 
 
-def _alive_rals(session: zenoh.Session, timeout_s: float) -> set[str]:
-    found = set()
-    for reply in session.liveliness().get(keys.alive_pattern("*", "ral"), timeout=timeout_s):
-        if reply.ok is not None:
-            found.add(keys.parse_alive_key(str(reply.ok.key_expr))[0])
-    return found
-
-
 class Gcs:
     """One ground station's connection to the robots behind the routers it is given."""
 
@@ -244,20 +236,9 @@ class Gcs:
     def robots(self, timeout_s: float | None = None) -> list[str]:
         """Robots whose RAL holds a liveliness token now (behind every router named)."""
         wait = timeout_s or self.timeout_s
-        if len(self.config.connect) == 1:
-            return sorted(_alive_rals(self.session, wait))
-        # A liveliness get from a peer linked to several routers is answered by one of them only (zenoh 1.x,
-        # measured: tests/ral/gcs/test_two_routers.py), so each router is asked by a client of its own.
-        found: set[str] = set()
-        for endpoint in self.config.connect:
-            try:
-                one = open_session(msgspec.structs.replace(self.config, mode="client", connect=[endpoint]))
-            except SessionError:
-                continue  # that router is unreachable now: its robots are not there to list
-            try:
-                found |= _alive_rals(one, wait)
-            finally:
-                one.close()
+        found = set()
+        for key in alive_everywhere(self.session, self.config, keys.alive_pattern("*", "ral"), wait):
+            found.add(keys.parse_alive_key(key)[0])
         return sorted(found)
 
     def watch(self, robot: str, callback: Callable[[gri.GriState], None]) -> Subscription:
