@@ -40,15 +40,16 @@ from bbcs.session import SessionConfig, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from module_manager import links, lockstep, mesh, peer_mesh, route_audit, secure
 from module_manager.lines import print_line
-from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, cpu_list, route_problem
+from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, cpu_list
+from module_manager.mri_service import MriService
 from module_manager.params import ParamDesk
 from module_manager.process import Child, Priority, stop_children
+from module_manager.route_control import RouteControl
 from module_manager.standby import context_line, standby_argv
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
-from module_manager.tasks import Changes, TaskBook
+from module_manager.tasks import TaskBook
 
 ROOT = Path(__file__).resolve().parents[1]
-ACK_TIMEOUT_S = mri.MANAGER_ACK_S
 MAX_ERRORS = 32
 MESH_POLL_S = 0.05
 """How often the launch looks at the peer modules' links while it waits for them (``peer_mesh``)."""
@@ -155,7 +156,7 @@ def tcp_endpoint(endpoint: str) -> tuple[str, int] | None:
     return host, int(port.split("#")[0])
 
 
-class Manager:
+class Manager(RouteControl, MriService):
     """Launch and supervise one robot from a checked manifest."""
 
     def __init__(self, manifest: Manifest, *, listen: list[str] | None = None, log_dir: Path | None = None,
@@ -850,270 +851,6 @@ class Manager:
             self.runtime_dir = None
         self.out("stopped")
 
-    # ------------------------------------------------------------------------------------------ routing
-
-    def _control_value(self, mod: _Module) -> msgspec.Struct:
-        assert mod.info.control_type is not None
-        return mod.info.control_type(**{f: mod.routes[i] for f, i in mod.info.control_fields.items()})
-
-    def _publish_control(self, mod: _Module) -> None:
-        if mod.control is not None:
-            mod.control.publish(self._control_value(mod))
-
-    def apply_routes(self, changes: dict[tuple[str, str], int], *, wait: bool = True) -> tuple[bool, str]:
-        """Check every route, then publish the changed modules' CONTROL_ENTRADA and wait for their RouteAcks
-        (``wait`` False: a task's routes put back at its end, which no data of the task follows).
-
-        All or nothing: a route to a missing slot or a slot of another type refuses the whole change.
-        """
-        with self.lock:
-            for (name, slot), number in changes.items():
-                mod = self.modules.get(name)
-                if mod is None:
-                    return False, f"no module {name!r} in robot {self.m.robot!r}"
-                if slot not in mod.info.inputs:
-                    known = ", ".join(sorted(mod.info.inputs)) or "none"
-                    return False, f"module {name!r} has no routed input {slot!r} (routed inputs: {known})"
-                why = route_problem(self.m.slot_table, mod.info.inputs[slot], number)
-                if why:
-                    return False, f"{name}.{slot} -> {number} refused, old route kept: {why}"
-            touched: dict[str, dict[str, int]] = {}
-            for (name, slot), number in changes.items():
-                mod = self.modules[name]
-                if mod.routes[slot] != number:
-                    touched.setdefault(name, dict(mod.routes))
-                    mod.routes[slot] = number
-            waiting = []
-            for name in touched:
-                mod = self.modules[name]
-                mod.sup.routes_changed()
-                self._publish_control(mod)
-                if wait and mod.sup.phase in (Phase.STARTING, Phase.UP):
-                    waiting.append(name)
-            self._touch()
-        problems = []
-        end = self.clock() + ACK_TIMEOUT_S  # one deadline for the whole change, so an MRI reply fits its timeout
-        for name in waiting:
-            ok, why = self._wait_ack(name, end)
-            if not ok:
-                problems.append(f"{name}: {why}")
-                with self.lock:  # the module kept its old routes: so does the manager, and says so on the bus
-                    mod = self.modules[name]
-                    mod.routes = touched[name]
-                    self._publish_control(mod)
-        return (not problems), "; ".join(problems)
-
-    def _wait_ack(self, name: str, end: float) -> tuple[bool, str]:
-        with self.lock:
-            mod = self.modules[name]
-            wanted = {f: mod.routes[i] for f, i in mod.info.control_fields.items()}
-            while True:
-                ack = mod.last_ack
-                if ack is not None and ack.request == wanted:
-                    if ack.accepted:
-                        return True, ""
-                    return False, f"refused by the module: {ack.reason}"
-                left = end - self.clock()
-                if left <= 0 or not mod.sup.running:
-                    return False, f"no route acknowledgement within {ACK_TIMEOUT_S:g} s (module {mod.sup.state})"
-                self.changed.wait(min(left, 0.1))
-
-    def publish_mode(self, slot: str, value: dict[str, int]) -> tuple[bool, str, int | None]:
-        """Publish a mode; when its module answers modes (``ack``), wait for the answer: (ok, why, code)."""
-        mode = self.m.modes[slot]
-        struct = msgspec.convert(value, mode.type)
-        wanted = msgspec.to_builtins(struct)
-        with self.lock:
-            self._mode_acks[mode.module] = None
-            previous = self.modes.get(slot)
-            self._mode_pubs[slot].publish(struct)
-            self.modes[slot] = dict(value)
-            mod = self.modules.get(mode.module)
-            if not mode.ack or mod is None or mod.sup.phase is not Phase.UP:
-                return True, "", None
-            end = self.clock() + ACK_TIMEOUT_S
-            while True:
-                ack = self._mode_acks.get(mode.module)
-                if ack is not None and ack.mode == wanted:
-                    if ack.accepted:
-                        return True, "", None
-                    why = f"module {mode.module} refused mode {wanted}: error {ack.code}: {ack.reason}"
-                    self.modes[slot] = previous  # the module kept its mode
-                    return False, why, ack.code
-                left = end - self.clock()
-                if left <= 0 or not mod.sup.running:
-                    self.modes[slot] = previous
-                    return False, f"module {mode.module} did not answer mode {wanted} within {ACK_TIMEOUT_S:g} s", None
-                self.changed.wait(min(left, 0.1))
-
-    def withdraw_mode(self, slot: str) -> None:
-        """Delete a mode slot's latched value (its task ended): its module is told nothing (no mode, no answer
-        awaited) and a module restarted later gets no mode to run again (docs/gcs.md, "When a task ends")."""
-        with self.lock:
-            if self.modes.get(slot) is not None:
-                self._mode_pubs[slot].withdraw()
-                self.modes[slot] = None
-
-    def apply_changes(self, changes: Changes, *, ending: bool = False) -> tuple[bool, str, int | None]:
-        """A task's routes and modes. Starting (``ending`` False): routes first, so that the mode acts on the
-        task's data; ending: modes first, so that a module stops acting before an input is routed back (a routed
-        unsafe state input reads its source's current value at once: bbcs.module.rereads, docs/bus.md)."""
-        ok, why, code = (True, "", None) if ending else (*self.apply_routes(dict(changes.routes)), None)
-        for slot, value in changes.modes.items():
-            if value is not None:  # always sent: what the mode set up below (the DSP) may have been lost since
-                mode_ok, mode_why, mode_code = self.publish_mode(slot, value)
-                if not mode_ok:
-                    ok, why, code = False, "; ".join(w for w in (why, mode_why) if w), mode_code
-        for slot in changes.withdraw:
-            self.withdraw_mode(slot)
-        if ending:
-            routes_ok, routes_why = self.apply_routes(dict(changes.routes), wait=False)
-            if not routes_ok:
-                ok, why = False, "; ".join(w for w in (why, routes_why) if w)
-        return ok, why, code
-
-    # ------------------------------------------------------------------------------------------ MRI
-
-    def _serve_mri(self, queryable: Any) -> None:
-        try:
-            for query in queryable:
-                self._mri_busy = True
-                try:
-                    reply = self.handle_mri(str(query.key_expr).rsplit("/", 1)[-1],
-                                            query.payload.to_bytes() if query.payload is not None else b"")
-                except Exception as exc:  # a bug must still produce an answer, not a silent timeout
-                    reply = mri.MriReply(ok=False, reason=f"internal error: {type(exc).__name__}: {exc}")
-                try:
-                    wire.reply(query, query.key_expr, reply)
-                except Exception:  # the querier gave up or the session is closing
-                    pass
-                finally:
-                    query.drop()  # finalise now: a consolidating querier waits for the end of the query
-                    self._mri_busy = False
-        except zenoh.ZError:
-            pass
-
-    def handle_mri(self, verb: str, payload: bytes) -> mri.MriReply:
-        """Answer one MRI request: every request gets a reply, ok or with the reason it was refused."""
-        try:
-            req = mri.decode_request(payload)
-        except msgspec.MsgspecError as exc:
-            return mri.MriReply(ok=False, reason=f"unreadable {verb} request: {exc}")
-        expected = {"modules": (mri.ListModules,), "routes": (mri.ListRoutes,), "route": (mri.SwapRoute,),
-                    "module": (mri.ModuleCommand,), "task": (mri.SetTask, mri.EndTask), "tasks": (mri.ListTasks,),
-                    "mode": (mri.SetModuleMode,), "param": (mri.ListParams, mri.GetParam, mri.SetParam)}.get(verb)
-        if expected is None:
-            return mri.MriReply(ok=False, reason=f"unknown MRI verb {verb!r}; known: {', '.join(mri.VERBS)}")
-        if not isinstance(req, expected):
-            return mri.MriReply(ok=False, reason=f"verb {verb!r} takes {' or '.join(t.__name__ for t in expected)}, "
-                                                 f"not {type(req).__name__}")
-        if isinstance(req, mri.ListModules):
-            with self.lock:
-                return mri.MriReply(ok=True, data=mri.ModuleList(
-                    robot=self.m.robot, modules=[self.module_status(n) for n in self.modules]))
-        if isinstance(req, mri.ListRoutes):
-            return mri.MriReply(ok=True, data=self.route_list())
-        if isinstance(req, mri.SwapRoute):
-            ok, why = self.apply_routes({(req.module, req.input): req.slot})
-            return mri.MriReply(ok=ok, reason=why, data=self.route_list())
-        if isinstance(req, mri.ModuleCommand):
-            return self.module_command(req)
-        if isinstance(req, mri.ListTasks):
-            return mri.MriReply(ok=True, data=self.task_list())
-        if isinstance(req, mri.SetTask | mri.EndTask):
-            return self.task_request(req)
-        if isinstance(req, mri.ListParams | mri.GetParam | mri.SetParam):
-            return self.params.handle(req, {n: m.info for n, m in self.modules.items()}, self.expand,
-                                      self._not_up, self.session, self._touch_locked, self.out)
-        assert isinstance(req, mri.SetModuleMode)
-        slot = next((n for n, m in self.m.modes.items() if m.module == req.module), None)
-        if slot is None:
-            return mri.MriReply(ok=False, reason=f"no mode slot drives module {req.module!r}")
-        try:
-            ok, why, code = self.publish_mode(slot, req.mode)
-        except msgspec.ValidationError as exc:
-            return mri.MriReply(ok=False, reason=f"mode for {req.module!r} refused: {exc}")
-        return mri.MriReply(ok=ok, reason=why, code=code)
-
-    def _not_up(self, name: str) -> str | None:
-        with self.lock:
-            sup = self.modules[name].sup
-            return None if sup.phase is Phase.UP else sup.state
-
-    def _touch_locked(self) -> None:
-        with self.lock:
-            self._touch()
-
-    def route_list(self) -> mri.RouteList:
-        with self.lock:
-            return mri.RouteList(routes={n: dict(m.routes) for n, m in self.modules.items() if m.routes},
-                                 slots={k: f"{r.module}/{r.slot}" for k, r in self.m.slot_table.slots.items()})
-
-    def task_list(self) -> mri.TaskList:
-        with self.lock:
-            return mri.TaskList(active=self.tasks.active(), ended=list(self.tasks.ended),
-                                available={n: t.type for n, t in self.m.tasks.items()}, version=self.tasks.version,
-                                epoch=self.epoch)
-
-    def module_command(self, req: mri.ModuleCommand) -> mri.MriReply:
-        with self.lock:
-            mod = self.modules.get(req.module)
-            if mod is None:
-                return mri.MriReply(ok=False, reason=f"no module {req.module!r} in robot {self.m.robot!r}")
-            now = self.clock()
-            if req.action == "stop":
-                self._perform(mod, mod.sup.stop(now))
-                done = (Phase.STOPPED,)
-            elif req.action == "start":
-                mod.sup.start(now)
-                done = (Phase.UP, Phase.FAILED)
-            else:
-                self._perform(mod, mod.sup.restart(now))
-                done = (Phase.UP, Phase.FAILED)
-            self._touch()
-            end = now + mod.info.policy.start_timeout_s + self.m.stop_grace_s
-            while mod.sup.phase not in done and self.clock() < end and not self.stop_event.is_set():
-                self.changed.wait(0.05)
-            status = self.module_status(req.module)
-            ok = mod.sup.phase in done and mod.sup.phase is not Phase.FAILED
-        return mri.MriReply(ok=ok, reason="" if ok else f"module {req.module} is {status.state}: {status.reason}",
-                            data=status)
-
-    def task_request(self, req: mri.SetTask | mri.EndTask) -> mri.MriReply:
-        """Start or end a task in the task book (the only one), then apply its routes and modes."""
-        with self.lock:
-            routes = {(n, i): v for n, m in self.modules.items() for i, v in m.routes.items()}
-            modes = dict(self.modes)
-            now = time.time()
-            if isinstance(req, mri.SetTask):
-                if req.name not in self.m.tasks:
-                    known = ", ".join(self.m.tasks) or "none"
-                    return mri.MriReply(ok=False, reason=f"unknown task {req.name!r} (tasks: {known})")
-                for name in sorted(self.task_uses.get(req.name, set())):
-                    sup = self.modules[name].sup
-                    if sup.phase is not Phase.UP:
-                        why = f": {sup.reason}" if sup.reason else ""
-                        return mri.MriReply(ok=False, reason=f"task {req.name!r} needs module {name}, which is "
-                                                             f"{sup.state}{why}", data=self.task_list())
-                changes = self.tasks.start(req.name, req.params, now, routes, modes, req.origin, req.replaced_as)
-            else:
-                if req.task_type not in self.m.task_types:
-                    return mri.MriReply(ok=False, reason=f"unknown task type {req.task_type!r}")
-                running = self.tasks.running(req.task_type)
-                if running is None or (req.task_id and running.id != req.task_id):
-                    what = f"task {req.task_id}" if req.task_id else f"{req.task_type} task"
-                    return mri.MriReply(ok=False, reason=f"no {what} is running", data=self.task_list())
-                changes = self.tasks.end(req.task_type, now, req.status, req.detail)
-            self._touch()
-        ok, why, code = self.apply_changes(changes, ending=isinstance(req, mri.EndTask))
-        if not ok and isinstance(req, mri.SetTask):
-            with self.lock:  # refused: the task never ran; what it changed is put back
-                task = self.tasks.running(self.m.tasks[req.name].type)
-                undo = self.tasks.end(task.task_type, time.time(), "failed", why) if task is not None else None
-                self._touch()
-            if undo is not None:
-                self.apply_changes(undo, ending=True)
-        return mri.MriReply(ok=ok, reason=why, code=code, data=self.task_list())
 
 
 def task_modules(manifest: Manifest) -> dict[str, set[str]]:
