@@ -34,7 +34,6 @@ the acknowledgement is published on ``@route``; only then is the new source's da
 
 from __future__ import annotations
 
-import itertools
 import logging
 import os
 import queue
@@ -51,22 +50,28 @@ import zenoh.ext
 from bbcs import keys
 from bbcs import lockstep as _lockstep
 from bbcs.clock import WALL, Clock, SimClock
-from bbcs.codec import encode, field_of, leaf_field, type_name, violates_constraint
+from bbcs.codec import encode, leaf_field, type_name, violates_constraint
 from bbcs.conf import ConfError
 from bbcs.context import ModuleContext, load_context
-from bbcs.errors import EXIT_CONFIG, BusErrorCode, RouteError, SessionError, SlotError
+from bbcs.errors import EXIT_CONFIG, BusErrorCode, SessionError, SlotError
 from bbcs.events import Event, Input, RouteChange, Stop, Tick
-from bbcs.ingress import ExactKeyGuard
+from bbcs.module_inputs import (
+    _LIVE,
+    _STOP,
+    WAKE,
+    InputReaders,
+    _Marker,
+    _Reader,
+)
+from bbcs.module_routing import RuntimeRouting
 from bbcs.priority import SafetyFirst
 from bbcs.routing import IGNORE, RouteAck
 from bbcs.session import open_session
-from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec, declare_reader
+from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from bbcs.stop_signals import exit_deadline, forward_stop_signals
 from bbcs.wire import declare_schema_queryable
 
 HEARTBEAT_PERIOD_S = 1.0
-BACKPRESSURE_POLL_S = 0.1
-"""How often a receiving callback blocked on a full safe queue re-checks for stop."""
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):
@@ -89,67 +94,12 @@ class Control:
     slot: str = "control_entrada"
 
 
-_HELD, _LIVE, _DRAINING, _CLOSED = range(4)
 
-WAKE = b"bbcs-wake"
-"""Attachment of the empty, session-local sample that wakes a loop blocked on its channel input (never data:
-a datum is never empty msgpack). Any empty payload is no datum and is dropped unseen: a wake, or a state slot's
-value withdrawn by its publisher (a Zenoh delete, live or replayed to a late joiner by the publisher's cache as
-an empty put; the Module Manager withdraws the mode of a movement task that has ended)."""
 CHANNEL_BATCH = 256
 """Samples the loop takes from its channel input in one go before it looks at timers and other inputs."""
 
 
-def rereads(spec: SlotSpec[Any]) -> bool:
-    """Whether an input routed to a new source while the module runs asks that source for its current value: an
-    unsafe **state** input (newest only, best effort), which otherwise would see nothing until the source next
-    publishes; a safe state input gets it from its history anyway, a stream has no current value (docs/bus.md,
-    "Routing inputs at run time")."""
-    return spec.safety is Safety.UNSAFE and spec.kind is Kind.STATE
-
-
-def declare_rereading(session: zenoh.Session, key: str, spec: SlotSpec[Any], handler: Any) -> Any:
-    """The subscriber of an input just routed to ``key``: live samples as a plain one, and first the source's
-    current value if its publisher keeps one (a safe state slot's advanced publisher cache; a best-effort publisher
-    keeps none and its next datum is the first). zenoh.ext orders the cached value and live samples of one
-    publisher by their sequence numbers, so an older value never follows a newer one."""
-    return zenoh.ext.declare_advanced_subscriber(
-        session, key, handler, history=zenoh.ext.HistoryConfig(detect_late_publishers=False, max_samples=1))
-
-
-class _Reader:
-    """One input's subscriber and its hand-over to the loop.
-
-    A *channel* reader (the module's first stream input) has a Zenoh FIFO channel as its handler: Zenoh's thread
-    never runs Python for it, the loop takes its samples in batches and blocks on it when idle. Other readers
-    have a callback that only hands the sample to the loop's queue."""
-
-    __slots__ = ("spec", "key", "number", "sub", "chan", "handler", "decode", "is_control", "state", "lock", "held",
-                 "latest", "unsafe", "enqueued", "handled", "waiting", "room")
-
-    def __init__(self, spec: SlotSpec[Any], key: str, number: int, handler: Callable[[Any], Any],
-                 is_control: bool) -> None:
-        self.spec = spec
-        self.key = key
-        self.number = number
-        self.sub: Any = None
-        self.chan: Any = None
-        """The Zenoh channel (``try_recv``/``recv``) of a channel reader, else None."""
-        self.handler = handler
-        self.decode = spec.codec.decode
-        self.is_control = is_control
-        self.state = _HELD
-        self.lock = threading.Lock()
-        self.held: list[Any] = []
-        self.latest: Any = None
-        self.unsafe = spec.safety is Safety.UNSAFE
-        self.enqueued = itertools.count(1)
-        self.handled = 0
-        self.waiting = False
-        self.room = threading.Condition(threading.Lock())
-
-
-class Module:
+class Module(InputReaders, RuntimeRouting):
     """Subclass, declare ``slots`` (and ``control``), write ``on_<input>`` handlers, call ``main()``."""
 
     name: ClassVar[str] = "module"
@@ -666,280 +616,6 @@ class Module:
             return self.field_codes.get((slot, leaf_field(field)), BusErrorCode.OUT_OF_RANGE)
         return BusErrorCode.MALFORMED
 
-    # ---------------------------------------------------------------- inputs
-
-    def _handler_for(self, spec: SlotSpec[Any]) -> Callable[[Any], Any]:
-        if self.control is not None and spec.name == self.control.slot:
-            return self._on_control
-        return getattr(self, f"on_{spec.name}")
-
-    def _key_of(self, spec: SlotSpec[Any]) -> str:
-        reader = self._readers.get(spec.name)
-        return reader.key if reader is not None else spec.key(self.robot, self.module)
-
-    def _make_reader(self, spec: SlotSpec[Any], key: str, number: int, reread: bool = False) -> _Reader:
-        """Subscribe; the reader holds what it receives until ``_release`` (running, or past a switch point).
-        ``reread``: also ask the source's cache for its current value (:func:`declare_rereading`).
-
-        The module's first stream input gets a Zenoh FIFO channel of ``queue`` samples (a full channel blocks
-        Zenoh's thread: back-pressure, nothing dropped), unless another input reads the same key (the wake sample
-        would reach it too); every other input a callback into the loop's queue."""
-        is_control = self.control is not None and spec.name == self.control.slot
-        reader = _Reader(spec, key, number, self._handler_for(spec), is_control)
-        if self.session is not None:
-            declare = declare_rereading if reread else declare_reader
-            shared = any(r.key == key for r in self._readers.values() if r.spec.name != spec.name)
-            exact = is_control or spec.name in self.exact_key_inputs
-            if spec.name == self._channel_slot and not shared and not exact:
-                reader.sub = declare(self.session, key, spec, zenoh.handlers.FifoChannel(spec.queue))
-                reader.chan = reader.sub.handler
-            elif exact:  # a wildcard put on a denied key gets no further than here (issue 32 item 6)
-                guard = ExactKeyGuard(key, lambda n, k, name=spec.name: self.report_error(
-                    BusErrorCode.KEY_REFUSED, f"input {name}: {n} datum(s) put on {k}, not on {key}: dropped"))
-                reader.sub = declare(self.session, key, spec, guard.wrap(self._enqueuer(reader)))
-            else:
-                reader.sub = declare(self.session, key, spec, self._enqueuer(reader))
-        return reader
-
-    def _enqueuer(self, reader: _Reader) -> Callable[[zenoh.Sample], None]:
-        """The Zenoh callback of one input: it only hands the sample to the loop (never decodes or handles)."""
-        put = self._bbcs_queue.put
-        lock = reader.lock
-        item = (reader, None)
-        if reader.unsafe:
-            def newest(sample: zenoh.Sample) -> None:
-                with lock:
-                    fresh = reader.latest is None
-                    reader.latest = sample
-                    if reader.state == _HELD:
-                        return
-                if fresh:
-                    put(item)
-                    if self._blocked_on is not None:
-                        self._wake()
-            return newest
-
-        bound = reader.spec.queue
-        enqueued = reader.enqueued
-        held = _HELD
-
-        def in_order(sample: zenoh.Sample) -> None:
-            if reader.state == held:
-                with lock:
-                    if reader.state == held:
-                        reader.held.append(sample)
-                        return
-            n = next(enqueued)
-            if n - reader.handled > bound:
-                self._wait_for_room(reader, n)
-            put((reader, sample))  # the loop wakes to a free GIL (no second wake-up) ...
-            if self._blocked_on is not None:  # ... unless it sits on its channel reader
-                self._wake()
-        return in_order
-
-    def _wait_for_room(self, reader: _Reader, enqueued: int) -> None:
-        """Block Zenoh's receiving thread while a safe queue is full (``queue`` samples wait): back-pressure to
-        the reliable publisher. Stop or a route switch end the wait (the sample is then queued all the same)."""
-        with reader.room:
-            reader.waiting = True
-            while (enqueued - reader.handled > reader.spec.queue and not self._bbcs_stopping
-                   and reader.state == _LIVE):
-                reader.room.wait(BACKPRESSURE_POLL_S)
-            reader.waiting = False
-
-    def _release(self, reader: _Reader) -> None:
-        """Let the loop see what the reader holds, in order, then everything it receives."""
-        with reader.lock:
-            if reader.state != _HELD:
-                return
-            if reader.chan is not None:  # its samples wait in the channel: the loop now drains it
-                reader.state = _LIVE
-                self._channel_reader = reader
-                return
-            if reader.unsafe:
-                if reader.latest is not None:
-                    self._bbcs_queue.put((reader, None))
-            else:
-                for sample in reader.held:
-                    self._bbcs_queue.put((reader, sample))
-                    next(reader.enqueued)
-                reader.held.clear()
-            reader.state = _LIVE
-
-    def _close_reader(self, reader: _Reader) -> None:
-        """Undeclare (on the loop's thread, never while it sits in ``recv()``) and drop the channel: a Zenoh
-        thread blocked on a full channel is released when its receiver goes."""
-        try:
-            if reader.sub is not None:
-                reader.sub.undeclare()
-        except Exception as exc:  # an undeclare racing session close must not stop the shutdown
-            self.log.debug("undeclare %s: %s", reader.key, exc)
-        reader.sub = None
-        reader.chan = None
-        if self._channel_reader is reader:
-            self._channel_reader = None
-        reader.state = _CLOSED
-        with reader.room:
-            reader.room.notify_all()
-
-    def _handle_sample(self, reader: _Reader, sample: Any) -> None:
-        """One input datum from Zenoh, on the loop: newest-only or in-order bookkeeping, then decode and handle.
-        (The hot path: everything it needs is on the reader, nothing is looked up per datum.)"""
-        if reader.unsafe:
-            with reader.lock:
-                sample, reader.latest = reader.latest, None
-            if sample is None:
-                return
-        else:
-            reader.handled += 1
-            if reader.waiting:
-                with reader.room:
-                    reader.room.notify_all()
-        if reader.state == _CLOSED:
-            self.dropped_after_switch += 1
-            return
-        payload = sample.payload.to_bytes()
-        if not payload:  # no datum (see WAKE)
-            return
-        try:
-            value = reader.decode(payload)
-        except msgspec.MsgspecError as exc:
-            self._reject(reader.spec.name, reader.key, exc, payload)
-            return
-        self._activity += 1
-        with self.lock:
-            try:
-                reader.handler(value)
-            except Exception:
-                self.log.exception("handler on_%s failed", reader.spec.name)
-                self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{reader.spec.name} raised")
-
-    def _handle_payload(self, spec: SlotSpec[Any], handler: Callable[[Any], Any], payload: bytes,
-                        key: str) -> None:
-        try:
-            value = spec.codec.decode(payload)
-        except msgspec.MsgspecError as exc:
-            self._reject(spec.name, key, exc, payload)
-            return
-        with self.lock:
-            try:
-                handler(value)
-            except Exception:
-                self.log.exception("handler on_%s failed", spec.name)
-                self.report_error(BusErrorCode.HANDLER_FAILED, f"handler on_{spec.name} raised")
-
-    def _reject(self, slot: str, key: str, exc: msgspec.MsgspecError, payload: bytes) -> None:
-        field = field_of(exc) if isinstance(exc, msgspec.ValidationError) else "$"
-        code = self.error_code_for(slot, field, exc, payload)
-        self.rejected += 1
-        self.report_error(code, f"slot {slot} ({key}) field {field}: {exc}; datum dropped")
-
-    def _call_safely(self, what: str, fn: Callable[[], Any]) -> None:
-        try:
-            fn()
-        except Exception:
-            self.log.exception("on_%s failed", what)
-            self.report_error(BusErrorCode.HANDLER_FAILED, f"on_{what} raised")
-
-    # ---------------------------------------------------------------- routing
-
-    def _on_control(self, value: msgspec.Struct) -> None:
-        assert self.control is not None
-        request = {field: int(getattr(value, field)) for field in self.control.routes}
-        wanted = {slot: request[field] for field, slot in self.control.routes.items()}
-        self._apply_routes(wanted, request=request, publish_ack=True)
-
-    def _apply_routes(self, wanted: dict[str, int], *, request: dict[str, int], publish_ack: bool) -> None:
-        """Validate every route first and apply all or none; acknowledge once the old sources are drained."""
-        try:
-            unknown = sorted(set(wanted) - self._routed)
-            if unknown:
-                raise RouteError(f"input(s) {unknown} cannot be routed", BusErrorCode.ROUTE_UNKNOWN_SLOT)
-            resolved = {slot: self._resolve(slot, number) for slot, number in wanted.items()}
-        except RouteError as exc:
-            self.report_error(exc.code, f"CONTROL_ENTRADA refused, previous routes kept: {exc}")
-            if publish_ack:
-                self._publish_ack(False, request, str(exc))
-            return
-        changed = [slot for slot, number in wanted.items()
-                   if slot not in self._routes or self._routes[slot] != number]
-        fresh = {slot: self._make_reader(self._inputs[slot], key, wanted[slot], reread=self._running and rereads(
-                     self._inputs[slot])) for slot in changed if (key := resolved[slot]) is not None}
-        old = [r for slot in changed if (r := self._readers.pop(slot, None)) is not None]
-        for reader in old:
-            reader.state = _DRAINING
-            with reader.room:
-                reader.room.notify_all()
-            if reader.sub is not None:
-                reader.sub.undeclare()
-                reader.sub = None
-        deferred = self._drain_until_switch() if old and self._running else []
-        for reader in old:
-            if reader.chan is not None and self._running and reader is self._channel_reader:
-                self._drain_channel_to_end(reader)
-        for reader in old:
-            self._close_reader(reader)
-        for slot in changed:
-            self._routes[slot] = wanted[slot]
-            if slot in fresh:
-                self._readers[slot] = fresh[slot]
-        if changed and self._running:
-            routes = dict(self._routes)
-            with self.lock:
-                self._call_safely("route_change", lambda: self.on_route_change(routes))
-        if publish_ack:
-            self._publish_ack(True, request, "")
-        if self._running:
-            for reader in fresh.values():
-                self._release(reader)
-        for reader, item in deferred:
-            self._bbcs_queue.put((reader, item))
-
-    def _drain_channel_to_end(self, reader: _Reader) -> None:
-        """An old route's channel reader, already undeclared: handle every datum it had received."""
-        try_recv = reader.chan.try_recv
-        try:
-            while (sample := try_recv()) is not None:
-                self._handle_channel_sample(reader, sample)
-        except zenoh.ZError:  # "empty and closed": everything it had is handled
-            pass
-
-    def _drain_until_switch(self) -> list[tuple[Any, Any]]:
-        """Handle everything already queued (old sources included) up to the switch point; a CONTROL_ENTRADA met
-        on the way is kept for after this switch, and re-queued behind whatever arrived meanwhile."""
-        marker = _Marker()
-        self._bbcs_queue.put((None, marker))
-        deferred: list[tuple[Any, Any]] = []
-        for reader in self._bulk.drain():  # bulk inputs set aside before the switch point: handled before it
-            self._handle_sample(reader, None)
-        while True:
-            reader, item = self._bbcs_queue.get()
-            if item is marker:
-                return deferred
-            if reader is None:
-                if item is _STOP or isinstance(item, RouteChange):
-                    deferred.append((reader, item))
-                else:
-                    self._handle_local(item)
-            elif reader.is_control:
-                deferred.append((reader, item))
-            else:
-                self._handle_sample(reader, item)
-
-    def _resolve(self, slot: str, number: int) -> str | None:
-        if number == IGNORE:
-            return None
-        table = self.context.slot_table
-        if table is None:
-            raise RouteError(f"input {slot}: slot {number} cannot be resolved: this module has no slot table",
-                             BusErrorCode.ROUTE_UNKNOWN_SLOT)
-        return table.resolve(number, type_name(self._inputs[slot].type))
-
-    def _publish_ack(self, accepted: bool, request: dict[str, int], reason: str) -> None:
-        if self._ack_pub is not None:
-            self._ack_pub.publish(RouteAck(module=self.module, accepted=accepted, routes=dict(self._routes),
-                                           request=request, reason=reason, restart_count=self.restart_count))
-
     # ---------------------------------------------------------------- schema query
 
     def described_keys(self) -> Mapping[str, Any]:
@@ -1046,11 +722,4 @@ def _stop_on_signal_or_orphan(module: Module, stopped: threading.Event, parent: 
     return restore
 
 
-class _Marker:
-    """The switch point of a route change in the loop's queue."""
-
-    __slots__ = ()
-
-
-_STOP = Stop()
 _TICK = Tick()

@@ -136,7 +136,7 @@ class RouteControl:
     def apply_changes(self, changes: Changes, *, ending: bool = False) -> tuple[bool, str, int | None]:
         """A task's routes and modes. Starting (``ending`` False): routes first, so that the mode acts on the
         task's data; ending: modes first, so that a module stops acting before an input is routed back (a routed
-        unsafe state input reads its source's current value at once: bbcs.module.rereads, docs/bus.md)."""
+        unsafe state input reads its source's current value at once: bbcs.module_inputs.rereads, docs/bus.md)."""
         ok, why, code = (True, "", None) if ending else (*self.apply_routes(dict(changes.routes)), None)
         for slot, value in changes.modes.items():
             if value is not None:  # always sent: what the mode set up below (the DSP) may have been lost since

@@ -13,7 +13,8 @@ import pytest
 from bbcs import keys
 from bbcs.codec import type_name
 from bbcs.context import ModuleContext
-from bbcs.module import Control, Module, rereads
+from bbcs.module import Control, Module
+from bbcs.module_inputs import rereads
 from bbcs.routing import SlotRef, SlotTable
 from bbcs.session import local_client
 from bbcs.slots import Direction, InputSlot, Kind, OutputSlot, Publisher, Safety, SlotSpec
