@@ -56,7 +56,9 @@ def sigint_run(tmp_path_factory):
             stderr=stderr,
         )
         deadline = time.monotonic() + 60
-        while len(lidar.device.sent_scans) < 40:
+        # 40 scans are asserted written; a logger on a loaded machine may drop a few (counted: scans_dropped), so the
+        # scanner sends 50 before the Ctrl-C (a CI run at load wrote 36 of the first 40)
+        while len(lidar.device.sent_scans) < 50:
             assert proc.poll() is None, (out / "stderr.txt").read_text()
             assert time.monotonic() < deadline, "the run did not get going"
             time.sleep(0.05)
