@@ -187,9 +187,6 @@ def alive_everywhere(session: zenoh.Session, cfg: SessionConfig, selector: str, 
     With one router, ``session`` asks. With several, a client of each router asks in turn: a liveliness get from
     a peer linked to several routers is answered by one of them only (zenoh 1.x, measured in
     tests/ral/gcs/test_two_routers.py); a router unreachable now is skipped (its tokens are not there to list)."""
-    sessions: list[zenoh.Session] = []
-    if len(cfg.connect) <= 1:
-        sessions = [session]
     found: set[str] = set()
 
     def ask(one: zenoh.Session) -> None:
@@ -197,7 +194,7 @@ def alive_everywhere(session: zenoh.Session, cfg: SessionConfig, selector: str, 
             if reply.ok is not None:
                 found.add(str(reply.ok.key_expr))
 
-    if sessions:
+    if len(cfg.connect) <= 1:
         ask(session)
         return sorted(found)
     for endpoint in cfg.connect:

@@ -147,14 +147,8 @@ class Decoder:
 def alive_modules(session: zenoh.Session, robot: str, timeout_s: float,
                   config: SessionConfig | None = None) -> list[tuple[str, str]]:
     """(robot, module) of every liveliness token behind the router, or behind each router ``config`` names."""
-    selector = keys.alive_pattern(robot)
-    if config is not None:
-        tokens = alive_everywhere(session, config, selector, timeout_s)
-    else:
-        tokens = [str(r.ok.key_expr) for r in session.liveliness().get(selector, timeout=timeout_s)
-                  if r.ok is not None]
     found = set()
-    for key in tokens:
+    for key in alive_everywhere(session, config or SessionConfig(), keys.alive_pattern(robot), timeout_s):
         try:
             found.add(keys.parse_alive_key(key))
         except Exception:
