@@ -13,6 +13,7 @@ import argparse
 import logging
 import threading
 import time
+from collections.abc import Iterable
 from typing import Any, TextIO
 
 import msgspec
@@ -53,16 +54,18 @@ class FleetView:
         self._sub.undeclare()
 
     def post(self, task: FleetTask, signer: StationSigner | None = None,
-             lifetime_s: float | None = None, reach_s: float = 3.0) -> FleetTask:
+             lifetime_s: float | None = None, reach_s: float = 3.0, live: Iterable[str] = ()) -> FleetTask:
         """Put ``task``, signed by ``signer`` (a station with a TLS identity: secured robots adopt only signed
         tasks, bbcs/signing.py) and adoptable for ``lifetime_s`` (default: ``bbcs.signing.default_lifetime_s``);
-        returns what was put. The put waits up to ``reach_s`` until this session knows a robot's task
-        subscriber (the router tells it once it knows one): a put that reaches the router before any robot's
-        subscription does is delivered to no one."""
+        returns what was put. A signed task names the robots it is for: ``live`` (the RALs alive now, from their
+        liveliness tokens) and every robot whose fleet state this view holds; a view opened just now may not hold
+        every robot's state yet, so a station passes ``live``. The put waits up to ``reach_s`` until this session
+        knows a robot's task subscriber (the router tells it once it knows one): a put that reaches the router
+        before any robot's subscription does is delivered to no one."""
         if signer is not None:
             if not task.robots:  # the robots it is for, inside the signature: a capture flies no other one
                 with self.lock:
-                    seen = sorted(self.states)
+                    seen = sorted(set(self.states) | set(live))
                 task = msgspec.structs.replace(task, robots=seen)
             task = signer.sign(task, lifetime_s=lifetime_s)
         publisher = self.session.declare_publisher(keys.fleet_task_key(task.id))
@@ -182,9 +185,13 @@ def format_decision(dec: FleetDecision, visited: set[str]) -> list[str]:
     return lines
 
 
-def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
+def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO, live: Iterable[str] = ()) -> int:
     """Exit codes as ``cromat gcs``: 0 agreed, 2 bad target, 3 no agreement within ``--wait``; 4 agreed, but some
-    targets are left unassigned (no robot that answered bids on them: each one's reason is printed)."""
+    targets are left unassigned (no robot that answered bids on them: each one's reason is printed).
+
+    ``live``: the robots whose RAL is alive now. The station waits for the word of each (a bid or an abstention)
+    before it prints an agreement: the first robot to decide may have decided alone, and the robots decide
+    again once the others' word arrives (ral/fleet_protocol.py)."""
     view = FleetView(session)
     try:
         if args.fleet_command == "post":
@@ -211,8 +218,12 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
             except SigningError as exc:
                 print(f"cromat gcs fleet: {exc}", file=out)
                 return 2
-            view.post(task, signer, args.valid_for)
-            dec = view.wait(lambda: view.agreed(task.id), args.wait)
+            task = view.post(task, signer, args.valid_for, live=live)
+            expected = set(task.robots) | set(live)
+            dec = view.wait(lambda: view.agreed(task.id) if expected <= view.answered(task.id) else None, args.wait)
+            silent = sorted(expected - view.answered(task.id))
+            if dec is None and silent:  # the word of some never came: what the others agreed on, said as such
+                dec = view.agreed(task.id)
             if dec is None:
                 decs = view.decisions(task.id)
                 print(f"no agreement within {args.wait:g} s: answered {sorted(view.answered(task.id))}, "
@@ -221,6 +232,9 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO) -> int:
             print("\n".join(format_decision(dec, view.visited(task.id))), file=out)
             for robot, why in sorted(view.abstentions(task.id).items()):
                 print(f"  {robot} does not bid: {why}", file=out)
+            if silent:
+                print(f"  no word within {args.wait:g} s from {', '.join(silent)} (alive, but not answering: "
+                      "a task signed by someone it does not trust, or a link down)", file=out)
             print(f"agreed by {len(view.answered(task.id))} robots", file=out)
             if dec.unassigned:
                 print(f"{len(dec.unassigned)} of {len(task.targets)} targets unassigned: no robot that answered can "

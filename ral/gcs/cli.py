@@ -352,7 +352,8 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
         if args.command == "restart":
             return _print_reply(gcs.restart(args.robot, args.module), out)
         if args.command == "fleet":
-            return fleet_gcs.run(gcs.session, args, out)
+            return fleet_gcs.run(gcs.session, args, out,
+                                  live=gcs.robots() if args.fleet_command == "post" else ())
         if args.command in fleet_cmd.COMMANDS:
             return fleet_cmd.run(gcs, args, out)
     return 2

@@ -124,7 +124,10 @@ def test_cromat_gcs_fleet_post_sends_an_area_file_s_cells_and_nothing_for_a_bad_
 def test_cromat_gcs_fleet_post_signs_with_the_station_s_certificate_and_refuses_a_key_not_its_own(
         router: int, clients, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Over a real router: with ``--cert``/``--key`` the task on the bus carries the station's certificate and a
-    signature that verifies (bbcs/signing.py); a key that is not the certificate's exits 2 and puts nothing."""
+    signature that verifies (bbcs/signing.py); a key that is not the certificate's exits 2 and puts nothing. The
+    task names the robots whose RAL is alive even before their fleet state reached the station (a clean-clone run
+    signed a task for the one robot whose state had arrived, and the other refused it), and the station says
+    which robot never answered."""
     (tmp_path / "ca").mkdir()
     certs.make_ca(tmp_path / "ca")
     for name in ("gcs", "other"):
@@ -133,6 +136,7 @@ def test_cromat_gcs_fleet_post_signs_with_the_station_s_certificate_and_refuses_
     listener = clients(router)
     got: list[bytes] = []
     sub = listener.declare_subscriber(keys.fleet_task_key("*"), lambda s: got.append(s.payload.to_bytes()))
+    token = clients(router).liveliness().declare_token(keys.alive_key("uav09", "ral"))  # alive, no fleet state
     try:
         base = ["--connect", f"tcp/127.0.0.1:{router}", "--name", "poster", "--cert", str(ground / "gcs.pem")]
         post = ["fleet", "post", "--wait", "0.5", "--target", "t0,37.41,-6.0,22"]
@@ -142,9 +146,12 @@ def test_cromat_gcs_fleet_post_signs_with_the_station_s_certificate_and_refuses_
         wait_until(lambda: got, 10, "the marker")
         assert got == [b"marker"], "nothing was posted with a key that is not the certificate's"
         assert cli.main([*base, "--key", str(ground / "gcs.key"), *post, "--id", "signed"]) == 3
+        assert "answered []" in capsys.readouterr().out
         wait_until(lambda: len(got) == 2, 10, "the posted task")
         task = msgspec.msgpack.decode(got[1], type=FleetTask)
         trust = FleetTrust.from_files(tmp_path / "ca" / "ca.pem", ["gcs"])
         assert task.id == "signed" and verify(task, trust, time.time()) == "gcs"
+        assert task.robots == ["uav09"]
     finally:
+        token.undeclare()
         sub.undeclare()
