@@ -11,22 +11,22 @@ from typing import Annotated
 
 import msgspec
 
-Latitude = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
+Latitude = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0, description="degrees north (WGS84)")]
 """WGS84 latitude, degrees, [-90, 90]."""
-Longitude = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+Longitude = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0, description="degrees east (WGS84)")]
 """WGS84 longitude, degrees, [-180, 180]."""
 
-AltitudeAMSL = Annotated[float, msgspec.Meta(ge=-500.0, le=10_000.0)]
+AltitudeAMSL = Annotated[float, msgspec.Meta(ge=-500.0, le=10_000.0, description="metres above mean sea level")]
 """Metres above mean sea level: the DSP's reference for waypoints and telemetry positions (GPS altitude). A sanity
 range for a robot's points, not a flight envelope (the RAL checks the robot's own limits)."""
-HeightAboveHome = Annotated[float, msgspec.Meta(ge=1.0, le=500.0)]
+HeightAboveHome = Annotated[float, msgspec.Meta(ge=1.0, le=500.0, description="metres above the take-off point")]
 """Metres above the take-off point (home)."""
 SensorAltitudeEllipsoid = Annotated[float, msgspec.Meta(ge=-10_000.0, le=100_000.0)]
 """Metres above the WGS84 ellipsoid as an INS may report it (wider than a commanded point: a sensor's range)."""
 
-DegreesSigned180 = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+DegreesSigned180 = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0, description="degrees")]
 """Degrees, [-180, 180]: pan, roll, yaw as sensors report them."""
-DegreesSigned90 = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
+DegreesSigned90 = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0, description="degrees")]
 """Degrees, [-90, 90]: tilt, pitch."""
 HeadingDegrees = Annotated[float, msgspec.Meta(ge=-180.0, lt=180.0)]
 """Heading, degrees, [-180, 180), 0 = north, clockwise."""

@@ -23,7 +23,7 @@ from bbcs.contracts.geo import (
     Radians,
 )
 
-Speed = Annotated[float, msgspec.Meta(gt=0.0, le=100.0)]
+Speed = Annotated[float, msgspec.Meta(gt=0.0, le=100.0, description="m/s (default: the robot's cruise speed)")]
 """m/s; above the robot's MAX_SPEED is refused by the RAL."""
 MAX_WAYPOINTS = 10_000
 
@@ -77,10 +77,10 @@ class Bridge(msgspec.Struct, frozen=True, kw_only=True, tag="bridge"):
     """Path mode 6: the DSP flies these references (REFS) as they are; ``ref_altura`` above mean sea level."""
 
     ref_altura: AltitudeAMSL
-    error_longitudinal: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0)] = 0.0
-    error_lateral: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0)] = 0.0
+    error_longitudinal: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0, description="metres")] = 0.0
+    error_lateral: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0, description="metres")] = 0.0
     ref_heading: Radians = 0.0
-    ref_rpm_motor: Annotated[float, msgspec.Meta(ge=0.0, le=1800.0)] = 1500.0
+    ref_rpm_motor: Annotated[float, msgspec.Meta(ge=0.0, le=1800.0, description="rotor rpm")] = 1500.0
 
 
 class LookAt(msgspec.Struct, frozen=True, kw_only=True, tag="look_at"):
@@ -129,7 +129,7 @@ class Orbit(msgspec.Struct, frozen=True, kw_only=True, tag="orbit"):
 
     lat: Latitude
     lon: Longitude
-    radius: Annotated[float, msgspec.Meta(gt=0.0, le=5000.0)]
+    radius: Annotated[float, msgspec.Meta(gt=0.0, le=5000.0, description="metres")]
     height: HeightAboveHome = 20.0
     clockwise: bool = True
     turns: Annotated[float, msgspec.Meta(gt=0.0, le=20.0)] = 1.0
@@ -138,7 +138,7 @@ class Orbit(msgspec.Struct, frozen=True, kw_only=True, tag="orbit"):
 
 MANUAL_STEP_M = 5.0
 """The largest set-point move one manual command may ask for, per axis."""
-ManualStep = Annotated[float, msgspec.Meta(ge=-MANUAL_STEP_M, le=MANUAL_STEP_M)]
+ManualStep = Annotated[float, msgspec.Meta(ge=-MANUAL_STEP_M, le=MANUAL_STEP_M, description="metres")]
 
 
 class Manual(msgspec.Struct, frozen=True, kw_only=True, tag="manual"):
@@ -148,7 +148,7 @@ class Manual(msgspec.Struct, frozen=True, kw_only=True, tag="manual"):
     east: ManualStep = 0.0
     north: ManualStep = 0.0
     up: ManualStep = 0.0
-    yaw: Annotated[float, msgspec.Meta(ge=-45.0, le=45.0)] = 0.0
+    yaw: Annotated[float, msgspec.Meta(ge=-45.0, le=45.0, description="degrees, counter-clockwise")] = 0.0
 
 
 TaskParams = (TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | LookAt | SetPanTilt | Hold | Track
@@ -157,9 +157,9 @@ TaskParams = (TakeOff | Land | Goto | FollowPath | FollowVisionPath | Bridge | L
 TASK_KINDS: tuple[str, ...] = tuple(t.__struct_config__.tag for t in TaskParams.__args__)  # type: ignore[attr-defined]
 MOVEMENT_KINDS = frozenset({"take_off", "land", "goto", "follow_path", "follow_vision_path", "bridge", "hold",
                             "survey", "orbit", "manual"})
+"""Kinds that move the aircraft: a new one empties both waypoint queues before anything else goes out."""
 GENERATED_KINDS = frozenset({"survey", "orbit"})
 """Kinds whose path the trajectory generator plans (the RAL sends it a request once the task runs)."""
-"""Kinds that move the aircraft: a new one empties both waypoint queues before anything else goes out."""
 
 
 def kind_of(task: msgspec.Struct) -> str:

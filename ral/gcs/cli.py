@@ -23,9 +23,9 @@ import msgspec
 from bbcs.contracts import gri
 from bbcs.contracts.error_codes import error_name
 from ral import fleet_gcs
-from ral.gcs import fleet_cmd, watch_view
+from ral.gcs import fleet_cmd, task_args, watch_view
 from ral.gcs.api import Gcs, GcsError, NoReply, Unreachable, UsageError, session_config
-from ral.gcs.waypoints import WaypointFileError, load_polygon, load_waypoints
+from ral.gcs.waypoints import WaypointFileError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -65,56 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     lk.add_argument("--seconds", type=float, default=0.0, help="let go after this long (0: until Ctrl-C)")
     t = sub.add_parser("task", help="submit a task")
     t.add_argument("robot")
-    kinds = t.add_subparsers(dest="kind", required=True)
-    k = kinds.add_parser("take_off", help="climb to the DSP's take-off height above the take-off point")
-    k.add_argument("--height", type=float, default=10.0, help="metres above the take-off point (default 10)")
-    kinds.add_parser("land")
-    kinds.add_parser("hold", help="stop here: both waypoint queues emptied")
-    kinds.add_parser("track", help="pan & tilt follows the perception module's target")
-    k = kinds.add_parser("manual", help="move the hover set point by these offsets and hold there (airborne)")
-    for axis in ("east", "north", "up"):
-        k.add_argument(f"--{axis}", type=float, default=0.0, help="metres (default 0)")
-    k.add_argument("--yaw", type=float, default=0.0, help="degrees, counter-clockwise (default 0)")
-    for name in ("goto", "follow_path"):
-        k = kinds.add_parser(name, help="waypoints from a CSV (lat,lon,alt above sea level) or GeoJSON file")
-        k.add_argument("file")
-        k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
-        if name == "follow_path":
-            k.add_argument("--heading", type=float, metavar="DEG",
-                           help="hold this heading (degrees, path mode 1 with the HEADING slot)")
-            k.add_argument("--follower", choices=("dsp", "onboard"), default="dsp",
-                           help="dsp: the DSP's own follower (default); onboard: the path follower module flies "
-                                "the whole path (mode 3)")
-    k = kinds.add_parser("survey", help="lawnmower over a GeoJSON polygon, planned by the trajectory generator")
-    k.add_argument("polygon", metavar="POLYGON.geojson")
-    k.add_argument("--height", type=float, required=True, help="metres above the take-off point")
-    k.add_argument("--overlap", type=float, default=0.2, help="of neighbouring lidar swaths, [0, 0.9] (default 0.2)")
-    k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
-    k = kinds.add_parser("orbit", help="circle a point, planned by the trajectory generator")
-    k.add_argument("lat", type=float)
-    k.add_argument("lon", type=float)
-    k.add_argument("--radius", type=float, required=True, help="metres")
-    k.add_argument("--height", type=float, default=20.0, help="metres above the take-off point (default 20)")
-    k.add_argument("--turns", type=float, default=1.0, help="how many times round (default 1)")
-    k.add_argument("--counter-clockwise", action="store_true")
-    k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
-    k = kinds.add_parser("follow_vision_path", help="follow the paths the perception module writes")
-    k.add_argument("--speed", type=float, help="m/s (default: the robot's CRUISE_SPEED)")
-    k = kinds.add_parser("bridge", help="path mode 6: the DSP flies these references (REFS)")
-    k.add_argument("ref_altura", type=float, help="metres above sea level")
-    k.add_argument("--error-longitudinal", type=float, default=0.0, help="metres")
-    k.add_argument("--error-lateral", type=float, default=0.0, help="metres")
-    k.add_argument("--ref-heading", type=float, default=0.0, metavar="DEG", help="degrees")
-    k.add_argument("--ref-rpm", type=float, default=1500.0, help="rotor rpm [0, 1800]")
-    k = kinds.add_parser("look_at")
-    k.add_argument("lat", type=float)
-    k.add_argument("lon", type=float)
-    k.add_argument("alt", type=float)
-    k = kinds.add_parser("pan_tilt")
-    k.add_argument("pan", type=float)
-    k.add_argument("tilt", type=float)
-    k = kinds.add_parser("cancel")
-    k.add_argument("task_type")
+    task_args.add_parsers(t)  # one subcommand per task kind, from its struct (ral/gcs/task_args.py)
     a = sub.add_parser("abort", help="stop every task of a robot now")
     a.add_argument("robot")
     m = sub.add_parser("modules", help="module health, restarts and routes")
@@ -134,55 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _heading_rad(deg: float) -> float:
-    """Degrees → radians in [-π, π)."""
-    rad = math.radians(deg)
-    return (rad + math.pi) % (2 * math.pi) - math.pi
-
-
-def task_request(args: argparse.Namespace) -> gri.TaskRequest:
-    """The GRI request the ``task`` arguments describe (msgspec validates ranges)."""
-    import msgspec
-
-    kind = args.kind
-    if kind in ("goto", "follow_path"):
-        raw: dict = {
-            "type": kind,
-            "waypoints": [msgspec.to_builtins(w) for w in load_waypoints(args.file)],
-            "speed": args.speed,
-        }
-        if kind == "follow_path" and args.heading is not None:
-            raw["heading"] = _heading_rad(args.heading)
-        if kind == "follow_path":
-            raw["follower"] = args.follower
-    elif kind == "survey":
-        raw = {"type": kind, "polygon": [msgspec.to_builtins(v) for v in load_polygon(args.polygon)],
-               "height": args.height, "overlap": args.overlap, "speed": args.speed}
-    elif kind == "orbit":
-        raw = {"type": kind, "lat": args.lat, "lon": args.lon, "radius": args.radius, "height": args.height,
-               "turns": args.turns, "clockwise": not args.counter_clockwise, "speed": args.speed}
-    elif kind == "follow_vision_path":
-        raw = {"type": kind, "speed": args.speed}
-    elif kind == "bridge":
-        raw = {"type": kind, "ref_altura": args.ref_altura, "error_longitudinal": args.error_longitudinal,
-               "error_lateral": args.error_lateral, "ref_heading": _heading_rad(args.ref_heading),
-               "ref_rpm_motor": args.ref_rpm}
-    elif kind == "take_off":
-        raw = {"type": kind, "height": args.height}
-    elif kind == "look_at":
-        raw = {"type": kind, "lat": args.lat, "lon": args.lon, "alt": args.alt}
-    elif kind == "pan_tilt":
-        raw = {"type": kind, "pan": args.pan, "tilt": args.tilt}
-    elif kind == "manual":
-        raw = {"type": kind, "east": args.east, "north": args.north, "up": args.up, "yaw": args.yaw}
-    elif kind == "cancel":
-        raw = {"type": kind, "task_type": args.task_type}
-    else:
-        raw = {"type": kind}
-    try:
-        return msgspec.convert(raw, gri.TaskRequest)
-    except msgspec.ValidationError as exc:
-        raise WaypointFileError(f"bad {kind} task: {exc}") from None
+task_request = task_args.task_request
 
 
 def format_state(s: gri.GriState) -> str:
