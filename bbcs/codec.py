@@ -118,9 +118,14 @@ def violates_constraint(struct_type: type, path: str, payload: bytes) -> bool:
 
 
 def _unwrap(info: Any, value: Any) -> Any:
-    """An Optional/union field: the member that fits the value's kind (None's member never carries ranges)."""
+    """An Optional/union field: the member that fits the value's kind (None's member never carries ranges); a
+    described alias (``Meta(description=...)``, shown by msgspec as ``Metadata``): the type it describes."""
+    if isinstance(info, msgspec.inspect.Metadata):
+        info = info.type
     if isinstance(info, msgspec.inspect.UnionType):
         for member in info.types:
+            if isinstance(member, msgspec.inspect.Metadata):
+                member = member.type
             kinds = _KINDS.get(type(member))
             if kinds is not None and isinstance(value, kinds):
                 return member

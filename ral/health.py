@@ -34,6 +34,7 @@ from bbcs.conf import ConfDocument, ConfError, load_conf
 from bbcs.contracts import tasks as t
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.safety import Severity
+from bbcs.geodesy import local_en
 from ral.failsafe import FailsafeAction
 from ral.tasks import limits_conf_errors
 
@@ -42,7 +43,6 @@ Detector = Literal["attitude", "ground", "off_path", "spin"]
 MOVEMENT_KINDS = frozenset({"take_off", "land", "goto", "follow_path", "follow_vision_path", "hold", "survey",
                             "orbit", "manual", "bridge"})
 """GRI kinds of the tasks that move the robot: the ones a loss of control fails."""
-EARTH_M_PER_DEG = 111_320.0
 CONF_GROUP = ("HEALTH", "limits")
 
 _NonNeg = Annotated[float, msgspec.Meta(ge=0.0)]
@@ -233,9 +233,9 @@ def tilt_deg(roll: float, pitch: float) -> float:
 
 
 def _enu(ref: GeoPoint, p: GeoPoint | t.Waypoint) -> tuple[float, float, float]:
-    """Metres east, north, up of ``p`` from ``ref`` (equirectangular: exact enough within a few km)."""
-    return ((p.lon - ref.lon) * EARTH_M_PER_DEG * math.cos(math.radians(ref.lat)),
-            (p.lat - ref.lat) * EARTH_M_PER_DEG, p.alt - ref.alt)
+    """Metres east, north, up of ``p`` from ``ref`` (bbcs.geodesy's local frame at ``ref``)."""
+    east, north = local_en(ref.lat, ref.lon, p.lat, p.lon)
+    return east, north, p.alt - ref.alt
 
 
 def _to_segment(p: tuple[float, ...], a: tuple[float, ...], b: tuple[float, ...]) -> float:

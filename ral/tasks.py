@@ -127,6 +127,9 @@ def admit(request: t.TaskParams, *, available: dict[str, str], task_names: dict[
             if limits.cruise_speed is None:
                 return Rejected(f"{kind}: no speed given and the robot's .conf has no CRUISE_SPEED")
             params = msgspec.structs.replace(request, speed=limits.cruise_speed)  # type: ignore[type-var]
+        elif not speed > 0:
+            return Rejected(f"{kind}: speed {speed:g} m/s: a task is flown at a positive speed (none given: the "
+                            "robot's CRUISE_SPEED)")
         elif speed > limits.max_speed:
             return Rejected(f"{kind}: speed {speed:g} m/s is above MAX_SPEED {limits.max_speed:g} m/s")
     if isinstance(request, t.TakeOff) and limits.takeoff_height_m is not None:

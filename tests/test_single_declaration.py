@@ -25,17 +25,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("bbcs", "control", "cromat", "module_manager", "modules", "ral")
 HOMES = {"bbcs/geodesy.py", "bbcs/contracts/geo.py"}
-KNOWN: dict[str, str] = {
-    "bbcs/contracts/dsp.py": "Lat/Lon aliases declared again for the DSP's messages (issue 35, 'one declaration per "
-                             "quantity': another part of the redesign)",
-    "bbcs/contracts/trajectory.py": "Latitude/Longitude aliases declared again for the trajectory contract (issue 35, "
-                                    "same part)",
-    "cromat/mavlink/commands.py": "111,320 m per degree for a reposition (cromat/mavlink is outside this change)",
-    "cromat/mavlink/plan.py": "a mission item's lat/lon checked by hand (cromat/mavlink is outside this change)",
-    "modules/safety_monitor/logic.py": "111,320 m per degree: the flight-safety monitor, this wave's oracle, keeps "
-                                       "its own model until its owner moves it to bbcs.geodesy",
-    "ral/health.py": "111,320 m per degree in the health checks (another part of the redesign edits this file)",
-}
+KNOWN: dict[str, str] = {}
 """Declarations outside their homes that are known and owned elsewhere, each with why it is still there. The list
 only shrinks: an entry that no longer offends fails the test until it is removed."""
 

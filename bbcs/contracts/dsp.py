@@ -28,15 +28,26 @@ from typing import Annotated, Any, ClassVar
 import msgspec
 from msgspec import Meta
 
+from bbcs.contracts.geo import (
+    MAX_SPEED_LIMIT,
+    CommandSpeed,
+    DegreesSigned90,
+    DegreesSigned180,
+    HeadingDegrees,
+    Latitude,
+    Longitude,
+    Radians,
+    RotorRpm,
+)
+
 LATLON_SCALE = 10_000  # SPEC §3: lat/lon × 10^4 → int32 for the DSP (1e-4° ≈ 11.1 m)
 TELEMETRY_LATLON_SCALE = 10_000_000  # telemetry positions: 1e-7° ≈ 1.1 cm
 WAYPOINT_QUEUE_CAPACITY = 512
-MAX_SPEED_LIMIT = 30.0  # m/s, protocol ceiling; the airframe's MAX_SPEED (conf) is lower
 
 F32_MAX = 3.4028234663852886e38
 F32 = Annotated[float, Meta(ge=-F32_MAX, le=F32_MAX)]
-Lat = Annotated[float, Meta(ge=-90.0, le=90.0)]
-Lon = Annotated[float, Meta(ge=-180.0, le=180.0)]
+Lat = Latitude  # the DSP's positions are WGS84 degrees: the one declaration in bbcs/contracts/geo.py
+Lon = Longitude
 U8 = Annotated[int, Meta(ge=0, le=0xFF)]
 U16 = Annotated[int, Meta(ge=0, le=0xFFFF)]
 U32 = Annotated[int, Meta(ge=0, le=0xFFFFFFFF)]
@@ -189,7 +200,7 @@ class SetSpeed(Command, frozen=True, kw_only=True):
     """Navigation speed along the path (also the start-up "speed 0")."""
 
     MSG_ID: ClassVar[MsgId] = MsgId.SET_SPEED
-    speed: Annotated[float, Meta(ge=0.0, le=MAX_SPEED_LIMIT)]
+    speed: CommandSpeed
 
 
 class SetTelemetryMask(Command, frozen=True, kw_only=True):
@@ -249,7 +260,7 @@ class SetHeading(Command, frozen=True, kw_only=True):
     """Heading reference for mode 1, degrees (0 north, clockwise)."""
 
     MSG_ID: ClassVar[MsgId] = MsgId.SET_HEADING
-    heading_deg: Annotated[float, Meta(ge=-180.0, lt=180.0)]
+    heading_deg: HeadingDegrees
 
 
 class AddWaypoint(Command, frozen=True, kw_only=True):
@@ -268,8 +279,8 @@ class SetRefs(Command, frozen=True, kw_only=True):
     ref_altura: F32
     error_longitudinal: F32
     error_lateral: F32
-    ref_heading: Annotated[float, Meta(ge=-math.pi, lt=math.pi)]
-    ref_rpm_motor: Annotated[float, Meta(ge=0.0, le=1800.0)]
+    ref_heading: Radians
+    ref_rpm_motor: RotorRpm
 
 
 class SetPanTiltMode(Command, frozen=True, kw_only=True):
@@ -279,8 +290,8 @@ class SetPanTiltMode(Command, frozen=True, kw_only=True):
 
 class SetPanTiltAngles(Command, frozen=True, kw_only=True):
     MSG_ID: ClassVar[MsgId] = MsgId.SET_PT_ANGLES
-    pan_deg: Annotated[float, Meta(ge=-180.0, le=180.0)]
-    tilt_deg: Annotated[float, Meta(ge=-90.0, le=90.0)]
+    pan_deg: DegreesSigned180
+    tilt_deg: DegreesSigned90
 
 
 class SetPanTiltTarget(Command, frozen=True, kw_only=True):

@@ -1,4 +1,4 @@
-"""Geographic and angle types, declared once with their ranges (so decoding a struct is validating it).
+"""Geographic, angle and speed types, declared once with their ranges (so decoding a struct is validating it).
 
 Every struct that carries a position or an angle uses these aliases; a range changes here and nowhere else.
 Angles are degrees unless the alias says radians. Latitude/longitude are WGS84.
@@ -32,6 +32,14 @@ HeadingDegrees = Annotated[float, msgspec.Meta(ge=-180.0, lt=180.0)]
 """Heading, degrees, [-180, 180), 0 = north, clockwise."""
 Radians = Annotated[float, msgspec.Meta(ge=-math.pi, lt=math.pi)]
 """An angle in radians, [-π, π)."""
+
+MAX_SPEED_LIMIT = 30.0
+"""m/s: the DSP protocol's ceiling on a commanded speed; each airframe's MAX_SPEED (its .conf) is lower and is
+checked where the robot's limits are known (the RAL's admission, the path follower)."""
+CommandSpeed = Annotated[float, msgspec.Meta(ge=0.0, le=MAX_SPEED_LIMIT, description="m/s")]
+"""A commanded speed, m/s, [0, MAX_SPEED_LIMIT]: a task's, the SPEED_SEG_CAM slot's, the DSP's SET_SPEED (0 stops)."""
+RotorRpm = Annotated[float, msgspec.Meta(ge=0.0, le=1800.0, description="rotor rpm")]
+"""The bridge's rotor reference (REFS_SEG_CAM ``ref_rpm_motor``), rpm."""
 
 
 class GeoPoint(msgspec.Struct, frozen=True, kw_only=True):

@@ -11,7 +11,7 @@ from typing import Annotated
 
 import msgspec
 
-from bbcs.contracts.geo import Latitude, Longitude, Radians
+from bbcs.contracts.geo import CommandSpeed, Latitude, Longitude, Radians
 from bbcs.contracts.slots import SlotNumber
 
 
@@ -44,7 +44,7 @@ class HeadingSegCam(msgspec.Struct, frozen=True, kw_only=True):
 class SpeedSegCam(msgspec.Struct, frozen=True, kw_only=True):
     """SPEED_SEG_CAM: navigation speed, m/s, [0, MAX_SPEED] (MAX_SPEED from the robot .conf)."""
 
-    speed: Annotated[float, msgspec.Meta(ge=0.0)]
+    speed: CommandSpeed
 
 
 SPEED_ACK_SLOT = "speed_ack"

@@ -18,6 +18,7 @@ from typing import Annotated
 import msgspec
 
 from bbcs import keys
+from bbcs.contracts.geo import CommandSpeed
 from bbcs.contracts.tasks import TaskParams
 
 CLOCK = "clock"
@@ -78,7 +79,7 @@ class FormationKeep(msgspec.Struct, frozen=True, kw_only=True, tag="formation_ke
     north_m: Separation = 0.0
     east_m: Separation = 0.0
     up_m: Separation = 0.0
-    speed: Annotated[float, msgspec.Meta(gt=0.0, le=100.0)] | None = None
+    speed: CommandSpeed | None = None
 
 
 class StopFormation(msgspec.Struct, frozen=True, kw_only=True, tag="stop_formation"):

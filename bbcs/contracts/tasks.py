@@ -15,16 +15,19 @@ import msgspec
 
 from bbcs.contracts.geo import (
     AltitudeAMSL,
+    CommandSpeed,
     DegreesSigned90,
     DegreesSigned180,
     HeightAboveHome,
     Latitude,
     Longitude,
     Radians,
+    RotorRpm,
 )
 
-Speed = Annotated[float, msgspec.Meta(gt=0.0, le=100.0, description="m/s (default: the robot's cruise speed)")]
-"""m/s; above the robot's MAX_SPEED is refused by the RAL."""
+Speed = CommandSpeed
+"""A task's speed: :data:`~bbcs.contracts.geo.CommandSpeed` (m/s); 0, or above the robot's MAX_SPEED, is refused by
+the RAL; none given: the robot's CRUISE_SPEED."""
 MAX_WAYPOINTS = 10_000
 
 
@@ -80,7 +83,7 @@ class Bridge(msgspec.Struct, frozen=True, kw_only=True, tag="bridge"):
     error_longitudinal: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0, description="metres")] = 0.0
     error_lateral: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0, description="metres")] = 0.0
     ref_heading: Radians = 0.0
-    ref_rpm_motor: Annotated[float, msgspec.Meta(ge=0.0, le=1800.0, description="rotor rpm")] = 1500.0
+    ref_rpm_motor: RotorRpm = 1500.0
 
 
 class LookAt(msgspec.Struct, frozen=True, kw_only=True, tag="look_at"):

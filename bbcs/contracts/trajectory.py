@@ -12,8 +12,8 @@ from typing import Annotated, Literal
 
 import msgspec
 
-Latitude = Annotated[float, msgspec.Meta(ge=-90.0, le=90.0)]
-Longitude = Annotated[float, msgspec.Meta(ge=-180.0, le=180.0)]
+from bbcs.contracts.geo import Latitude, Longitude
+
 Height = Annotated[float, msgspec.Meta(gt=0.0, le=3000.0)]
 """Flight height above the ground, metres."""
 

@@ -13,6 +13,7 @@ from typing import Literal
 
 from bbcs.contracts import gri
 from bbcs.contracts.robot import GeoPoint
+from bbcs.geodesy import distance_m
 from cromat.mavlink.dialect import mav
 from cromat.mavlink.plan import AMSL_FRAMES, Plan, PlanError, command_name, to_altitude_amsl
 from cromat.mavlink.telemetry import PX4_MODES, mode_name
@@ -185,9 +186,7 @@ HOME_RADIUS_M = 8.0
 
 
 def _metres(a: GeoPoint, b: GeoPoint) -> float:
-    n = (b.lat - a.lat) * 111_320.0
-    e = (b.lon - a.lon) * 111_320.0 * math.cos(math.radians(a.lat))
-    return math.hypot(n, e)
+    return distance_m(a.lat, a.lon, b.lat, b.lon)
 
 
 def _reposition(ctx: Context, cmd: Command) -> Outcome:

@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass
 
 from bbcs.contracts import gri
+from bbcs.geodesy import distance_m, valid_lat_lon
 from cromat.mavlink.dialect import mav
 
 AMSL_FRAMES = frozenset({mav.MAV_FRAME_GLOBAL, mav.MAV_FRAME_GLOBAL_INT})
@@ -136,8 +137,7 @@ def plan_of(items: list[Item], home_alt: float | None) -> Plan:
             finish = "rtl" if it.command == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH else "land"
             end = waypoints[-1]
             lat, lon = it.x / 1e7, it.y / 1e7
-            if finish == "land" and (it.x or it.y) and math.hypot(
-                    (lat - end.lat) * 111_320.0, (lon - end.lon) * 111_320.0 * math.cos(math.radians(lat))) > 1.0:
+            if finish == "land" and (it.x or it.y) and distance_m(lat, lon, end.lat, end.lon) > 1.0:
                 waypoints.append(gri.Waypoint(lat=lat, lon=lon, alt=end.alt))  # its point, at the last altitude
                 seqs.append(it.seq)
         elif it.command == mav.MAV_CMD_NAV_WAYPOINT:
@@ -146,7 +146,7 @@ def plan_of(items: list[Item], home_alt: float | None) -> Plan:
                                 "(leave them 0)")
             alt = to_altitude_amsl(it.frame, it.z, home_alt, what)
             lat, lon = it.x / 1e7, it.y / 1e7
-            if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            if not valid_lat_lon(lat, lon):
                 raise PlanError(f"{what}: latitude {lat} / longitude {lon} out of range")
             waypoints.append(gri.Waypoint(lat=lat, lon=lon, alt=alt))
             seqs.append(it.seq)

@@ -25,8 +25,8 @@ from bbcs.contracts.robot import RobotTelemetry
 from bbcs.contracts.safety import Breach, Invariant, Severity
 from bbcs.contracts.tasks import FollowPath, Goto, TakeOff, TaskInfo
 from bbcs.contracts.vehicle_truth import VehicleTruth
+from bbcs.geodesy import distance_m
 
-EARTH_M_PER_DEG = 111_320.0
 DEFAULT_SERVES: Mapping[str, frozenset[str]] = {
     "path_follower": frozenset({"movement"}),
     "pan_tilt": frozenset({"pan_tilt", "perception"}),
@@ -66,10 +66,8 @@ def describe_command(cmd: object) -> str:
 
 
 def ground_distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
-    """Metres between two nearby points (equirectangular: exact enough below a few km)."""
-    north = (lat2 - lat1) * EARTH_M_PER_DEG
-    east = (lon2 - lon1) * EARTH_M_PER_DEG * math.cos(math.radians((lat1 + lat2) / 2))
-    return math.hypot(north, east)
+    """Horizontal metres between two points (bbcs.geodesy: the model every other process uses)."""
+    return distance_m(lat1, lon1, lat2, lon2)
 
 
 @dataclass(frozen=True)

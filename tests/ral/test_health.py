@@ -13,6 +13,7 @@ from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry
 from bbcs.contracts.safety import Severity
+from bbcs.geodesy import offset
 from bbcs.testing import wait_until
 from ral.failsafe import FailsafeAction
 from ral.health import (
@@ -28,13 +29,12 @@ from tests.ral.test_process import Rig
 from tests.ral.test_process import rig as ral_rig  # noqa: F401  (the RAL against the stand-in manager)
 
 HOME = GeoPoint(lat=-34.918, lon=-56.166, alt=30.0)
-M_PER_DEG = 111_320.0
 
 
 def at(east: float = 0.0, north: float = 0.0, up: float = 4.0) -> GeoPoint:
     """A point ``east``/``north``/``up`` metres from HOME."""
-    return GeoPoint(lat=HOME.lat + north / M_PER_DEG,
-                    lon=HOME.lon + east / (M_PER_DEG * math.cos(math.radians(HOME.lat))), alt=HOME.alt + up)
+    lat, lon = offset(HOME.lat, HOME.lon, north, east)  # WGS84, as the RAL judges (bbcs.geodesy)
+    return GeoPoint(lat=lat, lon=lon, alt=HOME.alt + up)
 
 
 def tel(stamp: float, *, pos: GeoPoint | None = None, roll: float = 0.0, pitch: float = 0.0, heading: float = 90.0,
