@@ -202,6 +202,8 @@ def run(session: zenoh.Session, args: argparse.Namespace, out: TextIO, live: Ite
                     targets += parse_area_arg(x, i)
                 if not targets:
                     raise ValueError("nothing to do: give --target or --area")
+                if args.speed is not None and not args.speed > 0:
+                    raise ValueError(f"--speed must be positive, not {args.speed:g} (none: each robot's cruise speed)")
                 if args.valid_for is not None and not args.valid_for > 0:
                     raise ValueError(f"--valid-for must be positive, not {args.valid_for:g}")
                 if len(targets) > MAX_TARGETS:

@@ -1,4 +1,4 @@
-"""Each Earth constant and each latitude/longitude range is declared once, in its home.
+"""Each Earth constant, each latitude/longitude range and the commanded speed's range is declared once, in its home.
 
 Why: the project once had three Earth models in thirteen places (a 6,371 km sphere, 111,320 m per degree, WGS84),
 so two processes could disagree by ~0.5% about one distance; and a latitude range written again beside its alias
@@ -9,7 +9,8 @@ What counts, in the shipped packages (tests and benches build their own fixtures
 - an Earth constant: a number in code (not in a comment or docstring) of an Earth radius (6,300–6,400 km), of
   metres per degree (110,500–111,700), of WGS84's inverse flattening (298.25–298.26) or eccentricity squared;
 - a latitude/longitude range: a comparison of a latitude or longitude (a name such as ``lat``, ``home_lon``,
-  ``latlon``) with ±90 or ±180, or a ``Meta`` bound of ±90/±180 on a latitude/longitude alias or field.
+  ``latlon``) with ±90 or ±180, or a ``Meta`` bound of ±90/±180 on a latitude/longitude alias or field;
+- in the contracts (``bbcs/contracts``), a ``Meta`` range on a speed (an alias or field named ``*speed*``).
 """
 
 from __future__ import annotations
@@ -104,10 +105,28 @@ def lat_lon_ranges(source: str) -> list[tuple[int, str]]:
     return found
 
 
+def speed_ranges(source: str) -> list[tuple[int, str]]:
+    """(line, what) of every ``Meta`` range written on a speed (an alias or a field named ``*speed*``): a commanded
+    speed is :data:`bbcs.contracts.geo.CommandSpeed` (once there were three ranges: <= 100, unbounded, <= 30)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Assign | ast.AnnAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            named = [t.id if isinstance(t, ast.Name) else getattr(t, "attr", "") for t in targets]
+            if not any("speed" in n.lower() for n in named):
+                continue
+            for sub in ast.walk(node):
+                if isinstance(sub, ast.Call) and _names(sub.func) & {"Meta"} and any(
+                        k.arg in ("ge", "gt", "le", "lt") for k in sub.keywords):
+                    found.append((node.lineno, f"a Meta range on {named[0]}: {ast.unparse(sub)}"))
+    return found
+
+
 def offences(path: Path) -> list[str]:
     source = path.read_text()
+    speeds = speed_ranges(source) if "contracts" in path.parts else []
     return [f"{path.relative_to(ROOT)}:{line}: {what}"
-            for line, what in sorted(earth_constants(source) + lat_lon_ranges(source))]
+            for line, what in sorted(earth_constants(source) + lat_lon_ranges(source) + speeds)]
 
 
 def shipped_files() -> list[Path]:
@@ -148,6 +167,16 @@ def test_earth_constants_and_lat_lon_ranges_live_in_their_homes_only() -> None:
                      + "\n".join(new))
     stale = [f for f in KNOWN if not by_file.get(f)]
     assert not stale, f"no longer declares its own: remove from KNOWN: {stale}"
+
+
+@pytest.mark.parametrize(("source", "found"), [
+    ("Speed = Annotated[float, msgspec.Meta(gt=0.0, le=100.0)]\n", True),
+    ("class S:\n    speed: Annotated[float, Meta(ge=0.0)]\n", True),
+    ("class S:\n    speed: CommandSpeed | None = None\n", False),
+    ("class S:\n    radius: Annotated[float, Meta(gt=0.0)]\n", False),
+])
+def test_a_speed_range_is_found(source: str, found: bool) -> None:
+    assert bool(speed_ranges(source)) is found
 
 
 def test_the_homes_do_declare_them() -> None:

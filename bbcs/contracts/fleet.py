@@ -18,6 +18,7 @@ from typing import Annotated
 
 import msgspec
 
+from bbcs.contracts.geo import AltitudeAMSL, CommandSpeed, Latitude, Longitude
 from bbcs.contracts.signed import (  # noqa: F401  (limits and signed_bytes: also importable from here)
     MAX_SIGNATURE,
     MAX_SIGNER_CERT,
@@ -27,7 +28,6 @@ from bbcs.contracts.signed import (  # noqa: F401  (limits and signed_bytes: als
     SignerCert,
     signed_bytes,
 )
-from bbcs.contracts.tasks import AltitudeAMSL, Latitude, Longitude
 
 MAX_TARGETS = 200
 FleetId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$")]
@@ -55,7 +55,7 @@ class FleetTask(msgspec.Struct, frozen=True, kw_only=True):
     targets: Annotated[list[FleetTarget], msgspec.Meta(min_length=1, max_length=MAX_TARGETS)]
     one_per_robot: bool = False
     posted_by: str = ""
-    speed: Annotated[float, msgspec.Meta(gt=0, le=30)] | None = None
+    speed: CommandSpeed | None = None
     """Flight speed for the fleet's paths (None: each robot's cruise speed)."""
     balance: bool = False
     """Share the targets so that the last robot finishes soonest, not so that the robots fly the least in all

@@ -15,8 +15,8 @@ import msgspec
 
 from bbcs.contracts.geo import AltitudeAMSL, DegreesSigned90, DegreesSigned180, Latitude, Longitude
 
-Speed = Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0)]
-"""m/s, one velocity component."""
+VelocityComponent = Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0)]
+"""m/s, one component of a measured velocity (a sanity range of the truth, not a commanded speed)."""
 
 
 class VehicleTruth(msgspec.Struct, frozen=True, kw_only=True, array_like=True):
@@ -34,7 +34,7 @@ class VehicleTruth(msgspec.Struct, frozen=True, kw_only=True, array_like=True):
     lon: Longitude
     alt: AltitudeAMSL
     """Metres, the DSP's altitude datum (home altitude + height)."""
-    vel_neu: tuple[Speed, Speed, Speed]
+    vel_neu: tuple[VelocityComponent, VelocityComponent, VelocityComponent]
     """Velocity north, east, up, m/s."""
     roll: DegreesSigned180
     """Aerospace convention (body x forward, y right, z down): positive = right side down."""
