@@ -33,9 +33,9 @@ import msgspec
 from benchlib import ROOT, pct, stop_group, write_results
 
 from bbcs import keys
+from bbcs.contracts import dsp as p
 from bbcs.contracts import gri, mri
 from bbcs.testing import free_port
-from modules.dsp import protocol as p
 from ral.gcs.api import Gcs, session_config
 
 ROBOT = "uav1"

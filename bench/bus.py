@@ -30,13 +30,10 @@ import msgspec
 import zenoh
 from benchlib import pct, write_results
 
-from bbcs import keys
-from bbcs.context import ModuleContext
-from bbcs.module import Module
+from bbcs import InputSlot, Kind, Module, ModuleContext, OutputSlot, keys
 from bbcs.session import SessionConfig, TlsConfig, local_client, open_session, peer_links_config
-from bbcs.slots import InputSlot, Kind, OutputSlot
 from bbcs.testing import Processes, child_env, free_port, start_router, wait_port
-from module_manager.links import peer_session
+from module_manager.bus_links import peer_session
 
 SIZES = {"small": 0, "1k": 1000, "32k": 32_000}
 MODES = ("raw", "bbcs", "rawpeer", "bbcspeer")
@@ -70,7 +67,7 @@ def _cfg(port: int, mode: str = "raw", identity: str = "pinger") -> SessionConfi
     A peer listens on a free 127.0.0.1 port and connects to the router; the router's gossip tells each peer the
     other's locator, and they link directly (multicast scouting stays off): the topology of ``links = "peers"``.
     ``*_tls``: the same under mutual TLS with ``identity``'s certificate and, for a peer, the robot's access policy
-    on its ingress, exactly as ``module_manager/links.py`` configures a module of a ``[bus.tls]`` manifest.
+    on its ingress, exactly as ``module_manager/bus_links.py`` configures a module of a ``[bus.tls]`` manifest.
     """
     if mode.endswith("_tls"):
         pki = Path(os.environ[PKI_ENV])
@@ -93,7 +90,7 @@ def start_secure_router(procs: Processes, folder: Path) -> int:
     """Certificates for the bench's four modules (``cromat certs``), the robot router with mTLS and the access
     policy (bbcs/acl.py) on a free port, and the peers' ingress policy for the children (``$CROMAT_BENCH_PKI``)."""
     from cromat import certs
-    from module_manager.links import peer_policy
+    from module_manager.bus_links import peer_policy
     from module_manager.secure import ROUTER, certificate_cn
 
     port, pki, cfg = free_port(), folder / "pki", folder / "router.json5"

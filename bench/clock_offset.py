@@ -19,8 +19,8 @@ import benchlib  # noqa: F401  (puts the project on sys.path)
 import zenoh
 from benchlib import pct, write_results
 
+from bbcs import local_client, open_session
 from bbcs.net import free_port, wait_tcp
-from bbcs.session import local_client, open_session
 from bbcs.testing import Processes
 from ral import sync
 from ral.sync_bus import ClockService, ClockTracker

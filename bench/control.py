@@ -24,8 +24,8 @@ import time
 import numpy as np
 from benchlib import pct, write_results
 
+from bbcs.contracts import dsp as p
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.framing import Frame
 from modules.dsp.sim.machine import DspMachine, DspParams
 from modules.dsp.sim.vehicle import VehicleParams

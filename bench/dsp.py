@@ -23,8 +23,8 @@ from collections.abc import Callable
 import numpy as np
 from benchlib import write_results
 
+from bbcs.contracts import dsp as p
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.framing import Frame, FrameParser
 from modules.dsp.sim.stress import TYPICAL_MASKS, dsp_traffic, fault_stream, random_telemetry, score
 

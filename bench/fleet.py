@@ -46,10 +46,9 @@ from benchlib import pct, write_results
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse.csgraph import minimum_spanning_tree
 
-from bbcs import keys
+from bbcs import keys, local_client, open_session
 from bbcs.contracts.fleet import FleetTarget, FleetTask
 from bbcs.net import free_port, wait_tcp
-from bbcs.session import local_client, open_session
 from bbcs.testing import child_env, stop_process, wait_port
 from ral.allocation import Bid, Target, allocate, cost_matrix, reallocate
 from ral.fleet import FleetLink

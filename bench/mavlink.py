@@ -34,13 +34,16 @@ from benchlib import ROOT, pct, stop_group, write_results
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from bbcs import wire  # noqa: E402
+from bbcs import (
+    SessionConfig,
+    open_session,
+    wire,  # noqa: E402
+)
 from bbcs.contracts import gri  # noqa: E402
 from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED  # noqa: E402
 from bbcs.contracts.mri import ModuleStatus  # noqa: E402
 from bbcs.contracts.robot import RobotTelemetry  # noqa: E402
 from bbcs.contracts.tasks import TaskInfo  # noqa: E402
-from bbcs.session import SessionConfig, open_session  # noqa: E402
 from bbcs.testing import free_port  # noqa: E402
 from ral.gcs.api import Gcs, session_config  # noqa: E402
 

@@ -38,13 +38,12 @@ from pathlib import Path
 import msgspec
 from benchlib import ROOT, pct, write_results
 
+from bbcs import Publisher, SessionConfig, TlsConfig, open_session
 from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
 from bbcs.dsp_client import commands_output
-from bbcs.session import SessionConfig, TlsConfig, open_session
-from bbcs.slots import Publisher
 from bbcs.testing import Processes, free_port, wait_port, wait_until
 from cromat import certs
-from modules.dsp import protocol as p
 from modules.dsp.sim.record import read_record
 
 ROBOT = "uav1"
@@ -59,7 +58,7 @@ s = open_session(cfg)
 pub = s.declare_publisher(key)
 from bbcs.contracts import dsp as bus
 from bbcs.contracts.pan_tilt import DatosPT
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 n, end = 0, time.monotonic() + seconds
 while time.monotonic() < end:
     value = (bus.DspCommands(sender="pan_tilt", batch_id=n, commands=[p.SetPanTiltAngles(pan_deg=n % 90, tilt_deg=-10)])

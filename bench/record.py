@@ -24,11 +24,9 @@ from pathlib import Path
 
 from benchlib import ROOT, write_results
 
-from bbcs import keys
+from bbcs import Kind, OutputSlot, Publisher, keys, local_client, open_session
 from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED
 from bbcs.contracts.robot import RobotTelemetry
-from bbcs.session import local_client, open_session
-from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import Processes, child_env, start_router
 
 KEYS = 4

@@ -28,7 +28,7 @@ from statistics import median
 import zenoh
 from benchlib import ROOT, write_results
 
-from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs import SessionConfig, TlsConfig, open_session
 from bbcs.testing import free_port, wait_port
 from cromat import certs
 

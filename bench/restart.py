@@ -32,10 +32,8 @@ from pathlib import Path
 import msgspec
 from benchlib import ROOT, pct, write_results
 
-from bbcs import keys
+from bbcs import RouteAck, SessionConfig, keys, open_session
 from bbcs.contracts import mri
-from bbcs.routing import RouteAck
-from bbcs.session import SessionConfig, open_session
 
 sys.path.insert(0, str(ROOT / "tests" / "module_manager"))
 from launch_support import Launch, standbys, write_manifest  # noqa: E402

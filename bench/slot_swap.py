@@ -23,8 +23,8 @@ from pathlib import Path
 
 from benchlib import ROOT, pct, write_results
 
+from bbcs import local_client, open_session
 from bbcs.contracts import mri
-from bbcs.session import local_client, open_session
 from bbcs.testing import child_env, free_port
 
 PROBE = ROOT / "tests" / "module_manager"

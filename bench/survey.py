@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from benchlib import write_results
 
-from bbcs.contracts.trajectory import GeoPoint, SurveyRequest, TrajectoryRequest
+from bbcs.contracts.trajectory import SurveyRequest, TrajectoryRequest, Vertex
 from modules.lidar_logger.dtm import Dtm, build_dtm, coverage, ground_candidates, polygon_mask
 from modules.lidar_logger.georef import georeference
 from modules.lidar_logger.logformats import load_log
@@ -95,8 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     limits = Limits(speed=args.speed, max_bank_deg=args.bank, ground_altitude=0.0, line_extension=5.0)
     t0 = time.perf_counter()
     result = plan(TrajectoryRequest(request_id=1, survey=SurveyRequest(
-        polygon=[GeoPoint(lat=float(a), lon=float(o)) for a, o, _ in lla], height=args.height,
-        overlap=args.overlap, start=GeoPoint(lat=float(start[0]), lon=float(start[1])))), limits)
+        polygon=[Vertex(lat=float(a), lon=float(o)) for a, o, _ in lla], height=args.height,
+        overlap=args.overlap, start=Vertex(lat=float(start[0]), lon=float(start[1])))), limits)
     plan_s = time.perf_counter() - t0
     geo = np.array([[p.latitud, p.longitud, 0.0] for p in result.path.puntos])
     path = world0.lla_to_terrain(geo)[:, :2]

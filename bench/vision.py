@@ -28,15 +28,12 @@ import msgspec
 import numpy as np
 from benchlib import ROOT, pct, write_results
 
-from bbcs import keys
+from bbcs import Kind, OutputSlot, Publisher, SlotRef, SlotTable, keys, local_client, open_session
 from bbcs.contracts import dsp as dsp_bus
+from bbcs.contracts import dsp as p
 from bbcs.contracts.pan_tilt import ControlEntradaPT, ModoFuncionamientoPT
 from bbcs.contracts.robot import RobotTelemetry
-from bbcs.routing import SlotRef, SlotTable
-from bbcs.session import local_client, open_session
-from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import Processes, child_env, start_router, wait_until
-from modules.dsp import protocol as p
 from modules.vision.geodesy import LocalFrame
 from modules.vision.pipeline import VisionPipeline
 from modules.vision.pose import Gimbal

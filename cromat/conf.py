@@ -1,7 +1,7 @@
 """``cromat conf check FILE``: every mistake in a robot .conf, each as ``file:line:col: message``; exit 1 if any.
 
 The file's syntax is checked by :mod:`bbcs.conf`; its values by the modules that read it: every module class
-with a ``conf_errors(doc) -> list[ConfError]`` attribute (e.g. ``modules.dsp.process:DspModule``). Which classes:
+with a ``conf_errors(doc) -> list[ConfError]`` attribute (e.g. ``modules.dsp.module:DspModule``). Which classes:
 those of ``--manifest`` (the same check ``cromat launch --check`` runs), those given with ``--class``, or by
 default those of every manifest beside the file that names it as its ``robot.conf`` (``bbcs_conf/uquad1.conf`` is
 checked by ``uquad1_sim.toml``'s modules); with no such manifest, the UAV's modules (DSP, lidar logger, RAL).
@@ -17,10 +17,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bbcs.conf import ConfDocument, ConfError, load_conf
+from bbcs import ConfDocument, ConfError, load_conf
 
-DEFAULT_CLASSES = ("modules.dsp.process:DspModule", "modules.lidar_logger.module:LidarLoggerModule",
-                   "ral.process:Ral")
+DEFAULT_CLASSES = ("modules.dsp.module:DspModule", "modules.lidar_logger.module:LidarLoggerModule",
+                   "ral.module:Ral")
 """The module classes whose .conf part ``cromat conf check FILE`` checks when no manifest beside it names the file
 (the UAV's: its DSP, the lidar logger's group and the RAL's limits)."""
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
-from bbcs.session import SessionConfig
+from bbcs import SessionConfig
 
 
 def run(main: Callable[[SessionConfig], int], description: str, argv: list[str] | None = None) -> int:

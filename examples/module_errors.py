@@ -16,10 +16,8 @@ import threading
 import msgspec
 import zenoh
 
-from bbcs import keys
+from bbcs import BusErrorCode, SessionConfig, keys, open_session
 from bbcs.contracts.errors import ErrorReport
-from bbcs.errors import BusErrorCode
-from bbcs.session import SessionConfig, open_session
 from examples.thermostat import Heater, Reading
 
 ROBOT = "demo"

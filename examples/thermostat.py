@@ -11,9 +11,8 @@ from typing import Annotated
 
 import msgspec
 
+from bbcs import InputSlot, Module, OutputSlot
 from bbcs.contracts.errors import ErrorReport
-from bbcs.module import Module
-from bbcs.slots import InputSlot, OutputSlot
 
 
 class Reading(msgspec.Struct, frozen=True, kw_only=True):

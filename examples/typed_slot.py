@@ -15,8 +15,7 @@ from typing import Annotated
 import msgspec
 import zenoh
 
-from bbcs import keys
-from bbcs.session import SessionConfig, open_session
+from bbcs import SessionConfig, keys, open_session
 
 KEY = keys.slot_key("demo", "thermometer", "reading")
 

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bbcs.stop_signals import forward_stop_signals
+from bbcs import forward_stop_signals
 from module_manager.lockstep import parse_speed
 from module_manager.manager import LaunchError, Manager
 from module_manager.manifest import ManifestError, load_manifest

@@ -42,13 +42,12 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from bbcs import keys
+from bbcs import forward_stop_signals, keys
 from bbcs.acl import MESH_ROUTER_PREFIX
 from bbcs.geodesy import offset
 from bbcs.net import free_port, wait_tcp
-from bbcs.stop_signals import forward_stop_signals
-from module_manager.lines import print_line
 from module_manager.manifest import ManifestError, load_manifest
+from module_manager.status_lines import print_line
 
 
 class FleetError(ValueError):

@@ -26,33 +26,42 @@ from typing import Any
 import msgspec
 import zenoh
 
-from bbcs import keys, router_audit, wire
+from bbcs import (
+    EXIT_CONFIG,
+    Direction,
+    Heartbeat,
+    Kind,
+    Publisher,
+    RouteAck,
+    Safety,
+    SessionConfig,
+    SlotSpec,
+    keys,
+    open_session,
+    router_audit,
+    wire,
+)
 from bbcs.context import CONTEXT_ENV, ModuleContext, encode_context
 from bbcs.contracts import mri
 from bbcs.contracts.error_codes import RouterErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
-from bbcs.errors import EXIT_CONFIG
-from bbcs.module import Heartbeat
 from bbcs.net import free_port, wait_tcp
-from bbcs.routing import RouteAck
-from bbcs.session import SessionConfig, open_session
-from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from module_manager import links, lockstep, mesh, peer_mesh, route_audit, secure
-from module_manager.lines import print_line
+from module_manager import bus_links, direct_links, lockstep, route_audit, secure, unique_name
 from module_manager.manifest import MANAGER_MODULE, Manifest, ModuleInfo, cpu_list
 from module_manager.mri_service import MriService
 from module_manager.params import ParamDesk
 from module_manager.process import Child, Priority, stop_children
 from module_manager.route_control import RouteControl
 from module_manager.standby import context_line, standby_argv
+from module_manager.status_lines import print_line
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
 from module_manager.tasks import TaskBook
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_ERRORS = 32
 MESH_POLL_S = 0.05
-"""How often the launch looks at the peer modules' links while it waits for them (``peer_mesh``)."""
+"""How often the launch looks at the peer modules' links while it waits for them (``direct_links``)."""
 MESH_WAIT_S = 10.0
 """How long a peer module waits for its direct links; then it counts as up all the same, the
 launch naming what is still apart (a module that never comes up would be worse; links form in well under a second
@@ -172,7 +181,7 @@ class Manager(RouteControl, MriService):
         self.changed = threading.Condition(self.lock)
         self.stop_event = threading.Event()
         self.modules = {name: _Module(info, Supervisor(info.policy, needs_ack=bool(info.inputs),
-                                                           needs_links=links.links(manifest) == "peers"))
+                                                           needs_links=bus_links.links(manifest) == "peers"))
                         for name, info in manifest.modules.items()}
         self.tasks = TaskBook(manifest.tasks, frozenset(n for n, m in manifest.modes.items() if not m.restore))
         self.task_uses = task_modules(manifest)
@@ -227,8 +236,8 @@ class Manager(RouteControl, MriService):
             mod.sup.beat_clock = None if self.sim is None else self.sim.clock.monotonic
         self.runtime_dir: Path | None = None
         self.bus = self.bus_for(MANAGER_MODULE)
-        self._peer_acl = links.peer_access_control(self.m) if self.m.pki is not None else None
-        """The ingress policy of every module's peer session under ``[bus] links = "peers"`` (links.py)."""
+        self._peer_acl = bus_links.peer_access_control(self.m) if self.m.pki is not None else None
+        """The ingress policy of every module's peer session under ``[bus] links = "peers"`` (bus_links.py)."""
 
     def bus_for(self, identity: str) -> SessionConfig:
         """The bus config of the manager or a module: plain client, or mTLS with that identity's certificate."""
@@ -238,7 +247,7 @@ class Manager(RouteControl, MriService):
 
     def module_bus_for(self, identity: str) -> SessionConfig:
         """A module's bus config: ``bus_for`` as a client of the router, or as a peer under ``[bus] links``."""
-        return links.module_bus(self.m, self.bus_for(identity), self._peer_acl)
+        return bus_links.module_bus(self.m, self.bus_for(identity), self._peer_acl)
 
     # ------------------------------------------------------------------------------------------ start-up
 
@@ -664,8 +673,8 @@ class Manager(RouteControl, MriService):
         mod.links_polled = now
         pids = {n: m.child.pid for n, m in self.modules.items() if m.child is not None and m.sup.phase is Phase.UP}
         pids[name] = mod.child.pid
-        apart = [pair for pair in peer_mesh.unlinked_pairs(pids) if name in pair]
-        settled = peer_mesh.verdict(apart, now - mod.links_since, MESH_WAIT_S)
+        apart = [pair for pair in direct_links.unlinked_pairs(pids) if name in pair]
+        settled = direct_links.verdict(apart, now - mod.links_since, MESH_WAIT_S)
         if settled is None:
             return
         if settled:
@@ -733,8 +742,9 @@ class Manager(RouteControl, MriService):
         code = 0
         try:
             if self.m.raw.bus.peers:
-                problem = mesh.duplicate_name_problem(self.m.robot, [self.expand(e) for e in self.m.raw.bus.peers],
-                                                      self.out, tls=secure.router_tls(self.m) if self.m.pki else None)
+                peers = [self.expand(e) for e in self.m.raw.bus.peers]
+                problem = unique_name.duplicate_name_problem(self.m.robot, peers, self.out,
+                                                             tls=secure.router_tls(self.m) if self.m.pki else None)
                 if problem is not None:
                     raise LaunchError(problem)
             self.prewarm_modules()

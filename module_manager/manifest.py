@@ -18,13 +18,10 @@ from typing import Annotated, Any, Literal
 
 import msgspec
 
-from bbcs import keys
+from bbcs import IGNORE, ConfDocument, ConfError, InvalidNameError, SlotRef, SlotTable, keys, load_conf
 from bbcs.codec import resolve_type, type_name
-from bbcs.conf import ConfDocument, ConfError, load_conf
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.robot import RobotTelemetry
-from bbcs.errors import InvalidNameError
-from bbcs.routing import IGNORE, SlotRef, SlotTable
 from module_manager.supervision import Policy
 
 MANAGER_MODULE = "manager"
@@ -37,6 +34,16 @@ Nice = Annotated[int, msgspec.Meta(ge=-20, le=19)]
 """A process's nice value, -20 (first) to 19 (last): module_manager/process.py, ``Priority``."""
 RealTime = Annotated[int, msgspec.Meta(ge=1, le=99)]
 """SCHED_RR priority of a process, 1-99 (module_manager/process.py, ``Priority``)."""
+
+
+RENAMED_MODULES = {
+    "ral.process": "ral.module",
+    "modules.dsp.process": "modules.dsp.module",
+    "modules.vision.process": "modules.vision.module",
+    "modules.uquad.flight_module": "modules.uquad.module",
+}
+"""Python modules holding a module class that were renamed (issue 35: the class lives in ``module.py`` everywhere):
+a manifest naming the old path is told the new one, at its line, before anything starts."""
 
 
 class ManifestError(Exception):
@@ -809,6 +816,9 @@ class _Checker:
         module_name, sep, qualname = name.partition(":")
         if not sep:
             raise self.fail(key, f"{name!r} must be written 'package.module:Class'")
+        if module_name in RENAMED_MODULES:
+            new = RENAMED_MODULES[module_name]
+            raise self.fail(key, f"{module_name!r} was renamed {new!r}: write '{new}:{qualname}'")
         try:
             obj: Any = importlib.import_module(module_name)
         except Exception as exc:

@@ -12,9 +12,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bbcs import acl, keys
+from bbcs import SessionConfig, TlsConfig, acl, keys
 from bbcs.contracts.dsp import commands_slot
-from bbcs.session import SessionConfig, TlsConfig
 from module_manager.manifest import MANAGER_MODULE, Manifest
 
 ROUTER = "router"
@@ -92,7 +91,7 @@ def write_router_config(manifest: Manifest, listen: list[str], folder: Path) -> 
 def router_cn(manifest: Manifest) -> str:
     """The common name the robot router's certificate presents on its links (``router-<robot>`` as ``cromat certs``
     issues it for a known robot, ``router`` for an older robot folder): read from the certificate itself, since it
-    is what a module's peer policy must let through (:func:`module_manager.links.peer_access_control`)."""
+    is what a module's peer policy must let through (:func:`module_manager.bus_links.peer_access_control`)."""
     pki = manifest.pki
     _tls(manifest)
     assert pki is not None

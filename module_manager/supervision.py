@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from bbcs.errors import EXIT_CONFIG
+from bbcs import EXIT_CONFIG
 
 RestartPolicy = Literal["never", "on-failure", "always"]
 
@@ -193,7 +193,7 @@ class Supervisor:
     @property
     def awaiting_links(self) -> bool:
         """Alive with its routes, starting, waiting only for its direct links (the manager looks at the kernel's
-        socket tables: module_manager/peer_mesh.py)."""
+        socket tables: module_manager/direct_links.py)."""
         return self.phase is Phase.STARTING and self.alive and self.routes_ok and not self.linked
 
     def links_formed(self, now: float) -> None:

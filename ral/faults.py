@@ -4,7 +4,7 @@ The DSP process refuses a telemetry frame that passed the CRC but is malformed o
 declare, and reports it on its ERROR slot as TELEMETRY_REFUSED (105, at most once a second for a run of them,
 modules/dsp/refusals.py). One such frame is a line fault the CRC let through: the frames before and after it are
 good and the task flying on them is fine, so it must not fail the task as any other module error does
-(ral/process.py ``_check_errors``). A fault that persists is another matter: if no valid telemetry follows a
+(ral/module.py ``_check_errors``). A fault that persists is another matter: if no valid telemetry follows a
 refused frame for :data:`TELEMETRY_FAULT_WINDOW_S`, the robot is flying blind and every running task of the types
 the DSP serves (movement, pan & tilt on a UAV) is failed with the reason.
 

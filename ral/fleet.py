@@ -29,13 +29,12 @@ import msgspec
 import zenoh
 import zenoh.ext
 
-from bbcs import keys
+from bbcs import Direction, Kind, Publisher, Safety, SlotSpec, keys
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetState, FleetTask
 from bbcs.geodesy import distance_m
 from bbcs.signing import FleetTrust, task_check
-from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from ral.fleet_protocol import Execute, FleetConfig, FleetNode, OwnState
 from ral.signed import ReplayMemory, SignatureGate
 

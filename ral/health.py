@@ -30,7 +30,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from bbcs.conf import ConfDocument, ConfError, load_conf
+from bbcs import ConfDocument, ConfError, load_conf
 from bbcs.contracts import tasks as t
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.contracts.safety import Severity

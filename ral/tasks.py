@@ -20,7 +20,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from bbcs.conf import ConfDocument, ConfError, load_conf
+from bbcs import ConfDocument, ConfError, load_conf
 from bbcs.contracts import tasks as t
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.geodesy import distance_m, local_en, valid_lat_lon
@@ -164,7 +164,7 @@ def _points(request: t.TaskParams) -> list[tuple[str, float, float, float | None
     if isinstance(request, t.Goto | t.FollowPath):
         return [(f"waypoint {i}", w.lat, w.lon, w.alt) for i, w in enumerate(request.waypoints)]
     if isinstance(request, t.Bridge):
-        return [("ref_altura", math.nan, math.nan, request.ref_altura)]
+        return [("ref_altitude", math.nan, math.nan, request.ref_altitude)]
     return []
 
 

@@ -4,7 +4,8 @@ Every struct a module sends to the DSP process (the commands) or reads from it (
 here with its ranges in its types (``Annotated[..., Meta(...)]``), so ``check()`` validates any message with
 msgspec against those declarations, naming the field, value and range and the error code the field declares.
 Units: degrees for angles sent to the DSP (except ``SetRefs.ref_heading``, radians, sent as SPEC says "as they
-are"), metres, m/s. ``modules/dsp/protocol.py`` adds the wire framing constants and re-exports all of it.
+are"), metres, m/s. The wire framing constants are ``modules/dsp/framing.py``'s; every process, the DSP's own
+included, imports the messages from here.
 
 Who may command the DSP: one command key per sending module, and the command classes each one owns.
 
@@ -136,7 +137,7 @@ class ErrorCode(IntEnum):
     SENSOR_FAULT = 9
 
 
-def error_name(code: int) -> str:
+def dsp_error_name(code: int) -> str:
     """Readable name of a DSP error code, also for codes newer firmware may add."""
     try:
         return ErrorCode(code).name
@@ -366,19 +367,19 @@ TelReservedFlags = Annotated[int, Meta(ge=0, le=0)]  # STATUS flag bits 3-7: res
 TelPanTiltMode = Annotated[int, Meta(ge=0, le=int(max(PanTiltMode)))]
 
 
-class Position(msgspec.Struct, frozen=True, kw_only=True):
+class TelPosition(msgspec.Struct, frozen=True, kw_only=True):
     lat: TelLat
     lon: TelLon
     alt: TelAlt
 
 
-class Attitude(msgspec.Struct, frozen=True, kw_only=True):
+class TelAttitude(msgspec.Struct, frozen=True, kw_only=True):
     roll: Angle180
     pitch: Angle90
     yaw: TelHeading
 
 
-class Velocity(msgspec.Struct, frozen=True, kw_only=True):
+class TelVelocity(msgspec.Struct, frozen=True, kw_only=True):
     vn: TelSpeed
     ve: TelSpeed
     vd: TelSpeed
@@ -435,9 +436,9 @@ class Telemetry(Message, frozen=True, kw_only=True):
 
     MSG_ID: ClassVar[MsgId] = MsgId.TELEMETRY
     time_ms: U32
-    position: Position | None = None
-    attitude: Attitude | None = None
-    velocity: Velocity | None = None
+    position: TelPosition | None = None
+    attitude: TelAttitude | None = None
+    velocity: TelVelocity | None = None
     angular_rate: AngularRate | None = None
     heading: TelHeading | None = None
     status: DspStatus | None = None

@@ -42,6 +42,13 @@ RotorRpm = Annotated[float, msgspec.Meta(ge=0.0, le=1800.0, description="rotor r
 """The bridge's rotor reference (REFS_SEG_CAM ``ref_rpm_motor``), rpm."""
 
 
+class Vertex(msgspec.Struct, frozen=True, kw_only=True):
+    """A horizontal position, WGS84 degrees: a polygon corner, a point of a planned path, a circle's centre."""
+
+    lat: Latitude
+    lon: Longitude
+
+
 class GeoPoint(msgspec.Struct, frozen=True, kw_only=True):
     """WGS84 degrees, altitude in metres above the ellipsoid (unbounded: whatever the robot measured)."""
 

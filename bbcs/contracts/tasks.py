@@ -23,6 +23,7 @@ from bbcs.contracts.geo import (
     Longitude,
     Radians,
     RotorRpm,
+    Vertex,
 )
 
 Speed = CommandSpeed
@@ -77,9 +78,10 @@ class FollowVisionPath(msgspec.Struct, frozen=True, kw_only=True, tag="follow_vi
 
 
 class Bridge(msgspec.Struct, frozen=True, kw_only=True, tag="bridge"):
-    """Path mode 6: the DSP flies these references (REFS) as they are; ``ref_altura`` above mean sea level."""
+    """Path mode 6: the DSP flies these references (REFS, the seed's ``ref_altura`` as ``ref_altitude``) as they
+    are; ``ref_altitude`` above mean sea level."""
 
-    ref_altura: AltitudeAMSL
+    ref_altitude: AltitudeAMSL
     error_longitudinal: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0, description="metres")] = 0.0
     error_lateral: Annotated[float, msgspec.Meta(ge=-1000.0, le=1000.0, description="metres")] = 0.0
     ref_heading: Radians = 0.0
@@ -107,13 +109,6 @@ class Hold(msgspec.Struct, frozen=True, kw_only=True, tag="hold"):
 
 class Track(msgspec.Struct, frozen=True, kw_only=True, tag="track"):
     """Point the pan & tilt at what the perception module tracks, until replaced."""
-
-
-class Vertex(msgspec.Struct, frozen=True, kw_only=True):
-    """A polygon corner, WGS84 degrees."""
-
-    lat: Latitude
-    lon: Longitude
 
 
 class Survey(msgspec.Struct, frozen=True, kw_only=True, tag="survey"):

@@ -12,25 +12,20 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from bbcs.contracts.geo import Latitude, Longitude
+from bbcs.contracts.geo import Vertex
 
 Height = Annotated[float, msgspec.Meta(gt=0.0, le=3000.0)]
 """Flight height above the ground, metres."""
-
-
-class GeoPoint(msgspec.Struct, frozen=True, kw_only=True):
-    lat: Latitude
-    lon: Longitude
 
 
 class SurveyRequest(msgspec.Struct, frozen=True, kw_only=True):
     """Lawnmower over ``polygon`` (3 to 200 vertices, not closed) at ``height`` above the ground, lines
     spaced so neighbouring LD-MRS swaths overlap by ``overlap`` (0.2 = 20 %)."""
 
-    polygon: Annotated[list[GeoPoint], msgspec.Meta(min_length=3, max_length=200)]
+    polygon: Annotated[list[Vertex], msgspec.Meta(min_length=3, max_length=200)]
     height: Height
     overlap: Annotated[float, msgspec.Meta(ge=0.0, le=0.9)] = 0.2
-    start: GeoPoint | None = None
+    start: Vertex | None = None
     """Where the aircraft is: the entry corner and direction are chosen to shorten the whole flight from
     here. None: only the survey's own length counts."""
     direction_deg: Annotated[float, msgspec.Meta(ge=-360.0, le=360.0)] | None = None
@@ -38,7 +33,7 @@ class SurveyRequest(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class OrbitRequest(msgspec.Struct, frozen=True, kw_only=True):
-    centre: GeoPoint
+    centre: Vertex
     radius: Annotated[float, msgspec.Meta(gt=0.0, le=5000.0)]
     height: Height
     clockwise: bool = True
@@ -49,7 +44,7 @@ class SmoothRequest(msgspec.Struct, frozen=True, kw_only=True):
     """Waypoints to join with turns the aircraft can fly (corners replaced by arcs of at least the
     generator's minimum turn radius)."""
 
-    waypoints: Annotated[list[GeoPoint], msgspec.Meta(min_length=2, max_length=1000)]
+    waypoints: Annotated[list[Vertex], msgspec.Meta(min_length=2, max_length=1000)]
     height: Height
 
 

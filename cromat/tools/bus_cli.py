@@ -26,7 +26,7 @@ import zenoh
 import zenoh.ext
 from msgspec.json import schema as json_schema
 
-from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
+from bbcs import Direction, Kind, Publisher, Safety, SlotSpec
 from cromat.tools import keyexpr
 from cromat.tools.attendance import Declarations, declarations
 from cromat.tools.catalog import Catalog, Decoder, discover, stand_in, struct_type

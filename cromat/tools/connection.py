@@ -14,8 +14,7 @@ import os
 
 import zenoh
 
-from bbcs.errors import SessionError
-from bbcs.session import SessionConfig, open_session
+from bbcs import SessionConfig, SessionError, open_session
 from ral.gcs.api import UsageError, session_config
 
 

@@ -57,12 +57,12 @@ from foxglove.messages import (  # noqa: E402
     Vector3,
 )
 
+from bbcs import forward_stop_signals
+from bbcs.contracts.error_codes import error_name
 from bbcs.contracts.lidar import LidarScan  # noqa: E402
-from bbcs.stop_signals import forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, Decoder, discover
 from cromat.tools.connection import ToolError, add_connection_options, config_from, connect
-from cromat.tools.error_names import error_name
 from cromat.tools.foxglove_convert import (  # noqa: E402
     KINEMATICS_SCHEMA,
     POINT_FIELDS,

@@ -24,7 +24,7 @@ import msgspec
 import zenoh
 import zenoh.ext
 
-from bbcs.stop_signals import forward_stop_signals
+from bbcs import forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import Catalog, discover, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, config_from, connect

@@ -27,8 +27,7 @@ from typing import Any, TextIO
 import msgspec
 import zenoh
 
-from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
-from bbcs.stop_signals import forward_stop_signals
+from bbcs import Direction, Kind, Publisher, Safety, SlotSpec, forward_stop_signals
 from cromat.tools import keyexpr, mcapfmt
 from cromat.tools.catalog import stand_in, struct_type
 from cromat.tools.connection import ToolError, add_connection_options, connect

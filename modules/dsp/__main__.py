@@ -1,7 +1,7 @@
-"""``python -m modules.dsp``: the DSP process (modules/dsp/process.py)."""
+"""``python -m modules.dsp``: the DSP process (modules/dsp/module.py)."""
 
 import sys
 
-from modules.dsp.process import DspModule
+from modules.dsp.module import DspModule
 
 sys.exit(DspModule.main())

@@ -16,7 +16,7 @@ from typing import Any
 
 import msgspec
 
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.framing import Frame, build_frame
 
 
@@ -155,7 +155,7 @@ _E7 = p.TELEMETRY_LATLON_SCALE
 _E4 = p.LATLON_SCALE
 
 
-def _pos_out(v: p.Position) -> tuple:
+def _pos_out(v: p.TelPosition) -> tuple:
     return scale_latlon(v.lat, _E7), scale_latlon(v.lon, _E7), v.alt
 
 
@@ -184,10 +184,10 @@ def _heading_out(deg: float) -> float:
 # (attribute, struct format, values-out, object-in); in mask bit order
 _TELEMETRY_FIELDS: tuple[tuple[str, str, Callable[[Any], tuple], Callable[..., Any]], ...] = (
     ("position", "iif", _pos_out,
-     lambda la, lo, al: p.Position(lat=la / _E7, lon=lo / _E7, alt=al)),
+     lambda la, lo, al: p.TelPosition(lat=la / _E7, lon=lo / _E7, alt=al)),
     ("attitude", "fff", lambda v: (v.roll, v.pitch, _heading_out(v.yaw)),
-     lambda r, pi, y: p.Attitude(roll=r, pitch=pi, yaw=y)),
-    ("velocity", "fff", lambda v: (v.vn, v.ve, v.vd), lambda a, b, c: p.Velocity(vn=a, ve=b, vd=c)),
+     lambda r, pi, y: p.TelAttitude(roll=r, pitch=pi, yaw=y)),
+    ("velocity", "fff", lambda v: (v.vn, v.ve, v.vd), lambda a, b, c: p.TelVelocity(vn=a, ve=b, vd=c)),
     ("angular_rate", "fff", lambda v: (v.p, v.q, v.r), lambda a, b, c: p.AngularRate(p=a, q=b, r=c)),
     ("heading", "f", lambda v: (_heading_out(v),), lambda h: h),
     ("status", "BBH", _status_out, _status_in),

@@ -13,8 +13,8 @@ from typing import Annotated
 import msgspec
 from msgspec import Meta
 
-from bbcs.conf import ConfDocument, ConfError, ConfGroup, load_conf
-from modules.dsp.protocol import (
+from bbcs import ConfDocument, ConfError, ConfGroup, load_conf
+from bbcs.contracts.dsp import (
     F32,
     MAX_SPEED_LIMIT,
     Axis,

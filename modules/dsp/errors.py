@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from modules.dsp.protocol import error_name
+from bbcs.contracts.dsp import dsp_error_name
 
 
 class DspLinkError(RuntimeError):
@@ -27,4 +27,4 @@ class DspRejected(DspLinkError):
     def __init__(self, command: str, status: int) -> None:
         self.command = command
         self.status = status
-        super().__init__(f"the DSP refused {command}: {error_name(status)} (status {status})")
+        super().__init__(f"the DSP refused {command}: {dsp_error_name(status)} (status {status})")

@@ -15,7 +15,11 @@ from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
-from modules.dsp.protocol import CRC_SIZE, HEADER_SIZE, MAX_PAYLOAD, SYNC
+SYNC = b"\xa5\x5a"
+HEADER_SIZE = 5  # sync ×2, LEN, ID, SEQ
+CRC_SIZE = 2
+MAX_PAYLOAD = 128
+MAX_FRAME = HEADER_SIZE + MAX_PAYLOAD + CRC_SIZE
 
 CRC_INIT = 0xFFFF  # CRC-16/IBM-3740 ("CCITT-FALSE"): poly 0x1021, init 0xFFFF, no reflection, no xorout
 CHUNK = 4096  # input is scanned in slices of at most this size, which bounds the buffer

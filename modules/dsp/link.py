@@ -22,11 +22,11 @@ from typing import TYPE_CHECKING
 import serial
 
 from bbcs.clock import WALL, Clock
+from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import LinkStats
-from modules.dsp import protocol as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS, DspDecodeError, decode, encode_payload
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
-from modules.dsp.framing import Frame, FrameParser, build_frame
+from modules.dsp.framing import MAX_FRAME, Frame, FrameParser, build_frame
 from modules.dsp.refusals import Refusal
 
 if TYPE_CHECKING:
@@ -90,7 +90,7 @@ class DspLink:
         self._last_refused = ""
         self._serial = open_port(url, baudrate, read_timeout=read_timeout, exclusive=exclusive)
         self._parser = FrameParser(DSP_TO_PC_LENGTHS)
-        self._idle_s = max(0.05, 2 * p.MAX_FRAME * 10 / baudrate)
+        self._idle_s = max(0.05, 2 * MAX_FRAME * 10 / baudrate)
         self._cond = threading.Condition()
         self._send_lock = threading.Lock()
         self._write_lock = threading.Lock()

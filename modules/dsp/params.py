@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import msgspec
 
-from bbcs.params import load_params, struct_param_errors
+from bbcs import load_params, struct_param_errors
 
 
 class DspParams(msgspec.Struct, frozen=True, kw_only=True):

@@ -18,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bbcs.conf import ConfError
-from bbcs.stop_signals import forward_stop_signals
+from bbcs import ConfError, forward_stop_signals
 from modules.lidar_logger import picture
 from modules.lidar_logger.area import AreaError, load_polygon, polygon_enu
 from modules.lidar_logger.clock import SYSTEM_CLOCK, ScaledClock

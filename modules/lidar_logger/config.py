@@ -24,8 +24,7 @@ from typing import Annotated
 
 import msgspec
 
-from bbcs.conf import ConfDocument, ConfError, load_conf
-from bbcs.params import load_params, raise_first, struct_param_errors
+from bbcs import ConfDocument, ConfError, load_conf, load_params, raise_first, struct_param_errors
 from modules.lidar_logger.georef import Mounting
 from modules.lidar_logger.logger import LoggerSettings
 from modules.lidar_logger.vehicles import VEHICLES, vehicle_key

@@ -23,12 +23,9 @@ from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
-from bbcs.conf import ConfError
-from bbcs.context import ModuleContext
+from bbcs import ConfError, Module, ModuleContext, OutputSlot, Safety
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.lidar import LidarScan
-from bbcs.module import Module
-from bbcs.slots import OutputSlot, Safety
 from modules.lidar_logger.config import (
     LidarConf,
     conf_errors,

@@ -13,13 +13,11 @@ from typing import ClassVar
 
 import msgspec
 
-from bbcs import dsp_client
+from bbcs import Control, InputSlot, Module, OutputSlot, Safety, dsp_client
 from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
-from bbcs.module import Control, Module
-from bbcs.slots import InputSlot, OutputSlot, Safety
 from modules.pan_tilt import logic
 
 

@@ -15,8 +15,7 @@ from typing import ClassVar
 
 import msgspec
 
-from bbcs import dsp_client
-from bbcs.conf import ConfError, load_conf
+from bbcs import ConfError, Control, InputSlot, Kind, Module, OutputSlot, Safety, dsp_client, load_conf
 from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
@@ -30,8 +29,6 @@ from bbcs.contracts.path_follower import (
     SpeedAck,
     SpeedSegCam,
 )
-from bbcs.module import Control, Module
-from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.path_follower import logic
 
 MODE_BATCH_MEMORY = 256

@@ -27,10 +27,18 @@ import msgspec
 import zenoh
 import zenoh.ext
 
-from bbcs import dsp_client
+from bbcs import (
+    InputSlot,
+    Kind,
+    Module,
+    ModuleContext,
+    OutputSlot,
+    dsp_client,
+    load_conf,
+    load_params,
+    struct_param_errors,
+)
 from bbcs.clock import SimTime
-from bbcs.conf import load_conf
-from bbcs.context import ModuleContext
 from bbcs.contracts import dsp as p
 from bbcs.contracts import gri, mri
 from bbcs.contracts.errors import ErrorReport
@@ -38,9 +46,6 @@ from bbcs.contracts.safety import BREACH_SLOT, CODE_OF, STATUS_SLOT, Breach, Mon
 from bbcs.contracts.tasks import TaskInfo
 from bbcs.contracts.vehicle_truth import decode_truth
 from bbcs.lockstep import clock_key
-from bbcs.module import Module
-from bbcs.params import load_params, struct_param_errors
-from bbcs.slots import InputSlot, Kind, OutputSlot
 from modules.safety_monitor.clocks import RobotTime
 from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor
 

@@ -8,11 +8,9 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from bbcs import dsp_client
+from bbcs import Module, OutputSlot, Safety, dsp_client
 from bbcs.contracts import dsp as p
 from bbcs.contracts.robot import RobotTelemetry
-from bbcs.module import Module
-from bbcs.slots import OutputSlot, Safety
 from modules.telemetry.convert import to_robot_telemetry
 
 

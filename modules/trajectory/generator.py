@@ -10,10 +10,10 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
+from bbcs import load_params, struct_param_errors
 from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
-from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, SmoothRequest, SurveyRequest, TrajectoryRequest
+from bbcs.contracts.trajectory import OrbitRequest, SmoothRequest, SurveyRequest, TrajectoryRequest, Vertex
 from bbcs.geodesy import LocalFrame
-from bbcs.params import load_params, struct_param_errors
 from modules.trajectory import planning
 from modules.trajectory.planning import PlanningError
 
@@ -59,11 +59,11 @@ class Plan:
     lower_bound_m: float = 0.0
 
 
-def _frame(points: list[GeoPoint]) -> LocalFrame:
+def _frame(points: list[Vertex]) -> LocalFrame:
     return LocalFrame(float(np.mean([p.lat for p in points])), float(np.mean([p.lon for p in points])))
 
 
-def _local(frame: LocalFrame, points: list[GeoPoint]) -> np.ndarray:
+def _local(frame: LocalFrame, points: list[Vertex]) -> np.ndarray:
     return frame.to_enu([p.lat for p in points], [p.lon for p in points], 0.0)[:, :2]
 
 

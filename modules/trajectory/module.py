@@ -17,12 +17,9 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from bbcs.context import ModuleContext
+from bbcs import InputSlot, Kind, Module, ModuleContext, OutputSlot, ParamServer
 from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import TrajectoryRequest, TrajectoryStatus
-from bbcs.module import Module
-from bbcs.params import ParamServer
-from bbcs.slots import InputSlot, Kind, OutputSlot
 from modules.trajectory.generator import Limits, plan
 
 

@@ -1,5 +1,5 @@
 import sys
 
-from modules.uquad.flight_module import main
+from modules.uquad.module import main
 
 sys.exit(main())

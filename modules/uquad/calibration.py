@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bbcs.conf import ConfError, ConfGroup, load_conf
+from bbcs import ConfError, ConfGroup, load_conf
 from modules.uquad.imu_protocol import ImuFrame
 
 G = 9.81

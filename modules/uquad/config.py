@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 import msgspec
 import numpy as np
 
-from bbcs.conf import ConfDocument, ConfError, load_conf
+from bbcs import ConfDocument, ConfError, load_conf
 from modules.uquad.model import QuadParams
 
 

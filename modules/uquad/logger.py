@@ -14,9 +14,7 @@ from typing import IO, Any, ClassVar
 
 import msgspec
 
-from bbcs.errors import EXIT_CONFIG
-from bbcs.module import Control, Module
-from bbcs.slots import InputSlot, Kind, Safety
+from bbcs import EXIT_CONFIG, Control, InputSlot, Kind, Module, Safety
 from modules.uquad.config import load_config
 from modules.uquad.params import load_logger_params, logger_param_errors
 from modules.uquad.structs import ImuRaw, MotorCommandLog, UquadState

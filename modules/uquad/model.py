@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import msgspec
 import numpy as np
 
-from bbcs.conf import load_conf
+from bbcs import load_conf
 
 if TYPE_CHECKING:
     import casadi as ca

@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from bbcs.params import load_params, raise_first, struct_param_errors
+from bbcs import load_params, raise_first, struct_param_errors
 
 
 class UquadParams(msgspec.Struct, frozen=True, kw_only=True):

@@ -48,7 +48,7 @@ _WHERE = {
     "score_map": "detect",
 }
 """Which submodule each name comes from: imported on first use (PEP 562), so that importing one submodule (the
-Module Manager imports ``modules.vision.process`` to check a manifest) does not import numpy and every camera."""
+Module Manager imports ``modules.vision.module`` to check a manifest) does not import numpy and every camera."""
 
 
 def __getattr__(name: str) -> Any:

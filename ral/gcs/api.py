@@ -20,9 +20,8 @@ import msgspec
 import zenoh
 import zenoh.ext
 
-from bbcs import keys, wire
+from bbcs import SessionError, keys, wire
 from bbcs.contracts import gri, mri
-from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, alive_everywhere, open_session
 from bbcs.slots import declare_replaying_subscriber
 from ral.gcs import diagnose
@@ -266,7 +265,7 @@ class Gcs:
         included (they come when it is back): from the start of this station's link for a robot it links with
         (the last ``LINK_EVENTS_KEPT`` of those that came before this call first), from now on for any other."""
         # events published while this station's link to the robot was cut come once it is back (the RAL keeps its
-        # last ral.process.EVENTS_REPLAY)
+        # last ral.module.EVENTS_REPLAY)
         feed = self._linked_events.get(robot)
         if feed is not None:
             sub = Subscription(feed.add(callback))

@@ -15,7 +15,7 @@ import ssl
 import subprocess
 from datetime import UTC, datetime
 
-from bbcs.session import SessionConfig
+from bbcs import SessionConfig
 
 UNREACHABLE = "router unreachable"
 NO_CERTIFICATE = "TLS refused: no certificate"

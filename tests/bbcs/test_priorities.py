@@ -13,11 +13,11 @@ import msgspec
 from bbcs import dsp_client
 from bbcs.slots import PRIORITIES, Direction, Kind, OutputSlot, Publisher, SlotSpec
 from bbcs.testing import wait_until
-from modules.dsp.process import DspModule
+from modules.dsp.module import DspModule
 from modules.lidar_logger.module import LidarLoggerModule
 from modules.telemetry.module import TelemetryModule
-from modules.uquad.flight_module import UquadModule
-from modules.vision.process import Vision
+from modules.uquad.module import UquadModule
+from modules.vision.module import Vision
 
 
 def rank(spec: SlotSpec) -> int:

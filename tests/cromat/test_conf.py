@@ -80,7 +80,7 @@ def test_the_shipped_conf_is_valid_through_the_cromat_command():
                           str(ROOT / "bbcs_conf" / "uav1_sim.toml")], cwd=ROOT, env=child_env(),
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
-    assert "ok (checked by modules.dsp.process:DspModule, ral.process:Ral)" in out.stdout  # uav1_sim has no lidar
+    assert "ok (checked by modules.dsp.module:DspModule, ral.module:Ral)" in out.stdout  # uav1_sim has no lidar
 
 
 def test_the_cromat_command_exits_non_zero_on_a_bad_value(tmp_path):
@@ -92,7 +92,7 @@ def test_the_cromat_command_exits_non_zero_on_a_bad_value(tmp_path):
 
 
 UQUAD1 = ROOT / "bbcs_conf" / "uquad1.conf"
-UQUAD = "modules.uquad.flight_module:UquadModule"
+UQUAD = "modules.uquad.module:UquadModule"
 
 
 def broken_uquad(tmp_path: Path, old: str, new: str) -> tuple[Path, int]:
@@ -109,7 +109,7 @@ def broken_uquad(tmp_path: Path, old: str, new: str) -> tuple[Path, int]:
 def test_the_uquad_conf_is_checked_by_the_manifest_beside_it(capsys):
     assert main(["check", str(UQUAD1)]) == 0
     out = capsys.readouterr().out
-    assert f"ok (checked by {UQUAD}, ral.process:Ral)" in out, out
+    assert f"ok (checked by {UQUAD}, ral.module:Ral)" in out, out
 
 
 @pytest.mark.parametrize("old,new,says", [
@@ -127,7 +127,7 @@ def test_each_bad_uquad_value_is_reported(tmp_path, capsys, old, new, says):
     assert says in err, err
     if "group" not in says or "must have" in says:
         assert f"{path}:{line}:" in err, err
-    assert f"(checked by {UQUAD}, ral.process:Ral)" in err
+    assert f"(checked by {UQUAD}, ral.module:Ral)" in err
     assert "DSP_PORT" not in err, "the UAV's DSP keys are not asked of a uQuad"
 
 
@@ -144,8 +144,8 @@ def test_the_uquad_module_refuses_what_the_check_reports(tmp_path):
 def test_the_uav_conf_is_checked_by_every_module_of_the_manifests_beside_it(capsys):
     assert main(["check", str(UAV1)]) == 0
     out = capsys.readouterr().out
-    assert ("ok (checked by modules.dsp.process:DspModule, modules.lidar_logger.module:LidarLoggerModule, "
-            "ral.process:Ral)") in out, out
+    assert ("ok (checked by modules.dsp.module:DspModule, modules.lidar_logger.module:LidarLoggerModule, "
+            "ral.module:Ral)") in out, out
 
 
 def test_the_lidar_logger_refuses_what_the_check_reports(tmp_path):

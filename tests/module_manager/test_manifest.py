@@ -79,6 +79,11 @@ BAD = [
                  "bus.cpus", "processor 4096 not available here", "cpus = [4096]", id="router-cpus"),
     pytest.param(lambda t: t + '\n[processes.sim]\ncommand = ["sleep", "60"]\ncpus = [4096]\n',
                  "processes.sim.cpus", "processor 4096 not available here", "cpus = [4096]", id="process-cpus"),
+    pytest.param(lambda t: t.replace(
+        'class = "mm_modules:Source"\nparams = { period_ms = "5" }\n\n[modules.src_b]',
+        'class = "ral.process:Ral"\nparams = { period_ms = "5" }\n\n[modules.src_b]'),
+                 "modules.src_a.class", "'ral.process' was renamed 'ral.module': write 'ral.module:Ral'",
+                 'class = "ral.process:Ral"', id="renamed-module"),
 ]
 
 

@@ -6,7 +6,7 @@ import pytest
 
 from bbcs.conf import ConfError
 from bbcs.contracts import mri
-from ral.process import RalConfig
+from ral.config import RalConfig
 
 
 def test_defaults_wait_longer_for_the_manager_than_it_waits_for_modules() -> None:

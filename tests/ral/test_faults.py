@@ -126,11 +126,11 @@ def test_judge_fails_only_the_running_tasks_of_the_types_the_dsp_serves() -> Non
     assert faults.TELEMETRY_FAULT_WINDOW_S == 3.0  # docs/error_codes.md and docs/dsp_protocol.md say 3 s
 
 
-# --- the RAL process against the stand-in manager (tests/ral/standin.py): the hook in ral/process.py ------------
+# --- the RAL process against the stand-in manager (tests/ral/standin.py): the hook in ral/module.py ------------
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from standin import ROBOT as ROBOT_NAME  # noqa: E402
-from test_process import Rig, rig, ten_waypoints  # noqa: E402, F401  (rig: the RAL and a stand-in manager)
+from test_module import Rig, rig, ten_waypoints  # noqa: E402, F401  (rig: the RAL and a stand-in manager)
 
 DSP_UP = [mri.ModuleStatus(name="dsp", state="up", task_types=["movement", "pan_tilt"])]
 

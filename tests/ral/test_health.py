@@ -7,6 +7,8 @@ import math
 import time
 
 import pytest
+from tests.ral.test_module import Rig
+from tests.ral.test_module import rig as ral_rig  # noqa: F401  (the RAL against the stand-in manager)
 
 from bbcs.conf import ConfError, parse_conf
 from bbcs.contracts import gri, mri
@@ -25,8 +27,6 @@ from ral.health import (
     ral_conf_errors,
     tilt_deg,
 )
-from tests.ral.test_process import Rig
-from tests.ral.test_process import rig as ral_rig  # noqa: F401  (the RAL against the stand-in manager)
 
 HOME = GeoPoint(lat=-34.918, lon=-56.166, alt=30.0)
 
@@ -281,7 +281,7 @@ ROBOT_GOTO = _Goto()
 
 def test_the_rals_conf_check_reports_the_health_group() -> None:
     """``cromat conf check`` / ``launch --check`` call ``Ral.conf_errors``: a HEALTH mistake is among them."""
-    from ral.process import Ral
+    from ral.module import Ral
 
     doc = parse_conf("MAX_SPEED: 4\nHEALTH: limits {\n  spin_s = 0\n}\n", "uquad9.conf")
     errors = Ral.conf_errors(doc)

@@ -21,7 +21,7 @@ from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
 from cromat import certs
 from ral.gcs.api import Gcs, NoReply, Unreachable
-from ral.process import Ral
+from ral.module import Ral
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from standin import ROBOT, StandIn  # noqa: E402

@@ -220,7 +220,7 @@ def test_bad_requests_fail_at_decoding(payload: dict) -> None:
 def test_requests_round_trip_with_every_kind() -> None:
     requests = [path(2), gri.Abort(), gri.Cancel(task_type="pan_tilt"), t.TakeOff(height=5.0),
                 t.FollowPath(waypoints=path(1).waypoints, heading=1.0), t.FollowVisionPath(speed=3.0),
-                t.Bridge(ref_altura=30.0), gri.RestartModule(module="dsp")]
+                t.Bridge(ref_altitude=30.0), gri.RestartModule(module="dsp")]
     for request in requests:
         assert gri.decode_request(gri.encode(request)) == request
 

@@ -13,8 +13,8 @@ import msgspec
 
 from bbcs import keys
 from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
 from bbcs.testing import wait_until
-from modules.dsp import protocol as p
 from modules.dsp.sim.record import read_record
 
 ROBOT = "uav1"

@@ -20,11 +20,11 @@ import msgspec
 import zenoh
 
 from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
 from bbcs.dsp_client import commands_output
 from bbcs.session import open_session
 from bbcs.slots import Publisher
 from bbcs.testing import Processes, wait_until
-from modules.dsp import protocol as p
 from modules.dsp.sim.record import read_record
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -12,10 +12,10 @@ from hypothesis import strategies as st
 
 from bbcs.conf import ConfError
 from bbcs.conf.parser import parse_conf
+from bbcs.contracts import dsp as p
 from bbcs.contracts import gri, mri
 from module_manager.manifest import ManifestError, parse_manifest
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.framing import FrameParser, build_frame
 from modules.lidar_logger import mtdata, xbus
 from modules.lidar_logger.ldmrs_proto import LdmrsProtocolError, MessageParser, parse_command, parse_reply

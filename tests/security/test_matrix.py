@@ -398,7 +398,7 @@ def _batch(sender: str, *commands: object) -> bytes:
 def test_dsp_commands_reach_the_simulator_only_from_their_owner(rig: Rig, who: Sessions, tmp_path: Path) -> None:
     import select
 
-    from modules.dsp import protocol as p
+    from bbcs.contracts import dsp as p
 
     record = tmp_path / "dsp.jsonl"
     conf = Path(__file__).resolve().parents[2] / "bbcs_conf" / "uav1.conf"

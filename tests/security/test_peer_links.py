@@ -1,8 +1,8 @@
 """``[bus] links = "peers"`` under ``[bus.tls]``: a module linked directly to another still cannot write what it does
-not own, because the *receiver* enforces the robot's access policy on its ingress (module_manager/links.py).
+not own, because the *receiver* enforces the robot's access policy on its ingress (module_manager/bus_links.py).
 
 The rig is uav1_secure.toml's: the router with the generated config and policy, certificates from ``cromat certs
---manifest`` made in tmp_path, and module sessions built exactly as the manager builds them (``links.module_bus``).
+--manifest`` made in tmp_path, and module sessions built exactly as the manager builds them (``bus_links.module_bus``).
 The attacker holds a real identity (vision's certificate) and runs a *compromised* peer: no policy of its own, linked
 directly to its victim (checked: the victim is among its peers). Each case is checked by effect: what the victim's
 subscriber received. The legitimate twin (the DSP identity publishing its own telemetry) is delivered, and a victim
@@ -32,7 +32,7 @@ from bbcs import keys
 from bbcs.session import open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
 from cromat import certs
-from module_manager import links, secure
+from module_manager import bus_links, secure
 from module_manager.manifest import Manifest, load_manifest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -64,8 +64,8 @@ class Rig:
 
     def module(self, identity: str, *, policy: bool = True) -> zenoh.Session:
         """A module's session as the manager configures it; ``policy=False``: a compromised one without its ACL."""
-        cfg = links.module_bus(self.manifest, secure.client_bus(self.manifest, self.connect, identity),
-                               links.peer_access_control(self.manifest) if policy else None)
+        cfg = bus_links.module_bus(self.manifest, secure.client_bus(self.manifest, self.connect, identity),
+                               bus_links.peer_access_control(self.manifest) if policy else None)
         assert cfg.mode == "peer" and cfg.listen == ["tls/127.0.0.1:0"]
         s = open_session(cfg)
         self.sessions.append(s)
@@ -79,7 +79,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     path = secure_manifest(tmp, port)
     assert certs.main(["--manifest", str(path)]) == 0
     manifest = load_manifest(path)
-    assert links.links(manifest) == "peers"
+    assert bus_links.links(manifest) == "peers"
     listen = [f"tls/127.0.0.1:{port}"]
     config = secure.write_router_config(manifest, listen, tmp)
     procs = Processes()
@@ -235,7 +235,7 @@ def test_a_client_of_the_router_sees_a_policed_peer_modules_token(rig: Rig) -> N
 def test_the_peer_policy_names_the_routers_certificate(rig: Rig) -> None:
     router_cn = secure.router_cn(rig.manifest)
     assert router_cn == f"router-{ROBOT}"  # cromat certs --manifest names the router by its robot
-    policy = links.peer_access_control(rig.manifest)
+    policy = bus_links.peer_access_control(rig.manifest)
     assert policy is not None
     assert {"id": "router-link", "cert_common_names": [router_cn]} in policy["subjects"]
 
@@ -252,8 +252,8 @@ def _start_peer_dsp(rig: Rig, tmp: Path) -> tuple[Path, Processes]:
     sim = procs.start(["-m", "modules.dsp.sim", "--pty", "--record", str(record)], stdout=subprocess.PIPE, text=True)
     assert select.select([sim.stdout], [], [], 15.0)[0], "the simulator printed nothing"
     pty = sim.stdout.readline().strip()
-    bus = links.module_bus(rig.manifest, secure.client_bus(rig.manifest, rig.connect, "dsp"),
-                           links.peer_access_control(rig.manifest))
+    bus = bus_links.module_bus(rig.manifest, secure.client_bus(rig.manifest, rig.connect, "dsp"),
+                           bus_links.peer_access_control(rig.manifest))
     procs.start(["-m", "modules.dsp", "--robot", ROBOT, "--bus", msgspec.json.encode(bus).decode(),
                  "--conf", str(ROOT / "bbcs_conf" / "uav1.conf"), "--param", f"port={pty}"],
                 stderr=subprocess.DEVNULL)
@@ -264,7 +264,7 @@ def _router_key_session(rig: Rig) -> zenoh.Session:
     """Whoever read ``router.pem``/``router.key`` from the robot folder: a peer without any policy of its own."""
     pki = rig.manifest.pki
     assert pki is not None
-    cfg = links.peer_session(secure.client_bus(rig.manifest, rig.connect, secure.ROUTER), None)
+    cfg = bus_links.peer_session(secure.client_bus(rig.manifest, rig.connect, secure.ROUTER), None)
     s = open_session(cfg)
     rig.sessions.append(s)
     return s
@@ -275,7 +275,7 @@ def test_the_routers_key_cannot_command_the_dsp_over_a_direct_link(rig: Rig, tmp
     process reach no aircraft (the simulator's record), while the path follower's own command on its own key does;
     a policy-less witness of the DSP's identity gets the forgery, so it did travel a direct link."""
     from bbcs.contracts import dsp as bus
-    from modules.dsp import protocol as p
+    from bbcs.contracts import dsp as p
     from modules.dsp.sim.record import read_record
 
     record, procs = _start_peer_dsp(rig, tmp_path)
@@ -318,7 +318,7 @@ def test_the_routers_key_cannot_command_the_dsp_over_a_direct_link(rig: Rig, tmp
 
 
 def test_the_router_link_gets_what_the_router_forwards_and_no_module_rights(rig: Rig) -> None:
-    policy = links.peer_access_control(rig.manifest)
+    policy = bus_links.peer_access_control(rig.manifest)
     assert policy is not None
     granted = next(p for p in policy["policies"] if p["id"] == "router-link")["rules"]
     assert "manager-write" in granted and "gcs-command" in granted

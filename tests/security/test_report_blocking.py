@@ -10,7 +10,7 @@ effort (DROP, never waits). This test keeps it so: a new safe output without an 
 from __future__ import annotations
 
 from bbcs.slots import Direction, Safety
-from modules.dsp.process import DspModule
+from modules.dsp.module import DspModule
 
 
 def test_every_output_of_the_dsp_process_either_drops_or_has_an_outbox() -> None:

@@ -16,9 +16,9 @@ import msgspec
 
 from bbcs import keys
 from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.testing import wait_until
-from modules.dsp import protocol as p
 
 ROOT = Path(__file__).resolve().parents[2]
 UAV1 = ROOT / "bbcs_conf" / "uav1.conf"

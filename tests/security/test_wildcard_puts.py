@@ -25,6 +25,7 @@ import pytest
 import zenoh
 
 from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import ControlEntradaPT
 from bbcs.errors import BusErrorCode
@@ -33,7 +34,6 @@ from bbcs.routing import RouteAck
 from bbcs.session import SessionConfig, TlsConfig, open_session
 from bbcs.testing import Processes, free_port, wait_port, wait_until
 from cromat import certs
-from modules.dsp import protocol as p
 from modules.dsp.sim.record import read_record
 
 ROBOT = "uav1"

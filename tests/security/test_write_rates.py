@@ -23,6 +23,7 @@ import pytest
 import zenoh
 
 from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
 from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.dsp_client import commands_output
 from bbcs.router_floods import FloodLog
@@ -31,7 +32,6 @@ from bbcs.slots import Publisher
 from bbcs.testing import Processes, free_port, wait_port, wait_until
 from cromat import certs
 from module_manager.manifest import ManifestError, load_manifest
-from modules.dsp import protocol as p
 from modules.dsp.sim.record import read_record
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -329,7 +329,7 @@ def test_case10_every_offered_task_can_be_sent_and_is_seen_whoever_started_it(ma
     assert up.position is not None
     # a task started through the MRI shows in the GRI, with an event
     start = len(robot.events)
-    reply = mri.call(robot.gcs.session, ROBOT, "task", mri.SetTask(name="bridge", params=t.Bridge(ref_altura=30.0)))
+    reply = mri.call(robot.gcs.session, ROBOT, "task", mri.SetTask(name="bridge", params=t.Bridge(ref_altitude=30.0)))
     assert reply.ok, reply.reason
     seen = robot.wait_event(lambda e: e.kind == "task_accepted" and "bridge" in e.detail, 15, "bridge announced",
                             after=start)
@@ -337,7 +337,7 @@ def test_case10_every_offered_task_can_be_sent_and_is_seen_whoever_started_it(ma
                      "the MRI's bridge task in the GRI state")
     # the ground station sends bridge (REFS reach the DSP) and follow_vision_path
     mark = len(robot.commands())
-    br = robot.gcs.send(ROBOT, t.Bridge(ref_altura=up.position.alt + 2.0, error_longitudinal=1.0))
+    br = robot.gcs.send(ROBOT, t.Bridge(ref_altitude=up.position.alt + 2.0, error_longitudinal=1.0))
     assert br.accepted, br.reason
     wait_until(lambda: "SET_REFS" in names(robot.commands()[mark:]), 15, "REFS at the DSP")
     refs = next(c for c in robot.commands()[mark:] if c["name"] == "SET_REFS")

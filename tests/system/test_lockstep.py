@@ -19,7 +19,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.codec import decode_payload, encode_payload, message_name
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -17,9 +17,9 @@ import msgspec
 import pytest
 
 from bbcs import keys
+from bbcs.contracts import dsp as p
 from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
 from bbcs.contracts.pan_tilt import DatosPT, ModoFuncionamientoPT
-from modules.dsp import protocol as p
 
 from .uav_stack import ROBOT, Stack, wait_until
 

@@ -17,7 +17,7 @@ from bbcs.contracts import gri
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
 from modules.vision.geodesy import LocalFrame
-from modules.vision.process import VisionStatus
+from modules.vision.module import VisionStatus
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_gcs_mission import ROBOT, SimRobot, connect, launch_robot  # noqa: E402

@@ -28,7 +28,7 @@ from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.fleet import FleetTarget, FleetTask
 from bbcs.contracts.path_follower import DatosSegCam
-from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, TrajectoryRequest, TrajectoryStatus
+from bbcs.contracts.trajectory import OrbitRequest, TrajectoryRequest, TrajectoryStatus, Vertex
 from bbcs.signing import StationSigner
 from bbcs.testing import child_env, free_port, wait_until
 from cromat import certs
@@ -373,7 +373,7 @@ def test_gcs_survey_works_and_a_module_identity_cannot_request_a_trajectory(robo
             # the attack: a module identity asks the generator for an orbit, then a marker on its own key
             with robot.client("vision", name="intruder", timeout_s=5.0) as attacker:
                 forged = TrajectoryRequest(request_id=FORGED_ID, orbit=OrbitRequest(
-                    centre=GeoPoint(lat=home.lat, lon=home.lon), radius=40.0, height=20.0))
+                    centre=Vertex(lat=home.lat, lon=home.lon), radius=40.0, height=20.0))
                 attacker.session.put(keys.slot_key(ROBOT, "trajectory", "request"), msgspec.msgpack.encode(forged))
                 attacker.session.put(marker, b"after the forged request")
                 wait_until(lambda: marks, 20, "the attacker's marker")

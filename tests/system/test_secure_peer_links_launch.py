@@ -12,7 +12,7 @@ identity, so the forgery really travelled a direct link.
 A datum sent between two modules while their direct link forms can be lost (docs/bus.md): a ground station's pan &
 tilt task sent right after "all modules up" once lost its angles in CI, when the launch said it before every pair
 of modules had linked. The launch now says it only once the kernel's socket tables show a direct link between every
-pair (module_manager/peer_mesh.py); the fixture checks that in the same tables before anything is sent.
+pair (module_manager/direct_links.py); the fixture checks that in the same tables before anything is sent.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from bbcs.net import free_port
 from bbcs.session import open_session
 from bbcs.testing import wait_until
 from cromat import certs
-from module_manager import links, secure
+from module_manager import bus_links, secure
+from module_manager.direct_links import unlinked_pairs
 from module_manager.manifest import load_manifest
-from module_manager.peer_mesh import unlinked_pairs
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_secure_launch import MODULES, ROBOT, Robot, launched, secure_manifest, sees_every_module  # noqa: E402
@@ -53,7 +53,7 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
     assert text.count(old) == 1
     manifest.write_text(text.replace(old, f'{old}\nlinks = "peers"'))
     assert certs.main(["--manifest", str(manifest)]) == 0
-    assert links.links(load_manifest(manifest)) == "peers"
+    assert bus_links.links(load_manifest(manifest)) == "peers"
     with launched(manifest, pki, tmp, port) as robot:
         pids = module_pids(robot)
         assert set(pids) == MODULES, pids
@@ -89,8 +89,8 @@ def test_a_ground_station_task_reaches_the_dsp_over_the_peer_links(robot: Robot)
 def test_a_compromised_module_cannot_command_the_dsp_over_its_direct_link(robot: Robot) -> None:
     manifest = load_manifest(next(robot.folder.glob("uav1_secure.toml")))
     connect = [f"tls/127.0.0.1:{robot.launch.port}"]
-    attacker = open_session(links.module_bus(manifest, secure.client_bus(manifest, connect, "vision"), None))
-    witness = open_session(links.module_bus(manifest, secure.client_bus(manifest, connect, "dsp"), None))
+    attacker = open_session(bus_links.module_bus(manifest, secure.client_bus(manifest, connect, "vision"), None))
+    witness = open_session(bus_links.module_bus(manifest, secure.client_bus(manifest, connect, "dsp"), None))
     key = keys.slot_key(ROBOT, "dsp", commands_slot("pan_tilt"))
     forged = msgspec.msgpack.encode(DspCommands(sender="pan_tilt", commands=[
         SetPanTiltAngles(pan_deg=FORGED_PAN, tilt_deg=-10.0)]))

@@ -8,9 +8,9 @@ from collections.abc import Iterator
 
 import pytest
 
+from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import LinkErrorCode
 from bbcs.contracts.path_follower import ControlModoSegCam, DatoPuntoSegCam, DatosSegCam, SpeedSegCam
-from modules.dsp import protocol as p
 
 from .uav_stack import Stack, wait_until
 

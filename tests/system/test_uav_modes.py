@@ -8,6 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from bbcs.contracts import dsp as p
 from bbcs.contracts.error_codes import FollowerError as E
 from bbcs.contracts.path_follower import (
     ControlEntradaSegCam,
@@ -19,7 +20,6 @@ from bbcs.contracts.path_follower import (
     SpeedSegCam,
 )
 from bbcs.contracts.robot import RobotTelemetry
-from modules.dsp import protocol as p
 
 from .uav_stack import DEADLINE_S, INITIAL_ROUTES, SLOT, Stack, wait_until
 

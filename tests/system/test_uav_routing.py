@@ -7,9 +7,9 @@ from collections.abc import Iterator
 
 import pytest
 
+from bbcs.contracts import dsp as p
 from bbcs.contracts.error_codes import PanTiltError as E
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
-from modules.dsp import protocol as p
 
 from .uav_stack import DEADLINE_S, SLOT, Stack, wait_until
 

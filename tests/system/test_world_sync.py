@@ -36,7 +36,7 @@ from bbcs.contracts import world as w
 from bbcs.testing import wait_until
 from module_manager.fleet import drop_sections
 from modules.vision.geodesy import LocalFrame
-from modules.vision.process import VisionStatus
+from modules.vision.module import VisionStatus
 from ral import sync
 from ral.gcs import fleet_cmd
 from ral.gcs.api import Gcs, session_config

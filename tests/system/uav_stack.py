@@ -29,6 +29,7 @@ import msgspec
 from bbcs import keys
 from bbcs.codec import type_name
 from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from bbcs.contracts.path_follower import (
@@ -43,7 +44,6 @@ from bbcs.routing import RouteAck, SlotRef, SlotTable
 from bbcs.session import local_client, open_session
 from bbcs.slots import Kind, OutputSlot, Publisher, Safety
 from bbcs.testing import Processes, start_router, wait_until
-from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
 from modules.dsp.link import startup_commands
 from modules.dsp.sim.record import read_record

@@ -15,10 +15,10 @@ import signal
 import sys
 import threading
 
+from bbcs import SessionConfig, open_session
+from bbcs.contracts import dsp as p
 from bbcs.geodesy import valid_lat_lon
 from bbcs.lockstep import SimSettings, Stepper, settings_from_env
-from bbcs.session import SessionConfig, open_session
-from modules.dsp import protocol as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS
 from modules.dsp.sim.control import ControlPort
 from modules.dsp.sim.faults import BadTelemetry, FaultInjector

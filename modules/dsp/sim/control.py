@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import msgspec
 
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.sim.faults import BadTelemetry
 
 log = logging.getLogger(__name__)

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import msgspec
 import numpy as np
 
-from modules.dsp import protocol as p
-from modules.dsp.protocol import SYNC
+from bbcs.contracts import dsp as p
+from modules.dsp.framing import SYNC
 
 
 @dataclass

@@ -15,8 +15,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from bbcs.contracts import dsp as p
 from bbcs.geodesy import LocalFrame
-from modules.dsp import protocol as p
 from modules.dsp.codec import DspDecodeError, decode
 from modules.dsp.framing import Frame
 from modules.dsp.sim.vehicle import ROTOR_FLIGHT_RPM, Vehicle, VehicleParams, pid_gains, wrap_deg
@@ -349,11 +349,11 @@ class DspMachine:
         fields: dict[str, object] = {}
         if mask & F.POSITION:
             lat, lon, alt = self.to_global(st.pos)
-            fields["position"] = p.Position(lat=lat, lon=lon, alt=alt)
+            fields["position"] = p.TelPosition(lat=lat, lon=lon, alt=alt)
         if mask & F.ATTITUDE:
-            fields["attitude"] = p.Attitude(roll=st.roll, pitch=st.pitch, yaw=st.heading)
+            fields["attitude"] = p.TelAttitude(roll=st.roll, pitch=st.pitch, yaw=st.heading)
         if mask & F.VELOCITY:
-            fields["velocity"] = p.Velocity(vn=float(st.vel[0]), ve=float(st.vel[1]), vd=float(-st.vel[2]))
+            fields["velocity"] = p.TelVelocity(vn=float(st.vel[0]), ve=float(st.vel[1]), vd=float(-st.vel[2]))
         if mask & F.ANGULAR_RATE:
             fields["angular_rate"] = p.AngularRate(p=st.roll_rate, q=st.pitch_rate, r=st.yaw_rate)
         if mask & F.HEADING:

@@ -23,7 +23,7 @@ from typing import IO, TYPE_CHECKING
 import msgspec
 import numpy as np
 
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.codec import PC_TO_DSP_LENGTHS, encode, message_name
 from modules.dsp.codec import _encode_telemetry as encode_telemetry_unchecked
 from modules.dsp.framing import FrameParser, build_frame
@@ -61,7 +61,7 @@ class RecordedCommand:
         return json.dumps({"t": round(self.t_sim, 6), "wall": round(self.t_wall, 6), "mono": round(self.t_mono, 6),
                            "seq": self.seq,
                            "id": self.msg_id, "name": self.name, "fields": self.fields, "status": self.status,
-                           "status_name": p.error_name(self.status), "duplicate": self.duplicate})
+                           "status_name": p.dsp_error_name(self.status), "duplicate": self.duplicate})
 
 
 @dataclass(frozen=True)

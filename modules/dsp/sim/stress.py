@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.codec import DSP_TO_PC_LENGTHS, encode_payload
-from modules.dsp.framing import Frame, build_frame
+from modules.dsp.framing import SYNC, Frame, build_frame
 
 F = p.TelemetryField
 TYPICAL_MASKS = (
@@ -36,14 +36,14 @@ def random_telemetry(rng: np.random.Generator, mask: int) -> p.Telemetry:
 
     fields: dict[str, object] = {}
     if mask & F.POSITION:
-        fields["position"] = p.Position(lat=int(rng.integers(-9e8, 9e8)) / 1e7,
+        fields["position"] = p.TelPosition(lat=int(rng.integers(-9e8, 9e8)) / 1e7,
                                         lon=int(rng.integers(-18e8, 18e8)) / 1e7,
                                         alt=f(p.TelAlt))
     if mask & F.ATTITUDE:
         roll, pitch, yaw = f(p.Angle180), f(p.Angle90), f(p.Angle180)
-        fields["attitude"] = p.Attitude(roll=roll, pitch=pitch, yaw=-180.0 if yaw >= 180.0 else yaw)  # [-180, 180)
+        fields["attitude"] = p.TelAttitude(roll=roll, pitch=pitch, yaw=-180.0 if yaw >= 180.0 else yaw)  # [-180, 180)
     if mask & F.VELOCITY:
-        fields["velocity"] = p.Velocity(vn=f(), ve=f(), vd=f())
+        fields["velocity"] = p.TelVelocity(vn=f(), ve=f(), vd=f())
     if mask & F.ANGULAR_RATE:
         fields["angular_rate"] = p.AngularRate(p=f(p.TelRate), q=f(p.TelRate), r=f(p.TelRate))
     if mask & F.HEADING:
@@ -131,7 +131,7 @@ def fault_stream(frames: Sequence[bytes], *, corrupt: float = 0.01, drop: float 
             burst = rng.bytes(int(rng.integers(1, burst_max + 1)))
             if false and rng.random() < 0.5:
                 msg_id, length = false[int(rng.integers(len(false)))]
-                burst = p.SYNC + bytes((length, msg_id, int(rng.integers(256)))) + burst
+                burst = SYNC + bytes((length, msg_id, int(rng.integers(256)))) + burst
                 n_false += 1
             pieces.append(burst)
         pieces.append(data[s:e][~lost[s:e]].tobytes() if lossy[i] else buf[s:e])

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from bbcs.contracts.dsp import Axis, SetPid
 from control.heli import NU, NW, NX, HeliParams, rk4_step
 from control.pid import Pid, PidGains
-from modules.dsp.protocol import Axis, SetPid
 
 G = 9.80665
 ROTOR_FLIGHT_RPM = 1500.0

@@ -18,7 +18,7 @@ import sys
 import threading
 from pathlib import Path
 
-from bbcs.stop_signals import forward_stop_signals
+from bbcs import forward_stop_signals
 from modules.lidar_logger.clock import ScaledClock
 from modules.lidar_logger.sim.follow import FollowClock, FollowedFlight, TruthReceiver
 from modules.lidar_logger.sim.ldmrs_sim import LdmrsOptions, LdmrsSimulator

@@ -35,8 +35,3 @@ def test_module_codes_stay_in_the_module_range() -> None:
     for module, enum in MODULE_CODES.items():
         assert all(100 <= int(m) < FORWARDED_DSP_ERROR_BASE for m in enum), module
 
-
-def test_the_tools_entry_point_is_the_contract() -> None:
-    from cromat.tools.error_names import error_name as tools_error_name
-
-    assert tools_error_name("path_follower", 106) == error_name("path_follower", 106) == "SPEED_ABOVE_MAX"

@@ -74,7 +74,7 @@ def test_echo_json_validates_against_the_served_schema(uav):
         jsonschema.validate(line["data"], {k: v for k, v in doc.items() if k not in ("key", "type")})
         tel = msgspec.convert(line["data"], RobotTelemetry)
         assert tel.position is not None and abs(tel.position.lat - 37.4117) < 0.01  # the simulator's home
-    assert "(modules.vision.process:VisionStatus)" in human.stdout and "  state: " in human.stdout
+    assert "(modules.vision.module:VisionStatus)" in human.stdout and "  state: " in human.stdout
 
 
 def test_schema_of_a_struct_and_of_nothing(uav):

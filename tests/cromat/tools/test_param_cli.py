@@ -18,7 +18,7 @@ import pytest
 from bbcs import keys
 from bbcs.contracts import gri, mri
 from bbcs.contracts.path_follower import DatosSegCam
-from bbcs.contracts.trajectory import GeoPoint, SurveyRequest, TrajectoryRequest
+from bbcs.contracts.trajectory import SurveyRequest, TrajectoryRequest, Vertex
 from bbcs.session import local_client, open_session
 from bbcs.testing import child_env, wait_until
 
@@ -27,8 +27,8 @@ MM_TESTS = ROOT / "tests" / "module_manager"
 sys.path.insert(0, str(MM_TESTS))
 from launch_support import Launch  # noqa: E402
 
-POLYGON = [GeoPoint(lat=37.4260, lon=-6.0040), GeoPoint(lat=37.4260, lon=-5.9960),
-           GeoPoint(lat=37.4290, lon=-5.9960), GeoPoint(lat=37.4290, lon=-6.0040)]
+POLYGON = [Vertex(lat=37.4260, lon=-6.0040), Vertex(lat=37.4260, lon=-5.9960),
+           Vertex(lat=37.4290, lon=-5.9960), Vertex(lat=37.4290, lon=-6.0040)]
 HEIGHT = 80.0
 
 MANIFEST = f"""
@@ -60,7 +60,7 @@ params = {{ period_ms = "50" }}
 
 [modules.ral]
 entry = "ral"
-class = "ral.process:Ral"
+class = "ral.module:Ral"
 """
 
 
@@ -203,7 +203,7 @@ def test_the_manager_refuses_a_declared_start_up_only_parameter_before_asking_an
     from bbcs.contracts.params import ListParams, SetParam
     from module_manager.manifest import load_manifest
     from module_manager.params import ParamDesk
-    from modules.vision.process import VisionParams
+    from modules.vision.module import VisionParams
 
     m = load_manifest(ROOT / "bbcs_conf" / "uav1_sim.toml")
     assert m.modules["vision"].params_type is VisionParams and m.modules["vision"].runtime_params == frozenset()

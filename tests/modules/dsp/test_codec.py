@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bbcs.contracts import dsp as p
 from modules.dsp import codec
-from modules.dsp import protocol as p
-from modules.dsp.framing import FrameParser, crc16
+from modules.dsp.framing import MAX_PAYLOAD, FrameParser, crc16
 
 F32_MAX = p.F32_MAX
 
@@ -70,13 +70,13 @@ def tel(alias: object) -> st.SearchStrategy[float]:
 telemetry = st.builds(
     p.Telemetry,
     time_ms=st.integers(0, 0xFFFFFFFF),
-    position=st.none() | st.builds(p.Position,
+    position=st.none() | st.builds(p.TelPosition,
                                    lat=st.integers(-900_000_000, 900_000_000).map(lambda i: i / 1e7),
                                    lon=st.integers(-1_800_000_000, 1_800_000_000).map(lambda i: i / 1e7),
                                    alt=tel(p.TelAlt)),
-    attitude=st.none() | st.builds(p.Attitude, roll=tel(p.Angle180), pitch=tel(p.Angle90),
+    attitude=st.none() | st.builds(p.TelAttitude, roll=tel(p.Angle180), pitch=tel(p.Angle90),
                                    yaw=bounded(-180.0, 180.0, hi_open=True)),
-    velocity=st.none() | st.builds(p.Velocity, vn=tel(p.TelSpeed), ve=tel(p.TelSpeed), vd=tel(p.TelSpeed)),
+    velocity=st.none() | st.builds(p.TelVelocity, vn=tel(p.TelSpeed), ve=tel(p.TelSpeed), vd=tel(p.TelSpeed)),
     angular_rate=st.none() | st.builds(p.AngularRate, p=tel(p.TelRate), q=tel(p.TelRate), r=tel(p.TelRate)),
     heading=st.none() | bounded(-180.0, 180.0, hi_open=True),
     status=st.none() | st.builds(p.DspStatus, mode=st.integers(0, 6), tracking=st.booleans(),
@@ -247,7 +247,7 @@ def test_decode_errors(msg_id: int, payload: bytes, match: str) -> None:
 def test_telemetry_lengths_cover_every_mask() -> None:
     lengths = codec.DSP_TO_PC_LENGTHS[p.MsgId.TELEMETRY]
     assert {codec.telemetry_size(mask) for mask in range(p.TELEMETRY_ALL + 1)} == lengths
-    assert max(lengths) <= p.MAX_PAYLOAD
+    assert max(lengths) <= MAX_PAYLOAD
 
 
 def test_telemetry_mask_follows_the_fields_present() -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from bbcs.conf import ConfError, load_conf, parse_conf
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.config import dsp_config_from, load_dsp_config
 from modules.dsp.link import startup_commands
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bbcs.contracts import dsp as p
 from modules.dsp import codec
-from modules.dsp import protocol as p
-from modules.dsp.framing import CHUNK, Frame, FrameParser, build_frame
+from modules.dsp.framing import CHUNK, MAX_FRAME, MAX_PAYLOAD, Frame, FrameParser, build_frame
 from modules.dsp.sim.stress import dsp_traffic, fault_stream, score
 
 
@@ -125,8 +125,8 @@ def test_buffer_stays_bounded_under_endless_garbage() -> None:
     junk[2::97] = 100  # plausible telemetry lengths
     junk[3::97] = p.MsgId.TELEMETRY
     pr.feed(junk.tobytes())
-    assert pr.stats.max_buffered <= p.MAX_FRAME + CHUNK
-    assert pr.buffered < p.MAX_FRAME
+    assert pr.stats.max_buffered <= MAX_FRAME + CHUNK
+    assert pr.buffered < MAX_FRAME
     assert pr.stats.bytes_discarded + pr.buffered == len(junk)
     assert [f.seq for f in pr.feed(bytes(200) + ack(8))] == [8]  # and it still finds the next real frame
 
@@ -142,7 +142,7 @@ def test_reset_forgets_a_partial_frame() -> None:
 
 def test_build_frame_refuses_what_cannot_be_sent() -> None:
     with pytest.raises(ValueError):
-        build_frame(1, 0, bytes(p.MAX_PAYLOAD + 1))
+        build_frame(1, 0, bytes(MAX_PAYLOAD + 1))
     with pytest.raises(ValueError):
         build_frame(256, 0, b"")
 
@@ -170,7 +170,7 @@ def test_100k_frames_with_1pct_corruption_and_garbage_bursts() -> None:
     assert result.recovery_ratio == 1.0
     assert pr.stats.frames == len(received)
     assert pr.stats.bad_crc > 30_000
-    assert pr.stats.max_buffered <= p.MAX_FRAME + CHUNK
+    assert pr.stats.max_buffered <= MAX_FRAME + CHUNK
 
 
 def test_lost_bytes_do_not_lose_the_frames_behind_them() -> None:

@@ -9,10 +9,10 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from bbcs.contracts import dsp as p
 from bbcs.geodesy import metres_per_degree
 from bbcs.testing import wait_until
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
 from modules.dsp.framing import Frame, FrameParser

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from bbcs.params import ParamError
+from modules.dsp.module import DspModule
 from modules.dsp.params import DspParams, load_dsp_params
-from modules.dsp.process import DspModule
 
 
 def test_shipped_port_param_is_accepted_and_loaded() -> None:

@@ -7,7 +7,7 @@ import math
 import msgspec
 import pytest
 
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 
 
 def test_heading_radians_to_degrees_wraps_into_range() -> None:
@@ -26,7 +26,7 @@ def test_telemetry_field_names_and_error_names() -> None:
     assert p.parse_telemetry_fields([f.name for f in p.TelemetryField]) == p.TELEMETRY_ALL == 0x7FF
     with pytest.raises(ValueError, match="unknown telemetry field 'altitude'"):
         p.parse_telemetry_fields(["altitude"])
-    assert p.error_name(4) == "QUEUE_FULL" and p.error_name(77) == "UNKNOWN_77"
+    assert p.dsp_error_name(4) == "QUEUE_FULL" and p.dsp_error_name(77) == "UNKNOWN_77"
 
 
 def test_check_accepts_bounds_and_refuses_just_past_them() -> None:
@@ -46,7 +46,7 @@ def test_check_accepts_bounds_and_refuses_just_past_them() -> None:
     with pytest.raises(p.DspValueError, match="must be a number"):
         p.check(p.SetSpeed(speed=None))  # type: ignore[arg-type]
     with pytest.raises(p.DspValueError, match="not a DSP protocol message"):
-        p.check(p.Position(lat=0, lon=0, alt=0))  # type: ignore[arg-type]
+        p.check(p.TelPosition(lat=0, lon=0, alt=0))  # type: ignore[arg-type]
 
 
 def test_ids_are_unique_and_in_their_direction_ranges() -> None:

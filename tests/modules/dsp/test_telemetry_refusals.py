@@ -11,9 +11,9 @@ from itertools import accumulate
 import msgspec
 import pytest
 
+from bbcs.contracts import dsp as p
 from bbcs.testing import wait_until
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.codec import _encode_telemetry as encode_unchecked
 from modules.dsp.framing import build_frame
 from modules.dsp.link import DspLink
@@ -23,9 +23,9 @@ from .test_link import FarEnd
 
 GOOD = p.Telemetry(
     time_ms=1,
-    position=p.Position(lat=37.4117, lon=-6.0025, alt=22.0),
-    attitude=p.Attitude(roll=1.0, pitch=-2.0, yaw=179.5),
-    velocity=p.Velocity(vn=1.0, ve=0.5, vd=0.0),
+    position=p.TelPosition(lat=37.4117, lon=-6.0025, alt=22.0),
+    attitude=p.TelAttitude(roll=1.0, pitch=-2.0, yaw=179.5),
+    velocity=p.TelVelocity(vn=1.0, ve=0.5, vd=0.0),
     angular_rate=p.AngularRate(p=0.0, q=0.0, r=3.0),
     heading=-180.0,
     status=p.DspStatus(mode=6, tracking=True, path_valid=True, airborne=True, queue_length=512),

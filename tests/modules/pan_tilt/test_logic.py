@@ -8,10 +8,10 @@ import msgspec
 import pytest
 
 from bbcs.codec import field_of
+from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import DspErrorReport
 from bbcs.contracts.error_codes import PanTiltError
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
-from modules.dsp import protocol as p
 from modules.pan_tilt import logic
 from modules.pan_tilt.logic import PanTiltState
 

@@ -17,9 +17,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "path_follower"))
 from harness import Source, Watch, close_rig, control_source, start_module  # noqa: E402
 from harness import step as marker_step  # noqa: E402
 
+from bbcs.contracts import dsp as p  # noqa: E402
 from bbcs.contracts.error_codes import PanTiltError as E  # noqa: E402
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT  # noqa: E402
-from modules.dsp import protocol as p  # noqa: E402
 
 STOP_S = 20.0  # a loaded machine may take seconds to stop a Zenoh process: the exit code is what is checked
 # per input, a datum refused at decoding and its code: the marker that ends a ``step`` (see ``harness.step``)

@@ -209,7 +209,7 @@ class TelemetryStream:
     """Publishes a DSP telemetry frame every ``period_s``, as the DSP process does (unsafe: newest wins)."""
 
     def __init__(self, session: Any, frame: Any, period_s: float = 0.05) -> None:
-        from modules.dsp import protocol as p
+        from bbcs.contracts import dsp as p
 
         self.source = Source(session, "dsp", "telemetry", p.Telemetry, safety=Safety.UNSAFE)
         self.frame = frame

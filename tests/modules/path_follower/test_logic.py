@@ -8,6 +8,7 @@ import msgspec
 import pytest
 
 from bbcs.codec import field_of
+from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import DspErrorReport, LinkErrorCode
 from bbcs.contracts.error_codes import FollowerError
 from bbcs.contracts.path_follower import (
@@ -19,7 +20,6 @@ from bbcs.contracts.path_follower import (
     RefsSegCam,
     SpeedSegCam,
 )
-from modules.dsp import protocol as p
 from modules.path_follower import logic
 from modules.path_follower.logic import FollowerState
 

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
+from bbcs.contracts import dsp as p
 from bbcs.contracts.error_codes import FollowerError
 from bbcs.contracts.path_follower import ControlModoSegCam, DatoPuntoSegCam, DatosSegCam
 from control.linearize import discretize
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.framing import Frame
 from modules.dsp.sim.machine import DspMachine
 from modules.path_follower import logic
@@ -113,14 +113,14 @@ def test_own_errors_no_navigation_once_and_off_path_aborts() -> None:
     bare = p.Telemetry(time_ms=0, heading=0.0)
     assert f.step(0.0, bare).errors == (FollowerError.NO_NAVIGATION,)
     assert f.step(0.05, bare) == f.step(0.1, bare)  # reported once, nothing sent
-    far = p.Telemetry(time_ms=100, heading=0.0, position=p.Position(lat=37.4, lon=-6.0, alt=30.0),
-                      velocity=p.Velocity(vn=0.0, ve=0.0, vd=0.0))
+    far = p.Telemetry(time_ms=100, heading=0.0, position=p.TelPosition(lat=37.4, lon=-6.0, alt=30.0),
+                      velocity=p.TelVelocity(vn=0.0, ve=0.0, vd=0.0))
     pt = DatoPuntoSegCam(latitud=37.5, longitud=-6.0, altura=30.0)
     f2 = OnboardFollower()
     d = decide(f2, FollowerState(mode=3, path=(pt,)), far)
     assert d.commands and isinstance(d.commands[0], p.SetRefs)  # 11 km away but on the (first) segment's line
-    off = p.Telemetry(time_ms=200, heading=0.0, position=p.Position(lat=37.45, lon=-5.99, alt=30.0),
-                      velocity=p.Velocity(vn=0.0, ve=0.0, vd=0.0))
+    off = p.Telemetry(time_ms=200, heading=0.0, position=p.TelPosition(lat=37.45, lon=-5.99, alt=30.0),
+                      velocity=p.TelVelocity(vn=0.0, ve=0.0, vd=0.0))
     d = decide(f2, d.state, off)  # ≈ 880 m east of that line
     assert d.errors == (FollowerError.OFF_PATH,) and d.commands == (p.Abort(),) and d.state.path == ()
 
@@ -131,8 +131,8 @@ def test_a_second_datos_extends_the_trajectory_also_before_the_first_fix() -> No
     a, b = (37.001, -6.0, 30.0), (37.001, -5.999, 30.0)
     f.set_points([a])
     f.set_points([a, b])  # no telemetry yet: nothing to build the segments from, nothing fails
-    fix = p.Telemetry(time_ms=0, heading=0.0, position=p.Position(lat=37.0, lon=-6.0, alt=30.0),
-                      velocity=p.Velocity(vn=0.0, ve=0.0, vd=0.0))
+    fix = p.Telemetry(time_ms=0, heading=0.0, position=p.TelPosition(lat=37.0, lon=-6.0, alt=30.0),
+                      velocity=p.TelVelocity(vn=0.0, ve=0.0, vd=0.0))
     assert f.step(0.0, fix).commands and len(f.segments) == 2
     f.set_points([a, b, a])  # extends: one more segment, the flown ones kept
     assert len(f.segments) == 3
@@ -144,8 +144,8 @@ def test_segment_gains_solve_the_discrete_riccati_equation() -> None:
     f = OnboardFollower(OnboardParams(period_s=0.05))
     f.set_speed(5.0)
     f.set_points([(37.0009, -6.0, 10.0), (37.0009, -5.999, 20.0)])
-    f.step(0.0, p.Telemetry(time_ms=0, heading=0.0, position=p.Position(lat=37.0, lon=-6.0, alt=10.0),
-                            velocity=p.Velocity(vn=0.0, ve=0.0, vd=0.0)))
+    f.step(0.0, p.Telemetry(time_ms=0, heading=0.0, position=p.TelPosition(lat=37.0, lon=-6.0, alt=10.0),
+                            velocity=p.TelVelocity(vn=0.0, ve=0.0, vd=0.0)))
     tau_h, tau_v = f.guided.tau_h, f.guided.tau_v
     par = f.params
     for seg in f.segments:

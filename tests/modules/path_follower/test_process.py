@@ -29,6 +29,7 @@ from harness import (  # noqa: E402
 )
 from harness import step as marker_step  # noqa: E402
 
+from bbcs.contracts import dsp as p  # noqa: E402
 from bbcs.contracts.error_codes import FollowerError as E  # noqa: E402
 from bbcs.contracts.path_follower import (  # noqa: E402
     ControlModoSegCam,
@@ -38,7 +39,6 @@ from bbcs.contracts.path_follower import (  # noqa: E402
     RefsSegCam,
     SpeedSegCam,
 )
-from modules.dsp import protocol as p  # noqa: E402
 
 STOP_S = 20.0  # a loaded machine may take seconds to stop a Zenoh process: the exit code is what is checked
 RF = {field: 0.0 for field in RefsSegCam.__struct_fields__}  # valid all-zero references

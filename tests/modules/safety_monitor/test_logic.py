@@ -55,7 +55,7 @@ def telemetry(m: SafetyMonitor, now: float, *, north_m: float = 0.0, height: flo
               nav_m: float | None = None, airborne: bool = True) -> None:
     lat = HOME[0] + north_m * M
     nav = p.NavTarget(lat=HOME[0] + 200 * M, lon=HOME[1], alt=HOME[2] + height, distance=nav_m) if nav_m else None
-    m.on_telemetry(now, p.Telemetry(time_ms=int(now * 1000), position=p.Position(lat=lat, lon=HOME[1],
+    m.on_telemetry(now, p.Telemetry(time_ms=int(now * 1000), position=p.TelPosition(lat=lat, lon=HOME[1],
                                                                                   alt=HOME[2] + height),
                                     status=p.DspStatus(mode=0, tracking=True, path_valid=True, airborne=airborne,
                                                        queue_length=queue), nav=nav))

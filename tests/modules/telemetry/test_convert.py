@@ -6,15 +6,15 @@ import math
 
 import msgspec
 
+from bbcs.contracts import dsp as p
 from bbcs.contracts.robot import RobotTelemetry
-from modules.dsp import protocol as p
 from modules.telemetry.convert import to_robot_telemetry
 
 FULL = p.Telemetry(
     time_ms=1000,
-    position=p.Position(lat=37.4, lon=-6.0, alt=22.0),
-    attitude=p.Attitude(roll=1, pitch=2, yaw=3),
-    velocity=p.Velocity(vn=1, ve=2, vd=-0.5),
+    position=p.TelPosition(lat=37.4, lon=-6.0, alt=22.0),
+    attitude=p.TelAttitude(roll=1, pitch=2, yaw=3),
+    velocity=p.TelVelocity(vn=1, ve=2, vd=-0.5),
     angular_rate=p.AngularRate(p=0, q=0, r=0),
     heading=3.0,
     status=p.DspStatus(mode=1, tracking=True, path_valid=True, airborne=True, queue_length=7),
@@ -57,9 +57,9 @@ def test_fields_not_in_the_mask_stay_none():
 def test_invalid_fields_dropped_and_named():
     bad = msgspec.structs.replace(
         FULL,
-        position=p.Position(lat=91.0, lon=0, alt=0),
+        position=p.TelPosition(lat=91.0, lon=0, alt=0),
         heading=math.nan,
-        attitude=p.Attitude(roll=math.inf, pitch=0, yaw=0),
+        attitude=p.TelAttitude(roll=math.inf, pitch=0, yaw=0),
     )
     r, dropped = to_robot_telemetry(bad, 0.0)
     assert sorted(dropped) == ["attitude", "heading", "position"]

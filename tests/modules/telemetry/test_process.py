@@ -7,10 +7,10 @@ import threading
 import msgspec
 
 from bbcs import keys
+from bbcs.contracts import dsp as p
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.slots import OutputSlot, Publisher, Safety
 from bbcs.testing import stop_process, wait_until
-from modules.dsp import protocol as p
 
 
 def test_dsp_telemetry_becomes_robot_telemetry(processes, router, sessions):
@@ -36,7 +36,7 @@ def test_dsp_telemetry_becomes_robot_telemetry(processes, router, sessions):
         assert alive.wait(20)
         status = p.DspStatus(mode=4, tracking=False, path_valid=False, airborne=True, queue_length=0)
         for i in range(3):
-            frame = p.Telemetry(time_ms=i, position=p.Position(lat=37.4, lon=-6.0, alt=12.0 + i),
+            frame = p.Telemetry(time_ms=i, position=p.TelPosition(lat=37.4, lon=-6.0, alt=12.0 + i),
                                 heading=90.0, status=status)
 
             def seen(n: int = i, f: p.Telemetry = frame) -> bool:

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import pytest
 
-from bbcs.contracts.trajectory import GeoPoint, SmoothRequest, SurveyRequest, TrajectoryRequest
+from bbcs.contracts.trajectory import SmoothRequest, SurveyRequest, TrajectoryRequest, Vertex
 from bbcs.params import ParamError
 from modules.trajectory.generator import Limits, plan
 from modules.trajectory.module import TrajectoryModule
 from modules.trajectory.planning import PlanningError
 
-POLYGON = [GeoPoint(lat=37.4260, lon=-6.0040), GeoPoint(lat=37.4260, lon=-5.9960),
-           GeoPoint(lat=37.4290, lon=-5.9960), GeoPoint(lat=37.4290, lon=-6.0040)]
+POLYGON = [Vertex(lat=37.4260, lon=-6.0040), Vertex(lat=37.4260, lon=-5.9960),
+           Vertex(lat=37.4290, lon=-5.9960), Vertex(lat=37.4290, lon=-6.0040)]
 
 
 def test_params_are_parsed_and_bad_ones_named() -> None:

@@ -11,13 +11,13 @@ import pytest
 
 from bbcs import keys
 from bbcs.contracts.path_follower import DatosSegCam
-from bbcs.contracts.trajectory import GeoPoint, OrbitRequest, SurveyRequest, TrajectoryRequest, TrajectoryStatus
+from bbcs.contracts.trajectory import OrbitRequest, SurveyRequest, TrajectoryRequest, TrajectoryStatus, Vertex
 from bbcs.geodesy import LocalFrame
 from bbcs.testing import stop_process, wait_until
 from modules.trajectory.planning import line_spacing
 
-POLYGON = [GeoPoint(lat=37.4260, lon=-6.0040), GeoPoint(lat=37.4260, lon=-5.9960),
-           GeoPoint(lat=37.4290, lon=-5.9960), GeoPoint(lat=37.4290, lon=-6.0040)]
+POLYGON = [Vertex(lat=37.4260, lon=-6.0040), Vertex(lat=37.4260, lon=-5.9960),
+           Vertex(lat=37.4290, lon=-5.9960), Vertex(lat=37.4290, lon=-6.0040)]
 
 
 @pytest.fixture
@@ -65,14 +65,14 @@ def test_a_survey_request_gives_a_lawnmower_on_the_survey_slot(generator) -> Non
 
 def test_a_refused_request_says_why_and_publishes_no_path(generator) -> None:
     send, got = generator
-    send(TrajectoryRequest(request_id=8, orbit=OrbitRequest(centre=GeoPoint(lat=37.4, lon=-6.0), radius=5.0,
+    send(TrajectoryRequest(request_id=8, orbit=OrbitRequest(centre=Vertex(lat=37.4, lon=-6.0), radius=5.0,
                                                             height=50.0)))
     send(TrajectoryRequest(request_id=9))
     wait_until(lambda: len(got["status"]) == 2, 20, "two answers")
     by_id = {s.request_id: s for s in got["status"]}
     assert not by_id[8].accepted and "turn radius" in by_id[8].reason
     assert not by_id[9].accepted and "exactly one" in by_id[9].reason
-    send(TrajectoryRequest(request_id=10, orbit=OrbitRequest(centre=GeoPoint(lat=37.4, lon=-6.0), radius=100.0,
+    send(TrajectoryRequest(request_id=10, orbit=OrbitRequest(centre=Vertex(lat=37.4, lon=-6.0), radius=100.0,
                                                              height=50.0)))
     wait_until(lambda: got["orbit"], 20, "the orbit")
     assert len(got["orbit"]) == 1 and not got["survey"]

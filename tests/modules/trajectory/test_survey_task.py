@@ -15,7 +15,7 @@ import pytest
 from bbcs import keys
 from bbcs.contracts import mri
 from bbcs.contracts.path_follower import DatosSegCam
-from bbcs.contracts.trajectory import GeoPoint, SurveyRequest, TrajectoryRequest, TrajectoryStatus
+from bbcs.contracts.trajectory import SurveyRequest, TrajectoryRequest, TrajectoryStatus, Vertex
 from bbcs.testing import wait_until
 from modules.dsp.sim.record import read_record
 
@@ -25,7 +25,7 @@ from launch_support import Launch  # noqa: E402
 
 MRI_S = 20.0
 HOME = (37.4117, -6.0025)
-POLYGON = [GeoPoint(lat=HOME[0] + dlat, lon=HOME[1] + dlon)
+POLYGON = [Vertex(lat=HOME[0] + dlat, lon=HOME[1] + dlon)
            for dlat, dlon in ((-0.0015, -0.003), (-0.0015, 0.003), (0.0015, 0.003), (0.0015, -0.003))]
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from bbcs.params import ParamError
-from modules.uquad.flight_module import UquadModule
 from modules.uquad.logger import ControlLogger, StateLogger
+from modules.uquad.module import UquadModule
 from modules.uquad.params import load_logger_params, load_uquad_params
 
 SHIPPED = {"imu": "tcp://127.0.0.1:4100", "gps": "tcp://127.0.0.1:4101", "motor": "tcp://127.0.0.1:4102",

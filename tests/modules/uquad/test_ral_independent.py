@@ -36,7 +36,7 @@ def test_ral_imports_no_robot_specific_module():
 
 
 def test_importing_the_ral_loads_no_robot_code():
-    code = ("import sys, ral.process, ral.gcs.api, ral.tasks, ral.failsafe; "
+    code = ("import sys, ral.module, ral.gcs.api, ral.tasks, ral.failsafe; "
             "print(sorted(m for m in sys.modules if m.startswith('modules')))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True).stdout
     loaded = set(eval(out))  # noqa: S307 - our own printed list

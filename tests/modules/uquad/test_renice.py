@@ -7,7 +7,7 @@ import sys
 
 CHILD = """
 import logging, os, threading
-from modules.uquad.flight_module import renice_process
+from modules.uquad.module import renice_process
 before = threading.Thread(target=threading.Event().wait, args=(5,), daemon=True)
 before.start()
 renice_process(4, logging.getLogger())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from bbcs.params import ParamError, load_params
-from modules.vision.process import Vision, VisionParams
+from modules.vision.module import Vision, VisionParams
 
 SHIPPED = {"camera": "sim", "rate": "10", "ground_alt": "12", "target_east": "30", "target_north": "0",
            "target_ve": "0.5"}

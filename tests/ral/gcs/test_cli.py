@@ -17,7 +17,7 @@ from bbcs.session import local_client, open_session
 from bbcs.testing import free_port, wait_until
 from ral.gcs import cli
 from ral.gcs.api import Gcs
-from ral.process import Ral
+from ral.module import Ral
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from standin import ROBOT, StandIn  # noqa: E402

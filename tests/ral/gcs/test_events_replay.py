@@ -2,7 +2,7 @@
 
 Real routers: the robot's, and a ground router that reaches it through a TCP relay on 127.0.0.1 which the test cuts
 (every connection closed, new ones refused) and heals (the ground router reconnects by itself). The robot side
-publishes with the RAL's own event publisher (``ral.process.events_publisher``); the station listens with
+publishes with the RAL's own event publisher (``ral.gri_service.events_publisher``); the station listens with
 ``Gcs.events``. The control: the same cut with a plain reliable publisher loses the events.
 """
 
@@ -17,7 +17,7 @@ from bbcs.session import local_client, open_session
 from bbcs.slots import Direction, Kind, Publisher, Safety, SlotSpec
 from bbcs.testing import CutRelay, Processes, start_router, wait_until
 from ral.gcs.api import Gcs
-from ral.process import events_publisher
+from ral.gri_service import events_publisher
 
 ROBOT = "uav1"
 

@@ -18,7 +18,7 @@ from bbcs.contracts import gri
 from bbcs.session import local_client, open_session
 from bbcs.testing import Processes, start_router, wait_until
 from ral.gcs.api import Gcs
-from ral.process import events_publisher
+from ral.gri_service import events_publisher
 
 ROBOT = "uav1"
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from bbcs.contracts import gri
+from bbcs.contracts.error_codes import error_name
 from bbcs.contracts.geo import Attitude, GeoPoint, VelocityNED
 from bbcs.contracts.robot import RobotTelemetry
-from cromat.tools.error_names import error_name
 from ral.gcs.watch_view import WatchScreen, render
 
 NOW = 1_800_000_000.0

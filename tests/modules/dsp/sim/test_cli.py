@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 
+from bbcs.contracts import dsp as p
 from bbcs.geodesy import LocalFrame
 from bbcs.testing import wait_until
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
 from modules.dsp.errors import DspTimeout
 from modules.dsp.link import DspLink, startup, startup_commands

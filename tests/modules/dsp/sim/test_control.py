@@ -10,15 +10,15 @@ import threading
 
 import pytest
 
+from bbcs.contracts import dsp as p
 from bbcs.net import free_port
 from bbcs.testing import wait_until
-from modules.dsp import protocol as p
 from modules.dsp.link import DspLink
 from modules.dsp.refusals import Refusal
 from modules.dsp.sim.control import ControlPort, Spoil, main, parse_command, send_command
 from modules.dsp.sim.faults import BadTelemetry
 
-FRAME = p.Telemetry(time_ms=5, position=p.Position(lat=37.4, lon=-6.0, alt=20.0), heading=10.0,
+FRAME = p.Telemetry(time_ms=5, position=p.TelPosition(lat=37.4, lon=-6.0, alt=20.0), heading=10.0,
                     status=p.DspStatus(mode=0, tracking=True, path_valid=True, airborne=True, queue_length=3))
 
 

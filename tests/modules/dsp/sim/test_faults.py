@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from modules.dsp import protocol as p
+from bbcs.contracts import dsp as p
 from modules.dsp.sim.faults import FaultInjector, garble
 from modules.dsp.sim.stress import dsp_traffic, fault_stream
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from bbcs.contracts import dsp as p
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.framing import Frame
 from modules.dsp.sim.machine import DspMachine
 from modules.dsp.sim.vehicle import default_pids

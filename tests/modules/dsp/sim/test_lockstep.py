@@ -11,10 +11,10 @@ from collections.abc import Iterator
 import pytest
 
 from bbcs.clock import SimClock
+from bbcs.contracts import dsp as p
 from bbcs.lockstep import MANAGER_MEMBER, Ask, Member, Stepper
 from bbcs.session import local_client, open_session
 from bbcs.testing import Processes, start_router, wait_until
-from modules.dsp import protocol as p
 from modules.dsp.link import DspLink
 from modules.dsp.sim import DspSimulator
 from modules.dsp.sim.transport import TcpEndpoint

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from bbcs.contracts import dsp as p
 from bbcs.geodesy import offset
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.framing import Frame
 from modules.dsp.sim.machine import DspMachine, DspParams
 from modules.dsp.sim.vehicle import VehicleParams
@@ -312,7 +312,7 @@ def test_telemetry_at_the_configured_period_with_the_mask() -> None:
     assert times[:3] == [20, 100, 200] and times[-1] == 2000  # first at once, then every 100 ms
     assert all(b - a == 100 for a, b in zip(times[1:], times[2:], strict=False))
     assert all(t.mask == 0b100001 and t.status is not None for t in telemetry)
-    assert telemetry[0].position == p.Position(lat=d.m.params.home_lat, lon=d.m.params.home_lon,
+    assert telemetry[0].position == p.TelPosition(lat=d.m.params.home_lat, lon=d.m.params.home_lon,
                                                alt=d.m.params.home_alt)
     d.send(p.SetStateTransmission(enable=False, period_ms=100))
     assert not [m for m in d.run(1.0) if isinstance(m, p.Telemetry)]

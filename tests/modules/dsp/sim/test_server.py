@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 import serial
 
+from bbcs.contracts import dsp as p
 from bbcs.testing import wait_until
 from modules.dsp import codec
-from modules.dsp import protocol as p
 from modules.dsp.framing import FrameParser
 from modules.dsp.sim import DspSimulator, PtyEndpoint
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from modules.dsp.protocol import Axis
+from bbcs.contracts.dsp import Axis
 from modules.dsp.sim.vehicle import ROTOR_FLIGHT_RPM, Vehicle, VehicleParams, VehicleState, wrap_deg
 
 DT = 0.02

@@ -15,11 +15,11 @@ import pytest
 
 from bbcs import keys
 from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import LinkErrorCode, LinkStats
 from bbcs.errors import EXIT_CONFIG
 from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import stop_process, wait_until
-from modules.dsp import protocol as p
 from modules.dsp.config import load_dsp_config
 from modules.dsp.link import startup_commands
 from modules.dsp.sim.record import read_record

@@ -31,14 +31,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from bbcs.conf import ConfError
+from bbcs import ConfError, Control, InputSlot, Kind, Module, OutputSlot, Safety
 from bbcs.contracts.error_codes import UquadErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.path_follower import DatosSegCam  # the RAL's path slot type
 from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
 from bbcs.contracts.tasks import TaskData
-from bbcs.module import Control, Module
-from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 from modules.uquad import model
 from modules.uquad.calibration import load_calibration
 from modules.uquad.config import conf_errors, load_config

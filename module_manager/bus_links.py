@@ -18,8 +18,7 @@ from typing import Any
 
 import msgspec
 
-from bbcs import acl
-from bbcs.session import SessionConfig
+from bbcs import SessionConfig, acl
 from module_manager import secure
 from module_manager.manifest import Manifest
 

@@ -11,9 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from bbcs import keys
-from bbcs.errors import SessionError
-from bbcs.session import SessionConfig, TlsConfig, open_session
+from bbcs import SessionConfig, SessionError, TlsConfig, keys, open_session
 
 CHECK_TIMEOUT_S = 3.0
 

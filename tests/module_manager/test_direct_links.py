@@ -1,4 +1,4 @@
-"""``module_manager.peer_mesh``: which pairs of processes have a direct TCP link, read from the kernel's socket
+"""``module_manager.direct_links``: which pairs of processes have a direct TCP link, read from the kernel's socket
 tables; and a launch with ``links = "peers"`` says "all modules up" only once every pair of modules has linked."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import pytest
 
 from bbcs.contracts import mri
 from bbcs.testing import wait_until
-from module_manager.peer_mesh import tcp_ports, unlinked_pairs, verdict
+from module_manager.direct_links import tcp_ports, unlinked_pairs, verdict
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch_support import Launch, write_manifest  # noqa: E402

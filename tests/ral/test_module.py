@@ -26,7 +26,7 @@ from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
 from ral.gcs.api import Gcs
-from ral.process import Ral
+from ral.module import Ral
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from standin import ROBOT, StandIn  # noqa: E402

@@ -18,7 +18,7 @@ from bbcs.contracts.robot import RobotTelemetry
 from bbcs.slots import OutputSlot, Publisher, Safety
 from bbcs.testing import wait_until
 from modules.vision.geodesy import LocalFrame
-from modules.vision.process import VisionStatus, pose_and_gimbal
+from modules.vision.module import VisionStatus, pose_and_gimbal
 
 LAT0, LON0, ALT = 37.41, -6.0, 60.0
 TARGET_EAST = 20.0

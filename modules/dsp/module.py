@@ -28,14 +28,11 @@ import threading
 import time
 from typing import ClassVar, NoReturn
 
-from bbcs.conf import ConfError
+from bbcs import EXIT_CONFIG, BusErrorCode, ConfError, InputSlot, Kind, Module, OutputSlot, Safety
 from bbcs.contracts import dsp as contract
+from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import COMMAND_RIGHTS, LinkErrorCode, LinkStats, commands_slot, refused_classes
 from bbcs.contracts.errors import ErrorReport
-from bbcs.errors import EXIT_CONFIG, BusErrorCode
-from bbcs.module import Module
-from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
-from modules.dsp import protocol as p
 from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
 from modules.dsp.intake import CommandIntake, Flood
@@ -306,11 +303,11 @@ class DspModule(Module):
         self.report_error(LinkErrorCode.TELEMETRY_REFUSED, report.text())
 
     def _on_dsp_error(self, error: p.DspError) -> None:
-        self._publish_report(error.code, f"the DSP reported {p.error_name(error.code)} at {error.time_ms} ms")
+        self._publish_report(error.code, f"the DSP reported {p.dsp_error_name(error.code)} at {error.time_ms} ms")
 
     def _publish_report(self, code: int, detail: str, batch: contract.DspCommands | None = None,
                         command: str = "") -> None:
-        name = LinkErrorCode(code).name if code in LinkErrorCode._value2member_map_ else p.error_name(code)
+        name = LinkErrorCode(code).name if code in LinkErrorCode._value2member_map_ else p.dsp_error_name(code)
         if batch is not None:
             self.log.warning("batch %d of %s: %s", batch.batch_id, batch.sender, detail)
         self.publish(contract.ERRORS_SLOT, contract.DspErrorReport(

@@ -8,7 +8,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from module_manager import links
+from module_manager import bus_links
 from module_manager.manager import Manager
 from module_manager.manifest import MANAGER_MODULE, ManifestError, load_manifest
 
@@ -23,12 +23,12 @@ def _with_bus(extra: str):
 
 def test_default_links_follow_the_default_setting(tmp_path: Path) -> None:
     m = load_manifest(write_manifest(tmp_path))
-    assert m.raw.bus.links is None and links.links(m) == links.DEFAULT_LINKS
+    assert m.raw.bus.links is None and bus_links.links(m) == bus_links.DEFAULT_LINKS
 
 
 def test_links_peers_makes_modules_peers_and_keeps_the_manager_a_client(tmp_path: Path) -> None:
     m = load_manifest(write_manifest(tmp_path, edit=_with_bus('links = "peers"\n')))
-    assert links.links(m) == "peers"
+    assert bus_links.links(m) == "peers"
     mgr = Manager(m, listen=["tcp/127.0.0.1:17447"])
     bus = mgr.module_bus_for("sink")
     assert bus.mode == "peer" and bus.listen == ["tcp/127.0.0.1:0"] and bus.connect == ["tcp/127.0.0.1:17447"]
@@ -39,14 +39,14 @@ def test_links_peers_makes_modules_peers_and_keeps_the_manager_a_client(tmp_path
 
 def test_links_router_keeps_modules_clients(tmp_path: Path) -> None:
     m = load_manifest(write_manifest(tmp_path, edit=_with_bus('links = "router"\n')))
-    assert links.links(m) == "router"
+    assert bus_links.links(m) == "router"
     assert Manager(m, listen=["tcp/127.0.0.1:17447"]).module_bus_for("sink").mode == "client"
 
 
 def test_hand_written_router_config_defaults_to_router_links(tmp_path: Path) -> None:
     (tmp_path / "router.json5").write_text("{}\n")
     m = load_manifest(write_manifest(tmp_path, edit=_with_bus('zenoh_config = "router.json5"\n')))
-    assert links.links(m) == "router"
+    assert bus_links.links(m) == "router"
 
 
 def test_peers_with_a_hand_written_router_config_is_a_manifest_error(tmp_path: Path) -> None:

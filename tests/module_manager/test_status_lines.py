@@ -1,4 +1,4 @@
-"""Status lines come out whole when several threads print them at once (``module_manager/lines.py``).
+"""Status lines come out whole when several threads print them at once (``module_manager/status_lines.py``).
 
 A fleet launcher reads each robot's "all N modules up" line and a test reads the launcher's "fleet: all 10 robots
 up" line by their start. With ``print()`` from eight threads, 551 of 24,000 lines came out glued to another one
@@ -15,7 +15,7 @@ from bbcs.testing import child_env
 
 CHILD = """
 import threading
-from module_manager.lines import print_line
+from module_manager.status_lines import print_line
 
 def run(k):
     for i in range(3000):

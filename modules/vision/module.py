@@ -26,14 +26,12 @@ from typing import TYPE_CHECKING, Annotated
 
 import msgspec
 
+from bbcs import InputSlot, Kind, Module, OutputSlot, Safety, load_params, struct_param_errors
 from bbcs.contracts.error_codes import VisionErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.contracts.path_follower import DatoPuntoSegCam, DatosSegCam
 from bbcs.contracts.robot import RobotTelemetry
-from bbcs.module import Module
-from bbcs.params import load_params, struct_param_errors
-from bbcs.slots import InputSlot, Kind, OutputSlot, Safety
 
 if TYPE_CHECKING:  # the vision parts (numpy) are imported where they are used: the Module Manager imports this
     # class to check the manifest, and numpy is ~0.1 s of its start-up
