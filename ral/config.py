@@ -5,10 +5,7 @@ from __future__ import annotations
 
 import msgspec
 
-from bbcs import (
-    raise_first,
-    struct_param_errors,
-)
+from bbcs import InvalidNameError, keys, raise_first, struct_param_errors
 from bbcs.contracts import mri
 from bbcs.contracts.dsp import FORWARDED_DSP_ERROR_BASE, MAX_SPEED_LIMIT, LinkErrorCode
 from ral.failsafe import FailsafeAction
@@ -48,6 +45,12 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
     speed and path reach one consumer in order and nothing is waited for (the manifest says which)."""
     kind: str = ""
     """Robot kind shown in the GRI state when the manager's state has none."""
+    planner: str = "trajectory"
+    """The module that plans survey and orbit paths: the RAL writes its ``request`` input and reads its ``status``,
+    ``survey`` and ``orbit`` outputs (docs/trajectory.md). Empty: none, and a survey or orbit is refused."""
+    refs_to: str = "path_follower"
+    """The module whose ``refs`` input takes a bridge task's references (REFS is not routed: the seed's
+    CONTROL_ENTRADA has no field for it). Empty: none, and a bridge task is refused."""
     fleet_can_do: str = ""
     """Fleet target kinds this robot bids on, comma-separated (``none``: never); empty: ``visit`` if it has goto."""
     fleet_bid_window_s: float = 2.0
@@ -81,6 +84,13 @@ class RalConfig(msgspec.Struct, frozen=True, kw_only=True):
         if errors:
             return errors
         cfg = msgspec.convert(plain, cls, strict=False)
+        for key in ("speed_ack_from", "planner", "refs_to"):
+            value = getattr(cfg, key)
+            try:
+                if value:
+                    keys.validate_name(value, "module name")
+            except InvalidNameError as exc:
+                errors.append((key, f"bad RAL parameter: {key}: {exc}"))
         if (cfg.battery_full_v or cfg.battery_empty_v) and not 0.0 <= cfg.battery_empty_v < cfg.battery_full_v <= 100.0:
             errors.append(("battery_full_v" if "battery_full_v" in plain else "battery_empty_v", (
                 f"bad RAL parameter: battery_empty_v = {cfg.battery_empty_v:g} and battery_full_v = "

@@ -96,7 +96,7 @@ class GriService:
             return self._cancel(request.task_type)
         if isinstance(request, gri.RestartModule):
             return self._restart(request.module)
-        why = self._world_refusal(request)
+        why = self._world_refusal(request) or self._unwired(request)
         if why is not None:
             self.emit("task_rejected", detail=why)
             return gri.TaskReply(accepted=False, reason=why)
@@ -135,6 +135,16 @@ class GriService:
             if cleared:
                 self.log.info("failsafe cleared by the operator's task %d", task_id)
         return gri.TaskReply(accepted=True, task_id=task_id, task_type=plan.task_type)
+
+    def _unwired(self, request: gri.TaskRequest) -> str | None:
+        """Why a task cannot be served because the manifest wires no module for its data (before anything starts)."""
+        if isinstance(request, t.Survey | t.Orbit) and self._traj_pub is None:
+            return (f"{t.kind_of(request)}: this robot has no path planner (the RAL's manifest parameter planner is "
+                    "empty)")
+        if isinstance(request, t.Bridge) and self._refs_pub is None:
+            return ("bridge: no module takes the references on this robot (the RAL's manifest parameter refs_to is "
+                    "empty)")
+        return None
 
     def _publish_data(self, plan: Plan, task_id: int = 0) -> str | None:
         """The task's data, after the manager's reply (so after the module answered the task's mode). A path's

@@ -185,17 +185,21 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
             SlotSpec("state", gri.GriState, Direction.OUT, Kind.STATE, Safety.SAFE),
         )
         self._event_pub = events_publisher(s, self.robot)
-        # REFS is not routed (the seed's CONTROL_ENTRADA has no field for it): written on the follower's own key
-        self._traj_pub = Publisher(
-            s,
-            keys.slot_key(self.robot, "trajectory", "request"),
-            SlotSpec("request", TrajectoryRequest, Direction.OUT, Kind.STREAM, Safety.SAFE),
-        )
-        self._refs_pub = Publisher(
-            s,
-            keys.slot_key(self.robot, "path_follower", "refs"),
-            SlotSpec("refs", RefsSegCam, Direction.OUT, Kind.STATE, Safety.UNSAFE),
-        )
+        # the planner's and the bridge's modules as the manifest names them (RAL params ``planner``, ``refs_to``);
+        # REFS is not routed (the seed's CONTROL_ENTRADA has no field for it): written on that module's own key
+        planner, refs_to = self.cfg.planner, self.cfg.refs_to
+        if planner:
+            self._traj_pub = Publisher(
+                s,
+                keys.slot_key(self.robot, planner, "request"),
+                SlotSpec("request", TrajectoryRequest, Direction.OUT, Kind.STREAM, Safety.SAFE),
+            )
+        if refs_to:
+            self._refs_pub = Publisher(
+                s,
+                keys.slot_key(self.robot, refs_to, "refs"),
+                SlotSpec("refs", RefsSegCam, Direction.OUT, Kind.STATE, Safety.UNSAFE),
+            )
         self._ral_entities = [
             zenoh.ext.declare_advanced_subscriber(
                 s,
@@ -207,11 +211,11 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
             s.declare_subscriber(gri.gcs_heartbeat_key("*"), self._on_gcs_heartbeat),
             *([s.declare_subscriber(keys.slot_key(self.robot, self.cfg.speed_ack_from, SPEED_ACK_SLOT),
                                     self._on_speed_ack)] if self.cfg.speed_ack_from else []),
-            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "status"), self._on_traj_status),
-            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "survey"),
-                                 lambda sample: self._on_traj_path("survey", sample)),
-            s.declare_subscriber(keys.slot_key(self.robot, "trajectory", "orbit"),
-                                 lambda sample: self._on_traj_path("orbit", sample)),
+            *([s.declare_subscriber(keys.slot_key(self.robot, planner, "status"), self._on_traj_status),
+               s.declare_subscriber(keys.slot_key(self.robot, planner, "survey"),
+                                    lambda sample: self._on_traj_path("survey", sample)),
+               s.declare_subscriber(keys.slot_key(self.robot, planner, "orbit"),
+                                    lambda sample: self._on_traj_path("orbit", sample))] if planner else []),
             s.declare_queryable(gri.task_key(self.robot), self._jobs.put),
             wire.declare_service_schemas(s, keys.ral_key(self.robot), lambda: {
                 gri.state_key(self.robot): gri.GriState, gri.events_key(self.robot): gri.GriEvent,
@@ -233,7 +237,7 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
         for entity in reversed(self._ral_entities):
             entity.undeclare()
         self._ral_entities.clear()
-        for pub in (self._state_pub, self._event_pub, self._refs_pub):
+        for pub in (self._state_pub, self._event_pub, self._refs_pub, self._traj_pub):
             if pub is not None:
                 pub.close()
 

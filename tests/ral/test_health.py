@@ -7,8 +7,6 @@ import math
 import time
 
 import pytest
-from tests.ral.test_module import Rig
-from tests.ral.test_module import rig as ral_rig  # noqa: F401  (the RAL against the stand-in manager)
 
 from bbcs.conf import ConfError, parse_conf
 from bbcs.contracts import gri, mri
@@ -27,6 +25,8 @@ from ral.health import (
     ral_conf_errors,
     tilt_deg,
 )
+from tests.ral.test_module import Rig
+from tests.ral.test_module import rig as ral_rig  # noqa: F401  (the RAL against the stand-in manager)
 
 HOME = GeoPoint(lat=-34.918, lon=-56.166, alt=30.0)
 

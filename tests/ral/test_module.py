@@ -46,7 +46,7 @@ class Rig:
 
 
 @pytest.fixture
-def rig(router: int) -> Iterator[Rig]:
+def rig(router: int, request: pytest.FixtureRequest) -> Iterator[Rig]:
     manager_session = open_session(local_client(router))
     manager = StandIn(manager_session)
     manager.start()
@@ -61,6 +61,8 @@ def rig(router: int) -> Iterator[Rig]:
         "failsafe_action": "hold",
         "speed_ack_from": "path_follower",  # the stand-in answers speeds as the UAV's path follower does
     }
+    wired = request.node.get_closest_marker("ral_params")  # a test's own RAL parameters on top
+    params.update(wired.kwargs if wired is not None else {})
     ral = Ral(ModuleContext(robot=ROBOT, module="ral", bus=local_client(router), params=params))
     thread = threading.Thread(target=ral.run, daemon=True)
     thread.start()
@@ -155,6 +157,22 @@ def test_bad_tasks_are_rejected_with_a_reason_and_change_nothing(rig: Rig) -> No
     assert rig.manager.set_tasks() == []
     wait_until(lambda: rig.kinds().count("task_rejected") == 3, what="three task_rejected events")
     assert rig.states[-1].tasks == []
+
+
+@pytest.mark.ral_params(planner="", refs_to="")
+def test_a_task_whose_module_the_manifest_does_not_wire_is_refused_before_anything_starts(rig: Rig) -> None:
+    """The RAL's planner and bridge modules are manifest parameters (issue 35: keys wired by the manifest); a robot
+    without them (the uQuad) refuses a survey, an orbit and a bridge with the reason, and asks the manager nothing."""
+    survey = gri.Survey(polygon=[gri.Vertex(lat=37.41, lon=-6.0), gri.Vertex(lat=37.411, lon=-6.0),
+                                 gri.Vertex(lat=37.411, lon=-6.001)], height=20.0)
+    orbit = gri.Orbit(lat=37.41, lon=-6.0, radius=30.0)
+    for task in (survey, orbit):
+        reply = rig.gcs.send(ROBOT, task)
+        assert not reply.accepted and "has no path planner" in reply.reason and "planner" in reply.reason
+    reply = rig.gcs.send(ROBOT, gri.Bridge(ref_altitude=40.0))
+    assert not reply.accepted and "refs_to" in reply.reason
+    assert rig.manager.set_tasks() == []
+    wait_until(lambda: rig.kinds().count("task_rejected") == 3, what="three task_rejected events")
 
 
 def test_manager_refusal_is_passed_on(rig: Rig) -> None:
