@@ -21,6 +21,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -309,12 +310,22 @@ def test_two_secured_robots_linked_directly_share_their_state_and_refuse_each_ot
                 target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
                 marks = {ROBOT: len(r1.commands()), PEER: len(r2.commands())}
                 ground = pki1.with_name("pki-ground")
-                view.post(FleetTask(id="direct_t1", targets=[FleetTarget(id="d0", lat=target[0], lon=target[1],
-                                                                         alt=home.alt + 10.0)], posted_by="gcs"),
-                          StationSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
-                # the put itself is refused by uav2's router (it arrives under router-uav1's CN) ...
+                signed = view.post(FleetTask(id="direct_t1", targets=[FleetTarget(
+                    id="d0", lat=target[0], lon=target[1], alt=home.alt + 10.0)], posted_by="gcs"),
+                    StationSigner.from_files(ground / "gcs.pem", ground / "gcs.key"))
+                # the put itself is refused by uav2's router (it arrives under router-uav1's CN) ... once uav1's
+                # router relays it: it does so only after it has learnt uav2's subscription to fleet tasks, which
+                # the post's wait cannot see (it is satisfied by uav1's own RAL). So the same signed bytes are put
+                # again until uav2's router has refused one (a clean-clone run at load waited 30 s for one put)
                 fleet = f"router-{ROBOT} may not put on {keys.fleet_task_key('direct_t1')}"
-                wait_until(lambda: fleet in r2.router_log(), 30, "uav2's router refusing the relayed fleet task")
+                again = time.monotonic() + 3.0
+                end = time.monotonic() + 30.0
+                while fleet not in r2.router_log():
+                    assert time.monotonic() < end, "uav2's router refusing the relayed fleet task"
+                    if time.monotonic() >= again:
+                        gcs.session.put(keys.fleet_task_key("direct_t1"), msgspec.msgpack.encode(signed))
+                        again = time.monotonic() + 3.0
+                    time.sleep(0.1)
                 # ... and uav2 learns the task from uav1's fleet state, uav1's own key (RALs relay the tasks they
                 # know, for late joiners and partitions: docs/fleet.md); both bid and agree
                 dec = view.wait(lambda: view.agreed("direct_t1", {ROBOT, PEER}), 30)
