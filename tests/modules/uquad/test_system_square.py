@@ -70,34 +70,10 @@ class Truth:
         self.sock.close()
 
 
-def loaded_machine_conf(tmp_path: Path) -> Path:
-    """uquad1.conf with MOTOR_ACK_TIMEOUT and MOTOR_CMD_TIMEOUT at 2 s: on the shared 2-core machine a stall of
-    the flight process longer than the .conf's 0.5 s happens under load and is (rightly) a driver error that lands
-    the quad and fails the running task, or a motor stop; those paths have their own tests
-    (test_motor_driver.py), this one is about the ground station."""
-    conf = MANIFEST.parent / "uquad1.conf"
-    text = conf.read_text()
-    assert "MOTOR_ACK_TIMEOUT: 0.5" in text and "MOTOR_CMD_TIMEOUT: 0.5" in text
-    for name in ("uquad1_imu_calib.conf", "uquad1_K_prop.txt", "uquad1_K_int.txt"):
-        (tmp_path / name).write_text((conf.parent / name).read_text())
-    out = tmp_path / "uquad1.conf"
-    out.write_text(text.replace("MOTOR_ACK_TIMEOUT: 0.5", "MOTOR_ACK_TIMEOUT: 2.0")
-                   .replace("MOTOR_CMD_TIMEOUT: 0.5", "MOTOR_CMD_TIMEOUT: 2.0"))
-    return out
-
-
 def manifest(tmp_path: Path) -> Path:
-    text = MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{loaded_machine_conf(tmp_path)}"')
-    # the robot's processes at a flight computer's priority: under the shared machine's load (20-50) the flight
-    # process was starved for up to 1 s (measured control periods), and no estimator flies through that
-    assert 'controller = "hover" }' in text
-    text = text.replace('controller = "hover" }', 'controller = "hover", nice = "-10" }')
-    # the simulated physics and the motor driver too: the simulator cuts the motors after 0.1 s without ESC
-    # set-points, as ESCs do, and a starved driver process let the quadrotor fall
-    for proc in ("modules.uquad.sim", "modules.uquad.motor_driver"):
-        old = f'command = ["{{python}}", "-m", "{proc}"'
-        assert old in text
-        text = text.replace(old, f'command = ["nice", "-n", "-10", "{{python}}", "-m", "{proc}"')
+    """The shipped uquad1_sim.toml as it is (its flight processes at real-time priority where the OS allows it,
+    the .conf's motor timeouts), with the loggers writing into tmp_path and a short link-loss failsafe."""
+    text = MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{MANIFEST.parent / "uquad1.conf"}"')
     text = text.replace('params = { kind = "imu_raw" }', f'params = {{ kind = "imu_raw", dir = "{tmp_path}" }}')
     text = text.replace('params = { kind = "control" }', f'params = {{ kind = "control", dir = "{tmp_path}" }}')
     text = text.replace('params = { kind = "state" }', f'params = {{ kind = "state", dir = "{tmp_path}" }}')
@@ -160,7 +136,8 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         wait_until(lambda: any(e.kind == "aborted" for e in events), 10, "the ground station told of the abort")
         wait_until(lambda: np.linalg.norm(truth.last["x"][6:9]) < 0.3, 20, "stopped after the abort")
         stopped_at = truth.last["x"][0]
-        assert stopped_at < SIDE_M * 3 - 2.0 and not truth.last["on_ground"]
+        assert stopped_at < SIDE_M * 3 - 2.0 and not truth.last["on_ground"], (
+            stopped_at, truth.last, [(e.kind, e.detail) for e in events[-8:]])
 
         # the seed's manual mode: steps of the hover point from the ground station
         before = np.array(truth.last["x"][:3])
