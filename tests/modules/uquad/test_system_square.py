@@ -137,7 +137,8 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         wait_until(lambda: np.linalg.norm(truth.last["x"][6:9]) < 0.3, 20, "stopped after the abort")
         stopped_at = truth.last["x"][0]
         assert stopped_at < SIDE_M * 3 - 2.0 and not truth.last["on_ground"], (
-            stopped_at, truth.last, [(e.kind, e.detail) for e in events[-8:]])
+            stopped_at, truth.last, [(e.kind, e.detail) for e in events[-8:]],
+            [(e.module, e.code, e.detail) for e in states[-1].errors[-4:]])
 
         # the seed's manual mode: steps of the hover point from the ground station
         before = np.array(truth.last["x"][:3])
