@@ -90,9 +90,14 @@ def test_hz_measures_the_telemetry_rate(uav):
     assert r.returncode == 0, r.stderr
     last = [line for line in r.stdout.splitlines() if line.startswith("cromat/uav1/dsp/telemetry")][-1]
     hz = float(last.split()[1].removesuffix("Hz"))
-    jitter_ms = float(last.split()[2].removesuffix("ms"))
+    jitter_ms, low_ms, high_ms = (float(last.split()[i].removesuffix("ms")) for i in (2, 3, 4))
     bytes_per_s = float(last.split()[5])
-    assert 15 <= hz <= 25 and jitter_ms < 50 and bytes_per_s > 0, last
+    # the DSP's telemetry is 20 Hz; how evenly it arrives is the machine's load (a clean-clone run saw one 885 ms
+    # gap, jitter 112 ms): what the tool must get right is that its figures agree with each other
+    assert 15 <= hz <= 25 and bytes_per_s > 0, last
+    assert low_ms >= 0 and low_ms - 0.1 <= 1000 / hz <= high_ms + 0.1, last  # the mean interval between the
+    # shortest and the longest (0.1 ms: the columns are rounded)
+    assert 0 <= jitter_ms <= (high_ms - low_ms) / 2 + 0.01, last  # a standard deviation within half the range
 
 
 def test_pub_validates_before_sending(uav):
