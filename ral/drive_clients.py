@@ -58,9 +58,8 @@ class DriveClients:
     def _request_path(self, req: t.Survey | t.Orbit, task_id: int) -> str | None:
         """Ask the trajectory generator for the task's path (the task already runs, so the path follower reads
         the generator's output) and wait for its answer and its path: None, or the reason it failed."""
+        assert self._traj_pub is not None, "admission refuses a survey or orbit with no planner (GriService._unwired)"
         kind = t.kind_of(req)
-        if self._traj_pub is None:
-            return f"{kind}: this robot has no path planner (the RAL's manifest parameter planner is empty)"
         pos = self.telemetry.position if self.telemetry else None
         start = TrajPoint(lat=pos.lat, lon=pos.lon) if pos is not None else None
         with self._traj_seen:
