@@ -63,7 +63,7 @@ class FlightCore:
         self.planner = Planner(PlannerConfig(
             takeoff_height=v.TAKEOFF_HEIGHT_DEFAULT, waypoint_radius=v.WAYPOINT_RADIUS,
             waypoint_speed_max=v.WAYPOINT_SPEED_MAX, cruise_speed=v.CRUISE_SPEED, land_speed=v.LAND_SPEED,
-            ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT))
+            ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT, abort_decel=v.ABORT_DECEL))
         self.every = v.CONTROL_EVERY
         self.tumble = TumbleCut(v.CUT_TILT_DEG, v.CUT_TILT_S)
         self.raw_queue = RawQueue(v.IMU_QUEUE_LEN, v.IMU_FIR) if v.IMU_FIR else None
@@ -89,7 +89,8 @@ class FlightCore:
         return np.concatenate([k.position, k.euler, k.velocity, self.gyro])
 
     def set_mode(self, mode: Mode) -> None:
-        self.planner.set_mode(mode, self.kalman.position.copy(), float(self.kalman.euler[2]))
+        k = self.kalman
+        self.planner.set_mode(mode, k.position.copy(), float(k.euler[2]), k.velocity.copy())
 
     def set_waypoints(self, points: list[np.ndarray]) -> None:
         self.planner.set_waypoints(points)

@@ -4,7 +4,8 @@ Pure state machine, injected time. Task modes (the manifest's ``uquad_mode`` slo
 off), HOLD (stay where the set point is), GOTO (fly the waypoints the RAL put on the path slot), TAKE_OFF
 (climb the task's height, else TAKEOFF_HEIGHT_DEFAULT, above the take-off point), LAND (descend at LAND_SPEED,
 motors off once on the ground),
-ABORT (stop where the quadrotor is now: the set point jumps to the estimated position, zero velocity), MANUAL
+ABORT (stop where the quadrotor is now: the set point starts at the estimated position and velocity and brakes
+at ABORT_DECEL to a halt, then holds there; jumping to zero velocity from cruise speed tilted it 44 degrees), MANUAL
 (the seed's manual mode: hover, each manual command moves the hover target by an offset; :meth:`Planner.manual`).
 
 A task's parameters (the RAL's task slot) arrive apart from its mode: the take-off height and the goto speed
@@ -53,6 +54,8 @@ class PlannerConfig:
     still_s: float = 0.5
     max_height: float = 20.0
     """Metres above the take-off point that no take-off or manual target may exceed."""
+    abort_decel: float = 2.0
+    """m/s²: an abort brakes the set point this hard (about 11 degrees of tilt), never a step to a halt."""
 
 
 @dataclass
@@ -77,6 +80,8 @@ class Planner:
     speed: float | None = None
     """The running goto's speed (None: the .conf's cruise speed)."""
     manual_target: np.ndarray | None = None
+    brake_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """An abort's set-point velocity, braking to zero."""
     _still_since: float | None = None
     _flag: bool = False
     completed: list[str] = field(default_factory=list)
@@ -86,8 +91,9 @@ class Planner:
     def airborne(self) -> bool:
         return self.mode is not Mode.IDLE
 
-    def set_mode(self, mode: Mode, position: np.ndarray, yaw: float) -> None:
-        """A new task mode; ``position``/``yaw`` are the current estimate."""
+    def set_mode(self, mode: Mode, position: np.ndarray, yaw: float, velocity: np.ndarray | None = None) -> None:
+        """A new task mode; ``position``/``yaw``/``velocity`` are the current estimate (an abort brakes from that
+        velocity; without it, it holds where it is)."""
         if mode is Mode.IDLE:
             self.mode = Mode.IDLE
             return
@@ -99,6 +105,7 @@ class Planner:
             self.yaw = yaw
         if mode is Mode.ABORT:
             self.sp = np.array(position, dtype=float)
+            self.brake_velocity = np.zeros(3) if velocity is None else np.array(velocity, dtype=float)
             self.waypoints.clear()
         if mode is not Mode.GOTO:
             self.waypoints.clear()
@@ -182,6 +189,8 @@ class Planner:
             else:
                 self._still_since = None
         vel = np.zeros(3)
+        if self.mode is Mode.ABORT:
+            vel = self._brake(dt)
         if target is not None:
             delta = target - self.sp
             dist = float(np.linalg.norm(delta))
@@ -192,6 +201,17 @@ class Planner:
                     vel = delta / dist * speed
         flag, self._flag = self._flag, False
         return PlanOutput(self.sp.copy(), vel, self.yaw, self.mode is not Mode.IDLE, flag)
+
+    def _brake(self, dt: float) -> np.ndarray:
+        """The abort's set point: on along its velocity, slower by ``abort_decel`` each second, until it stops."""
+        v = self.brake_velocity
+        speed = float(np.linalg.norm(v))
+        if speed < 1e-9:
+            return np.zeros(3)
+        slower = max(0.0, speed - self.cfg.abort_decel * dt)
+        self.brake_velocity = v * (slower / speed)
+        self.sp = self.sp + (v + self.brake_velocity) / 2.0 * dt
+        return self.brake_velocity.copy()
 
     def _reached(self, target: np.ndarray, position: np.ndarray, velocity: np.ndarray) -> bool:
         return (float(np.linalg.norm(target - position)) <= self.cfg.waypoint_radius

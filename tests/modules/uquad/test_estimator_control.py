@@ -81,6 +81,43 @@ def test_planner_waypoints_completion_and_new_target_flag():
     assert p.completed == ["waypoint", "waypoint", "goto"] and p.mode is Mode.HOLD
 
 
+def test_planner_abort_brakes_from_its_velocity_to_a_halt():
+    p = Planner(PlannerConfig(abort_decel=2.0))
+    p.set_mode(Mode.TAKE_OFF, np.zeros(3), 0.0)
+    p.set_mode(Mode.ABORT, np.array([5.0, 0, 3.0]), 0.0, np.array([2.0, 0, 0]))
+    out = p.step(0.0, 0.5, np.array([5.0, 0, 3.0]), np.array([2.0, 0, 0]))
+    assert out.velocity == pytest.approx([1.0, 0, 0]) and out.position == pytest.approx([5.75, 0, 3.0])
+    for _ in range(4):
+        out = p.step(0.0, 0.5, out.position, out.velocity)
+    # v²/2a = 1 m beyond where the abort found it, then held there
+    assert out.velocity == pytest.approx([0, 0, 0]) and out.position == pytest.approx([6.0, 0, 3.0])
+    assert p.mode is Mode.ABORT and out.motors_on
+
+
+def test_abort_from_cruise_speed_stops_within_the_control_laws_tilt():
+    """Closed loop: the aircraft at 2 m/s, aborted, stops within v²/2a plus a little, tilting far less than
+    the RAL's loss-of-control limit (45 degrees; a step to a halt tilted it 44)."""
+    loop = ClosedLoop(seed=3)
+    loop.run(6.0)
+    loop.core.set_mode(Mode.TAKE_OFF)
+    loop.run(12.0)
+    start = loop.sim.x[:3].copy()
+    loop.core.set_waypoints([start + [12.0, 0, 0]])
+    loop.core.set_mode(Mode.GOTO)
+    while loop.sim.x[0] - start[0] < 3.0:
+        loop.run(0.01)
+    assert np.linalg.norm(loop.sim.x[6:9]) > 1.8  # at cruise speed
+    aborted_at = loop.sim.x[0]
+    loop.core.set_mode(Mode.ABORT)
+    tilt = []
+    for _ in range(600):
+        loop.run(0.01)
+        tilt.append(math.degrees(max(abs(loop.sim.x[model.IPHI]), abs(loop.sim.x[model.IPSI]))))
+    assert max(tilt) < 25.0, max(tilt)
+    assert loop.sim.x[0] - aborted_at < 2.0 and np.linalg.norm(loop.sim.x[6:9]) < 0.3
+    assert abs(loop.sim.x[2] - start[2]) < 0.5
+
+
 def test_planner_on_the_ground_ignores_land_and_hold():
     p = Planner()
     p.set_mode(Mode.LAND, np.zeros(3), 0.0)
