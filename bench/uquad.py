@@ -3,13 +3,15 @@
 Runs the whole robot with ``cromat``'s Module Manager (router, simulator, motor driver, flight module, loggers,
 RAL) and a ground station on the GCS API, twice:
 
-1. **real time** (simulator ×1, the seed's wall-clock Ts): take off, fly a 4-waypoint square, land. From the
+1. **real time** (the shipped manifest: the simulator ×1 in lockstep with the flight loop, which times itself by
+   the IMU frames): take off, fly a 4-waypoint square, land. From the
    flight module's ``control`` slot (every control action carries the delay from reading the IMU bytes of its
    frame to handing the command to the driver link): latency p50/p99 against the seed's 10 ms budget (8 ms
    typical). From the simulator's truth stream: RMS distance of the true position from the square's legs while
    the goto runs.
 2. **endurance**, faster than real time: ``--minutes`` simulated minutes (default 10) with the simulator at
-   ``--speed`` (default ×8) and the flight loop on the IMU's clock (10 ms per frame), standing on the ground
+   ``--speed`` (default ×8), free-running (no lockstep: it does not wait for the flight loop) and the flight
+   loop on the IMU's clock (10 ms per frame), standing on the ground
    (same per-frame work: conversion, Kalman, control action). Lost frames = frames the simulator wrote to the
    connected IMU link − frames the flight loop parsed (both counts from their stop lines), plus bad frames.
 
@@ -117,15 +119,19 @@ def _edit(text: str, old: str, new: str) -> str:
     return text.replace(old, new)
 
 
-def manifest(tmp: Path, *, speed: float = 1.0, clock: str = "wall", duration_s: float | None = None,
-             nice: int = 0) -> Path:
+def manifest(tmp: Path, *, speed: float = 1.0, clock: str = "imu", duration_s: float | None = None,
+             nice: int = 0, lockstep: bool = True) -> Path:
     text = MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{CONF}"')
+    if not lockstep:  # the simulator free on its clock: frames the flight loop does not keep up with are lost
+        for end in ('"--control", "127.0.0.1:{port:control}"', '"--esc", "127.0.0.1:{port:esc}"'):
+            text = _edit(text, f'{end}, "--lockstep"]', f"{end}]")
     extra = f', "--duration", "{duration_s:g}"' if duration_s else ""
     # every edit must apply: one that silently missed (the shipped command line grew a --control port) left the
     # endurance simulator at x1 with no end, and the bench waited for a stop line that never came
     text = _edit(text, '"--truth", "127.0.0.1:{port:truth}"',
                  f'"--truth", "127.0.0.1:{{port:truth}}", "--speed", "{speed:g}"{extra}')
-    text = _edit(text, 'controller = "hover" }', f'controller = "hover", clock = "{clock}", nice = "{nice}" }}')
+    text = _edit(text, 'controller = "hover", clock = "imu" }',
+                 f'controller = "hover", clock = "{clock}", nice = "{nice}" }}')
     if nice:  # the simulated physics and the driver too (the simulator cuts the motors after 0.1 s without ESCs)
         for proc in ("modules.uquad.sim", "modules.uquad.motor_driver"):
             text = text.replace(f'command = ["{{python}}", "-m", "{proc}"',
@@ -210,7 +216,8 @@ def control_figures(tmp: Path) -> dict:
 def endurance(tmp: Path, minutes: float, speed: float, nice: int = 0) -> dict:
     """The simulator writes ``minutes`` of IMU frames at ×``speed`` then closes the link; the flight loop reads
     to the end (EOF) and logs its counts, so frames still buffered count as received, not lost."""
-    launch = Launch(manifest(tmp, speed=speed, clock="imu", duration_s=minutes * 60, nice=nice), tmp / "logs_fast")
+    launch = Launch(manifest(tmp, speed=speed, clock="imu", duration_s=minutes * 60, nice=nice, lockstep=False),
+                    tmp / "logs_fast")
     stop_line = re.compile(r"frames=(\d+) bad_frames=(\d+) bytes_discarded=(\d+) control_actions=(\d+)")
     try:
         launch.wait_up()

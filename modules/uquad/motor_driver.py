@@ -13,7 +13,12 @@ Decision logic is :class:`DriverLogic` (pure, injected clock). Rules (seed 002 Â
   MOTOR_ERROR_ACTION stops it (``land`` needs the motors: stopping them 0.5 s into a stream of refusals dropped
   the aircraft instead).
 
-Process: ``python -m modules.uquad.motor_driver --conf C --listen 127.0.0.1:P --esc HOST:PORT``.
+Process: ``python -m modules.uquad.motor_driver --conf C --listen 127.0.0.1:P --esc HOST:PORT [--lockstep]``.
+
+With ``--lockstep`` (the simulator's lockstep, docs/uquad.md) the driver forwards exactly one set-point per
+command and no keep-alive, and its clock is the commands' (one control period, 10 ms Ã— CONTROL_EVERY, each): the
+ramp lasts MOTOR_RAMP_S of simulated time whatever the load. Its silence timeout cannot fire on that clock; a
+controller gone silent is stopped by the simulated ESCs' own timeout, on simulated time.
 """
 
 from __future__ import annotations
@@ -98,7 +103,7 @@ class DriverProcess:
     """Serves one controller on ``listen``; keeps a TCP link to the ESCs at ``esc`` (reconnecting)."""
 
     def __init__(self, logic: DriverLogic, listen: tuple[str, int], esc: tuple[str, int],
-                 send_period: float) -> None:
+                 send_period: float, command_period: float | None = None) -> None:
         self.logic = logic
         self.listener = socket.create_server(listen)
         self.listener.setblocking(False)
@@ -107,6 +112,9 @@ class DriverProcess:
         self.client: socket.socket | None = None
         self.parser = mp.FrameParser("M")
         self.send_period = send_period
+        self.command_period = command_period
+        """Lockstep: each command advances the driver's clock by this much, and nothing is sent between them."""
+        self._commands = 0
         self._stop = False
         self.esc_errors = 0
         self.esc_dropped = 0
@@ -148,10 +156,13 @@ class DriverProcess:
         assert self.client is not None
         for frame in self.parser.feed(data):
             seq = frame.fields[0]
-            now = time.monotonic()
+            self._commands += 1
+            now = time.monotonic() if self.command_period is None else self._commands * self.command_period
             status = self.logic.on_command(now, mp.speeds(frame))
-            if status in (AckStatus.OK, AckStatus.RAMPING, AckStatus.STOPPED):
-                if not self._send_esc(self.logic.output(now)):
+            forward = status in (AckStatus.OK, AckStatus.RAMPING, AckStatus.STOPPED)
+            # in lockstep a refused command still gets its set-point (the last good one): the simulator waits for it
+            if forward or self.command_period is not None:
+                if not self._send_esc(self.logic.output(now)) and forward:
                     status = AckStatus.ESC_ERROR
             try:
                 self.client.send(mp.ack(seq, status))
@@ -162,7 +173,8 @@ class DriverProcess:
         next_send = time.monotonic()
         while not self._stop:
             fds = [self.listener] + ([self.client] if self.client else []) + ([self.esc] if self.esc else [])
-            ready, _, _ = select.select(fds, [], [], max(0.0, next_send - time.monotonic()))
+            wait = 0.5 if self.command_period is not None else max(0.0, next_send - time.monotonic())
+            ready, _, _ = select.select(fds, [], [], wait)
             for sock in ready:
                 if sock is self.listener:
                     conn, _ = self.listener.accept()
@@ -190,7 +202,7 @@ class DriverProcess:
                         self.esc = None
                         self.esc_errors += 1
             now = time.monotonic()
-            if now >= next_send:
+            if self.command_period is None and now >= next_send:
                 self._send_esc(self.logic.output(now))
                 next_send = max(next_send + self.send_period, now)
         self._send_esc([0.0] * 4)  # leaving: the motors stop
@@ -214,10 +226,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--conf", required=True)
     ap.add_argument("--listen", default="127.0.0.1:0")
     ap.add_argument("--esc", required=True, help="host:port of the ESCs (the simulator's esc end)")
+    ap.add_argument("--lockstep", action="store_true",
+                    help="one ESC set-point per command, timed by the commands (the simulator's --lockstep)")
     args = ap.parse_args(argv)
     v = load_config(args.conf).values
     logic = DriverLogic(v.MOTOR_MIN, v.MOTOR_MAX, v.MOTOR_RAMP_S, v.MOTOR_CMD_TIMEOUT)
-    proc = DriverProcess(logic, _addr(args.listen), _addr(args.esc), v.MOTOR_SEND_PERIOD)
+    command_period = 0.01 * v.CONTROL_EVERY if args.lockstep else None
+    proc = DriverProcess(logic, _addr(args.listen), _addr(args.esc), v.MOTOR_SEND_PERIOD, command_period)
     signal.signal(signal.SIGTERM, lambda *_: proc.stop())
     signal.signal(signal.SIGINT, lambda *_: proc.stop())
     host, port = proc.address

@@ -29,10 +29,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--control", default="none",
                     help="host:port of the fault-injection port (JSON lines, modules/uquad/sim/server.py) or 'none'")
     ap.add_argument("--imu-mode", choices=("binary", "ascii"), default=None, help="override IMU_MODE of the .conf")
-    ap.add_argument("--speed", type=float, default=1.0, help="simulated seconds per wall second")
+    ap.add_argument("--speed", type=float, default=1.0,
+                    help="simulated seconds per wall second (in lockstep the most it may go; inf: as fast as answered)")
+    ap.add_argument("--lockstep", action="store_true",
+                    help="step only once the ESC set-point computed from the last IMU frame has arrived (run the "
+                         "motor driver with --lockstep and the flight module with clock = imu)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds, then exit")
     args = ap.parse_args(argv)
+    if not args.speed > 0:
+        ap.error(f"--speed must be above 0, not {args.speed:g}")
     cfg = load_config(Path(args.conf))
     sim = QuadSim(params=cfg.quad, calib=load_calibration(cfg.imu_calib_file),
                   home=Home(cfg.home_lat, cfg.home_lon, cfg.home_alt), seed=args.seed)
@@ -41,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     truth = None if args.truth == "none" else _tcp("truth", args.truth)
     control = None if args.control == "none" else _tcp("control", args.control)
     server = SimServer(sim, imu, gps, _tcp("esc", args.esc), truth, imu_mode=args.imu_mode or cfg.imu_mode,
-                       speed=args.speed, control=control)
+                       speed=args.speed, control=control, lockstep=args.lockstep,
+                       answer_every=cfg.values.CONTROL_EVERY)
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
     signal.signal(signal.SIGINT, lambda *_: server.stop())
     parts = " ".join(f"{e.name}={e.url}" for e in server.ends())
@@ -52,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         server.close()
         s = server.stats
         print(f"uquad sim stopped t={sim.t:.2f} imu_frames={s.imu_frames} imu_bytes_lost={s.imu_bytes_lost} "
-              f"esc_frames={s.esc_frames} esc_timeouts={s.esc_timeouts}", flush=True)
+              f"esc_frames={s.esc_frames} esc_timeouts={s.esc_timeouts} lockstep_waits={s.lockstep_waits} "
+              f"lockstep_timeouts={s.lockstep_timeouts}", flush=True)
     return 0
 
 

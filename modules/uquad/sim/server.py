@@ -9,7 +9,15 @@ truth lines carry ``motor_efficiency``.
 
 Simulated time runs ``speed`` times faster than the wall clock (1 = real time). Writes never block: bytes a
 client does not drain are lost and counted, as on a UART. The ESCs stop the motors when no set-point arrived
-for ``esc_timeout_s`` (seed: the motors stop when commands stop).
+for ``esc_timeout_s`` of simulated time (seed: the motors stop when commands stop).
+
+**Lockstep** (``lockstep=True``, PX4 SITL's lockstep on the device links): once the ESC link answers, the
+simulator sends an IMU frame and waits for the ESC set-point computed from it before it steps the physics again,
+so a starved flight loop slows the flight down instead of changing it; ``speed`` is then the fastest it may go.
+Every ``answer_every``-th frame is answered (the flight module's CONTROL_EVERY). A wait longer than
+``answer_timeout_s`` (wall) steps on with the last set-point and is counted; ``silent_after`` of them in a row
+mean the controller is gone: the simulator runs on the clock again (its ESC timeout stops the motors) until the
+ESC link answers again.
 """
 
 from __future__ import annotations
@@ -148,13 +156,19 @@ class SimStats:
     esc_frames: int = 0
     esc_bad: int = 0
     esc_timeouts: int = 0
+    lockstep_waits: int = 0
+    """IMU frames after which the simulator waited for the ESC set-point."""
+    lockstep_timeouts: int = 0
+    """Waits that ended without one (the physics stepped on with the last set-point)."""
     last_esc: list[float] = field(default_factory=lambda: [0.0] * 4)
 
 
 class SimServer:
     def __init__(self, sim: QuadSim, imu: TcpEnd | PtyEnd, gps: TcpEnd | PtyEnd | None, esc: TcpEnd,
                  truth: TcpEnd | None, *, imu_mode: str = "binary", speed: float = 1.0, gps_period: float = 0.2,
-                 esc_timeout_s: float = 0.1, truth_period: float = 0.05, control: TcpEnd | None = None) -> None:
+                 esc_timeout_s: float = 0.1, truth_period: float = 0.05, control: TcpEnd | None = None,
+                 lockstep: bool = False, answer_every: int = 1, answer_timeout_s: float = 0.5,
+                 silent_after: int = 5) -> None:
         self.sim, self.imu, self.gps, self.esc, self.truth = sim, imu, gps, esc, truth
         self.control = control
         self._control_buf = b""
@@ -167,6 +181,13 @@ class SimServer:
         self.esc_parser = mp.FrameParser("E")
         self._last_esc_t = -1e9
         self._stop = False
+        self.lockstep = lockstep
+        self.answer_every = answer_every
+        self.answer_timeout_s = answer_timeout_s
+        self.silent_after = silent_after
+        self._answering = False
+        """Lockstep: the ESC link has answered since it connected and has not gone silent."""
+        self._misses = 0
 
     def stop(self) -> None:
         self._stop = True
@@ -180,7 +201,10 @@ class SimServer:
         for fd in ready:
             end = owners[fd]
             data = end.readable(fd)
+            if end is self.esc and not self.esc.connected:
+                self._answering = False  # a new driver link must answer before the simulator waits on it
             if end is self.esc and data:
+                self._answering = self.lockstep
                 for frame in self.esc_parser.feed(data):
                     self.stats.esc_frames += 1
                     self.stats.last_esc = list(mp.speeds(frame))
@@ -217,18 +241,39 @@ class SimServer:
                "motor_efficiency": [round(float(v), 3) for v in s.motor_efficiency]}
         return (json.dumps(doc) + "\n").encode()
 
+    def _await_answer(self, esc_frames_before: int) -> None:
+        """Lockstep: poll until the ESC set-point answering the frame just sent arrives, or the wait times out."""
+        self.stats.lockstep_waits += 1
+        deadline = time.monotonic() + self.answer_timeout_s
+        while self.stats.esc_frames == esc_frames_before and self._answering and not self._stop:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.stats.lockstep_timeouts += 1
+                self._misses += 1
+                if self._misses >= self.silent_after:
+                    self._answering = False
+                    print(f"uquad sim: no ESC answer to {self._misses} frames: on the clock again at "
+                          f"t={self.sim.t:.2f}", flush=True)
+                return
+            self._poll(left)
+        self._misses = 0
+
     def run(self, duration_s: float | None = None) -> None:
         """Serve until ``stop()`` (or ``duration_s`` of simulated time)."""
         sim = self.sim
-        wall0 = time.monotonic()
+        period = IMU_PERIOD / self.speed
+        next_wall = time.monotonic() + period
         next_imu = IMU_PERIOD
         next_gps = self.gps_period
         next_truth = 0.0
+        frames = 0
         while not self._stop and (duration_s is None or sim.t < duration_s):
-            target_wall = wall0 + next_imu / self.speed
-            self._poll(target_wall - time.monotonic())
-            if time.monotonic() < target_wall:
+            self._poll(next_wall - time.monotonic())
+            now = time.monotonic()
+            if now < next_wall:
                 continue
+            # on the clock, late frames catch up; in lockstep a slow step delays the ones after it
+            next_wall = max(next_wall + period, now) if self._answering else next_wall + period
             while sim.t + PHYSICS_DT / 2 < next_imu:
                 sim.step(PHYSICS_DT)
                 sim.t += PHYSICS_DT
@@ -236,19 +281,23 @@ class SimServer:
             if sim.t - self._last_esc_t > self.esc_timeout_s and np.any(sim.w_cmd):
                 sim.command([0.0] * 4)  # commands stopped: the ESCs stop the motors
                 self.stats.esc_timeouts += 1
-            frame = self.encode(sim.imu_frame())
-            if self.imu.connected:
-                sent = self.imu.write(frame)
-                self.stats.imu_frames += 1
-                self.stats.imu_bytes_lost += len(frame) - sent
-            next_imu += IMU_PERIOD
-            if self.gps is not None and sim.t >= next_gps:
+            if self.gps is not None and sim.t >= next_gps:  # before the IMU frame: read first, in lockstep too
                 next_gps += self.gps_period
                 if self.gps.write(encode_nmea(sim.gps_fix(), 43_200.0 + sim.t)):
                     self.stats.gps_fixes += 1
             if self.truth is not None and sim.t >= next_truth:
                 next_truth += self.truth_period
                 self.truth.write(self._truth_line())
+            frame = self.encode(sim.imu_frame())
+            esc_before = self.stats.esc_frames
+            next_imu += IMU_PERIOD
+            if self.imu.connected:
+                sent = self.imu.write(frame)
+                self.stats.imu_frames += 1
+                self.stats.imu_bytes_lost += len(frame) - sent
+                frames += 1
+                if self._answering and frames % self.answer_every == 0:
+                    self._await_answer(esc_before)
 
     def close(self) -> None:
         for end in self.ends():

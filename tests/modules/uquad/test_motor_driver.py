@@ -85,8 +85,7 @@ class EscRecorder:
         self.listener.close()
 
 
-@pytest.fixture
-def driver(tmp_path):
+def start_driver(tmp_path, *extra: str) -> tuple[subprocess.Popen, "EscRecorder", int]:
     conf = tmp_path / "u.conf"
     text = (ROOT / "bbcs_conf" / "uquad1.conf").read_text()
     for old, new in (("MOTOR_RAMP_S: 1.5", "MOTOR_RAMP_S: 0.3"), ("MOTOR_CMD_TIMEOUT: 0.5", "MOTOR_CMD_TIMEOUT: 0.2")):
@@ -95,12 +94,47 @@ def driver(tmp_path):
     conf.write_text(text)
     esc = EscRecorder()
     proc = subprocess.Popen([sys.executable, "-m", "modules.uquad.motor_driver", "--conf", str(conf), "--esc",
-                             f"127.0.0.1:{esc.port}"], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+                             f"127.0.0.1:{esc.port}", *extra], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    line = proc.stdout.readline()
+    match = re.search(r"tcp://127.0.0.1:(\d+)", line)
+    if match is None:
+        proc.kill()
+        esc.close()
+        raise AssertionError(f"no ready line from the driver: {line!r}")
+    return proc, esc, int(match.group(1))
+
+
+@pytest.fixture
+def driver(tmp_path):
+    proc, esc, port = start_driver(tmp_path)
     try:
-        line = proc.stdout.readline()
-        port = int(re.search(r"tcp://127.0.0.1:(\d+)", line).group(1))
         yield esc, port
     finally:
+        proc.terminate()
+        proc.wait(10)
+        esc.close()
+
+
+def test_lockstep_driver_sends_one_set_point_per_command_timed_by_the_commands(tmp_path):
+    """``--lockstep``: no keep-alive, one ESC frame per command (a refused one too: the last good set-point), and
+    the ramp (0.3 s here) lasts 30 commands of 10 ms however slowly they come."""
+    proc, esc, port = start_driver(tmp_path, "--lockstep")
+    client = MotorClient(socket.create_connection(("127.0.0.1", port)), 300, 750, ack_timeout_s=5.0)
+    try:
+        for i in range(40):
+            client.sock.send(mp.command(i, [500, 500, 500, 500]))
+            esc.pump(time.monotonic() + (0.03 if i < 5 else 0.005))  # slower than 10 ms a command at first
+        client.sock.send(mp.command(40, [100, 500, 500, 500]))  # out of range: refused, last good set-point
+        esc.pump(time.monotonic() + 0.5)  # and half a second of silence: nothing more is sent
+        client.on_readable(time.monotonic())
+        assert len(esc.frames) == 41, len(esc.frames)
+        ramp = esc.frames[:29]
+        assert all(len(set(f)) == 1 and f[0] <= 300 for f in ramp)  # ramping for 0.3 s of commands
+        assert esc.frames[31:40] == [(500.0,) * 4] * 9  # running from the 31st or 32nd command on
+        assert esc.frames[40] == (500.0,) * 4
+        assert "OUT_OF_RANGE" in client.check(time.monotonic())
+    finally:
+        client.close()
         proc.terminate()
         proc.wait(10)
         esc.close()

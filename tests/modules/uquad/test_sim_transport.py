@@ -123,3 +123,49 @@ def test_the_frames_that_arrive_with_the_end_of_the_stream_are_read(tmp_path):
         finally:
             stream.close()
     assert isinstance(end, EOFError) and got == wire
+
+
+def test_lockstep_sends_the_next_imu_frame_only_after_the_set_point_answering_the_last():
+    """``--lockstep`` (the shipped uquad1_sim.toml): on the clock (here 50× real time) until the ESC link answers,
+    then one IMU frame per ESC set-point however slowly the set-points come; a controller that stops answering is
+    waited for 5 × 0.5 s, then the simulator runs on the clock again."""
+    import socket
+
+    from modules.uquad import motor_protocol as mp
+
+    proc = subprocess.Popen([sys.executable, "-m", "modules.uquad.sim", "--conf", str(CONF), "--speed", "50",
+                             "--gps", "none", "--truth", "none", "--lockstep"],
+                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    imu = esc = None
+    try:
+        ready = proc.stdout.readline()
+        imu = Stream(re.search(r"imu=(tcp://127.0.0.1:\d+)", ready).group(1))
+        esc = socket.create_connection(("127.0.0.1", int(re.search(r"esc=tcp://127.0.0.1:(\d+)", ready).group(1))))
+        parser = ImuParser("binary")
+
+        def frames_within(seconds: float, enough: int | None = None) -> int:
+            got, end = 0, time.monotonic() + seconds
+            while time.monotonic() < end and (enough is None or got < enough):
+                got += len(parser.feed(imu.read()))
+                time.sleep(0.002)
+            return got
+
+        assert frames_within(0.3) > 100  # on the clock: 50 × 100 frames a second, nobody answering yet
+        esc.sendall(mp.esc([0.0] * 4))  # the first set-point: the simulator waits on the link from now on
+        frames_within(0.2)  # what was in flight
+        per_answer = []
+        for _ in range(20):
+            esc.sendall(mp.esc([0.0] * 4))
+            # the frame it answers, then 0.05 s more: 250 frames at 50× had the simulator not waited
+            per_answer.append(frames_within(5.0, enough=1) + frames_within(0.05))
+        assert per_answer == [1] * 20, per_answer
+        assert frames_within(0.3) == 0  # no answer: it waits (up to 0.5 s a frame) ...
+        assert frames_within(3.0) > 100  # ... five times, then it runs on the clock again
+    finally:
+        for end in (imu, esc):
+            if end is not None:
+                end.close()
+        proc.terminate()
+        out, _ = proc.communicate(timeout=10)
+    assert "no ESC answer to 5 frames: on the clock again" in out
+    assert re.search(r"lockstep_waits=(\d+) lockstep_timeouts=(\d+)", out).group(2) == "5"
