@@ -51,8 +51,8 @@ class UquadConfig(msgspec.Struct, frozen=True, kw_only=True):
     WAYPOINT_SPEED_MAX: float = 0.5
     CRUISE_SPEED: float = 2.0
     LAND_SPEED: float = 0.5
-    ABORT_DECEL: Annotated[float, msgspec.Meta(gt=0.0, le=9.0)] = 2.0
-    """m/s²: an abort brakes this hard to a halt (its tilt is about atan(ABORT_DECEL / g))."""
+    SETPOINT_ACCEL: Annotated[float, msgspec.Meta(gt=0.0, le=9.0)] = 2.0
+    """m/s²: the set point speeds up, slows down and turns no harder (the tilt to follow it: atan(a / g))."""
     GROUND_HEIGHT: float = 0.15
     MOTOR_MIN: float = 300.0
     MOTOR_MAX: float = 750.0

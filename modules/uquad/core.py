@@ -63,7 +63,7 @@ class FlightCore:
         self.planner = Planner(PlannerConfig(
             takeoff_height=v.TAKEOFF_HEIGHT_DEFAULT, waypoint_radius=v.WAYPOINT_RADIUS,
             waypoint_speed_max=v.WAYPOINT_SPEED_MAX, cruise_speed=v.CRUISE_SPEED, land_speed=v.LAND_SPEED,
-            ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT, abort_decel=v.ABORT_DECEL))
+            ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT, accel=v.SETPOINT_ACCEL))
         self.every = v.CONTROL_EVERY
         self.tumble = TumbleCut(v.CUT_TILT_DEG, v.CUT_TILT_S)
         self.raw_queue = RawQueue(v.IMU_QUEUE_LEN, v.IMU_FIR) if v.IMU_FIR else None

@@ -4,8 +4,8 @@ Pure state machine, injected time. Task modes (the manifest's ``uquad_mode`` slo
 off), HOLD (stay where the set point is), GOTO (fly the waypoints the RAL put on the path slot), TAKE_OFF
 (climb the task's height, else TAKEOFF_HEIGHT_DEFAULT, above the take-off point), LAND (descend at LAND_SPEED,
 motors off once on the ground),
-ABORT (stop where the quadrotor is now: the set point starts at the estimated position and velocity and brakes
-at ABORT_DECEL to a halt, then holds there; jumping to zero velocity from cruise speed tilted it 44 degrees), MANUAL
+ABORT (stop where the quadrotor is now: the set point starts at the estimated position and velocity, brakes to a
+halt and holds there), MANUAL
 (the seed's manual mode: hover, each manual command moves the hover target by an offset; :meth:`Planner.manual`).
 
 A task's parameters (the RAL's task slot) arrive apart from its mode: the take-off height and the goto speed
@@ -16,7 +16,10 @@ Completion (the seed's flag to the controller): a waypoint is reached when the e
 WAYPOINT_RADIUS of it and slower than WAYPOINT_SPEED_MAX; then the next one becomes the target and
 ``new_target`` is raised (the set-point controller relinearises). Take-off completes at the target height
 (then HOLD); landing when below GROUND_HEIGHT above the take-off point and still for ``still_s`` (then IDLE).
-The set point moves toward the target no faster than CRUISE_SPEED (a carrot), so the errors stay small.
+The set point moves toward the target no faster than CRUISE_SPEED (a carrot), so the errors stay small, and its
+velocity changes no faster than SETPOINT_ACCEL: it speeds up, slows down to arrive, turns and stops smoothly. A
+set-point velocity that jumped (a hold or an abort at cruise speed, a goto the other way) made the law tilt the
+quadrotor 45 degrees, and 88 degrees for a reversal (tumbling: the motors cut).
 """
 
 from __future__ import annotations
@@ -54,8 +57,8 @@ class PlannerConfig:
     still_s: float = 0.5
     max_height: float = 20.0
     """Metres above the take-off point that no take-off or manual target may exceed."""
-    abort_decel: float = 2.0
-    """m/s²: an abort brakes the set point this hard (about 11 degrees of tilt), never a step to a halt."""
+    accel: float = 2.0
+    """m/s²: the set point's velocity changes no faster (about 11 degrees of tilt to follow it)."""
 
 
 @dataclass
@@ -80,8 +83,8 @@ class Planner:
     speed: float | None = None
     """The running goto's speed (None: the .conf's cruise speed)."""
     manual_target: np.ndarray | None = None
-    brake_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    """An abort's set-point velocity, braking to zero."""
+    sp_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """The set point's velocity: continuous, changed by at most ``accel`` per second."""
     _still_since: float | None = None
     _flag: bool = False
     completed: list[str] = field(default_factory=list)
@@ -93,7 +96,7 @@ class Planner:
 
     def set_mode(self, mode: Mode, position: np.ndarray, yaw: float, velocity: np.ndarray | None = None) -> None:
         """A new task mode; ``position``/``yaw``/``velocity`` are the current estimate (an abort brakes from that
-        velocity; without it, it holds where it is)."""
+        position and velocity; without a velocity, from the set point's own)."""
         if mode is Mode.IDLE:
             self.mode = Mode.IDLE
             return
@@ -102,10 +105,12 @@ class Planner:
                 return  # nothing to land or hold on the ground
             self.ground_z = float(position[2])
             self.sp = np.array(position, dtype=float)
+            self.sp_velocity = np.zeros(3)
             self.yaw = yaw
         if mode is Mode.ABORT:
             self.sp = np.array(position, dtype=float)
-            self.brake_velocity = np.zeros(3) if velocity is None else np.array(velocity, dtype=float)
+            if velocity is not None:
+                self.sp_velocity = np.array(velocity, dtype=float)
             self.waypoints.clear()
         if mode is not Mode.GOTO:
             self.waypoints.clear()
@@ -188,30 +193,33 @@ class Planner:
                     self.mode = Mode.IDLE
             else:
                 self._still_since = None
-        vel = np.zeros(3)
-        if self.mode is Mode.ABORT:
-            vel = self._brake(dt)
-        if target is not None:
-            delta = target - self.sp
-            dist = float(np.linalg.norm(delta))
-            step = min(dist, speed * dt)
-            if dist > 1e-9:
-                self.sp = self.sp + delta / dist * step
-                if step < dist:
-                    vel = delta / dist * speed
+        self._move(target, speed, dt)
         flag, self._flag = self._flag, False
-        return PlanOutput(self.sp.copy(), vel, self.yaw, self.mode is not Mode.IDLE, flag)
+        return PlanOutput(self.sp.copy(), self.sp_velocity.copy(), self.yaw, self.mode is not Mode.IDLE, flag)
 
-    def _brake(self, dt: float) -> np.ndarray:
-        """The abort's set point: on along its velocity, slower by ``abort_decel`` each second, until it stops."""
-        v = self.brake_velocity
-        speed = float(np.linalg.norm(v))
-        if speed < 1e-9:
-            return np.zeros(3)
-        slower = max(0.0, speed - self.cfg.abort_decel * dt)
-        self.brake_velocity = v * (slower / speed)
-        self.sp = self.sp + (v + self.brake_velocity) / 2.0 * dt
-        return self.brake_velocity.copy()
+    def _move(self, target: np.ndarray | None, speed: float, dt: float) -> None:
+        """The carrot: toward ``target`` at up to ``speed``, slowing to arrive on it (v ≤ √(2·a·distance)), or to a
+        halt without one; its velocity changes by at most ``accel``·dt a step. A step that would reach the target
+        ends on it, at rest."""
+        a = self.cfg.accel
+        wanted = np.zeros(3)
+        delta = np.zeros(3) if target is None else target - self.sp
+        dist = float(np.linalg.norm(delta))
+        if target is not None and dist > 1e-9:
+            half = a * dt / 2.0  # √(2·a·d) for steps of dt: the speed it can still brake from, a·dt a step
+            wanted = delta / dist * min(speed, math.sqrt(half * half + 2.0 * a * dist) - half)
+        change = wanted - self.sp_velocity
+        size = float(np.linalg.norm(change))
+        if size > a * dt:
+            change *= a * dt / size
+        self.sp_velocity = self.sp_velocity + change
+        step = self.sp_velocity * dt
+        if target is not None and (dist <= 1e-9 or (dist <= float(np.linalg.norm(step))
+                                                     and float(np.dot(step, delta)) > 0.0)):
+            self.sp = np.array(target, dtype=float)
+            self.sp_velocity = np.zeros(3)
+        else:
+            self.sp = self.sp + step
 
     def _reached(self, target: np.ndarray, position: np.ndarray, velocity: np.ndarray) -> bool:
         return (float(np.linalg.norm(target - position)) <= self.cfg.waypoint_radius

@@ -82,21 +82,46 @@ def test_planner_waypoints_completion_and_new_target_flag():
 
 
 def test_planner_abort_brakes_from_its_velocity_to_a_halt():
-    p = Planner(PlannerConfig(abort_decel=2.0))
+    p = Planner(PlannerConfig(accel=2.0))
     p.set_mode(Mode.TAKE_OFF, np.zeros(3), 0.0)
     p.set_mode(Mode.ABORT, np.array([5.0, 0, 3.0]), 0.0, np.array([2.0, 0, 0]))
-    out = p.step(0.0, 0.5, np.array([5.0, 0, 3.0]), np.array([2.0, 0, 0]))
-    assert out.velocity == pytest.approx([1.0, 0, 0]) and out.position == pytest.approx([5.75, 0, 3.0])
-    for _ in range(4):
-        out = p.step(0.0, 0.5, out.position, out.velocity)
-    # v²/2a = 1 m beyond where the abort found it, then held there
-    assert out.velocity == pytest.approx([0, 0, 0]) and out.position == pytest.approx([6.0, 0, 3.0])
+    out = p.step(0.0, 0.01, np.array([5.0, 0, 3.0]), np.array([2.0, 0, 0]))
+    assert out.velocity == pytest.approx([1.98, 0, 0]) and out.position == pytest.approx([5.0198, 0, 3.0])
+    for _ in range(100):
+        out = p.step(0.0, 0.01, out.position, out.velocity)
+    # about v²/2a = 1 m beyond where the abort found it, then held there
+    assert out.velocity == pytest.approx([0, 0, 0]) and out.position == pytest.approx([6.0, 0, 3.0], abs=0.02)
     assert p.mode is Mode.ABORT and out.motors_on
 
 
-def test_abort_from_cruise_speed_stops_within_the_control_laws_tilt():
-    """Closed loop: the aircraft at 2 m/s, aborted, stops within v²/2a plus a little, tilting far less than
-    the RAL's loss-of-control limit (45 degrees; a step to a halt tilted it 44)."""
+@pytest.mark.parametrize("then", ["hold", "reverse", "abort"])
+def test_the_set_point_velocity_never_jumps(then):
+    """Whatever the ground station asks mid-flight, the set point's velocity changes by about accel·dt a step:
+    a hold or an abort at cruise speed, a goto the other way; it ends at rest on its target."""
+    p = Planner(PlannerConfig(cruise_speed=2.0, accel=2.0))
+    p.set_mode(Mode.TAKE_OFF, np.zeros(3), 0.0)
+    p.set_mode(Mode.GOTO, np.zeros(3), 0.0)
+    p.set_waypoints([np.array([20.0, 0, 0])])
+    velocities = [p.step(0.0, 0.01, p.sp, np.zeros(3)).velocity for _ in range(300)]
+    assert velocities[-1] == pytest.approx([2.0, 0, 0])
+    if then == "hold":
+        p.set_mode(Mode.HOLD, p.sp, 0.0)
+    elif then == "abort":
+        p.set_mode(Mode.ABORT, p.sp, 0.0, p.sp_velocity)
+    else:
+        p.set_waypoints([np.array([-5.0, 0, 0])])
+    velocities += [p.step(0.0, 0.01, p.sp, np.zeros(3)).velocity for _ in range(1500)]
+    jumps = np.linalg.norm(np.diff(np.array(velocities), axis=0), axis=1)
+    assert jumps.max() <= 2 * 2.0 * 0.01 + 1e-9, jumps.max()  # a·dt a step; the last, onto the target, 2·a·dt
+    assert velocities[-1] == pytest.approx([0, 0, 0])
+    if then == "reverse":
+        assert p.sp == pytest.approx([-5.0, 0, 0])
+
+
+@pytest.mark.parametrize("then", ["abort", "hold", "reverse"])
+def test_a_stop_or_turn_at_cruise_speed_stays_within_the_control_laws_tilt(then):
+    """Closed loop: the aircraft at 2 m/s, then aborted, held or sent back: it tilts far less than the RAL's
+    loss-of-control limit (45 degrees; with the set point's velocity jumping it was 44, 45 and 88, a tumble)."""
     loop = ClosedLoop(seed=3)
     loop.run(6.0)
     loop.core.set_mode(Mode.TAKE_OFF)
@@ -107,15 +132,21 @@ def test_abort_from_cruise_speed_stops_within_the_control_laws_tilt():
     while loop.sim.x[0] - start[0] < 3.0:
         loop.run(0.01)
     assert np.linalg.norm(loop.sim.x[6:9]) > 1.8  # at cruise speed
-    aborted_at = loop.sim.x[0]
-    loop.core.set_mode(Mode.ABORT)
+    at = loop.sim.x[0]
+    if then == "reverse":
+        loop.core.set_waypoints([start - [4.0, 0, 0]])
+    else:
+        loop.core.set_mode(Mode.ABORT if then == "abort" else Mode.HOLD)
     tilt = []
-    for _ in range(600):
+    for _ in range(600 if then != "reverse" else 1200):
         loop.run(0.01)
         tilt.append(math.degrees(max(abs(loop.sim.x[model.IPHI]), abs(loop.sim.x[model.IPSI]))))
     assert max(tilt) < 25.0, max(tilt)
-    assert loop.sim.x[0] - aborted_at < 2.0 and np.linalg.norm(loop.sim.x[6:9]) < 0.3
-    assert abs(loop.sim.x[2] - start[2]) < 0.5
+    assert np.linalg.norm(loop.sim.x[6:9]) < 0.3 and abs(loop.sim.x[2] - start[2]) < 0.5
+    if then == "reverse":
+        assert np.linalg.norm(loop.sim.x[:2] - (start[:2] - [4.0, 0])) < 0.5
+    else:
+        assert loop.sim.x[0] - at < 2.0  # stopped within v²/2a (1 m) and the carrot's lead
 
 
 def test_planner_on_the_ground_ignores_land_and_hold():

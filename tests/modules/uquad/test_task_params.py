@@ -52,8 +52,10 @@ def test_goto_speed_drives_the_carrot() -> None:
     p.set_mode(Mode.GOTO, p.sp.copy(), 0.0)
     p.set_waypoints([np.array([10.0, 0.0, 3.0])])
     assert apply_task(p, t.Goto(waypoints=[t.Waypoint(lat=0, lon=0, alt=3)], speed=2.5)) == ""
-    out = p.step(0.0, 0.4, p.sp.copy(), np.zeros(3))
-    assert out.position[0] == pytest.approx(1.0)  # 2.5 m/s × 0.4 s
+    outs = [p.step(0.0, 0.01, p.sp.copy(), np.zeros(3)) for _ in range(200)]
+    # it speeds up at the set point's acceleration (2 m/s²), then cruises at the task's 2.5 m/s, not CRUISE_SPEED
+    assert outs[49].velocity[0] == pytest.approx(1.0) and outs[-1].velocity[0] == pytest.approx(2.5)
+    assert outs[-1].position[0] - outs[-2].position[0] == pytest.approx(0.025)
     assert apply_task(p, t.Hold()) == ""  # kinds without parameters change nothing
 
 
