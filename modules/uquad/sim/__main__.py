@@ -34,11 +34,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lockstep", action="store_true",
                     help="step only once the ESC set-point computed from the last IMU frame has arrived (run the "
                          "motor driver with --lockstep and the flight module with clock = imu)")
+    ap.add_argument("--answer-timeout", type=float, default=0.5,
+                    help="lockstep: wall seconds to wait for a set-point before stepping on with the last one (0.5)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds, then exit")
     args = ap.parse_args(argv)
     if not args.speed > 0:
         ap.error(f"--speed must be above 0, not {args.speed:g}")
+    if not args.answer_timeout > 0:
+        ap.error(f"--answer-timeout must be above 0, not {args.answer_timeout:g}")
     cfg = load_config(Path(args.conf))
     sim = QuadSim(params=cfg.quad, calib=load_calibration(cfg.imu_calib_file),
                   home=Home(cfg.home_lat, cfg.home_lon, cfg.home_alt), seed=args.seed)
@@ -48,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     control = None if args.control == "none" else _tcp("control", args.control)
     server = SimServer(sim, imu, gps, _tcp("esc", args.esc), truth, imu_mode=args.imu_mode or cfg.imu_mode,
                        speed=args.speed, control=control, lockstep=args.lockstep,
-                       answer_every=cfg.values.CONTROL_EVERY)
+                       answer_every=cfg.values.CONTROL_EVERY, answer_timeout_s=args.answer_timeout)
     signal.signal(signal.SIGTERM, lambda *_: server.stop())
     signal.signal(signal.SIGINT, lambda *_: server.stop())
     parts = " ".join(f"{e.name}={e.url}" for e in server.ends())

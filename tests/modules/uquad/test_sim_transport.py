@@ -128,13 +128,13 @@ def test_the_frames_that_arrive_with_the_end_of_the_stream_are_read(tmp_path):
 def test_lockstep_sends_the_next_imu_frame_only_after_the_set_point_answering_the_last():
     """``--lockstep`` (the shipped uquad1_sim.toml): on the clock (here 50× real time) until the ESC link answers,
     then one IMU frame per ESC set-point however slowly the set-points come; a controller that stops answering is
-    waited for 5 × 0.5 s, then the simulator runs on the clock again."""
+    waited for 5 × the answer timeout (1 s here, 0.5 s shipped), then the simulator runs on the clock again."""
     import socket
 
     from modules.uquad import motor_protocol as mp
 
     proc = subprocess.Popen([sys.executable, "-m", "modules.uquad.sim", "--conf", str(CONF), "--speed", "50",
-                             "--gps", "none", "--truth", "none", "--lockstep"],
+                             "--gps", "none", "--truth", "none", "--lockstep", "--answer-timeout", "1"],
                             stdout=subprocess.PIPE, text=True, cwd=ROOT)
     imu = esc = None
     try:
@@ -159,8 +159,8 @@ def test_lockstep_sends_the_next_imu_frame_only_after_the_set_point_answering_th
             # the frame it answers, then 0.05 s more: 250 frames at 50× had the simulator not waited
             per_answer.append(frames_within(5.0, enough=1) + frames_within(0.05))
         assert per_answer == [1] * 20, per_answer
-        assert frames_within(0.3) == 0  # no answer: it waits (up to 0.5 s a frame) ...
-        assert frames_within(3.0) > 100  # ... five times, then it runs on the clock again
+        assert frames_within(0.3) == 0  # no answer: it waits (up to 1 s a frame) ...
+        assert frames_within(6.0) > 100  # ... five times, then it runs on the clock again
     finally:
         for end in (imu, esc):
             if end is not None:
