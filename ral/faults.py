@@ -9,7 +9,8 @@ refused frame for :data:`TELEMETRY_FAULT_WINDOW_S`, the robot is flying blind an
 the DSP serves (movement, pan & tilt on a UAV) is failed with the reason.
 
 The DSP's own faults are not judged here: a DSP ERROR message (GPS_LOST, LOW_BATTERY, ROTOR_RPM, SENSOR_FAULT) is
-forwarded by the path follower as 1000 + code and fails the running tasks at once, as before.
+forwarded by the path follower as 1000 + code and fails the running tasks at once, as before, except a task that is
+itself the answer to the fault (:func:`answers_fault`: a landing on a low battery).
 
 Stamps are compared with stamps (the manager stamps the error when it receives it, the telemetry module stamps each
 telemetry when it makes it: both the robot's clock), and the window is measured on the RAL's own clock from when the
@@ -22,14 +23,27 @@ from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 from bbcs.contracts import mri
+from bbcs.contracts.dsp import FORWARDED_DSP_ERROR_BASE, ErrorCode, LinkErrorCode
 from bbcs.contracts.dsp import MODULE as DSP_MODULE
-from bbcs.contracts.dsp import LinkErrorCode
 from bbcs.contracts.tasks import TaskInfo
 
 TELEMETRY_FAULT_WINDOW_S = 3.0
 """A refused telemetry frame fails the running tasks only if no valid telemetry newer than it has reached the RAL
 this long after the RAL learnt of it (the RAL sees telemetry with the manager's state, about once a second, so a
 single bad frame is cleared by the next state; a GPS giving latitude 200° in every frame fails the task in 3-5 s)."""
+
+
+ANSWERED_BY: dict[int, frozenset[str]] = {
+    FORWARDED_DSP_ERROR_BASE + ErrorCode.LOW_BATTERY: frozenset({"land"}),
+}
+"""Forwarded DSP faults → the GRI kinds that answer them. Failing a landing because the battery is low would end
+the one task the aircraft must finish (a campaign sequence found it: 200 sequences on one launch drained the
+simulated battery, and the landing then flying was failed while it descended)."""
+
+
+def answers_fault(task: TaskInfo, code: int) -> bool:
+    """Whether ``task`` is itself what the robot does about the fault ``code``: then that fault does not fail it."""
+    return (task.kind or task.name) in ANSWERED_BY.get(code, frozenset())
 
 
 def is_telemetry_refusal(error: mri.ErrorEvent) -> bool:

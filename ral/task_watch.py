@@ -137,7 +137,8 @@ class TaskWatch:
             running = list(self._live.values())
         for info in running:
             for e in fresh:
-                if info.task_type in serves.get(e.module, set()) and e.stamp >= info.started:
+                if info.task_type in serves.get(e.module, set()) and e.stamp >= info.started \
+                        and not telemetry_faults.answers_fault(info, e.code):
                     name = e.name or error_name(e.module, e.code)  # the manager's records carry the bare code
                     detail = f"module {e.module} reported error {e.code}{' ' + name if name else ''}"
                     self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status="failed",

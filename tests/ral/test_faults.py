@@ -166,3 +166,35 @@ def test_the_ral_fails_a_goto_only_when_refused_telemetry_persists(rig: Rig) -> 
     end = rig.manager.end_tasks()[-1]
     assert (end.task_id, end.status) == (goto.task_id, "failed") and "no valid telemetry" in end.detail
     assert time.time() - t1 >= TELEMETRY_FAULT_WINDOW_S
+
+
+LOW_BATTERY = 1000 + 7  # the DSP's LOW_BATTERY, forwarded by the path follower
+
+
+def test_a_low_battery_fails_a_goto_but_not_the_landing_that_answers_it() -> None:
+    land = TaskInfo(id=1, name="land", task_type="movement", kind="land")
+    goto = TaskInfo(id=2, name="goto", task_type="movement", kind="goto")
+    assert faults.answers_fault(land, LOW_BATTERY)
+    assert not faults.answers_fault(goto, LOW_BATTERY)
+    assert not faults.answers_fault(land, 1000 + 6)  # another DSP fault still fails a landing
+
+
+def test_the_ral_keeps_a_landing_on_a_low_battery_and_fails_a_goto(rig: Rig) -> None:  # noqa: F811
+    from bbcs.contracts import gri
+
+    follower = [mri.ModuleStatus(name="path_follower", state="up", task_types=["movement"])]
+    land = rig.gcs.send(ROBOT_NAME, gri.Land())
+    assert land.accepted, land.reason
+    t0 = time.time()
+    low = [mri.ErrorEvent(module="path_follower", code=LOW_BATTERY, stamp=t0 + 0.05)]
+    deadline = time.time() + 2.0
+    while time.time() < deadline:
+        rig.manager.publish_state(modules=follower, errors=low)
+        time.sleep(0.2)
+    assert failed(rig, land.task_id) == [] and rig.manager.end_tasks() == []
+    goto = rig.gcs.send(ROBOT_NAME, ten_waypoints())
+    assert goto.accepted, goto.reason
+    low = [mri.ErrorEvent(module="path_follower", code=LOW_BATTERY, stamp=time.time() + 0.05)]
+    wait_until(lambda: (rig.manager.publish_state(modules=follower, errors=low), failed(rig, goto.task_id))[1],
+               10, "the goto failed on the low battery")
+    assert "1007" in rig.manager.end_tasks()[-1].detail
