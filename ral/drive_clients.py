@@ -55,9 +55,10 @@ class DriveClients:
             self._traj_paths[kind] = (count, points)
             self._traj_seen.notify_all()
 
-    def _request_path(self, req: t.Survey | t.Orbit, task_id: int) -> str | None:
+    def _request_path(self, req: t.Survey | t.Orbit, task_id: int, check_only: bool = False) -> str | None:
         """Ask the trajectory generator for the task's path (the task already runs, so the path follower reads
-        the generator's output) and wait for its answer and its path: None, or the reason it failed."""
+        the generator's output) and wait for its answer and its path: None, or the reason it failed. With
+        ``check_only`` (before the task starts) only its answer: whether it would plan it."""
         assert self._traj_pub is not None, "admission refuses a survey or orbit with no planner (GriService._unwired)"
         kind = t.kind_of(req)
         pos = self.telemetry.position if self.telemetry else None
@@ -67,11 +68,11 @@ class DriveClients:
             request_id = self._traj_next_id
             paths_before = self._traj_paths.get(kind, (0, ()))[0]
         if isinstance(req, t.Survey):
-            request = TrajectoryRequest(request_id=request_id, survey=SurveyRequest(
+            request = TrajectoryRequest(request_id=request_id, check_only=check_only, survey=SurveyRequest(
                 polygon=[TrajPoint(lat=v.lat, lon=v.lon) for v in req.polygon], height=req.height,
                 overlap=req.overlap, start=start))
         else:
-            request = TrajectoryRequest(request_id=request_id, orbit=OrbitRequest(
+            request = TrajectoryRequest(request_id=request_id, check_only=check_only, orbit=OrbitRequest(
                 centre=TrajPoint(lat=req.lat, lon=req.lon), radius=req.radius, height=req.height,
                 clockwise=req.clockwise, turns=req.turns))
         self._traj_pub.publish(request)
@@ -84,6 +85,8 @@ class DriveClients:
             status = self._traj_status[request_id]
             if not status.accepted:
                 return f"the trajectory generator refused the {kind}: {status.reason}"
+            if check_only:
+                return None
             got = self._traj_seen.wait_for(lambda: self._traj_paths.get(kind, (0, ()))[0] > paths_before,
                                            timeout=max(0.0, deadline - time.monotonic()))
             if not got:

@@ -108,6 +108,11 @@ class GriService:
         if isinstance(plan, Rejected):
             self.emit("task_rejected", detail=plan.reason)
             return gri.TaskReply(accepted=False, reason=plan.reason)
+        if isinstance(plan.params, t.Survey | t.Orbit):  # a plan the generator refuses must not replace a task
+            why = self._request_path(plan.params, 0, check_only=True)
+            if why is not None:
+                self.emit("task_rejected", task_type=plan.task_type, detail=why)
+                return gri.TaskReply(accepted=False, reason=why, task_type=plan.task_type)
         reply = self._mri("task", mri.SetTask(name=plan.name, params=plan.params, origin=origin))
         if reply is None or not reply.ok:
             reason = (

@@ -53,6 +53,9 @@ class TrajectoryRequest(msgspec.Struct, frozen=True, kw_only=True):
     survey: SurveyRequest | None = None
     orbit: OrbitRequest | None = None
     smooth: SmoothRequest | None = None
+    check_only: bool = False
+    """Plan and answer the status, but publish no path: the RAL asks this before it starts a survey or an orbit,
+    so a plan the generator refuses is refused before the running task is replaced."""
 
     def kind(self) -> str:
         """The one request set; ValueError unless exactly one is."""

@@ -7,7 +7,8 @@ Slots (``cromat/<robot>/trajectory/...``):
 - ``survey``, ``orbit``, ``smooth`` — safe stream outputs, the path follower's ``DatosSegCam``: each plan on
   the output of its kind, so a task routes ``path_follower.datos`` to the slot of the kind it flies;
 - ``status`` — safe stream output, ``TrajectoryStatus``: every request answered (accepted with the path's
-  length, spacing and lines, or refused with the reason; a refused request publishes no path).
+  length, spacing and lines, or refused with the reason; a refused request publishes no path, nor does an
+  accepted ``check_only`` one: the RAL's question before it starts the task).
 
 Params (manifest ``params``, strings): ``speed``, ``max_bank_deg`` (the turn radius v²/(g·tan φ)),
 ``ground_altitude`` (datum of ``altura``), ``line_extension``, ``arc_step_deg``, ``max_points``.
@@ -58,7 +59,8 @@ class TrajectoryModule(Module):
             self.publish("status", TrajectoryStatus(request_id=req.request_id, kind=kind,  # type: ignore[arg-type]
                                                     accepted=False, reason=str(exc)))
             return
-        self.publish(result.kind, result.path)
+        if not req.check_only:
+            self.publish(result.kind, result.path)
         self.publish("status", TrajectoryStatus(
             request_id=req.request_id, kind=result.kind, accepted=True, reason="",  # type: ignore[arg-type]
             n_points=result.path.n_points, path_length_m=result.length_m, line_spacing_m=result.spacing_m,

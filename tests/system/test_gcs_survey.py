@@ -82,13 +82,14 @@ def test_gcs_survey_and_orbit_are_planned_flown_and_completed(robot: SimRobot) -
     )
     try:
         robot.ensure_airborne()
-        # a survey the generator cannot fly (lines closer than twice the turn radius): its reason, task failed
-        start = len(robot.events)
+        # a survey the generator cannot fly (lines closer than twice the turn radius): refused with its reason
+        # before anything starts (the generator is asked first), so no task is started, replaced or failed
+        refused_at = len(robot.events)
         low = robot.gcs.send(ROBOT, t.Survey(polygon=POLYGON, height=8.0, overlap=0.5))
         assert not low.accepted and "trajectory generator refused the survey" in low.reason, low
-        failed = robot.wait_event(lambda e: e.task_id == low.task_id and e.kind == "task_failed", 20,
-                                  "the refused survey's task failed", after=start)
-        assert "refused" in failed.detail
+        assert low.task_id == 0 and not paths
+        robot.wait_event(lambda e: e.kind == "task_rejected" and "refused the survey" in e.detail, 10,
+                         "the refusal at the ground station", after=refused_at)
 
         mark = len(robot.commands())
         start = len(robot.events)
@@ -100,6 +101,7 @@ def test_gcs_survey_and_orbit_are_planned_flown_and_completed(robot: SimRobot) -
         done = robot.wait_event(lambda e: e.task_id == reply.task_id and e.kind != "task_accepted", 120,
                                 "the survey ended", after=start)
         assert done.kind == "task_completed", done
+        assert not [e for e in robot.events[refused_at:] if e.kind == "task_failed"], "the refusal failed a task"
         sent = robot.commands()[mark:]
         names = [c["name"] for c in sent]
         added = [(round(c["fields"]["lat"], 4), round(c["fields"]["lon"], 4)) for c in sent

@@ -80,3 +80,18 @@ def test_a_refused_request_says_why_and_publishes_no_path(generator) -> None:
     en = frame.to_enu([p.latitud for p in got["orbit"][0].puntos], [p.longitud for p in got["orbit"][0].puntos],
                      0.0)[:, :2]
     assert all(math.isclose(r, 100.0, rel_tol=1e-6) for r in (en**2).sum(axis=1) ** 0.5)
+
+
+def test_a_check_only_request_is_answered_and_publishes_no_path(generator) -> None:
+    """The RAL's question before it starts a survey or an orbit: the answer, and no path a follower could fly."""
+    send, got = generator
+    orbit = OrbitRequest(centre=Vertex(lat=37.4, lon=-6.0), radius=100.0, height=50.0)
+    send(TrajectoryRequest(request_id=11, orbit=orbit, check_only=True))
+    send(TrajectoryRequest(request_id=12, check_only=True, orbit=OrbitRequest(
+        centre=Vertex(lat=37.4, lon=-6.0), radius=5.0, height=50.0)))
+    send(TrajectoryRequest(request_id=13, orbit=orbit))
+    wait_until(lambda: len(got["status"]) == 3 and got["orbit"], 20, "three answers and the last one's path")
+    by_id = {s.request_id: s for s in got["status"]}
+    assert by_id[11].accepted and by_id[11].n_points == by_id[13].n_points > 0
+    assert not by_id[12].accepted and "turn radius" in by_id[12].reason
+    assert len(got["orbit"]) == 1  # only the request that was not a check published its path
