@@ -50,6 +50,13 @@ def is_stop(cmd: object) -> bool:
             or (isinstance(cmd, p.SetPanTiltMode) and cmd.mode == p.PanTiltMode.HOLD))
 
 
+def is_mode_restore(cmd: object) -> bool:
+    """A command that sets the gimbal's mode only: what the manager's restore of the pan & tilt mode slot (manifest
+    ``restore = true``) makes the module send when a task of its types ends, or when the module restarts after a
+    task failed with it. It points nothing by itself and moves no aircraft."""
+    return isinstance(cmd, p.SetPanTiltMode)
+
+
 def command_severity(cmd: object) -> Severity:
     """An untraced command that moves the aircraft is critical, one that moves the gimbal an error, a stop a
     warning."""
@@ -84,7 +91,8 @@ class MonitorConfig:
     """A command is judged once the task book is this much newer than it, or this long after it at the latest."""
     book_lag_s: float = 0.3
     end_grace_s: float = 2.0
-    """A stop command this soon after a task of its sender's types ended is that task's end (the hold that ends it)."""
+    """A stop command this soon after a task of its sender's types ended is that task's end (the hold that ends it);
+    so is a pan & tilt mode command (the mode restored at its end, :func:`is_mode_restore`)."""
     goal_tolerance_m: float = 10.0
     """Horizontal: the DSP gets waypoints on a 1e-4 degree grid (about 11 m), the RAL completes within 8 m."""
     goal_alt_tolerance_m: float = 3.0
@@ -334,7 +342,7 @@ class SafetyMonitor:
             if info.task_type in types and info.started - SKEW_S <= c \
                     and (info.ended is None or c <= info.ended + SKEW_S):
                 return f"task {info.id} {info.name} ({info.origin})"
-        if is_stop(msg.command):
+        if is_stop(msg.command) or is_mode_restore(msg.command):
             for info in self.tasks.values():
                 if info.task_type in types and info.ended is not None \
                         and info.ended - SKEW_S <= c <= info.ended + self.cfg.end_grace_s:

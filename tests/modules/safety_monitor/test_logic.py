@@ -105,6 +105,19 @@ def test_a_stop_command_at_a_task_end_is_traced_but_not_a_motion_command() -> No
     assert kinds(run(m, 40)) == ["untraced_command"]
 
 
+def test_the_pan_tilt_mode_restored_at_a_task_end_is_traced_but_not_a_pointing_command() -> None:
+    """The campaign's `kill module=pan_tilt` (seed 7, sequence 21): the look_at task failed with the module, and
+    the restarted module applied the mode the manager restored 1.6 s later. Pointing at a target then is not a
+    restore; nor is a mode set long after."""
+    m = monitor()
+    book(m, 30.0, task(1, "look_at", 10.0, 25.0, task_type="pan_tilt", status="failed"))
+    sent(m, 26.6, p.SetPanTiltMode(mode=p.PanTiltMode.TARGET), sender="pan_tilt")
+    assert run(m, 40) == []
+    sent(m, 26.7, p.SetPanTiltTarget(lat=HOME[0], lon=HOME[1], alt=12.0), sender="pan_tilt")
+    sent(m, 29.0, p.SetPanTiltMode(mode=p.PanTiltMode.TARGET), sender="pan_tilt")
+    assert [(b.kind, b.severity) for b in run(m, 40)] == [("untraced_command", Severity.ERROR)] * 2
+
+
 def test_a_command_from_a_sender_that_serves_no_running_task_is_untraced() -> None:
     m = monitor()
     book(m, 5.0, task(1, "goto", 1.0))  # a movement task runs: it is behind no pan & tilt command
