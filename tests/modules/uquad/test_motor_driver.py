@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from modules.uquad import motor_protocol as mp
+from modules.uquad.config import load_config
 from modules.uquad.motor_client import MotorClient
 from modules.uquad.motor_driver import DriverLogic, DriverState
 from modules.uquad.motor_protocol import AckStatus
@@ -119,7 +120,8 @@ def test_lockstep_driver_sends_one_set_point_per_command_timed_by_the_commands(t
     """``--lockstep``: no keep-alive, one ESC frame per command (a refused one too: the last good set-point), and
     the ramp (0.3 s here) lasts 30 commands of 10 ms however slowly they come."""
     proc, esc, port = start_driver(tmp_path, "--lockstep")
-    client = MotorClient(socket.create_connection(("127.0.0.1", port)), 300, 750, ack_timeout_s=5.0)
+    ack_timeout = load_config(ROOT / "bbcs_conf" / "uquad1.conf").values.MOTOR_ACK_TIMEOUT  # the shipped 0.5 s
+    client = MotorClient(socket.create_connection(("127.0.0.1", port)), 300, 750, ack_timeout_s=ack_timeout)
     try:
         for i in range(40):
             client.sock.send(mp.command(i, [500, 500, 500, 500]))
