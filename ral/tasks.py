@@ -69,6 +69,10 @@ class JudgeConfig:
     stall_s: float = 30.0
     """A movement task that makes no progress for this long fails."""
     max_range_m: float = 20_000.0
+    arrival_speed_mps: float = 1.0
+    """A path task completes only once the robot is this slow (horizontal and vertical, when its telemetry has a
+    velocity): at its goal, not passing by it. The onboard follower's empty queue says nothing, and within the
+    position tolerance the robot may still be flying the last metres under its commands."""
 
 
 @dataclass(frozen=True)
@@ -393,7 +397,8 @@ def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPo
         last = path[-1]
         horiz = distance_m(pos.lat, pos.lon, last.lat, last.lon)
         near = horiz <= cfg.position_tolerance_m and abs(pos.alt - last.alt) <= cfg.altitude_tolerance_m
-        if near and tel.waypoints_queued in (0, None) and (pr.seen_queue or settled):
+        if (near and tel.waypoints_queued in (0, None) and (pr.seen_queue or settled)
+                and _stopped(tel, cfg.arrival_speed_mps)):
             return Verdict(pr, "completed")
         index = next_waypoint(path, pos, tel.waypoints_queued, pr.next_wp, pr.origin, cfg.position_tolerance_m)
         togo = path_to_go(path, pos, index)
@@ -415,6 +420,12 @@ def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPo
     if pr.best is None or togo < pr.best - MIN_PROGRESS_M:
         pr = replace(pr, best=togo, progress_at=now)
     return _stalled(pr, cfg, now)
+
+
+def _stopped(tel: RobotTelemetry, speed_mps: float) -> bool:
+    """Whether the robot is no faster than ``speed_mps`` (horizontally and vertically); True without a velocity."""
+    v = tel.velocity
+    return v is None or (math.hypot(v.vn, v.ve) <= speed_mps and abs(v.vd) <= speed_mps)
 
 
 def _stalled(pr: Progress, cfg: JudgeConfig, now: float) -> Verdict:

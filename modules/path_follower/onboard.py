@@ -43,6 +43,7 @@ class OnboardParams:
     corner_speed: float = 1.5  # m/s, speed through a corner
     corner_accel: float = 1.0  # m/s², deceleration planned before a corner
     switch_m: float = 1.0  # m before a segment's end the next segment takes over
+    final_m: float = 3.0  # m before the trajectory's end: one reference at the end point, then the DSP holds it
     max_deviation_m: float = 30.0
     max_speed: float = 10.0
     max_climb: float = 2.0
@@ -183,7 +184,7 @@ class OnboardFollower:
 
     def step(self, now: float, telemetry: p.Telemetry) -> StepResult:
         """One control period: the REFS to send for this telemetry frame (nothing without a trajectory)."""
-        if not self.points:
+        if not self.points or self.complete:  # complete: the DSP holds the end point; nothing more to send
             return StepResult()
         t0, c0 = time.perf_counter(), time.thread_time()
         pos_msg, vel_msg = telemetry.position, telemetry.velocity
@@ -224,11 +225,13 @@ class OnboardFollower:
                               time.perf_counter() - t0, time.thread_time() - c0)
 
         to_go = seg.length - s
+        if last and to_go <= par.final_m:
+            self.complete = True
+            return StepResult((self._end_refs(pos, pos_msg.alt, heading, seg),),
+                              detail="trajectory complete: the DSP holds its end point",
+                              solve_s=time.perf_counter() - t0, solve_cpu_s=time.thread_time() - c0)
         end_speed = 0.0 if last else min(par.corner_speed, self.speed)
         v_along = min(self.speed, math.sqrt(end_speed ** 2 + 2.0 * par.corner_accel * to_go))
-        if last and to_go < par.switch_m:
-            v_along = min(v_along, BRIDGE_GAIN * to_go)  # close onto the final point
-            self.complete = self.complete or (to_go < 0.5 and math.hypot(z[0], z[1]) < 1.0)
         if ts is not None and ts > 0:
             aw = par.aw
             self.integral = np.array([integrate_scalar(self.integral[i], -z[i], ts, aw.th_dist, aw.th_max,
@@ -238,8 +241,29 @@ class OnboardFollower:
         corr = total_action(np.zeros(2), prop, integral_action(par.k_int, self.integral))
         u = feed + seg.normal * corr[0] + seg.binormal * corr[1]
         result = self._refs(u, pos_msg.alt, heading, seg)
-        return StepResult((result,), detail="trajectory complete" if self.complete else "",
-                          solve_s=time.perf_counter() - t0, solve_cpu_s=time.thread_time() - c0)
+        return StepResult((result,), solve_s=time.perf_counter() - t0, solve_cpu_s=time.thread_time() - c0)
+
+    def _end_refs(self, pos: np.ndarray, alt_msl: float, heading_deg: float, seg: Segment) -> p.SetRefs:
+        """The last reference: the trajectory's end point itself. The DSP's bridge law brakes onto a SET_REFS
+        target and holds it (docs/dsp_protocol.md), so after this one the aircraft is flown to the end and kept
+        there with nothing more sent: when the task ends, no command of it follows."""
+        d = seg.end - pos
+        psi = math.radians(heading_deg)
+        ref_heading = self._heading_ref(heading_deg, seg)
+        return p.SetRefs(ref_altura=float(alt_msl + d[2]),
+                         error_longitudinal=float(d[0] * math.cos(psi) + d[1] * math.sin(psi)),
+                         error_lateral=float(-d[0] * math.sin(psi) + d[1] * math.cos(psi)),
+                         ref_heading=float(ref_heading), ref_rpm_motor=NOMINAL_RPM)
+
+    def _heading_ref(self, heading_deg: float, seg: Segment) -> float:
+        """The HEADING datum if one was given, else along the segment (level flight), else the current heading."""
+        if self.heading_rad is not None:
+            ref = self.heading_rad
+        elif math.hypot(seg.tangent[0], seg.tangent[1]) > 0.1:
+            ref = math.atan2(seg.tangent[1], seg.tangent[0])
+        else:
+            ref = math.radians(heading_deg)
+        return (ref + math.pi) % (2 * math.pi) - math.pi
 
     def _refs(self, u: np.ndarray, alt_msl: float, heading_deg: float, seg: Segment) -> p.SetRefs:
         """Velocity command → the bridge references that make the DSP fly it."""
@@ -249,13 +273,7 @@ class OnboardFollower:
         course = math.atan2(u[1], u[0])
         rel = course - math.radians(heading_deg)
         climb = min(max(u[2], -par.max_climb), par.max_climb)
-        if self.heading_rad is not None:
-            ref_heading = self.heading_rad
-        elif math.hypot(seg.tangent[0], seg.tangent[1]) > 0.1:
-            ref_heading = math.atan2(seg.tangent[1], seg.tangent[0])
-        else:
-            ref_heading = math.radians(heading_deg)
-        ref_heading = (ref_heading + math.pi) % (2 * math.pi) - math.pi
+        ref_heading = self._heading_ref(heading_deg, seg)
         return p.SetRefs(ref_altura=float(alt_msl + climb / BRIDGE_GAIN),
                          error_longitudinal=float(dist * math.cos(rel)),
                          error_lateral=float(dist * math.sin(rel)), ref_heading=float(ref_heading),
@@ -274,5 +292,9 @@ def decide(follower: OnboardFollower, state: FollowerState, telemetry: p.Telemet
         return Decision(state)
     follower.set_points([(pt.latitud, pt.longitud, pt.altura) for pt in state.path])
     result = follower.step(telemetry.time_ms / 1000.0, telemetry)
-    new = replace(state, path=()) if FollowerError.OFF_PATH in result.errors else state
-    return Decision(new, result.commands, result.errors, result.detail)
+    if follower.complete or FollowerError.OFF_PATH in result.errors:
+        # flown (the DSP holds the end point) or dropped (the DSP holds here): the trajectory is forgotten, so
+        # nothing more is sent for it, and a later DATOS is a new trajectory from where the aircraft is
+        follower.reset()
+        return Decision(replace(state, path=()), result.commands, result.errors, result.detail)
+    return Decision(state, result.commands, result.errors, result.detail)

@@ -10,6 +10,7 @@ import pytest
 
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
+from bbcs.contracts.geo import VelocityNED
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.geodesy import LocalFrame
 from ral.tasks import (
@@ -170,6 +171,20 @@ def test_goto_completes_when_queue_empty_and_at_last_waypoint() -> None:
 def test_goto_at_last_waypoint_before_the_path_arrives_waits_to_settle() -> None:
     task = t.Goto(waypoints=[t.Waypoint(lat=37.41, lon=-6.0, alt=12.0)])
     assert run(running(task, 10.0), [(10.5, tel()), (12.0, tel())], start=10.0) == ["running", "completed"]
+
+
+def test_an_onboard_path_completes_only_once_the_aircraft_has_stopped_at_its_end() -> None:
+    """Campaign seed 7, sequence 111: mode 3 has no DSP queue, so "near the end" alone completed the task while
+    the onboard follower still flew the last metres, and its references reached the DSP after the task ended."""
+    task = t.FollowPath(waypoints=path(3).waypoints)
+    last = task.waypoints[-1]
+
+    def moving(speed: float) -> RobotTelemetry:
+        return msgspec.structs.replace(tel(last.lat - 0.00002, last.lon, 30.0, queued=0),
+                                       velocity=VelocityNED(vn=speed, ve=0.0, vd=0.0))
+
+    assert run(running(task), [(3.0, moving(3.0)), (4.0, moving(1.5)), (5.0, moving(0.4))]) == [
+        "running", "running", "completed"]
 
 
 def test_a_path_that_makes_no_progress_fails_after_stall_s() -> None:  # issue 11 cases 3 and 6

@@ -79,6 +79,37 @@ def test_flies_an_l_shaped_trajectory_with_a_climb_through_bridge_references() -
     assert max(x[2] for x in track) < end[2] + 1.0  # climbs to the last point's height without overshooting
 
 
+def test_at_the_end_one_reference_holds_the_end_point_and_nothing_more_is_sent() -> None:
+    """Campaign seed 7, sequence 111: after a mode-3 follow_path completed, the follower kept sending SET_REFS
+    (holding the end itself) while no task ran. Now the last reference is the end point, the DSP's bridge law
+    flies there and holds it, and the trajectory is forgotten: 20 s later nothing more has been sent."""
+    rig = Rig()
+    f = OnboardFollower(OnboardParams(period_s=0.06))
+    f.set_speed(5.0)
+    end = rig.grid(3, 2, 2.0)
+    state = FollowerState(mode=3, path=(DatoPuntoSegCam(latitud=rig.grid(3, 0, 0)[0], longitud=rig.grid(3, 0, 0)[1],
+                                                       altura=rig.grid(3, 0, 0)[2]),
+                                        DatoPuntoSegCam(latitud=end[0], longitud=end[1], altura=end[2])))
+    sent_at: list[float] = []
+    last_detail = ""
+    for k in range(round(60 / DT)):
+        if k % 3 == 0:
+            d = decide(f, state, rig.telemetry())
+            state = d.state
+            for cmd in d.commands:
+                sent_at.append(rig.m.time_s)
+                rig.sent.append(cmd)
+                rig.send(cmd)
+            last_detail = d.detail or last_detail
+        rig.m.step(DT)
+    assert {type(c) for c in rig.sent} == {p.SetRefs}
+    assert state.path == () and not f.points and "complete" in last_detail
+    assert sent_at[-1] < 40.0  # the last reference, then 20 s and more of nothing
+    here = rig.m.vehicle.state.pos
+    assert np.linalg.norm(here - rig.m.to_local(*end)) < 0.5  # held at the end point
+    assert np.linalg.norm(rig.m.vehicle.state.vel) < 0.05
+
+
 def test_heading_and_speed_are_honoured() -> None:
     rig = Rig()
     f = OnboardFollower(OnboardParams(period_s=0.06))
