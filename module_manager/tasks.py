@@ -14,6 +14,13 @@ failed, cancelled or aborted, the modes of the manifest's stop task (``hold``, e
 robot stops flying the rest of its path and station-keeps. Its routes go back to what they were (an input reads
 its usual slot again; a route sends nothing by itself). Any other type (pan & tilt, perception) restores its
 saved routes and modes: the gimbal goes back to its rest mode, or to the task of another type still running under it.
+
+Routes and restored modes are layers: tasks of different types that set the same slot stack in the order they
+started, over the slot's base (its value before the first of them). Ending a task removes its layer only: the slot
+takes the value of the topmost task still running that sets it, else the base; a task ending under another one
+changes nothing the one on top set. So the value a task saved is never brought back after the task it belonged to
+has ended (a look-at started over a track, the track ended, then the look-at: the gimbal rests, it does not point at
+the track's target with no task behind it).
 """
 
 from __future__ import annotations
@@ -80,6 +87,9 @@ class TaskBook:
         self.no_restore = no_restore
         self.stop = stop_task(tasks)
         self._running: dict[str, _Running] = {}
+        self._base_routes: dict[RouteKey, int] = {}
+        self._base_modes: dict[str, dict[str, int] | None] = {}
+        """Each layered slot's value before the running tasks that set it: restored when the last of them ends."""
         self.ended: deque[TaskInfo] = deque(maxlen=MAX_ENDED)
         self.next_id = 1
         self.version = 0
@@ -106,6 +116,12 @@ class TaskBook:
         wanted_routes = {_split(target): number for target, number in t.routes.items()}
         saved_routes = {k: base_routes.get(k, -1) for k in wanted_routes}
         saved_modes = {slot: base_modes.get(slot) for slot in t.modes if slot not in self.no_restore}
+        for key, value in saved_routes.items():
+            if self._top_route(key) is None:
+                self._base_routes[key] = value
+        for slot, mode in saved_modes.items():
+            if self._top_mode(slot) is None:
+                self._base_modes[slot] = mode
         self._running[t.type] = _Running(task, saved_routes, saved_modes)
         self.version += 1
         return Changes(routes={**restore.routes, **wanted_routes},
@@ -118,12 +134,49 @@ class TaskBook:
         self.ended.append(msgspec.structs.replace(running.task, status=status, ended=now, detail=detail))
         self.version += 1
         effect = ending(running.task.name, task_type, status, self.stop)
+        routes = self._unlayer_routes(running)
         if effect == "restore":
-            return Changes(routes=dict(running.saved_routes), modes=dict(running.saved_modes))
+            return Changes(routes=routes, modes=self._unlayer_modes(running))
+        for slot in running.saved_modes:
+            if self._top_mode(slot) is None:
+                self._base_modes.pop(slot, None)
         stop = self.tasks[self.stop].modes if effect == "stop" and self.stop is not None else {}
         modes: dict[str, dict[str, int] | None] = {slot: dict(v) for slot, v in stop.items()}
         withdraw = frozenset(self.tasks[running.task.name].modes) - set(modes)
-        return Changes(routes=dict(running.saved_routes), modes=modes, withdraw=withdraw)
+        return Changes(routes=routes, modes=modes, withdraw=withdraw)
+
+    # --- layers: the topmost running task that sets a slot gives its value --------------------------------
+
+    def _top_route(self, key: RouteKey) -> _Running | None:
+        setters = [r for r in self._running.values()
+                   if key in {_split(target) for target in self.tasks[r.task.name].routes}]
+        return max(setters, key=lambda r: r.task.id, default=None)
+
+    def _top_mode(self, slot: str) -> _Running | None:
+        setters = [r for r in self._running.values() if slot in self.tasks[r.task.name].modes]
+        return max(setters, key=lambda r: r.task.id, default=None)
+
+    def _unlayer_routes(self, ended: _Running) -> dict[RouteKey, int]:
+        """The routes that change when ``ended`` (no longer running) is taken off its layers."""
+        out: dict[RouteKey, int] = {}
+        for key, saved in ended.saved_routes.items():
+            top = self._top_route(key)
+            if top is None:
+                out[key] = self._base_routes.pop(key, saved)
+            elif top.task.id < ended.task.id:  # it was on top: the one under it shows again
+                out[key] = next(n for target, n in self.tasks[top.task.name].routes.items() if _split(target) == key)
+        return out
+
+    def _unlayer_modes(self, ended: _Running) -> dict[str, dict[str, int] | None]:
+        """The restored modes that change when ``ended`` (no longer running) is taken off its layers."""
+        out: dict[str, dict[str, int] | None] = {}
+        for slot, saved in ended.saved_modes.items():
+            top = self._top_mode(slot)
+            if top is None:
+                out[slot] = self._base_modes.pop(slot, saved)
+            elif top.task.id < ended.task.id:
+                out[slot] = dict(self.tasks[top.task.name].modes[slot])
+        return out
 
     def fail_needing(self, modules: set[str], uses: dict[str, set[str]], now: float, detail: str) -> list[Changes]:
         """End (failed) every running task whose manifest task uses one of ``modules``; the changes to apply."""

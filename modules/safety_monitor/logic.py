@@ -350,6 +350,8 @@ class SafetyMonitor:
             first = min((i.started for i in self.tasks.values()), default=None)
             if first is None or c < first:
                 return "the start-up sequence"
+            if msg.batch_id == 1:  # batch ids count from 1 in each process of a module
+                return f"the start-up of a new {msg.sender} process (its first batch: the mode the manager keeps)"
         return None
 
     def _untraced(self, msg: DspSent) -> None:

@@ -242,3 +242,22 @@ def test_continuous_pan_tilt_and_perception_tasks_restore_what_was_under_them():
     assert robot.routes[("pt", "datos")] == 20
     assert robot.end("perception", "cancelled") == [{"pt_mode": {"m": 2}}], "back to the gimbal's rest mode"
     assert robot.routes[("pt", "datos")] == 10
+
+
+def test_a_task_ending_under_another_changes_nothing_and_the_last_one_restores_the_rest_mode():
+    """Campaign seed 7, sequences 17-23: a look-at started over a track saved the track's target mode; the track
+    ended (its vision module killed) and put the gimbal to rest under the running look-at; then the look-at ended
+    and brought back the track's target mode, with no task behind it: the gimbal followed whatever reached its
+    input (a route swap to vision's target, later a 0°/0° datum) and the DSP got pointing commands of no task."""
+    robot = Robot()
+    robot.start("track", t.Track())
+    robot.start("look_at", t.LookAt(lat=37.41, lon=-6.0, alt=12.0))
+    assert robot.end("perception", "failed") == [], "the look-at on top keeps the gimbal"
+    assert robot.routes[("pt", "datos")] == 10 and robot.modes["pt_mode"] == {"m": 1}
+    assert robot.end("pan_tilt", "completed") == [{"pt_mode": {"m": 2}}], "no task left: the rest mode"
+    assert robot.routes[("pt", "datos")] == 10
+    # and the same with the look-at under the track
+    robot.start("look_at", t.LookAt(lat=37.41, lon=-6.0, alt=12.0))
+    robot.start("track", t.Track())
+    assert robot.end("pan_tilt", "cancelled") == [] and robot.routes[("pt", "datos")] == 20
+    assert robot.end("perception", "cancelled") == [{"pt_mode": {"m": 2}}] and robot.routes[("pt", "datos")] == 10

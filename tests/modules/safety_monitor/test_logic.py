@@ -40,8 +40,9 @@ def book(m: SafetyMonitor, now: float, *tasks: TaskInfo) -> None:
     m.on_book(now, now, [t for t in tasks if t.ended is None], [t for t in tasks if t.ended is not None])
 
 
-def sent(m: SafetyMonitor, stamp: float, cmd: object, sender: str = "path_follower") -> None:
-    m.on_sent(stamp, DspSent(sender=sender, batch_id=1, command=cmd, stamp=stamp))  # type: ignore[arg-type]
+def sent(m: SafetyMonitor, stamp: float, cmd: object, sender: str = "path_follower", batch: int = 2) -> None:
+    """``batch`` 1 is the first batch a process of ``sender`` sends."""
+    m.on_sent(stamp, DspSent(sender=sender, batch_id=batch, command=cmd, stamp=stamp))  # type: ignore[arg-type]
 
 
 def truth(m: SafetyMonitor, now: float, north_m: float = 0.0, height: float = 10.0, *, roll: float = 0.0,
@@ -135,6 +136,20 @@ def test_start_up_holds_are_traced_only_before_the_first_task() -> None:
     sent(m, 13.0, p.SetPanTiltMode(mode=p.PanTiltMode.HOLD), sender="pan_tilt")
     (b,) = run(m, 30)
     assert b.severity is Severity.WARNING  # a hold nothing asked for: wrong, but it moves nothing
+
+
+def test_the_mode_a_restarted_module_applies_first_is_its_start_up_not_what_it_sends_next() -> None:
+    """The campaign's `take_off; done s=90; kill module=pan_tilt`: the restarted pan & tilt module applied the
+    mode the manager keeps for it (the gimbal's rest mode), its process's first batch. A pointing command in that
+    batch, or the same mode in a later one, is not a start-up."""
+    m = monitor()
+    book(m, 12.0, task(1, "take_off", 10.0, 11.0, status="completed"))
+    sent(m, 30.0, p.SetPanTiltMode(mode=p.PanTiltMode.HOLD), sender="pan_tilt", batch=1)
+    assert run(m, 40) == []
+    sent(m, 41.0, p.SetPanTiltAngles(pan_deg=5.0, tilt_deg=0.0), sender="pan_tilt", batch=1)
+    sent(m, 42.0, p.SetPanTiltMode(mode=p.PanTiltMode.HOLD), sender="pan_tilt", batch=2)
+    assert [(b.kind, b.severity) for b in run(m, 60)] == [("untraced_command", Severity.ERROR),
+                                                           ("untraced_command", Severity.WARNING)]
 
 
 def test_a_restarted_manager_numbering_its_tasks_again_is_a_new_book() -> None:
