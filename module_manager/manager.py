@@ -185,6 +185,8 @@ class Manager(RouteControl, MriService):
                         for name, info in manifest.modules.items()}
         self.tasks = TaskBook(manifest.tasks, frozenset(n for n, m in manifest.modes.items() if not m.restore))
         self.task_uses = task_modules(manifest)
+        self.task_lost_with = {name: used - set(manifest.tasks[name].survives) for name, used in self.task_uses.items()}
+        """Manifest task → the modules whose exit ends it as failed (its effect lost with them)."""
         self.modes: dict[str, dict[str, int] | None] = {
             name: (msgspec.to_builtins(m.initial) if m.initial is not None else None)
             for name, m in manifest.modes.items()}
@@ -686,7 +688,7 @@ class Manager(RouteControl, MriService):
     def _fail_tasks_using(self, module: str, detail: str) -> None:
         """A module the running tasks rely on went down: those tasks end as failed (their routes/modes restored
         off the main thread, which must not wait for acknowledgements)."""
-        for changes in self.tasks.fail_needing({module}, self.task_uses, time.time(), detail):
+        for changes in self.tasks.fail_needing({module}, self.task_lost_with, time.time(), detail):
             threading.Thread(target=self.apply_changes, args=(changes,), kwargs={"ending": True}, name="task-fail",
                              daemon=True).start()
         self._touch()

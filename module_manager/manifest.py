@@ -234,6 +234,9 @@ class TaskDef(_Section):
     """``module.input`` → slot number."""
     modes: dict[str, dict[str, int]] = msgspec.field(default_factory=dict)
     """mode slot name → mode struct fields."""
+    survives: list[str] = msgspec.field(default_factory=list)
+    """Modules whose exit does not end this task: what it needed from them is already with the device (a mode-0
+    path is in the DSP's queue, which flies on). They are still needed to start it."""
 
 
 class ManifestFile(_Section):
@@ -859,6 +862,9 @@ class _Checker:
             if mode is None:
                 raise self.fail(f"{key}.modes.{slot}", f"unknown mode slot {slot!r}")
             self.convert(value, mode.type, f"{key}.modes.{slot}")
+        for i, module in enumerate(t.survives):
+            if module not in modules:
+                raise self.fail(f"{key}.survives.{i}", f"unknown module {module!r}; modules: {', '.join(modules)}")
         return t
 
 

@@ -379,7 +379,14 @@ class CampaignRobot:
         if op == "bad_frame":
             return send_command("127.0.0.1", self.control, f"spoil {s['field']}={s['value']} {s['count']}")
         if op == "restart_ral":
-            return self._reply(self.gcs.restart(ROBOT, "ral"))
+            state = self.state
+            ral = next((m for m in (state.modules if state else []) if m.name == "ral"), None)
+            reply = self.gcs.restart(ROBOT, "ral")
+            if reply.accepted and ral is not None and ral.pid is not None:
+                # the reset waits for a new RAL process: a state published before the restart still shows the old
+                # one up, and a `land` sent to it then got no answer (seed 7, sequence 136's incident)
+                self.killed["ral"] = ral.pid
+            return self._reply(reply)
         if op == "route":
             routes = self.gcs.route(ROBOT, "pan_tilt", "datos", s["datos"])
             return f"pan_tilt.datos = {routes.routes.get('pan_tilt', {}).get('datos')}"

@@ -215,6 +215,34 @@ def test_a_path_follower_killed_after_the_take_off_comes_back_sending_nothing(fl
     assert after is not None and after.last_error is None, after
 
 
+def test_a_path_follower_killed_during_a_goto_comes_back_and_the_goto_completes_at_its_goal(
+        fly: Callable[..., Flight]) -> None:
+    """The campaign's finding (seed 7, sequence 70): the path follower killed during a goto failed the task ("the
+    task's effect is lost") while the DSP flew its queue on. A mode-0 path is in the DSP's queue: the shipped goto
+    `survives` the path follower (docs/manifest.md). The restarted follower gets the goto's mode, the DSP flies on
+    without a waypoint sent again, the goto completes at its goal, and nothing follows."""
+    robot, truth = fly()
+    up = robot.ensure_airborne()
+    assert up.position is not None and up.home is not None
+    goal = [t.Waypoint(lat=w.lat, lon=w.lon, alt=up.home.alt + 15.0)
+            for w in grid_path(up.position, [(3, 0), (3, 3)])]  # about 33 m north, then 27 m east
+    start, began = len(robot.events), robot.state.stamp
+    reply = robot.gcs.send(ROBOT, t.Goto(waypoints=goal, speed=3.0))
+    assert reply.accepted, reply.reason
+    robot.wait_state(lambda s: s.stamp >= began + 5.0, 60, "5 s into the goto")
+    sent_before = len(robot.commands())
+    status = ral_status(robot, "path_follower")
+    assert status is not None and status.pid is not None, status
+    os.kill(status.pid, signal.SIGKILL)
+    wait_until(lambda: restarted(robot, status.pid, "path_follower"), 60, "the path follower restarted")
+    done = finished(robot, reply, 120, start)
+    assert done.kind == "task_completed", done
+    again = [c for c in robot.commands()[sent_before:] if c.get("name") in ("ADD_WAYPOINT", "INVALIDATE_PATH")]
+    assert again == [], f"the restarted follower sent the path again: {again}"
+    at = assert_quiet(robot, truth, "the goto", len(robot.commands()))
+    assert horizontal_m(at, goal[-1].lat, goal[-1].lon) < 8.0 and abs(at.alt - goal[-1].alt) < 2.0
+
+
 # ------------------------------------------------------------------ case 2: a long path is not failed while flown
 
 
