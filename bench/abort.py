@@ -24,13 +24,12 @@ import os
 import re
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
 
 import msgspec
-from benchlib import ROOT, pct, stop_group, write_results
+from benchlib import ROOT, pct, stop_group, work_dir, write_results
 
 from bbcs import keys
 from bbcs.contracts import dsp as p
@@ -204,7 +203,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.smoke:
         args.aborts, args.baseline = 2, 5
-    work = Path(tempfile.mkdtemp(prefix="cromat-abort-"))
+    with work_dir("cromat-abort-") as work:
+        return run(args, work)
+
+
+def run(args: argparse.Namespace, work: Path) -> int:
+    """The benchmark in ``work`` (removed when it ends well, kept with its logs when it fails)."""
     manifest, record_path = prepare(work, args.telemetry_ms)
     port = free_port()
     launch = Launch(manifest, port, work / "logs")

@@ -1,5 +1,5 @@
-"""What every benchmark shares: the project on ``sys.path``, one percentile, stopping a launched process group, and
-writing ``bench/results/NAME.json``.
+"""What every benchmark shares: the project on ``sys.path``, one percentile, stopping a launched process group, a
+working folder, and writing ``bench/results/NAME.json``.
 
 Benchmarks run as ``python bench/NAME.py`` from a checkout, so this file sits beside them and is imported first.
 """
@@ -8,9 +8,13 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +26,19 @@ if str(ROOT) in sys.path:
     sys.path.remove(str(ROOT))
 sys.path.insert(0, str(ROOT))
 RESULTS = ROOT / "bench" / "results"
+
+
+@contextmanager
+def work_dir(prefix: str) -> Iterator[Path]:
+    """A fresh folder for a run's manifests, records and logs: removed when the run ends well, kept (and named on
+    stderr) when it fails, so its logs can be read. Nothing is left in /tmp by a run that worked."""
+    work = Path(tempfile.mkdtemp(prefix=prefix))
+    try:
+        yield work
+    except BaseException:
+        print(f"the run's manifests, records and logs are kept in {work}", file=sys.stderr)
+        raise
+    shutil.rmtree(work, ignore_errors=True)
 
 
 def pct(values: list[float], q: float, *, empty: float | None = None) -> float:

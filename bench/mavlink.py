@@ -24,12 +24,11 @@ import os
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
 
-from benchlib import ROOT, pct, stop_group, write_results
+from benchlib import ROOT, pct, stop_group, work_dir, write_results
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
@@ -253,8 +252,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.smoke:
         args.rounds, args.window = 2, 2.0
+    with work_dir("cromat-mavlink-") as work:
+        return run(args, work)
+
+
+def run(args: argparse.Namespace, work: Path) -> int:
+    """The benchmark in ``work`` (removed when it ends well, kept with its logs when it fails)."""
     started = time.monotonic()
-    work = Path(tempfile.mkdtemp(prefix="cromat-mavlink-"))
     failed: dict[str, list[str]] = {"mavlink": [], "gcs": []}
     lat = latency(work, args.rounds, failed)
     cpu = cpu_share(work, args.robots, args.window)

@@ -17,11 +17,10 @@ import signal
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
-from benchlib import ROOT, pct, write_results
+from benchlib import ROOT, pct, work_dir, write_results
 
 from bbcs import local_client, open_session
 from bbcs.contracts import mri
@@ -43,7 +42,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.smoke:
         args.swaps = 4
-    work = Path(tempfile.mkdtemp(prefix="cromat-swap-"))
+    with work_dir("cromat-swap-") as work:
+        return run(args, work)
+
+
+def run(args: argparse.Namespace, work: Path) -> int:
+    """The benchmark in ``work`` (removed when it ends well, kept with its logs when it fails)."""
     text = (PROBE / "probe_robot.toml").read_text()
     text = text.replace('pythonpath = ["."]', f'pythonpath = ["{PROBE}"]')
     text = text.replace('conf = "probe_robot.conf"', f'conf = "{PROBE / "probe_robot.conf"}"')
