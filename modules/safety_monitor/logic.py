@@ -594,7 +594,8 @@ class SafetyMonitor:
     def _truth_airborne(self, t: float) -> bool | None:
         """True/False when the truth was surely in the air/on the ground over the window before ``t`` (and the
         stamp's frame after it)."""
-        window = [tr for s, tr in self.truth if t - self.cfg.airborne_window_s <= s <= t + self.cfg.stamp_lag_s]
+        window = [tr for s, tr in self.truth
+                  if t - self.cfg.airborne_window_s <= s <= t + SKEW_S + self.cfg.stamp_lag_s]
         if not window or self.truth[0][0] > t - self.cfg.airborne_window_s:
             return None
         heights = [tr.alt - tr.home[2] for tr in window]

@@ -267,6 +267,26 @@ def test_the_gri_more_than_5_m_off_the_truth_or_wrong_about_airborne_is_a_breach
     assert kinds(run(m, 10)) == ["gri_position", "gri_airborne"]
 
 
+def test_at_a_lift_off_the_gri_may_show_the_height_the_truth_reaches_at_the_end_of_the_stamps_frame() -> None:
+    """Campaign seed 7, sequence 43 (1 of 200): in lockstep a frame's telemetry is stamped with the time its frame
+    began, and the DSP's airborne flag of the frame's last instant reached the GRI while the truth of that instant,
+    stamped a float's rounding after stamp + step_s, was left out of the window ("airborne=True, the truth False").
+    The window now reaches as far as the position check's (the clock skew included). A GRI airborne with the truth
+    on the ground over all of it is still a breach."""
+    m = monitor(stamp_lag_s=0.2)
+    for i in range(101):
+        truth(m, i / 10, height=0.0)
+    truth(m, 10.2 + 1e-9, height=0.25)  # the first instant above 0.2 m, at the end of the frame stamped 10.0
+    m.on_gri_state(10.0, gri(10.0, north_m=0.0, height=0.25))
+    truth(m, 13.0, height=1.5)
+    assert "gri_airborne" not in kinds(run(m, 13))
+    late = monitor(stamp_lag_s=0.2)
+    for i in range(131):
+        truth(late, i / 10, height=0.0)
+    late.on_gri_state(12.0, gri(10.0, north_m=0.0, height=0.25))  # airborne, the truth on the ground throughout
+    assert kinds(run(late, 13)) == ["gri_airborne"]
+
+
 def test_a_loss_of_control_reported_within_1_s_is_right() -> None:
     m = monitor()
     truth(m, 10.0)
