@@ -156,18 +156,18 @@ def lagged(stamp_lag_s: float) -> SafetyMonitor:
 @pytest.mark.parametrize(("lag", "breaches"), [(0.2, []), (0.0, ["gri_airborne"])])
 def test_a_take_off_frame_stamped_with_the_previous_frames_time_is_not_a_wrong_airborne(
         lag: float, breaches: list[str]) -> None:
-    """The frame measured at 10.05 s (0.25 m up) reached the telemetry module before the step to 10.2 s: stamped
-    10.0, when the truth was still on the ground."""
+    """The frame measured at 10.15 s (0.25 m up) reached the telemetry module before the step to 10.2 s: stamped
+    10.0, when the truth was still on the ground (and still 0.1 s later: more than the clocks' skew)."""
     m = lagged(lag)
     for i in range(201):
         ts = i * 0.05
-        m.on_truth(ts, truth_at(ts, 0.0, height=0.0 if ts <= 10.0 else 5.0 * (ts - 10.0)))
+        m.on_truth(ts, truth_at(ts, 0.0, height=0.0))
     tel = RobotTelemetry(stamp=10.0, position=GeoPoint(lat=HOME[0], lon=HOME[1], alt=HOME[2] + 0.25), airborne=True)
     m.on_gri_state(10.0, GriState(robot="uav1", stamp=10.0, telemetry=tel))
     assert m.tick(10.0) == [] and m.counts["gri_compared"] == 0  # before the truth of its frame: not judged yet
     for i in range(201, 221):
         ts = i * 0.05
-        m.on_truth(ts, truth_at(ts, 0.0, height=5.0 * (ts - 10.0)))
+        m.on_truth(ts, truth_at(ts, 0.0, height=max(0.0, 5.0 * (ts - 10.1))))
     assert [b.kind for b in m.tick(11.0)] == breaches
     assert m.counts["gri_compared"] == 1
 
