@@ -65,6 +65,10 @@ class SimSettings(msgspec.Struct, frozen=True, kw_only=True):
     """Wall seconds a step waits for a member before leaving it behind."""
 
 
+TIME_QUERY_S = 2.0
+"""Wall seconds a starting module waits for the stepper's answer to "what time is it"."""
+
+
 def settings_from_env(environ: Mapping[str, str] | None = None) -> SimSettings | None:
     """The lockstep settings this process was started with, or None (wall clock, no lockstep)."""
     text = (os.environ if environ is None else environ).get(SIM_ENV)
@@ -138,6 +142,21 @@ _encode = msgspec.msgpack.Encoder().encode
 _decode_ask = msgspec.msgpack.Decoder(Ask).decode
 _decode_done = msgspec.msgpack.Decoder(Done).decode
 _decode_time = msgspec.msgpack.Decoder(SimTime).decode
+
+
+def current_time(session: zenoh.Session, robot: str, timeout_s: float = TIME_QUERY_S) -> SimTime | None:
+    """The simulation's time from the robot's stepper, or None when no stepper answers (the simulation has not
+    begun: its time is 0). A module restarted in the middle of a simulation reads it before it takes any input:
+    until its first ask its clock would otherwise say 0 while the robot is thousands of seconds in, and whatever
+    it stamped or timed with it meanwhile (a task's start, seen again from the manager's task book by a
+    restarted RAL) would be that far in the past."""
+    for reply in session.get(clock_key(robot), timeout=timeout_s):
+        if reply.ok is not None:
+            try:
+                return decode_time(reply.ok.payload.to_bytes())
+            except msgspec.MsgspecError:
+                continue
+    return None
 
 
 def decode_time(payload: bytes) -> SimTime:
@@ -340,9 +359,11 @@ class Stepper:
         self._ask_pub = session.declare_publisher(ask_key(robot), congestion_control=zenoh.CongestionControl.BLOCK,
                                                   reliability=zenoh.Reliability.RELIABLE,
                                                   priority=zenoh.Priority.DATA)
+        self._now = SimTime(step=0, t=0.0, epoch=self.epoch)
         self._entities = [
             session.declare_subscriber(done_key(robot, "*"), self._on_done),
             session.liveliness().declare_subscriber(member_key(robot, "*"), self._on_member, history=True),
+            session.declare_queryable(clock_key(robot), self._on_time_query),
         ]
 
     @property
@@ -389,8 +410,12 @@ class Stepper:
                 name, present = item
                 (self.barrier.joined if present else self.barrier.left)(name)
 
+    def _on_time_query(self, query: zenoh.Query) -> None:
+        """A process starting in the middle of a simulation asks the time before it handles anything."""
+        query.reply(clock_key(self.robot), _encode(self._now))
+
     def publish_time(self) -> SimTime:
-        now = SimTime(step=max(self.step, 0), t=self.t, epoch=self.epoch)
+        now = self._now = SimTime(step=max(self.step, 0), t=self.t, epoch=self.epoch)
         self._clock_pub.put(_encode(now))
         return now
 

@@ -317,6 +317,10 @@ class Module(InputReaders, RuntimeRouting):
         """Join the bus, run the event loop until ``request_stop()``, then undeclare everything and close."""
         self.session = open_session(self.context.bus, module=True)
         try:
+            if isinstance(self.bbcs_clock, SimClock):  # restarted mid-simulation: the time before any input
+                now = _lockstep.current_time(self.session, self.robot)
+                if now is not None:
+                    self.bbcs_clock.advance(now)
             self._declare()
             with self.lock:
                 self.on_start()

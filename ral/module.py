@@ -14,8 +14,12 @@ The RAL keeps no task book: the Module Manager's is the only record of the runni
 translates a GRI task into an MRI ``SetTask`` carrying the task's typed parameters, and derives GRI events from
 the manager's task lists (its replies and its robot state), so a task started by anyone is shown and announced.
 
-One worker thread handles task queries and failsafe actions in arrival order. Data go out only after the
-manager's reply, which comes after the module answered the task's mode: the data are handled under that mode.
+Its inputs (the manager's state, the ground stations' tokens and heartbeats, the speed acknowledgement, the
+trajectory generator's answers and paths) are handled on the module's one event loop, like any module's, in
+arrival order with its ticks. One worker thread handles task queries and failsafe actions in arrival order: they
+wait on bus round trips (the manager, the generator, the acknowledgement), which the loop must not. Data go out
+only after the manager's reply, which comes after the module answered the task's mode: the data are handled under
+that mode.
 The main loop's tick judges the running tasks against telemetry (complete, stalled), fails those a module
 error affects, advances the link-loss failsafe and publishes the GRI state.
 """
@@ -26,6 +30,7 @@ import queue
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import msgspec
@@ -200,22 +205,25 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
                 keys.slot_key(self.robot, refs_to, "refs"),
                 SlotSpec("refs", RefsSegCam, Direction.OUT, Kind.STATE, Safety.UNSAFE),
             )
+        on_loop = self._on_loop
         self._ral_entities = [
             zenoh.ext.declare_advanced_subscriber(
                 s,
                 mri.mri_key(self.robot, mri.STATE),
-                self._on_manager_state,
+                on_loop(self._on_manager_state),
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
             ),
-            s.liveliness().declare_subscriber(gri.gcs_alive_key("*"), self._on_gcs_token, history=True),
-            s.declare_subscriber(gri.gcs_heartbeat_key("*"), self._on_gcs_heartbeat),
+            s.liveliness().declare_subscriber(gri.gcs_alive_key("*"), on_loop(self._on_gcs_token), history=True),
+            s.declare_subscriber(gri.gcs_heartbeat_key("*"), on_loop(self._on_gcs_heartbeat)),
             *([s.declare_subscriber(keys.slot_key(self.robot, self.cfg.speed_ack_from, SPEED_ACK_SLOT),
-                                    self._on_speed_ack)] if self.cfg.speed_ack_from else []),
-            *([s.declare_subscriber(keys.slot_key(self.robot, planner, "status"), self._on_traj_status),
+                                    on_loop(self._on_speed_ack))] if self.cfg.speed_ack_from else []),
+            *([s.declare_subscriber(keys.slot_key(self.robot, planner, "status"), on_loop(self._on_traj_status)),
                s.declare_subscriber(keys.slot_key(self.robot, planner, "survey"),
-                                    lambda sample: self._on_traj_path("survey", sample)),
+                                    on_loop(lambda sample: self._on_traj_path("survey", sample))),
                s.declare_subscriber(keys.slot_key(self.robot, planner, "orbit"),
-                                    lambda sample: self._on_traj_path("orbit", sample))] if planner else []),
+                                    on_loop(lambda sample: self._on_traj_path("orbit", sample)))] if planner else []),
+            # a task request is a job: admission waits on bus round trips (the manager, the generator, the speed
+            # acknowledgement), which the loop must not, so the worker thread answers it
             s.declare_queryable(gri.task_key(self.robot), self._jobs.put),
             wire.declare_service_schemas(s, keys.ral_key(self.robot), lambda: {
                 gri.state_key(self.robot): gri.GriState, gri.events_key(self.robot): gri.GriEvent,
@@ -240,6 +248,13 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
         for pub in (self._state_pub, self._event_pub, self._refs_pub, self._traj_pub):
             if pub is not None:
                 pub.close()
+
+    def _on_loop(self, handler: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], None]:
+        """A Zenoh callback that hands each sample to the event loop: the RAL's inputs are handled there, one at a
+        time in arrival order with its ticks (and counted as its activity in a lockstep step), never on Zenoh's
+        threads. Only the task jobs, which wait on bus round trips, run on the worker thread."""
+        call_soon = self.call_soon
+        return lambda sample: call_soon(lambda: handler(sample))
 
     def _on_manager_state(self, sample: zenoh.Sample) -> None:
         try:

@@ -237,3 +237,44 @@ def test_a_module_runs_on_simulated_time_and_answers_only_once_idle(router: int,
         mod.request_stop()
         loop.join(10)
         stepper.close()
+
+
+class Starter(Module):
+    """Notes the time its clock reads when it starts, before it takes any input."""
+
+    name = "starter"
+    slots = ()
+
+    def on_start(self) -> None:
+        self.started_at = self.bbcs_clock.monotonic()
+        self.stamped_at = self.bbcs_clock.time()
+
+
+def test_a_module_started_mid_simulation_reads_its_time_before_anything_else(router: int, sessions,  # noqa: ANN001
+                                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """A module (re)started when the simulation is already 42.4 s in starts on that time, not on 0: a restarted RAL
+    that saw its tasks again from the manager's task book judged them as started at 0 and failed one at once for
+    "no progress for 3201 s" (the campaign, seed 23). With no stepper (the simulation not begun) it starts at 0."""
+    monkeypatch.setenv(SIM_ENV, msgspec.json.encode(SimSettings(robot="r1")).decode())
+    s = sessions()
+    stepper = Stepper(s, "r1", required=frozenset(), epoch=1_000_000.0)
+    mods: list[Starter] = []
+    loops: list[threading.Thread] = []
+    try:
+        for step in range(1, 5):
+            stepper.begin(round(10.6 * step, 3))
+            wait_until(stepper.poll, 10, f"step {step} handled")
+        for robot in ("r1", "r2"):  # r2: no stepper answers
+            mod = Starter(ModuleContext(robot=robot, module="starter", bus=local_client(router)))
+            mods.append(mod)
+            loops.append(threading.Thread(target=mod.run, daemon=True))
+            loops[-1].start()
+        wait_until(lambda: all(hasattr(m, "started_at") for m in mods), 15, "both modules started")
+        assert (mods[0].started_at, mods[0].stamped_at) == (42.4, 1_000_042.4)
+        assert mods[1].started_at == 0.0
+    finally:
+        for mod in mods:
+            mod.request_stop()
+        for loop in loops:
+            loop.join(10)
+        stepper.close()

@@ -348,3 +348,36 @@ def test_pan_tilt_angles_are_sent_again_while_the_telemetry_shows_the_gimbal_els
         assert len(sent) == count, "once the angles were reached, nothing more is sent"
     finally:
         sub.undeclare()
+
+
+@pytest.fixture
+def handler_threads(monkeypatch: pytest.MonkeyPatch) -> dict[str, set[str]]:
+    """The threads (by name) that ran each of the RAL's bus handlers; patched before the RAL starts (``rig``)."""
+    seen: dict[str, set[str]] = {}
+    for name in ("_on_manager_state", "_on_gcs_token", "_on_gcs_heartbeat", "_on_speed_ack"):
+        def spy(self: Ral, sample: object, original=getattr(Ral, name), name: str = name) -> None:
+            seen.setdefault(name, set()).add(threading.current_thread().name)
+            original(self, sample)
+        monkeypatch.setattr(Ral, name, spy)
+    return seen
+
+
+def test_the_rals_bus_inputs_are_handled_on_its_event_loop(handler_threads: dict[str, set[str]], rig: Rig) -> None:
+    """The manager's state, a station's token and heartbeats and the path follower's speed acknowledgement are
+    handled on the RAL's one event loop, as any module's inputs (in order with its ticks, counted in a lockstep
+    step), never on Zenoh's threads; the task itself still runs (its admission waits on the acknowledgement on
+    the worker thread while the loop takes the acknowledgement in)."""
+    link = Gcs(local_client(rig.port), name="pilot", link=[ROBOT])  # a linking station: token and heartbeats
+    try:
+        wait_until(lambda: "link_up" in rig.kinds(), what="link_up")
+        reply = rig.gcs.send(ROBOT, ten_waypoints())  # answered after the speed acknowledgement came in
+        assert reply.accepted, reply.reason
+        rig.manager.telemetry(RobotTelemetry(stamp=1.0, position=GeoPoint(lat=37.41, lon=-6.0, alt=30.0)))
+    finally:
+        link.close()
+    wait_until(lambda: "link_lost" in rig.kinds(), what="link_lost (the token gone)")
+    wanted = {"_on_manager_state", "_on_gcs_token", "_on_gcs_heartbeat", "_on_speed_ack"}
+    wait_until(lambda: wanted <= set(handler_threads), 10, "every handler called")
+    loop = rig.ral._loop_thread
+    assert loop is not None
+    assert dict(handler_threads) == {name: {loop.name} for name in wanted}
