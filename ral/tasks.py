@@ -394,13 +394,16 @@ def judge(task: t.TaskInfo, progress: Progress, tel: RobotTelemetry, home: GeoPo
     if isinstance(req, t.Goto | t.FollowPath | t.Survey | t.Orbit):
         path = req.waypoints if isinstance(req, t.Goto | t.FollowPath) else generated
         assert path
+        # the onboard follower (path mode 3) keeps the trajectory itself: whatever the DSP's queue holds (a path
+        # of the task before, until the mode's INVALIDATE_PATH is applied) is not what the aircraft flies
+        queued = None if isinstance(req, t.FollowPath) and req.follower == "onboard" else tel.waypoints_queued
         last = path[-1]
         horiz = distance_m(pos.lat, pos.lon, last.lat, last.lon)
         near = horiz <= cfg.position_tolerance_m and abs(pos.alt - last.alt) <= cfg.altitude_tolerance_m
-        if (near and tel.waypoints_queued in (0, None) and (pr.seen_queue or settled)
+        if (near and queued in (0, None) and (pr.seen_queue or settled)
                 and _stopped(tel, cfg.arrival_speed_mps)):
             return Verdict(pr, "completed")
-        index = next_waypoint(path, pos, tel.waypoints_queued, pr.next_wp, pr.origin, cfg.position_tolerance_m)
+        index = next_waypoint(path, pos, queued, pr.next_wp, pr.origin, cfg.position_tolerance_m)
         togo = path_to_go(path, pos, index)
         if index < pr.next_wp:  # the queue grew: a path being loaded, not a robot going backwards
             pr = replace(pr, next_wp=index, best=togo)

@@ -114,7 +114,9 @@ def on_control_modo(state: FollowerState, msg: ControlModoSegCam) -> Decision:
         cmds = (p.SetMode(mode=mode), p.SetTracking(enable=False), p.InvalidatePath())
         new = replace(new, path=())
     elif mode == p.Mode.ONBOARD_FOLLOWER:  # the trajectory is flown from here: modules/path_follower/onboard.py
-        cmds = (p.SetMode(mode=mode),)
+        # the DSP's queue emptied: it is not flown in this mode, and a path of the task before left in it would be
+        # flown again the moment a later mode 0/1 turned tracking on, before that task's own path replaced it
+        cmds = (p.SetMode(mode=mode), p.InvalidatePath())
         new = replace(new, path=())
     elif mode in (p.Mode.TAKE_OFF, p.Mode.LANDING):
         cmds = (p.SetTracking(enable=False), p.InvalidatePath(), p.SetMode(mode=mode))

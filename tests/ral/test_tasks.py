@@ -187,6 +187,17 @@ def test_an_onboard_path_completes_only_once_the_aircraft_has_stopped_at_its_end
         "running", "running", "completed"]
 
 
+def test_an_onboard_path_is_judged_by_where_the_aircraft_is_whatever_the_dsps_queue_still_holds() -> None:
+    """Campaign seed 23, sequence 13: a mode-3 path started while the DSP's queue still held the mode-1 path
+    before it (3 waypoints). Taken as this path's queue, it pinned the judge to the first waypoint, so once the
+    aircraft flew past it every metre flown counted as a metre lost, and the task failed while the aircraft
+    flew it ("no progress for 31 s"). The same stale queue under the DSP's own follower is still believed."""
+    waypoints = [t.Waypoint(lat=37.4100 + 0.0004 * i, lon=-6.0, alt=30.0) for i in range(3)]
+    steps = [(float(s), tel(lat=37.4096 + 0.00001 * s, alt=30.0, queued=3)) for s in range(0, 95, 5)]
+    assert set(run(running(t.FollowPath(waypoints=waypoints, follower="onboard")), steps)) == {"running"}
+    assert "failed" in run(running(t.FollowPath(waypoints=waypoints)), steps)
+
+
 def test_a_path_that_makes_no_progress_fails_after_stall_s() -> None:  # issue 11 cases 3 and 6
     task = path(3)
     still = tel(alt=30.0, queued=3)

@@ -149,11 +149,12 @@ def test_modes_2_4_5_disable_tracking_and_invalidate_the_path(stack: Stack, m: i
 
 
 def test_mode_3_flies_the_trajectory_onboard_through_bridge_references(stack: Stack) -> None:
-    """Mode 3: only SET_MODE 3 for the mode; DATOS stays onboard (no ADD_WAYPOINT); the follower answers the
+    """Mode 3: SET_MODE 3 and INVALIDATE_PATH for the mode (the DSP's queue is not flown in it, and a path left
+    there would be flown again by a later mode 0/1); DATOS stays onboard (no ADD_WAYPOINT); the follower answers the
     DSP telemetry with SET_REFS and the aircraft climbs and moves north along the trajectory; abort stops it."""
     mark = stack.mark()
     stack.send("modo", mode(3))
-    stack.expect(mark, [p.SetMode(mode=p.Mode(3))], "mode 3")
+    stack.expect(mark, [p.SetMode(mode=p.Mode(3)), p.InvalidatePath()], "mode 3")
     stack.wait_state("mode 3", mode=3, queue=0)
     start = stack.latest().position
     assert start is not None

@@ -76,9 +76,9 @@ def test_mode_2_disables_tracking_and_invalidates():
     assert d.state.path == ()
 
 
-def test_mode_3_sets_the_onboard_follower_mode_and_empties_the_onboard_trajectory():
+def test_mode_3_sets_the_onboard_follower_mode_and_empties_both_the_onboard_trajectory_and_the_dsps_queue():
     d = logic.on_control_modo(FollowerState(mode=0, path=(PT,)), mode(3))
-    assert d.commands == (p.SetMode(mode=p.Mode.ONBOARD_FOLLOWER),) and d.errors == ()
+    assert d.commands == (p.SetMode(mode=p.Mode.ONBOARD_FOLLOWER), p.InvalidatePath()) and d.errors == ()
     assert d.state.mode == 3 and d.state.path == ()
 
 

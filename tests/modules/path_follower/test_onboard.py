@@ -197,7 +197,7 @@ def test_mode_3_in_the_decision_logic() -> None:
     pt = DatoPuntoSegCam(latitud=37.5, longitud=-6.0, altura=30.0)
     d = logic.on_control_modo(FollowerState(mode=0, path=(pt,)), ControlModoSegCam(modo_o_comando=0,
                                                                                     modo_de_funcionamiento=3))
-    assert d.commands == (p.SetMode(mode=p.Mode.ONBOARD_FOLLOWER),) and d.errors == ()
+    assert d.commands == (p.SetMode(mode=p.Mode.ONBOARD_FOLLOWER), p.InvalidatePath()) and d.errors == ()
     assert d.state.mode == 3 and d.state.path == ()
     d = logic.on_datos(d.state, DatosSegCam(n_points=1, puntos=[pt]))
     assert d.commands == () and d.state.path == (pt,)  # kept onboard, no ADD_WAYPOINT

@@ -168,7 +168,8 @@ def test_mode_table_and_slot_gating(rig):
     step(watch, src, "refs", refs, [set_refs], "refs as they are in mode 6")
     step(watch, src, "path", DatosSegCam(n_points=1, puntos=[PT]), [], "path ignored in mode 6")
     step(watch, src, "modo", ControlModoSegCam(modo_o_comando=1, numero_de_comando=0), [p.Abort()], "abort")
-    step(watch, src, "modo", mode(3), [p.SetMode(mode=p.Mode(3))], "mode 3: the onboard follower")
+    step(watch, src, "modo", mode(3), [p.SetMode(mode=p.Mode(3)), p.InvalidatePath()],
+         "mode 3: the onboard follower, the DSP queue emptied")
     step(watch, src, "refs", refs, [], "ground REFS ignored in mode 3 (the follower makes its own)")
     assert all(b.sender == "path_follower" for b in watch.batches)
     assert stop_process(proc, STOP_S) == 0
