@@ -59,3 +59,22 @@ def test_fleet_check_accepts_the_mixed_fleet(tmp_path: Path) -> None:
                             "--run-dir", str(tmp_path / "fleet"), "--check"],
                            cwd=str(ROOT), env=child_env(), capture_output=True, text=True, timeout=90)
     assert check.returncode == 0 and "ok (4 robots" in check.stdout, (check.stdout, check.stderr)
+
+
+DSP_CLASS = "modules.dsp.module:DspModule"
+
+
+@pytest.mark.parametrize("name", [n for n in ROBOT_MANIFESTS if n.startswith("uav")])
+def test_every_task_that_acts_through_the_dsp_relies_on_its_link(name: str) -> None:
+    """Campaign seed 23, sequences 10, 14 and 88 on uav1_lidar_sim.toml: a take-off sent just after the DSP module
+    was killed was accepted while it restarted, its commands went nowhere, and it failed 30 s later ("no
+    progress"). A movement or pan & tilt task must be refused while the DSP link is down, and fail when it exits."""
+    from module_manager.manager import task_modules
+
+    manifest = load_manifest(CONF / name, check_pki=False)
+    links = [m for m, info in manifest.modules.items() if info.spec.cls == DSP_CLASS]
+    assert len(links) == 1, links
+    through_dsp = {task for task, t in manifest.tasks.items() if t.type in ("movement", "pan_tilt")}
+    assert through_dsp, "no task of this UAV acts through the DSP?"
+    relies = task_modules(manifest)
+    assert sorted(task for task in through_dsp if links[0] not in relies[task]) == []
