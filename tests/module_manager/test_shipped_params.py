@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from bbcs.testing import child_env
+from module_manager.manager import task_modules
 from module_manager.manifest import load_manifest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -69,8 +70,6 @@ def test_every_task_that_acts_through_the_dsp_relies_on_its_link(name: str) -> N
     """Campaign seed 23, sequences 10, 14 and 88 on uav1_lidar_sim.toml: a take-off sent just after the DSP module
     was killed was accepted while it restarted, its commands went nowhere, and it failed 30 s later ("no
     progress"). A movement or pan & tilt task must be refused while the DSP link is down, and fail when it exits."""
-    from module_manager.manager import task_modules
-
     manifest = load_manifest(CONF / name, check_pki=False)
     links = [m for m, info in manifest.modules.items() if info.spec.cls == DSP_CLASS]
     assert len(links) == 1, links
