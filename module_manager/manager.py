@@ -56,6 +56,7 @@ from module_manager.route_control import RouteControl
 from module_manager.standby import context_line, standby_argv
 from module_manager.status_lines import print_line
 from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
+from module_manager.task_data import kept
 from module_manager.tasks import TaskBook
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -183,11 +184,20 @@ class Manager(RouteControl, MriService):
         self.modules = {name: _Module(info, Supervisor(info.policy, needs_ack=bool(info.inputs),
                                                            needs_links=bus_links.links(manifest) == "peers"))
                         for name, info in manifest.modules.items()}
-        self.tasks = TaskBook(manifest.tasks, frozenset(n for n, m in manifest.modes.items() if not m.restore))
+        self.mode_fields = {n: frozenset(m.type.__struct_fields__) for n, m in manifest.modes.items()}
+        """Mode slot → its struct's fields: the inputs whose data a task's mode can carry (task_data.py)."""
+        self.mode_streams = {n: self.mode_fields[n] & manifest.modules[m.module].streams
+                             for n, m in manifest.modes.items() if m.module in manifest.modules}
+        """Mode slot → its fields that carry stream data: delivered once, never kept (task_data.kept)."""
+        self.carried_from: dict[str, dict[str, int]] = {}
+        """Mode slot → the fields its current value carries for a task → the slot number each datum came from
+        (a route swapped back to that number sends the mode again: MriService._resend_carried)."""
+        self.tasks = TaskBook(manifest.tasks, frozenset(n for n, m in manifest.modes.items() if not m.restore),
+                              self.mode_streams)
         self.task_uses = task_modules(manifest)
         self.task_lost_with = {name: used - set(manifest.tasks[name].survives) for name, used in self.task_uses.items()}
         """Manifest task → the modules whose exit ends it as failed (its effect lost with them)."""
-        self.modes: dict[str, dict[str, int] | None] = {
+        self.modes: dict[str, dict[str, Any] | None] = {
             name: (msgspec.to_builtins(m.initial) if m.initial is not None else None)
             for name, m in manifest.modes.items()}
         self.telemetry: RobotTelemetry | None = None
@@ -643,6 +653,7 @@ class Manager(RouteControl, MriService):
                         child.close()
                         mod.child = None
                         mod.sup.exited(now, code)
+                        self._keep_without_streams(mod.info.name)
                         self._fail_tasks_using(mod.info.name, f"module {mod.info.name} exited ({code}): "
                                                               "the task's effect is lost")
                         self._touch()
@@ -684,6 +695,18 @@ class Manager(RouteControl, MriService):
             self.out(f"  {name:<11} up without a direct link to {', '.join(others)} after {MESH_WAIT_S:g} s")
         mod.sup.links_formed(now)
         self._touch()
+
+    def _keep_without_streams(self, module: str) -> None:
+        """``module`` exited: its mode slots keep their value without the stream data it carried (a path), so the
+        module restarted gets the mode and its state data but does not fly a path again (task_data.kept)."""
+        for slot, mode in self.m.modes.items():
+            value = self.modes.get(slot)
+            if mode.module != module or value is None:
+                continue
+            left = kept(value, self.mode_streams.get(slot, frozenset()))
+            if left != value:
+                self.modes[slot] = left
+                self._mode_pubs[slot].publish(msgspec.convert(left, mode.type))
 
     def _fail_tasks_using(self, module: str, detail: str) -> None:
         """A module the running tasks rely on went down: those tasks end as failed (their routes/modes restored

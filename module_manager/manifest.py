@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal
 
 import msgspec
 
-from bbcs import IGNORE, ConfDocument, ConfError, InvalidNameError, SlotRef, SlotTable, keys, load_conf
+from bbcs import IGNORE, ConfDocument, ConfError, InvalidNameError, Kind, SlotRef, SlotTable, keys, load_conf
 from bbcs.codec import resolve_type, type_name
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.robot import RobotTelemetry
@@ -267,6 +267,8 @@ class ModuleInfo:
     """routed input slot → struct type name."""
     routes: dict[str, int]
     """initial route of every routed input (-1 where the manifest gives none)."""
+    streams: frozenset[str]
+    """routed inputs that are streams (each datum an event, never re-delivered: a path), not states."""
     error_slot: str | None
     error_type: type[msgspec.Struct] | None
     params_type: type[msgspec.Struct] | None = None
@@ -760,6 +762,7 @@ class _Checker:
         control = cls.control
         fields = dict(control.routes) if control is not None else {}
         inputs = {slot: type_name(cls._inputs[slot].type) for slot in fields.values()}
+        streams = frozenset(slot for slot in inputs if cls._inputs[slot].kind is Kind.STREAM)
         routes = {slot: IGNORE for slot in inputs}
         for slot, number in spec.routes.items():
             rkey = f"{key}.routes.{slot}"
@@ -795,7 +798,7 @@ class _Checker:
         return ModuleInfo(name=name, spec=spec, policy=policy,
                           control_type=control.type if control is not None else None,
                           control_slot=control.slot if control is not None else "control_entrada",
-                          control_fields=fields, inputs=inputs, routes=routes, error_slot=error_slot,
+                          control_fields=fields, inputs=inputs, routes=routes, streams=streams, error_slot=error_slot,
                           error_type=error_type, params_type=params_type, runtime_params=runtime)
 
     def params(self, name: str, cls: Any, params: dict[str, str]) -> None:

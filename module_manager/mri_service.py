@@ -15,8 +15,10 @@ import msgspec
 import zenoh
 
 from bbcs import wire
+from bbcs.codec import resolve_type
 from bbcs.contracts import mri
 from module_manager.supervision import Phase
+from module_manager.task_data import carry, kept
 
 
 class MriService:
@@ -25,6 +27,9 @@ class MriService:
     lock: Any
     modules: Any
     m: Any
+    mode_fields: dict[str, frozenset[str]]
+    mode_streams: dict[str, frozenset[str]]
+    carried_from: dict[str, dict[str, int]]
 
     def _serve_mri(self, queryable: Any) -> None:
         try:
@@ -67,6 +72,8 @@ class MriService:
             return mri.MriReply(ok=True, data=self.route_list())
         if isinstance(req, mri.SwapRoute):
             ok, why = self.apply_routes({(req.module, req.input): req.slot})
+            if ok:
+                self._resend_carried(req.module, req.input, req.slot)
             return mri.MriReply(ok=ok, reason=why, data=self.route_list())
         if isinstance(req, mri.ModuleCommand):
             return self.module_command(req)
@@ -81,6 +88,8 @@ class MriService:
         slot = next((n for n, m in self.m.modes.items() if m.module == req.module), None)
         if slot is None:
             return mri.MriReply(ok=False, reason=f"no mode slot drives module {req.module!r}")
+        with self.lock:
+            self.carried_from.pop(slot, None)
         try:
             ok, why, code = self.publish_mode(slot, req.mode)
         except msgspec.ValidationError as exc:
@@ -132,7 +141,9 @@ class MriService:
                             data=status)
 
     def task_request(self, req: mri.SetTask | mri.EndTask) -> mri.MriReply:
-        """Start or end a task in the task book (the only one), then apply its routes and modes."""
+        """Start or end a task in the task book (the only one), then apply its routes and modes (a started task's
+        data inside its modes where they can be: module_manager/task_data.py)."""
+        carried: list[str] = []
         with self.lock:
             routes = {(n, i): v for n, m in self.modules.items() for i, v in m.routes.items()}
             modes = dict(self.modes)
@@ -147,7 +158,22 @@ class MriService:
                         why = f": {sup.reason}" if sup.reason else ""
                         return mri.MriReply(ok=False, reason=f"task {req.name!r} needs module {name}, which is "
                                                              f"{sup.state}{why}", data=self.task_list())
+                data = self._task_data(req)
+                if isinstance(data, str):
+                    return mri.MriReply(ok=False, reason=data, data=self.task_list())
                 changes = self.tasks.start(req.name, req.params, now, routes, modes, req.origin, req.replaced_as)
+                task_type = self.m.tasks[req.name].type
+                inside = carry(data, self.m.tasks[req.name].modes, {n: m.module for n, m in self.m.modes.items()},
+                               self.mode_fields, {**routes, **changes.routes}) if data else None
+                for slot in changes.modes:
+                    self.carried_from.pop(slot, None)
+                if inside:
+                    changes = self.tasks.carry(task_type, changes, inside)
+                    carried = list(req.data)
+                    after = {**routes, **changes.routes}
+                    for slot, fields in inside.items():
+                        module = self.m.modes[slot].module
+                        self.carried_from[slot] = {f: after[(module, f)] for f in fields}
             else:
                 if req.task_type not in self.m.task_types:
                     return mri.MriReply(ok=False, reason=f"unknown task type {req.task_type!r}")
@@ -165,4 +191,36 @@ class MriService:
                 self._touch()
             if undo is not None:
                 self.apply_changes(undo, ending=True)
-        return mri.MriReply(ok=ok, reason=why, code=code, data=self.task_list())
+        return mri.MriReply(ok=ok, reason=why, code=code, data=self.task_list(), carried=carried if ok else [])
+
+    def _resend_carried(self, module: str, input_slot: str, number: int) -> None:
+        """``module``'s ``input_slot`` was routed back to the slot whose datum its task's mode carries: that datum
+        lives in the mode, not in the source slot (module_manager/task_data.py), so the mode is sent again with
+        it, as delivered (without stream data): the module acts on the task's data again, as a re-read would."""
+        with self.lock:
+            slot = next((n for n, m in self.m.modes.items() if m.module == module
+                         and self.carried_from.get(n, {}).get(input_slot) == number), None)
+            value = self.modes.get(slot) if slot is not None else None
+        if slot is not None and value is not None:
+            origins = self.carried_from.get(slot, {})
+            self.publish_mode(slot, kept(value, self.mode_streams.get(slot, frozenset())) or {})
+            with self.lock:
+                self.carried_from[slot] = origins
+
+    def _task_data(self, req: mri.SetTask) -> dict[int, Any] | str:
+        """``req.data`` by slot number, each decoded as its slot's struct (decode is validation), as builtins for a
+        mode's fields; a datum the slot table has no slot of the sender's for is left out (the sender publishes
+        it). Why the task is refused, if a datum does not decode."""
+        numbers = {(ref.module, ref.slot): n for n, ref in self.m.slot_table.slots.items() if ref.robot is None}
+        out: dict[int, Any] = {}
+        for name, raw in req.data.items():
+            number = numbers.get((req.sender, name))
+            if number is None:
+                return {}
+            ref = self.m.slot_table.slots[number]
+            try:
+                value = msgspec.msgpack.decode(raw, type=resolve_type(ref.type))
+            except (msgspec.MsgspecError, LookupError) as exc:
+                return f"task {req.name!r}: its {name} datum is not a valid {ref.type}: {exc}"
+            out[number] = msgspec.to_builtins(value)
+        return out

@@ -30,6 +30,7 @@ class RouteControl:
     lock: Any
     modules: Any
     m: Any
+    carried_from: dict[str, dict[str, int]]
 
     def _control_value(self, mod: _Module) -> msgspec.Struct:
         assert mod.info.control_type is not None
@@ -97,11 +98,11 @@ class RouteControl:
                     return False, f"no route acknowledgement within {ACK_TIMEOUT_S:g} s (module {mod.sup.state})"
                 self.changed.wait(min(left, 0.1))
 
-    def publish_mode(self, slot: str, value: dict[str, int]) -> tuple[bool, str, int | None]:
+    def publish_mode(self, slot: str, value: dict[str, Any]) -> tuple[bool, str, int | None]:
         """Publish a mode; when its module answers modes (``ack``), wait for the answer: (ok, why, code)."""
         mode = self.m.modes[slot]
         struct = msgspec.convert(value, mode.type)
-        wanted = msgspec.to_builtins(struct)
+        wanted = mri.mode_echo(struct)
         with self.lock:
             self._mode_acks[mode.module] = None
             previous = self.modes.get(slot)
@@ -129,6 +130,7 @@ class RouteControl:
         """Delete a mode slot's latched value (its task ended): its module is told nothing (no mode, no answer
         awaited) and a module restarted later gets no mode to run again (docs/gcs.md, "When a task ends")."""
         with self.lock:
+            self.carried_from.pop(slot, None)
             if self.modes.get(slot) is not None:
                 self._mode_pubs[slot].withdraw()
                 self.modes[slot] = None

@@ -26,12 +26,15 @@ the track's target with no task behind it).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import msgspec
 
 from bbcs.contracts.tasks import Origin, TaskInfo, TaskParams, kind_of
 from module_manager.manifest import TaskDef
+from module_manager.task_data import kept
 
 RouteKey = tuple[str, str]
 """(module, input slot)."""
@@ -63,7 +66,7 @@ def ending(task_name: str, task_type: str, status: str, stop: str | None) -> str
 @dataclass(frozen=True)
 class Changes:
     routes: dict[RouteKey, int] = field(default_factory=dict)
-    modes: dict[str, dict[str, int] | None] = field(default_factory=dict)
+    modes: dict[str, dict[str, Any] | None] = field(default_factory=dict)
     """mode slot → fields to publish (None: the slot had no value before; nothing to publish)."""
     withdraw: frozenset[str] = frozenset()
     """mode slots whose latched value is withdrawn (a delete: no value, nothing sent): the movement task that set
@@ -74,21 +77,27 @@ class Changes:
 class _Running:
     task: TaskInfo
     saved_routes: dict[RouteKey, int]
-    saved_modes: dict[str, dict[str, int] | None]
+    saved_modes: dict[str, dict[str, Any] | None]
+    modes: dict[str, dict[str, Any]]
+    """What the task set on each mode slot: the manifest's values, and the data they carry without their stream
+    data (what it shows again when a task over it ends: module_manager/task_data.py)."""
 
 
 class TaskBook:
     """The running task of each type, what it replaced, and the recently ended tasks."""
 
-    def __init__(self, tasks: dict[str, TaskDef], no_restore: frozenset[str] = frozenset()) -> None:
+    def __init__(self, tasks: dict[str, TaskDef], no_restore: frozenset[str] = frozenset(),
+                 streams: Mapping[str, frozenset[str]] | None = None) -> None:
         """``no_restore``: mode slots whose old value is never re-published when a task ends (manifest
-        ``restore = false``); a moving type's modes are never re-published whatever it says (:func:`ending`)."""
+        ``restore = false``); a moving type's modes are never re-published whatever it says (:func:`ending`).
+        ``streams``: per mode slot, its fields that carry stream data (never shown again)."""
         self.tasks = tasks
         self.no_restore = no_restore
+        self.streams = dict(streams or {})
         self.stop = stop_task(tasks)
         self._running: dict[str, _Running] = {}
         self._base_routes: dict[RouteKey, int] = {}
-        self._base_modes: dict[str, dict[str, int] | None] = {}
+        self._base_modes: dict[str, dict[str, Any] | None] = {}
         """Each layered slot's value before the running tasks that set it: restored when the last of them ends."""
         self.ended: deque[TaskInfo] = deque(maxlen=MAX_ENDED)
         self.next_id = 1
@@ -102,7 +111,7 @@ class TaskBook:
         return None if run is None else run.task
 
     def start(self, name: str, params: TaskParams | None, now: float, routes: dict[RouteKey, int],
-              modes: dict[str, dict[str, int] | None], origin: Origin = "mri",
+              modes: dict[str, dict[str, Any] | None], origin: Origin = "mri",
               replaced_as: str = "replaced") -> Changes:
         """Changes that start task ``name`` given the current ``routes``/``modes``; KeyError if unknown."""
         t = self.tasks[name]
@@ -115,18 +124,31 @@ class TaskBook:
         base_modes = {**modes, **restore.modes}
         wanted_routes = {_split(target): number for target, number in t.routes.items()}
         saved_routes = {k: base_routes.get(k, -1) for k in wanted_routes}
-        saved_modes = {slot: base_modes.get(slot) for slot in t.modes if slot not in self.no_restore}
+        saved_modes = {slot: kept(base_modes.get(slot), self.streams.get(slot, frozenset()))
+                       for slot in t.modes if slot not in self.no_restore}
         for key, value in saved_routes.items():
             if self._top_route(key) is None:
                 self._base_routes[key] = value
         for slot, mode in saved_modes.items():
             if self._top_mode(slot) is None:
                 self._base_modes[slot] = mode
-        self._running[t.type] = _Running(task, saved_routes, saved_modes)
+        self._running[t.type] = _Running(task, saved_routes, saved_modes, {k: dict(v) for k, v in t.modes.items()})
         self.version += 1
         return Changes(routes={**restore.routes, **wanted_routes},
                        modes={**restore.modes, **{slot: dict(v) for slot, v in t.modes.items()}},
                        withdraw=restore.withdraw - set(t.modes))
+
+    def carry(self, task_type: str, changes: Changes, data: Mapping[str, Mapping[str, Any]]) -> Changes:
+        """``changes`` (what starting the running task of ``task_type`` changes) with ``data`` (mode slot → fields,
+        :func:`module_manager.task_data.carry`) inside the task's modes; the task's layer keeps them without their
+        stream data."""
+        run = self._running[task_type]
+        modes = dict(changes.modes)
+        for slot, fields in data.items():
+            full = {**run.modes[slot], **fields}
+            modes[slot] = full
+            run.modes[slot] = kept(full, self.streams.get(slot, frozenset())) or {}
+        return Changes(routes=changes.routes, modes=modes, withdraw=changes.withdraw)
 
     def end(self, task_type: str, now: float = 0.0, status: str = "cancelled", detail: str = "") -> Changes:
         """Changes that end the running task of ``task_type`` (:func:`ending`); KeyError if none runs."""
@@ -141,7 +163,7 @@ class TaskBook:
             if self._top_mode(slot) is None:
                 self._base_modes.pop(slot, None)
         stop = self.tasks[self.stop].modes if effect == "stop" and self.stop is not None else {}
-        modes: dict[str, dict[str, int] | None] = {slot: dict(v) for slot, v in stop.items()}
+        modes: dict[str, dict[str, Any] | None] = {slot: dict(v) for slot, v in stop.items()}
         withdraw = frozenset(self.tasks[running.task.name].modes) - set(modes)
         return Changes(routes=routes, modes=modes, withdraw=withdraw)
 
@@ -167,15 +189,15 @@ class TaskBook:
                 out[key] = next(n for target, n in self.tasks[top.task.name].routes.items() if _split(target) == key)
         return out
 
-    def _unlayer_modes(self, ended: _Running) -> dict[str, dict[str, int] | None]:
+    def _unlayer_modes(self, ended: _Running) -> dict[str, dict[str, Any] | None]:
         """The restored modes that change when ``ended`` (no longer running) is taken off its layers."""
-        out: dict[str, dict[str, int] | None] = {}
+        out: dict[str, dict[str, Any] | None] = {}
         for slot, saved in ended.saved_modes.items():
             top = self._top_mode(slot)
             if top is None:
                 out[slot] = self._base_modes.pop(slot, saved)
             elif top.task.id < ended.task.id:
-                out[slot] = dict(self.tasks[top.task.name].modes[slot])
+                out[slot] = dict(top.modes[slot])
         return out
 
     def fail_needing(self, modules: set[str], uses: dict[str, set[str]], now: float, detail: str) -> list[Changes]:

@@ -1,5 +1,6 @@
 """The GRI service: a ground station's task requests admitted (ral/tasks.py), sent to the Module Manager as MRI
-requests, their data published once the manager accepted them; abort, cancel, module restarts; the ground-station
+requests with their data (carried inside the task's modes where the manifest allows, else published once the
+manager accepted them); abort, cancel, module restarts; the ground-station
 link and the failsafe it runs. A mixin of :class:`ral.module.Ral`: its state lives there; one worker thread
 serves the requests in arrival order."""
 
@@ -29,6 +30,7 @@ from bbcs.contracts.path_follower import (
     DatosSegCam,
     HeadingSegCam,
     RefsSegCam,
+    SpeedSegCam,
 )
 from ral.config import (
     RESTART_CONFIRM_S,
@@ -51,6 +53,25 @@ def events_publisher(session: zenoh.Session, robot: str) -> Publisher[gri.GriEve
     """The robot's GRI event stream: a safe stream whose last ``EVENTS_REPLAY`` events are kept for replay."""
     return Publisher(session, gri.events_key(robot),
                      SlotSpec("events", gri.GriEvent, Direction.OUT, Kind.STREAM, Safety.SAFE), replay=EVENTS_REPLAY)
+
+
+def task_data(req: t.TaskParams) -> dict[str, msgspec.Struct]:
+    """A task's data, by the RAL output slot each is published on (what the manager may carry inside the task's
+    mode instead: ``SetTask.data``). In the order they go out when published: speed, heading, path, angles."""
+    out: dict[str, msgspec.Struct] = {}
+    if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath | t.Survey | t.Orbit):
+        assert req.speed is not None, "admission fills in the cruise speed"
+        out["speed"] = SpeedSegCam(speed=req.speed)
+    if isinstance(req, t.FollowPath) and req.heading is not None:
+        out["heading"] = HeadingSegCam(heading=req.heading)
+    if isinstance(req, t.Goto | t.FollowPath):
+        out["path"] = DatosSegCam(n_points=len(req.waypoints), puntos=[
+            DatoPuntoSegCam(latitud=w.lat, longitud=w.lon, altura=w.alt) for w in req.waypoints])
+    elif isinstance(req, t.LookAt):
+        out["pt_datos"] = DatosPT(latitud=req.lat, longitud=req.lon, altura=req.alt)
+    elif isinstance(req, t.SetPanTilt):
+        out["pt_datos"] = DatosPT(ref_pan=req.pan, ref_tilt=req.tilt)
+    return out
 
 
 class GriService:
@@ -113,7 +134,9 @@ class GriService:
             if why is not None:
                 self.emit("task_rejected", task_type=plan.task_type, detail=why)
                 return gri.TaskReply(accepted=False, reason=why, task_type=plan.task_type)
-        reply = self._mri("task", mri.SetTask(name=plan.name, params=plan.params, origin=origin))
+        data = task_data(plan.params)
+        reply = self._mri("task", mri.SetTask(name=plan.name, params=plan.params, origin=origin, data={
+            slot: msgspec.Raw(msgspec.msgpack.encode(value)) for slot, value in data.items()}))
         if reply is None or not reply.ok:
             reason = (
                 "Module Manager did not answer"
@@ -128,7 +151,7 @@ class GriService:
         running = next((i for i in reply.data.active if i.task_type == plan.task_type), None) if isinstance(
             reply.data, mri.TaskList) else None
         task_id = running.id if running else 0
-        problem = self._publish_data(plan, task_id)
+        problem = self._publish_data(plan, task_id, {k: v for k, v in data.items() if k not in reply.carried})
         if problem is not None:
             if running is not None:
                 self._end(mri.EndTask(task_type=plan.task_type, task_id=task_id, status="failed", detail=problem))
@@ -151,32 +174,28 @@ class GriService:
                     "empty)")
         return None
 
-    def _publish_data(self, plan: Plan, task_id: int = 0) -> str | None:
-        """The task's data, after the manager's reply (so after the module answered the task's mode). A path's
-        speed goes first and is acknowledged before the path (docs/gcs.md, "Speed before path"). Returns None, or
-        why the task's data could not go out."""
+    def _publish_data(self, plan: Plan, task_id: int, data: dict[str, msgspec.Struct]) -> str | None:
+        """After the manager's reply: the task's ``data`` its modes did not carry, on the RAL's slots (the module
+        answered the task's mode, so they are handled under it), then what follows a task's start (a survey's
+        path request, a bridge's references). A path's speed goes first and is acknowledged before the path
+        (docs/gcs.md, "Speed before path"). Returns None, or why the task's data could not go out."""
         req = plan.params
         self.publish("task", t.TaskData(task_id=task_id, params=req))
-        if isinstance(req, t.Goto | t.FollowPath | t.FollowVisionPath | t.Survey | t.Orbit):
-            assert req.speed is not None, "admission fills in the cruise speed"
-            problem = self._send_speed(req.speed)
+        speed = data.get("speed")
+        if isinstance(speed, SpeedSegCam):
+            problem = self._send_speed(speed.speed)
             if problem is not None:
                 return problem
         if isinstance(req, t.Survey | t.Orbit):
             return self._request_path(req, task_id)
-        if isinstance(req, t.FollowPath) and req.heading is not None:
-            self.publish("heading", HeadingSegCam(heading=req.heading))
-        if isinstance(req, t.Goto | t.FollowPath):
-            points = [DatoPuntoSegCam(latitud=w.lat, longitud=w.lon, altura=w.alt) for w in req.waypoints]
-            self.publish("path", DatosSegCam(n_points=len(points), puntos=points))
-        elif isinstance(req, t.Bridge) and self._refs_pub is not None:
+        for slot in ("heading", "path", "pt_datos"):
+            if slot in data:
+                self.publish(slot, data[slot])
+        if isinstance(req, t.Bridge) and self._refs_pub is not None:
             self._refs_pub.publish(RefsSegCam(ref_altura=req.ref_altitude, error_longitudinal=req.error_longitudinal,
                                               error_lateral=req.error_lateral, ref_heading=req.ref_heading,
                                               ref_rpm_motor=req.ref_rpm_motor))
-        elif isinstance(req, t.LookAt):
-            self.publish("pt_datos", DatosPT(latitud=req.lat, longitud=req.lon, altura=req.alt))
-        elif isinstance(req, t.SetPanTilt):
-            self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
+        if isinstance(req, t.SetPanTilt):
             with self.lock:
                 self._pt_sent[task_id] = self.clock()
         return None

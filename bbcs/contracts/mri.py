@@ -18,7 +18,7 @@ msgpack; every reply is an :class:`MriReply` (``ok``, or ``ok=False`` with a rea
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import msgspec
 import zenoh
@@ -78,6 +78,14 @@ class SetTask(msgspec.Struct, frozen=True, kw_only=True, tag=True):
     origin: Origin = "mri"
     replaced_as: Literal["replaced", "aborted"] = "replaced"
     """How the task it replaces is recorded as having ended (an abort ends it as ``aborted``)."""
+    data: dict[str, msgspec.Raw] = msgspec.field(default_factory=dict)
+    """The task's data, by the name of ``sender``'s output slot each would be published on, each the msgpack of that
+    slot's struct. Where every one of them reaches a module input the task's mode can carry (the mode struct has a
+    field of the input's name), the manager sends them inside the mode: mode and data in one message, four hops
+    from the ground station to the DSP (docs/bus.md, "The command path"). The reply's ``carried`` names them; the
+    sender publishes the others on its slots."""
+    sender: str = "ral"
+    """The module whose output slots ``data`` names (the slot table maps its slots to numbers)."""
 
 
 class EndTask(msgspec.Struct, frozen=True, kw_only=True, tag=True):
@@ -183,15 +191,22 @@ MODE_ACK_SLOT = "mode_ack"
 
 
 class ModeAck(msgspec.Struct, frozen=True, kw_only=True):
-    """A module's answer to one mode (its fields as received): applied, or refused with its error code and why.
+    """A module's answer to one mode (its fields as received, carried data included): applied, or refused with its
+    error code and why.
 
     Published after the module has applied the mode, from the thread that handles its data: anything sent after
     this answer is handled under the new mode."""
 
-    mode: dict[str, int]
+    mode: dict[str, Any]
     accepted: bool
     code: int | None = None
     reason: str = ""
+
+
+def mode_echo(mode: msgspec.Struct) -> dict[str, Any]:
+    """A mode as its :class:`ModeAck` echoes it: its fields, the data it carries included, the absent (None) ones
+    left out, so a mode without data echoes as it always did (``{"modo_de_funcionamiento": 1}``)."""
+    return {k: v for k, v in msgspec.to_builtins(mode).items() if v is not None}
 
 
 class MriReply(msgspec.Struct, frozen=True, kw_only=True):
@@ -200,6 +215,8 @@ class MriReply(msgspec.Struct, frozen=True, kw_only=True):
     code: int | None = None
     """The refusing module's error code, when a module refused the request."""
     data: ModuleList | RouteList | ModuleStatus | TaskList | ParamList | None = None
+    carried: list[str] = msgspec.field(default_factory=list)
+    """SetTask: which of its ``data`` went to the modules inside the task's modes (all or none of them)."""
 
 
 _request_decoder = msgspec.msgpack.Decoder(MriRequest)

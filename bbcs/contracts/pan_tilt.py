@@ -23,13 +23,6 @@ class ControlEntradaPT(msgspec.Struct, frozen=True, kw_only=True):
     slot_entrada_datos: SlotNumber = -1
 
 
-class ModoFuncionamientoPT(msgspec.Struct, frozen=True, kw_only=True):
-    """MODO_FUNCIONAMIENTO_PT: 0 angle references from DATOS; 1 point at the GPS target in DATOS;
-    2 hold the current orientation with respect to local axes."""
-
-    modo_de_funcionamiento: Annotated[int, msgspec.Meta(ge=0, le=2)]
-
-
 class DatosPT(msgspec.Struct, frozen=True, kw_only=True):
     """DATOS_PT: angle references (degrees) for mode 0, target point (WGS84 degrees, metres) for mode 1."""
 
@@ -38,3 +31,14 @@ class DatosPT(msgspec.Struct, frozen=True, kw_only=True):
     latitud: Latitude = 0.0
     longitud: Longitude = 0.0
     altura: float = 0.0
+
+
+class ModoFuncionamientoPT(msgspec.Struct, frozen=True, kw_only=True):
+    """MODO_FUNCIONAMIENTO_PT: 0 angle references from DATOS; 1 point at the GPS target in DATOS;
+    2 hold the current orientation with respect to local axes."""
+
+    modo_de_funcionamiento: Annotated[int, msgspec.Meta(ge=0, le=2)]
+    datos: DatosPT | None = None
+    """The task's DATOS, carried with its mode (the four-hop command path, docs/bus.md): applied right after the
+    mode, in the same DSP batch; a bad one refuses the whole message. None: the mode alone (DATOS arrive on their
+    routed input, as from vision)."""

@@ -24,17 +24,6 @@ class ControlEntradaSegCam(msgspec.Struct, frozen=True, kw_only=True):
     slot_entrada_datos: SlotNumber = -1
 
 
-class ControlModoSegCam(msgspec.Struct, frozen=True, kw_only=True):
-    """CONTROL_MODO_SEG_CAM. ``modo_o_comando``: 0 change the operating mode, 1 a command.
-    ``modo_de_funcionamiento``: 0 path following, DSP computes heading; 1 path following, heading from the
-    HEADING slot; 2 semi-automatic; 3 onboard path follower; 4 take-off; 5 landing; 6 bridge.
-    ``numero_de_comando``: 0 abort (empty the waypoint queues of the DSP and the onboard computer)."""
-
-    modo_o_comando: Annotated[int, msgspec.Meta(ge=0, le=1)]
-    modo_de_funcionamiento: Annotated[int, msgspec.Meta(ge=0, le=6)] = 0
-    numero_de_comando: Annotated[int, msgspec.Meta(ge=0, le=0)] = 0
-
-
 class HeadingSegCam(msgspec.Struct, frozen=True, kw_only=True):
     """HEADING_SEG_CAM: heading in radians, [-π, π); sent to the DSP in degrees, only in mode 1."""
 
@@ -78,6 +67,25 @@ class DatosSegCam(msgspec.Struct, frozen=True, kw_only=True):
 
     n_points: Annotated[int, msgspec.Meta(ge=1, le=2**32 - 1)]
     puntos: list[DatoPuntoSegCam]
+
+
+class ControlModoSegCam(msgspec.Struct, frozen=True, kw_only=True):
+    """CONTROL_MODO_SEG_CAM. ``modo_o_comando``: 0 change the operating mode, 1 a command.
+    ``modo_de_funcionamiento``: 0 path following, DSP computes heading; 1 path following, heading from the
+    HEADING slot; 2 semi-automatic; 3 onboard path follower; 4 take-off; 5 landing; 6 bridge.
+    ``numero_de_comando``: 0 abort (empty the waypoint queues of the DSP and the onboard computer)."""
+
+    modo_o_comando: Annotated[int, msgspec.Meta(ge=0, le=1)]
+    modo_de_funcionamiento: Annotated[int, msgspec.Meta(ge=0, le=6)] = 0
+    numero_de_comando: Annotated[int, msgspec.Meta(ge=0, le=0)] = 0
+    velocidad: SpeedSegCam | None = None
+    heading: HeadingSegCam | None = None
+    datos: DatosSegCam | None = None
+    """The task's data, carried with its mode (the four-hop command path, docs/bus.md): each field is what the
+    same-named input would carry, applied right after the mode in this order (speed, heading, path), so the path is
+    flown at its speed. Any bad one refuses the whole message and nothing is sent. None: that datum comes on its
+    routed input, if at all (a source such as vision). A module restarted later gets the mode without its path
+    (the Module Manager drops a delivered stream datum from the slot's kept value)."""
 
 
 class RefsSegCam(msgspec.Struct, frozen=True, kw_only=True):

@@ -20,6 +20,11 @@ FIELD_CODES: dict[tuple[str, str], PanTiltError] = {
     ("control_entrada", "slot_entrada_control_modos"): PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE,
     ("control_entrada", "slot_entrada_datos"): PanTiltError.CONTROL_ENTRADA_OUT_OF_RANGE,
     ("control_modo", "modo_de_funcionamiento"): PanTiltError.MODE_OUT_OF_RANGE,
+    # the DATOS a mode carries: the same codes as on their own input
+    ("control_modo", "ref_pan"): PanTiltError.REF_PAN_OUT_OF_RANGE,
+    ("control_modo", "ref_tilt"): PanTiltError.REF_TILT_OUT_OF_RANGE,
+    ("control_modo", "latitud"): PanTiltError.LATITUD_OUT_OF_RANGE,
+    ("control_modo", "longitud"): PanTiltError.LONGITUD_OUT_OF_RANGE,
     ("datos", "ref_pan"): PanTiltError.REF_PAN_OUT_OF_RANGE,
     ("datos", "ref_tilt"): PanTiltError.REF_TILT_OUT_OF_RANGE,
     ("datos", "latitud"): PanTiltError.LATITUD_OUT_OF_RANGE,
@@ -52,13 +57,21 @@ class Decision:
 
 
 def on_control_modo(state: PanTiltState, msg: ModoFuncionamientoPT) -> Decision:
-    """CONTROL_MODO: passed to the DSP as it is."""
+    """CONTROL_MODO: passed to the DSP as it is; the DATOS it carries (a task's, docs/bus.md) follow it in the same
+    decision, handled under the new mode. A carried datum in error refuses the whole message: no command, the mode
+    kept."""
     mode = p.PanTiltMode(msg.modo_de_funcionamiento)
-    return Decision(
+    decision = Decision(
         PanTiltState(mode=int(mode), mode_from_command=True),
         (p.SetPanTiltMode(mode=mode),),
         detail=f"pan & tilt mode {mode.name}",
     )
+    if msg.datos is None:
+        return decision
+    data = on_datos(decision.state, msg.datos)
+    if data.errors:
+        return Decision(state, errors=data.errors, detail=f"mode {mode.name} refused: {data.detail}")
+    return Decision(data.state, decision.commands + data.commands, detail=f"{decision.detail}, {data.detail}")
 
 
 def on_datos(state: PanTiltState, msg: DatosPT) -> Decision:

@@ -16,7 +16,7 @@ import msgspec
 from bbcs import Control, InputSlot, Module, OutputSlot, Safety, dsp_client
 from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
-from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
+from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck, mode_echo
 from bbcs.contracts.pan_tilt import ControlEntradaPT, DatosPT, ModoFuncionamientoPT
 from modules.pan_tilt import logic
 
@@ -46,7 +46,7 @@ class PanTiltModule(Module):
     def _ack_mode(self, msg: msgspec.Struct, decision: logic.Decision) -> None:
         """Answer the mode on MODE_ACK (after applying it): the manager's barrier before data for the new mode."""
         code = decision.errors[0] if decision.errors else None
-        self.publish(MODE_ACK_SLOT, ModeAck(mode=msgspec.to_builtins(msg), accepted=code is None, code=code,
+        self.publish(MODE_ACK_SLOT, ModeAck(mode=mode_echo(msg), accepted=code is None, code=code,
                                             reason=decision.detail if code is not None else ""))
 
     def _apply(self, decision: logic.Decision) -> None:

@@ -48,6 +48,12 @@ FIELD_CODES: dict[tuple[str, str], FollowerError] = {
     ("control_modo", "modo_o_comando"): FollowerError.MODO_O_COMANDO_OUT_OF_RANGE,
     ("control_modo", "modo_de_funcionamiento"): FollowerError.MODE_OUT_OF_RANGE,
     ("control_modo", "numero_de_comando"): FollowerError.COMMAND_OUT_OF_RANGE,
+    # the data a mode carries: the same codes as on their own inputs
+    ("control_modo", "heading"): FollowerError.HEADING_OUT_OF_RANGE,
+    ("control_modo", "speed"): FollowerError.SPEED_OUT_OF_RANGE,
+    ("control_modo", "n_points"): FollowerError.N_POINTS_OUT_OF_RANGE,
+    ("control_modo", "latitud"): FollowerError.LATITUD_OUT_OF_RANGE,
+    ("control_modo", "longitud"): FollowerError.LONGITUD_OUT_OF_RANGE,
     ("heading", "heading"): FollowerError.HEADING_OUT_OF_RANGE,
     ("velocidad", "speed"): FollowerError.SPEED_OUT_OF_RANGE,
     ("datos", "n_points"): FollowerError.N_POINTS_OUT_OF_RANGE,
@@ -124,6 +130,28 @@ def on_control_modo(state: FollowerState, msg: ControlModoSegCam) -> Decision:
     else:  # BRIDGE
         cmds = (p.SetMode(mode=mode),)
     return Decision(new, cmds, detail=f"mode {mode.name}")
+
+
+def on_mode_message(state: FollowerState, msg: ControlModoSegCam, max_speed: float) -> tuple[Decision, Decision]:
+    """A CONTROL_MODO and the task data it carries (docs/bus.md, "The command path"): the mode's decision, then the
+    data's, handled under the new mode in the order speed, heading, path (so the path is flown at its speed). Two
+    decisions, so the mode goes out as its own batch (a DSP refusal of it restores the mode before). A carried datum
+    in error refuses the whole message: the first decision holds its code and no command, the state is unchanged."""
+    mode = on_control_modo(state, msg)
+    empty = Decision(mode.state)
+    if mode.errors or (msg.velocidad is None and msg.heading is None and msg.datos is None):
+        return mode, empty
+    new, commands, details = mode.state, (), []
+    parts = ((msg.velocidad, lambda s, v: on_velocidad(s, v, max_speed)), (msg.heading, on_heading),
+             (msg.datos, on_datos))
+    for datum, handle in parts:
+        if datum is None:
+            continue
+        data = handle(new, datum)
+        if data.errors:
+            return Decision(state, errors=data.errors, detail=f"{mode.detail} refused: {data.detail}"), Decision(state)
+        new, commands, details = data.state, commands + data.commands, [*details, data.detail]
+    return mode, Decision(new, commands, detail=", ".join(details))
 
 
 def on_heading(state: FollowerState, msg: HeadingSegCam) -> Decision:

@@ -18,7 +18,7 @@ import msgspec
 from bbcs import ConfError, Control, InputSlot, Kind, Module, OutputSlot, Safety, dsp_client, load_conf
 from bbcs.contracts import dsp as p
 from bbcs.contracts.errors import ErrorReport
-from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck
+from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck, mode_echo
 from bbcs.contracts.path_follower import (
     SPEED_ACK_SLOT,
     ControlEntradaSegCam,
@@ -102,7 +102,7 @@ class PathFollowerModule(Module):
     def _ack_mode(self, msg: msgspec.Struct, decision: logic.Decision) -> None:
         """Answer the mode on MODE_ACK (after applying it): the manager's barrier before data for the new mode."""
         code = decision.errors[0] if decision.errors else None
-        self.publish(MODE_ACK_SLOT, ModeAck(mode=msgspec.to_builtins(msg), accepted=code is None, code=code,
+        self.publish(MODE_ACK_SLOT, ModeAck(mode=mode_echo(msg), accepted=code is None, code=code,
                                             reason=decision.detail if code is not None else ""))
 
     def _apply(self, decision: logic.Decision) -> int | None:
@@ -116,8 +116,14 @@ class PathFollowerModule(Module):
 
     def on_control_modo(self, msg: ControlModoSegCam) -> None:
         before = self.state.mode
-        decision = logic.on_control_modo(self.state, msg)
+        decision, data = logic.on_mode_message(self.state, msg, self.max_speed)
         batch = self._apply(decision)
+        if not decision.errors:  # the task's data it carries, under the new mode (a batch of their own)
+            if msg.velocidad is not None:
+                self.onboard.set_speed(msg.velocidad.speed)
+            if msg.heading is not None:
+                self.onboard.set_heading(msg.heading.heading)
+            self._apply(data)
         self._ack_mode(msg, decision)
         if batch is not None and msg.modo_o_comando == logic.MODE_CHANGE:
             self._mode_batches[batch] = before

@@ -261,3 +261,22 @@ def test_a_task_ending_under_another_changes_nothing_and_the_last_one_restores_t
     robot.start("track", t.Track())
     assert robot.end("pan_tilt", "cancelled") == [] and robot.routes[("pt", "datos")] == 20
     assert robot.end("perception", "cancelled") == [{"pt_mode": {"m": 2}}] and robot.routes[("pt", "datos")] == 10
+
+
+def test_a_task_under_another_shows_its_carried_state_data_again_but_never_its_path() -> None:
+    """The data a task's mode carried (task_data.py) are part of its layer: when a task over it ends, its mode is
+    shown again with them (the gimbal points at the task's angles again), but a stream datum (a path) is never
+    flown twice."""
+    tasks = {
+        "angles": TaskDef(type="pan_tilt", routes={"pt.datos": 10}, modes={"pt_mode": {"m": 0}}),
+        "track": TaskDef(type="perception", routes={"pt.datos": 20}, modes={"pt_mode": {"m": 1}}),
+    }
+    book = TaskBook(tasks, streams={"pt_mode": frozenset({"path"})})
+    ch = book.start("angles", t.SetPanTilt(pan=30.0, tilt=-20.0), 1.0, {("pt", "datos"): 10}, {"pt_mode": {"m": 2}})
+    ch = book.carry("pan_tilt", ch, {"pt_mode": {"datos": {"ref_pan": 30.0}, "path": [1, 2]}})
+    assert ch.modes == {"pt_mode": {"m": 0, "datos": {"ref_pan": 30.0}, "path": [1, 2]}}, "sent whole"
+    book.start("track", t.Track(), 2.0, {("pt", "datos"): 10}, {"pt_mode": ch.modes["pt_mode"]})
+    back = book.end("perception")
+    assert back.modes == {"pt_mode": {"m": 0, "datos": {"ref_pan": 30.0}}}
+    assert back.routes == {("pt", "datos"): 10}
+    assert book.end("pan_tilt").modes == {"pt_mode": {"m": 2}}, "the rest mode, as before the first task"

@@ -45,6 +45,8 @@ class StandIn:
     answer_speed: bool = True
     """Answer the RAL's speed as the path follower does (SpeedAck); False: a path follower that never answers."""
     speed_ack_pub: Publisher | None = None
+    carry: bool = False
+    """Answer a SetTask as a manager whose modes carry all its data (``MriReply.carried``)."""
 
     def start(self) -> None:
         for verb in ("tasks", "task"):
@@ -73,7 +75,7 @@ class StandIn:
             reply = mri.MriReply(ok=False, reason=self.refuse, code=117)
         elif isinstance(request, mri.SetTask):
             self.book.start(request.name, request.params, 0.0, {}, {}, request.origin, request.replaced_as)
-            reply = mri.MriReply(ok=True, data=self.task_list())
+            reply = mri.MriReply(ok=True, data=self.task_list(), carried=list(request.data) if self.carry else [])
         elif isinstance(request, mri.EndTask):
             running = self.book.running(request.task_type)
             if running is None or (request.task_id and running.id != request.task_id):

@@ -21,7 +21,7 @@ import pytest
 from bbcs import keys
 from bbcs.context import ModuleContext
 from bbcs.contracts import gri, mri
-from bbcs.contracts.path_follower import DatosSegCam
+from bbcs.contracts.path_follower import DatosSegCam, SpeedSegCam
 from bbcs.contracts.robot import GeoPoint, RobotTelemetry
 from bbcs.session import local_client, open_session
 from bbcs.testing import wait_until
@@ -101,9 +101,11 @@ def test_goto_is_sent_to_the_manager_published_and_completed_from_telemetry(rig:
         task = ten_waypoints()
         reply = rig.gcs.send(ROBOT, task)
         assert reply.accepted and reply.task_type == "movement" and reply.task_id > 0
-        assert rig.manager.set_tasks()[-1] == mri.SetTask(name="goto", params=task, origin="gcs"), (
-            "the typed task travels to the manager"
-        )
+        sent = rig.manager.set_tasks()[-1]
+        assert (sent.name, sent.params, sent.origin) == ("goto", task, "gcs"), "the typed task travels to the manager"
+        assert set(sent.data) == {"speed", "path"}, "its data go with it, for the manager to carry in the mode"
+        assert msgspec.msgpack.decode(sent.data["speed"], type=SpeedSegCam) == SpeedSegCam(speed=4.0)
+        assert msgspec.msgpack.decode(sent.data["path"], type=DatosSegCam).n_points == 10
         wait_until(lambda: len(paths) == 1, what="path on ral/path")
         assert paths[0].n_points == 10 and paths[0].puntos[-1].latitud == task.waypoints[-1].lat
         wait_until(
@@ -283,6 +285,27 @@ def test_a_lost_effect_fails_the_task_with_a_reason(rig: Rig) -> None:
                what="task_failed after a manager restart")
     assert "Module Manager restarted" in next(e for e in rig.events if e.task_id == look.task_id
                                               and e.kind == "task_failed").detail
+
+
+def test_data_the_managers_modes_carried_are_not_published_again(rig: Rig) -> None:
+    """The four-hop path (docs/bus.md, "The command path"): when the manager says the task's modes carried its
+    speed and path, the RAL publishes neither (the path follower would fly the path twice) and waits for no speed
+    answer; the task data (TaskData) still go out for the modules that read tasks whole."""
+    seen: list[str] = []
+    subs = [rig.gcs.session.declare_subscriber(keys.slot_key(ROBOT, "ral", slot), lambda s, n=slot: seen.append(n))
+            for slot in ("speed", "path", "task")]
+    rig.manager.carry = True
+    rig.manager.answer_speed = False  # nothing answers a published speed: the task is accepted without one
+    try:
+        reply = rig.gcs.send(ROBOT, ten_waypoints())
+        assert reply.accepted, reply.reason
+        assert set(rig.manager.set_tasks()[-1].data) == {"speed", "path"}
+        wait_until(lambda: "task" in seen, what="the task's TaskData")
+        time.sleep(0.5)
+        assert seen == ["task"], f"published besides the carried data: {seen}"
+    finally:
+        for sub in subs:
+            sub.undeclare()
 
 
 def test_a_path_whose_speed_the_path_follower_never_answers_is_not_sent(rig: Rig) -> None:

@@ -107,3 +107,26 @@ def test_every_range_bound(slot, typ, field, inside, outside, code):
 def test_altura_is_unbounded_in_the_struct():
     dec = msgspec.msgpack.Decoder(DatosPT)
     assert dec.decode(msgspec.msgpack.encode({"altura": -1e300})).altura == -1e300
+
+
+def test_a_mode_carrying_its_datos_sends_both_under_the_new_mode():
+    """The four-hop path (docs/bus.md): mode and data in one message, the data handled under the new mode."""
+    d = logic.on_control_modo(PanTiltState(mode=2), ModoFuncionamientoPT(modo_de_funcionamiento=1, datos=DATOS))
+    assert d.commands == (p.SetPanTiltMode(mode=p.PanTiltMode.TARGET),
+                          p.SetPanTiltTarget(lat=DATOS.latitud, lon=DATOS.longitud, alt=DATOS.altura))
+    assert d.errors == () and d.state.mode == 1
+
+
+def test_a_bad_carried_datos_refuses_the_mode_too():
+    before = PanTiltState(mode=2, mode_from_command=True)
+    bad = DatosPT(latitud=37.0, longitud=-6.0, altura=1e300)
+    d = logic.on_control_modo(before, ModoFuncionamientoPT(modo_de_funcionamiento=1, datos=bad))
+    assert d.commands == () and d.errors == (PanTiltError.ALTURA_NOT_REPRESENTABLE,) and d.state == before
+
+
+def test_a_carried_datos_range_error_has_its_own_code():
+    dec = msgspec.msgpack.Decoder(ModoFuncionamientoPT)
+    raw = msgspec.msgpack.encode({"modo_de_funcionamiento": 0, "datos": {"ref_pan": 181.0}})
+    with pytest.raises(msgspec.ValidationError) as info:
+        dec.decode(raw)
+    assert logic.field_code("control_modo", field_of(info.value)) == PanTiltError.REF_PAN_OUT_OF_RANGE

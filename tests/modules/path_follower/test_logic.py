@@ -288,3 +288,53 @@ def test_every_waypoint_bound_in_any_point_rejects_the_whole_message(field, insi
         dec.decode(msgspec.msgpack.encode({"n_points": 3, "puntos": [DP, {**DP, field: outside}, DP]}))
     assert field_of(info.value) == f"$.puntos[1].{field}"
     assert logic.field_code("datos", field_of(info.value)) == code
+
+
+def carrying(m: int, **data) -> ControlModoSegCam:  # type: ignore[no-untyped-def]
+    return ControlModoSegCam(modo_o_comando=0, modo_de_funcionamiento=m, **data)
+
+
+def test_a_mode_carrying_its_tasks_data_sends_the_mode_then_speed_heading_and_path():
+    """The four-hop path (docs/bus.md): one message; the mode as its own batch, then the data under it, the speed
+    before the path so its first waypoint is flown at it."""
+    msg = carrying(1, velocidad=SpeedSegCam(speed=4.0), heading=HeadingSegCam(heading=-math.pi / 2), datos=path(2))
+    mode_d, data_d = logic.on_mode_message(FollowerState(heading_deg=10.0), msg, max_speed=8.0)
+    assert mode_d.commands == (p.SetHeading(heading_deg=pytest.approx(10.0)), p.SetMode(mode=p.Mode.PATH_GIVEN_HEADING),
+                               p.SetTracking(enable=True))
+    assert data_d.commands == (p.SetSpeed(speed=4.0), p.SetHeading(heading_deg=-90.0), p.InvalidatePath(),
+                               p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura),
+                               p.AddWaypoint(lat=PT.latitud, lon=PT.longitud, alt=PT.altura))
+    assert data_d.state.mode == 1 and data_d.state.path == (PT, PT) and mode_d.errors == data_d.errors == ()
+
+
+def test_a_mode_alone_sends_no_data():
+    mode_d, data_d = logic.on_mode_message(FollowerState(), mode(0), max_speed=8.0)
+    assert mode_d == logic.on_control_modo(FollowerState(), mode(0)) and data_d.commands == ()
+
+
+@pytest.mark.parametrize("msg,code", [
+    (carrying(0, velocidad=SpeedSegCam(speed=9.0), datos=path(1)), FollowerError.SPEED_ABOVE_MAX),
+    (carrying(0, velocidad=SpeedSegCam(speed=4.0), datos=path(logic.p.WAYPOINT_QUEUE_CAPACITY + 1)),
+     FollowerError.PATH_TOO_LONG),
+    (carrying(0, datos=DatosSegCam(n_points=2, puntos=[PT])), FollowerError.N_POINTS_MISMATCH),
+])
+def test_a_bad_carried_datum_refuses_the_whole_message_and_changes_nothing(msg, code):
+    before = FollowerState(mode=5, path=(PT,))
+    mode_d, data_d = logic.on_mode_message(before, msg, max_speed=8.0)
+    assert mode_d.errors == (code,) and mode_d.commands == () and data_d.commands == ()
+    assert mode_d.state == before == data_d.state, "the mode is kept: the module answers refused"
+
+
+def test_a_carried_path_in_mode_3_is_kept_onboard_not_queued_on_the_dsp():
+    mode_d, data_d = logic.on_mode_message(FollowerState(), carrying(3, velocidad=SpeedSegCam(speed=4.0),
+                                                                      datos=path(2)), max_speed=8.0)
+    assert mode_d.commands == (p.SetMode(mode=p.Mode.ONBOARD_FOLLOWER), p.InvalidatePath())
+    assert data_d.commands == (p.SetSpeed(speed=4.0),) and data_d.state.path == (PT, PT)
+
+
+def test_a_carried_datums_range_error_has_its_own_code():
+    dec = msgspec.msgpack.Decoder(ControlModoSegCam)
+    raw = msgspec.msgpack.encode({"modo_o_comando": 0, "velocidad": {"speed": -1.0}})
+    with pytest.raises(msgspec.ValidationError) as info:
+        dec.decode(raw)
+    assert logic.field_code("control_modo", field_of(info.value)) == FollowerError.SPEED_OUT_OF_RANGE
