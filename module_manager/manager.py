@@ -655,7 +655,7 @@ class Manager(RouteControl, MriService):
                         mod.sup.exited(now, code)
                         self._keep_without_streams(mod.info.name)
                         self._fail_tasks_using(mod.info.name, f"module {mod.info.name} exited ({code}): "
-                                                              "the task's effect is lost")
+                                                              f"{mri.EFFECT_LOST}")
                         self._touch()
                     elif mod.kill_deadline is not None and now > mod.kill_deadline:
                         child.signal(signal.SIGKILL)

@@ -186,6 +186,12 @@ class RobotState(msgspec.Struct, frozen=True, kw_only=True):
     the RAL relays each new one as a ``param_changed`` GRI event."""
 
 
+EFFECT_LOST = "the task's effect is lost"
+"""How a task's failure detail ends when a module it relies on exited (``module dsp exited (-9): the task's effect
+is lost``): the robot lost the means to carry it out, whatever the aircraft was doing (the safety monitor then
+judges that the aircraft stops, not that it was still progressing)."""
+
+
 MODE_ACK_SLOT = "mode_ack"
 """Output slot on which a module that takes a mode answers every mode it receives."""
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import DspSent
 from bbcs.contracts.gri import GriEvent, GriState
+from bbcs.contracts.mri import EFFECT_LOST
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.contracts.safety import Breach, Invariant, Severity
 from bbcs.contracts.tasks import FollowPath, Goto, TakeOff, TaskInfo
@@ -72,6 +73,11 @@ def describe_command(cmd: object) -> str:
     return f"{type(cmd).__name__}({fields})"
 
 
+def effect_lost(info: TaskInfo) -> bool:
+    """Whether ``info`` failed because a module it relies on exited (the manager's wording, ``mri.EFFECT_LOST``)."""
+    return info.status == "failed" and info.detail.endswith(EFFECT_LOST)
+
+
 def ground_distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
     """Horizontal metres between two points (bbcs.geodesy: the model every other process uses)."""
     return distance_m(lat1, lon1, lat2, lon2)
@@ -97,6 +103,10 @@ class MonitorConfig:
     """Horizontal: the DSP gets waypoints on a 1e-4 degree grid (about 11 m), the RAL completes within 8 m."""
     goal_alt_tolerance_m: float = 3.0
     verdict_wait_s: float = 0.5
+    lost_stop_s: float = 15.0
+    """A task failed because a module it relies on exited (``mri.EFFECT_LOST``): by this long after, the aircraft
+    must have stopped flying it (the restarted DSP link's start-up stops it). Judged on the ``lost_window_s`` before."""
+    lost_window_s: float = 5.0
     progress_window_s: float = 10.0
     progress_m: float = 2.0
     gri_position_m: float = 5.0
@@ -207,7 +217,8 @@ class SafetyMonitor:
             if info.name == "abort" and key not in self._judged_tasks:
                 self._aborts_due.add(key)
             if info.ended is not None and key not in self._judged_tasks:
-                self._verdicts_due[key] = info.ended + self.cfg.verdict_wait_s
+                wait = self.cfg.lost_stop_s if effect_lost(info) else self.cfg.verdict_wait_s
+                self._verdicts_due[key] = info.ended + wait
 
     def on_telemetry(self, now: float, t: p.Telemetry) -> None:
         """The DSP's telemetry (the position source when no truth flows)."""
@@ -466,7 +477,22 @@ class SafetyMonitor:
         return seen
 
     def _judge_failed(self, info: TaskInfo) -> None:
+        """Invariant 2: a task is never failed while the aircraft makes progress. A task failed because the robot
+        lost a module it relies on is failed whatever the aircraft did (its effect is lost: the robot can no longer
+        carry it out); then what matters is that the aircraft stops flying it instead of flying on with nobody
+        commanding it."""
         assert info.ended is not None
+        if effect_lost(info):
+            end = info.ended + self.cfg.lost_stop_s
+            seen = self.progress(end - self.cfg.lost_window_s, end, info.kind or info.name)
+            if seen:
+                ev = [f"task {info.id} {info.name} failed at {info.ended:.3f}: {info.detail}",
+                      f"{self.cfg.lost_stop_s - self.cfg.lost_window_s:g}-{self.cfg.lost_stop_s:g} s after "
+                      "(DSP telemetry): " + "; ".join(seen)]
+                self._breach(Invariant.TASK_VERDICT, "flew_on_after_failure", Severity.ERROR, info.ended,
+                             f"task {info.id} {info.name} failed with its module, and the aircraft flew on", ev,
+                             info.id)
+            return
         seen = self.progress(info.ended - self.cfg.progress_window_s, info.ended, info.kind or info.name)
         if seen:
             ev = [f"task {info.id} {info.name} failed at {info.ended:.3f}: {info.detail}",

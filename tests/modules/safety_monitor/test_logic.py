@@ -230,6 +230,26 @@ def test_a_task_failed_while_hovering_in_place_is_not_a_breach() -> None:
     assert run(m, 40) == []
 
 
+def test_a_task_failed_with_its_module_is_judged_by_whether_the_aircraft_then_stops() -> None:
+    """The DSP link killed mid-path (issue 11 case 6): the task fails at once ("its effect is lost") while the DSP
+    still flies its queue, which is no breach; the restarted link's start-up stops the aircraft, and flying on
+    15 s later is one."""
+    lost = "module dsp exited (-9): the task's effect is lost"
+    stopped = monitor()
+    for i in range(61):  # flying from 20 s, the failure at 30, the restarted link stops it at 33
+        telemetry(stopped, 20.0 + i / 2, queue=3 if i < 10 else 2, nav_m=100.0 - 2.5 * min(i, 26))
+    book(stopped, 30.0, goto_task(30.0, status="failed", detail=lost))
+    assert run(stopped, 40) == [], "judged only once the link had time to stop the aircraft"
+    assert run(stopped, 50) == []
+    flew_on = monitor()
+    for i in range(61):  # the same failure, the aircraft still closing on its waypoint 15 s later
+        telemetry(flew_on, 20.0 + i / 2, queue=3 if i < 10 else 2, nav_m=200.0 - 2.5 * i)
+    book(flew_on, 30.0, goto_task(30.0, status="failed", detail=lost))
+    (b,) = run(flew_on, 50)
+    assert (b.kind, b.severity, b.task_id) == ("flew_on_after_failure", Severity.ERROR, 3)
+    assert any("distance to the nav target" in line for line in b.evidence), b.evidence
+
+
 # ---------------------------------------------------------------- 3. the GRI against the truth
 
 
