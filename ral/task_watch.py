@@ -140,7 +140,7 @@ class TaskWatch:
                 if info.task_type in serves.get(e.module, set()) and e.stamp >= info.started \
                         and not telemetry_faults.answers_fault(info, e.code):
                     name = e.name or error_name(e.module, e.code)  # the manager's records carry the bare code
-                    detail = f"module {e.module} reported error {e.code}{' ' + name if name else ''}"
+                    detail = mri.module_error_detail(e.module, e.code, name)
                     self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status="failed",
                                                detail=detail))
                     break

@@ -18,6 +18,7 @@ msgpack; every reply is an :class:`MriReply` (``ok``, or ``ok=False`` with a rea
 
 from __future__ import annotations
 
+import re
 from typing import Any, Literal
 
 import msgspec
@@ -190,6 +191,21 @@ EFFECT_LOST = "the task's effect is lost"
 """How a task's failure detail ends when a module it relies on exited (``module dsp exited (-9): the task's effect
 is lost``): the robot lost the means to carry it out, whatever the aircraft was doing (the safety monitor then
 judges that the aircraft stops, not that it was still progressing)."""
+
+
+def module_error_detail(module: str, code: int, name: str = "") -> str:
+    """Why the RAL failed a task on a module's error (``module path_follower reported error 1007 DSP_LOW_BATTERY``):
+    one wording, which :func:`reported_error` reads back (the safety monitor judges such failures by their code)."""
+    return f"module {module} reported error {code}{' ' + name if name else ''}"
+
+
+def reported_error(detail: str) -> int | None:
+    """The code of a failure detail written by :func:`module_error_detail` (None: another reason)."""
+    match = _REPORTED.match(detail)
+    return int(match.group(1)) if match else None
+
+
+_REPORTED = re.compile(r"module \S+ reported error (\d+)(?: |$)")
 
 
 MODE_ACK_SLOT = "mode_ack"

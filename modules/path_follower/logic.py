@@ -32,9 +32,7 @@ MODE_CHANGE = 0
 COMMAND = 1
 ABORT = 0
 
-FORWARDED_FAULTS = frozenset(
-    {p.ErrorCode.GPS_LOST, p.ErrorCode.LOW_BATTERY, p.ErrorCode.ROTOR_RPM, p.ErrorCode.SENSOR_FAULT}
-)
+FORWARDED_FAULTS = p.FLIGHT_FAULTS
 """DSP faults (not answers to a command) that directly affect the tasks ordered from above: forwarded. They are the
 DSP's own ERROR messages; a telemetry frame the DSP process refused (TELEMETRY_REFUSED, 105) is not one of them and
 never reaches this module (docs/error_codes.md)."""

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import DspSent
 from bbcs.contracts.gri import GriEvent, GriState
-from bbcs.contracts.mri import EFFECT_LOST
+from bbcs.contracts.mri import EFFECT_LOST, reported_error
 from bbcs.contracts.robot import RobotTelemetry
 from bbcs.contracts.safety import Breach, Invariant, Severity
 from bbcs.contracts.tasks import FollowPath, Goto, TakeOff, TaskInfo
@@ -73,9 +73,16 @@ def describe_command(cmd: object) -> str:
     return f"{type(cmd).__name__}({fields})"
 
 
-def effect_lost(info: TaskInfo) -> bool:
-    """Whether ``info`` failed because a module it relies on exited (the manager's wording, ``mri.EFFECT_LOST``)."""
-    return info.status == "failed" and info.detail.endswith(EFFECT_LOST)
+def robot_fault(info: TaskInfo) -> bool:
+    """Whether ``info`` failed because the robot lost the means to carry it out, whatever the aircraft was doing: a
+    module it relies on exited (the manager's wording, ``mri.EFFECT_LOST``), or the DSP reported one of its own
+    flight faults (GPS lost, low battery, rotor speed, a sensor: ``dsp.FLIGHT_FAULTS``, forwarded as 1000 + code and
+    failed on by the RAL in ``mri.module_error_detail``'s wording)."""
+    if info.status != "failed":
+        return False
+    code = reported_error(info.detail)
+    return info.detail.endswith(EFFECT_LOST) or (
+        code is not None and code - p.FORWARDED_DSP_ERROR_BASE in p.FLIGHT_FAULTS)
 
 
 def ground_distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
@@ -104,8 +111,9 @@ class MonitorConfig:
     goal_alt_tolerance_m: float = 3.0
     verdict_wait_s: float = 0.5
     lost_stop_s: float = 15.0
-    """A task failed because a module it relies on exited (``mri.EFFECT_LOST``): by this long after, the aircraft
-    must have stopped flying it (the restarted DSP link's start-up stops it). Judged on the ``lost_window_s`` before."""
+    """A task failed on a robot fault (:func:`robot_fault`): by this long after, the aircraft must have stopped flying
+    it (the hold sent at the failure, or the restarted DSP link's start-up, stops it). Judged on the
+    ``lost_window_s`` before."""
     lost_window_s: float = 5.0
     progress_window_s: float = 10.0
     progress_m: float = 2.0
@@ -217,7 +225,7 @@ class SafetyMonitor:
             if info.name == "abort" and key not in self._judged_tasks:
                 self._aborts_due.add(key)
             if info.ended is not None and key not in self._judged_tasks:
-                wait = self.cfg.lost_stop_s if effect_lost(info) else self.cfg.verdict_wait_s
+                wait = self.cfg.lost_stop_s if robot_fault(info) else self.cfg.verdict_wait_s
                 self._verdicts_due[key] = info.ended + wait
 
     def on_telemetry(self, now: float, t: p.Telemetry) -> None:
@@ -477,12 +485,12 @@ class SafetyMonitor:
         return seen
 
     def _judge_failed(self, info: TaskInfo) -> None:
-        """Invariant 2: a task is never failed while the aircraft makes progress. A task failed because the robot
-        lost a module it relies on is failed whatever the aircraft did (its effect is lost: the robot can no longer
-        carry it out); then what matters is that the aircraft stops flying it instead of flying on with nobody
-        commanding it."""
+        """Invariant 2: a task is never failed while the aircraft makes progress. A task failed on a robot fault
+        (:func:`robot_fault`: a module it relies on exited, the DSP's own flight fault) is failed whatever the
+        aircraft did: the robot can no longer carry it out safely. Then what matters is that the aircraft stops
+        flying it instead of flying on with nobody commanding it."""
         assert info.ended is not None
-        if effect_lost(info):
+        if robot_fault(info):
             end = info.ended + self.cfg.lost_stop_s
             seen = self.progress(end - self.cfg.lost_window_s, end, info.kind or info.name)
             if seen:
@@ -490,7 +498,7 @@ class SafetyMonitor:
                       f"{self.cfg.lost_stop_s - self.cfg.lost_window_s:g}-{self.cfg.lost_stop_s:g} s after "
                       "(DSP telemetry): " + "; ".join(seen)]
                 self._breach(Invariant.TASK_VERDICT, "flew_on_after_failure", Severity.ERROR, info.ended,
-                             f"task {info.id} {info.name} failed with its module, and the aircraft flew on", ev,
+                             f"task {info.id} {info.name} failed on a robot fault, and the aircraft flew on", ev,
                              info.id)
             return
         seen = self.progress(info.ended - self.cfg.progress_window_s, info.ended, info.kind or info.name)

@@ -48,10 +48,10 @@ UAV_REGRESSIONS = [
     # onboard path by where the aircraft is. It needs uav1_sim.toml (track: the vision module)
     "take_off; done s=90; track; wait s=2; follow_path mode=1 to=-2:3/0:2/-3:-2 h=15 v=8; wait s=5; "
     "follow_path mode=3 to=1:3/2:1/3:-1 h=10 v=3; done s=90",
-    # found while fixing seed 23, sequence 10 (open in 4e2fd6a): the DSP link killed mid-goto fails the goto at once ("its effect
-    # is lost", issue 11 case 6) while the DSP still flies its queue: failed_while_progressing. Decided: such a
-    # failure is judged by whether the aircraft then stops (the restarted link's start-up stops it), not by what
-    # it did at the kill (modules/safety_monitor/logic.py, flew_on_after_failure)
+    # found while fixing seed 23, sequence 10 (open in 4e2fd6a): the DSP link killed mid-goto fails the goto at
+    # once ("its effect is lost", issue 11 case 6) while the DSP still flies its queue: failed_while_progressing.
+    # Decided: a failure on a robot fault is judged by whether the aircraft then stops (the restarted link's
+    # start-up stops it), not by what it did at the kill (modules/safety_monitor/logic.py, flew_on_after_failure)
     "take_off; done s=90; goto to=3:-4/4:-3/2:-4 h=20 v=3; wait s=5; kill module=dsp",
 ]
 """The same, found on the pan & tilt robot (uav1_sim.toml, the campaign's ``uav`` profile)."""

@@ -105,11 +105,20 @@ Flight = tuple[SimRobot, Truth]
 def fly(tmp_path: Path) -> Iterator[Callable[..., Flight]]:
     made: list[tuple[object, object, Truth]] = []
 
-    def make(link: bool = True, ral: dict[str, str] | None = None) -> Flight:
+    def make(link: bool = True, ral: dict[str, str] | None = None, battery_v: float | None = None) -> Flight:
+        """``battery_v``: the simulated battery's voltage at start (it drains 0.002 V/s while the rotor turns)."""
         truth = Truth()
         la = gcs = None
+
+        def edit(text: str) -> str:
+            text = truth.edit(text)
+            if battery_v is not None:
+                old = '"--tcp", "127.0.0.1:{port:dsp}"'
+                text = text.replace(old, f'{old}, "--battery", "{battery_v:g}"', 1)
+            return text
+
         try:
-            la, record = launch_robot(tmp_path, lockstep=True, edit=truth.edit, ral=ral)
+            la, record = launch_robot(tmp_path, lockstep=True, edit=edit, ral=ral)
             gcs = connect(la.port, "ground1", link=link)
         finally:
             made.append((la, gcs, truth))
@@ -262,6 +271,25 @@ def test_a_four_waypoint_goto_111_m_apart_completes_on_the_default_stall_s(fly: 
     assert flown_s > 30.0, "the square took longer than stall_s (simulated seconds): the judge saw its progress"
     at = truth.latest()
     assert horizontal_m(at, square[-1].lat, square[-1].lon) < 8.0 and abs(at.alt - square[-1].alt) < 2.0
+
+
+def test_a_low_battery_mid_goto_fails_it_with_the_reason_and_the_aircraft_holds(
+        fly: Callable[..., Flight]) -> None:
+    """Campaign seed 23, sequence 54: the DSP's own LOW_BATTERY (21 V) came during a survey; the RAL failed it at
+    once ("module path_follower reported error 1007 DSP_LOW_BATTERY") while the aircraft flew it. Decided: a task
+    failed on a robot fault is failed whatever the aircraft was doing, and judged by what must follow (the monitor's
+    ``flew_on_after_failure``): the hold reaches the DSP, the aircraft stops where it is, nothing else follows. A
+    battery at 21.1 V drains to 21 V 50 s of rotor time after start: in the goto, after the take-off."""
+    robot, truth = fly(battery_v=21.1)
+    up = robot.ensure_airborne()
+    assert up.position is not None and up.home is not None
+    far = [t.Waypoint(lat=w.lat, lon=w.lon, alt=up.home.alt + 15.0) for w in grid_path(up.position, [(18, 0)])]
+    start, sent_from = len(robot.events), len(robot.commands())
+    done = finished(robot, robot.gcs.send(ROBOT, t.Goto(waypoints=far, speed=3.0)), 120, start)
+    assert done.kind == "task_failed" and "DSP_LOW_BATTERY" in done.detail, done
+    wait_until(lambda: "ABORT" in names(robot.commands()[sent_from:]), 20, "the hold at the DSP")
+    at = assert_quiet(robot, truth, "the failed goto", len(robot.commands()))
+    assert horizontal_m(at, far[-1].lat, far[-1].lon) > 30.0, "stopped on the way, not flown to the goal"
 
 
 # ------------------------------------------------------------------ case 7: a RAL restarted in flight

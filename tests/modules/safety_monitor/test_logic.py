@@ -9,6 +9,7 @@ import re
 import pytest
 
 from bbcs.contracts import dsp as p
+from bbcs.contracts import mri
 from bbcs.contracts.dsp import DspSent
 from bbcs.contracts.gri import GriEvent, GriState
 from bbcs.contracts.mri import ErrorEvent
@@ -248,6 +249,25 @@ def test_a_task_failed_with_its_module_is_judged_by_whether_the_aircraft_then_st
     (b,) = run(flew_on, 50)
     assert (b.kind, b.severity, b.task_id) == ("flew_on_after_failure", Severity.ERROR, 3)
     assert any("distance to the nav target" in line for line in b.evidence), b.evidence
+
+
+def test_a_task_failed_on_the_dsps_own_flight_fault_is_judged_like_a_lost_module() -> None:
+    """Campaign seed 23, sequence 54: the RAL failed a survey on the DSP's LOW_BATTERY while it was flown. A flight
+    fault (GPS, battery, rotor, sensor) fails the task whatever the aircraft did; another module error does not
+    excuse a failure while progressing."""
+    low_battery = mri.module_error_detail("path_follower", 1007, "DSP_LOW_BATTERY")
+    assert mri.reported_error(low_battery) == 1007
+    stopped = monitor()
+    for i in range(61):
+        telemetry(stopped, 20.0 + i / 2, queue=3 if i < 10 else 2, nav_m=100.0 - 2.5 * min(i, 26))
+    book(stopped, 30.0, goto_task(30.0, status="failed", detail=low_battery))
+    assert run(stopped, 50) == []
+    refused = monitor()  # the DSP refused one of the follower's commands: not a flight fault
+    for i in range(21):
+        telemetry(refused, 20.0 + i / 2, queue=3 if i < 10 else 2, nav_m=100.0 - 2.5 * i)
+    book(refused, 30.0, goto_task(30.0, status="failed",
+                                  detail=mri.module_error_detail("path_follower", 1002, "DSP_WRONG_MODE")))
+    assert kinds(run(refused, 40)) == ["failed_while_progressing"]
 
 
 # ---------------------------------------------------------------- 3. the GRI against the truth
