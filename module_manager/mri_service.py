@@ -182,6 +182,8 @@ class MriService:
                     what = f"task {req.task_id}" if req.task_id else f"{req.task_type} task"
                     return mri.MriReply(ok=False, reason=f"no {what} is running", data=self.task_list())
                 changes = self.tasks.end(req.task_type, now, req.status, req.detail)
+                for slot in {*changes.modes, *changes.withdraw}:  # the value the task's data rode in is gone
+                    self.carried_from.pop(slot, None)
             self._touch()
         ok, why, code = self.apply_changes(changes, ending=isinstance(req, mri.EndTask))
         if not ok and isinstance(req, mri.SetTask):
@@ -201,7 +203,7 @@ class MriService:
             slot = next((n for n, m in self.m.modes.items() if m.module == module
                          and self.carried_from.get(n, {}).get(input_slot) == number), None)
             value = self.modes.get(slot) if slot is not None else None
-        if slot is not None and value is not None:
+        if slot is not None and value is not None and value.get(input_slot) is not None:
             origins = self.carried_from.get(slot, {})
             self.publish_mode(slot, kept(value, self.mode_streams.get(slot, frozenset())) or {})
             with self.lock:
@@ -209,8 +211,8 @@ class MriService:
 
     def _task_data(self, req: mri.SetTask) -> dict[int, Any] | str:
         """``req.data`` by slot number, each decoded as its slot's struct (decode is validation), as builtins for a
-        mode's fields; a datum the slot table has no slot of the sender's for is left out (the sender publishes
-        it). Why the task is refused, if a datum does not decode."""
+        mode's fields; ``{}`` when one of them has no slot of the sender's in the slot table (all or none: the sender
+        publishes them all). Why the task is refused, if a datum does not decode."""
         numbers = {(ref.module, ref.slot): n for n, ref in self.m.slot_table.slots.items() if ref.robot is None}
         out: dict[int, Any] = {}
         for name, raw in req.data.items():

@@ -10,11 +10,13 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 
 import msgspec
 
 from bbcs import keys
+from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.pan_tilt import ModoFuncionamientoPT
 from bbcs.contracts.path_follower import ControlModoSegCam
@@ -82,13 +84,23 @@ def test_a_goto_reaches_the_dsp_as_one_mode_message_and_nothing_follows(make_rob
 
 
 def test_a_pan_tilt_task_is_one_message_to_the_module(make_robot: Factory) -> None:  # noqa: F811
+    """And a datum the manager cannot decode as its slot's struct (angles out of range, sent straight to the MRI,
+    past the RAL's admission) refuses the task with the reason: no task starts, nothing reaches the DSP."""
     robot = make_robot()
     modes: list[ModoFuncionamientoPT] = []
     ral_data: list[str] = []
     subs = [listen(robot, "manager", "pan_tilt_mode", modes, ModoFuncionamientoPT),
             listen(robot, "ral", "pt_datos", ral_data)]
     try:
+        before = len(robot.commands())
+        bad = mri.call(robot.gcs.session, ROBOT, "task", mri.SetTask(name="pan_tilt", data={
+            "pt_datos": msgspec.Raw(msgspec.msgpack.encode({"ref_pan": 500.0, "ref_tilt": 0.0}))}))
+        assert bad is not None and not bad.ok and "pt_datos datum is not a valid" in bad.reason, bad
+        assert isinstance(bad.data, mri.TaskList) and not [x for x in bad.data.active if x.name == "pan_tilt"]
+        assert modes == [] or all(m.datos is None for m in modes), "no mode carried the refused datum"
+
         mark = len(robot.commands())
+        assert not [c for c in robot.commands()[before:mark] if c["name"].startswith("SET_PT")]
         reply = robot.gcs.send(ROBOT, t.SetPanTilt(pan=30.0, tilt=-20.0))
         assert reply.accepted, reply.reason
         robot.wait_state(lambda s: s.telemetry is not None and s.telemetry.pan_deg is not None
@@ -99,6 +111,18 @@ def test_a_pan_tilt_task_is_one_message_to_the_module(make_robot: Factory) -> No
         assert modes and modes[-1].datos is not None and (modes[-1].datos.ref_pan, modes[-1].datos.ref_tilt) == (
             30.0, -20.0)
         assert ral_data == [], "the angles went inside the mode, not on the RAL's slot"
+
+        # campaign seed 41, sequence 61: once the task has ended, a route swapped back to the slot its angles came
+        # from is no reason to send anything (the rest mode carries no datum): nothing reaches the DSP
+        cancelled = robot.gcs.send(ROBOT, gri.Cancel(task_type="pan_tilt"))
+        assert cancelled.accepted, cancelled.reason
+        wait_until(lambda: [c["fields"].get("mode") for c in robot.commands()[mark:]
+                            if c["name"] == "SET_PT_MODE"][-1:] == [2], 20, "the gimbal back in its rest mode")
+        rested = len(robot.commands())
+        assert robot.gcs.route(ROBOT, "pan_tilt", "datos", 20).routes["pan_tilt"]["datos"] == 20
+        assert robot.gcs.route(ROBOT, "pan_tilt", "datos", 10).routes["pan_tilt"]["datos"] == 10
+        time.sleep(1.0)  # the swaps are answered after the module acknowledged them: anything they sent is out
+        assert names(robot.commands()[rested:]) == [], "a route swap sent a command with no task behind it"
     finally:
         for sub in subs:
             sub.undeclare()
