@@ -492,6 +492,8 @@ class SafetyMonitor:
         assert info.ended is not None
         if robot_fault(info):
             end = info.ended + self.cfg.lost_stop_s
+            if any(o.task_type == info.task_type and info.ended < o.started < end for o in self.tasks.values()):
+                return  # a new task of its type took over before the aircraft was due to have stopped
             seen = self.progress(end - self.cfg.lost_window_s, end, info.kind or info.name)
             if seen:
                 ev = [f"task {info.id} {info.name} failed at {info.ended:.3f}: {info.detail}",

@@ -249,6 +249,12 @@ def test_a_task_failed_with_its_module_is_judged_by_whether_the_aircraft_then_st
     (b,) = run(flew_on, 50)
     assert (b.kind, b.severity, b.task_id) == ("flew_on_after_failure", Severity.ERROR, 3)
     assert any("distance to the nav target" in line for line in b.evidence), b.evidence
+    taken_over = monitor()  # campaign seed 41, sequence 77: a new task of its type flies the aircraft on
+    for i in range(61):
+        telemetry(taken_over, 20.0 + i / 2, queue=3 if i < 10 else 2, nav_m=200.0 - 2.5 * i)
+    book(taken_over, 33.0, goto_task(30.0, status="failed", detail=lost),
+         task(4, "goto", 33.0, None, params=Goto(waypoints=[Waypoint(lat=HOME[0], lon=HOME[1], alt=HOME[2] + 20)])))
+    assert run(taken_over, 50) == [], "the new task's flight is not the failed one's"
 
 
 def test_a_task_failed_on_the_dsps_own_flight_fault_is_judged_like_a_lost_module() -> None:
