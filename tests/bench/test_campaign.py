@@ -53,6 +53,9 @@ UAV_REGRESSIONS = [
     # Decided: a failure on a robot fault is judged by whether the aircraft then stops (the restarted link's
     # start-up stops it), not by what it did at the kill (modules/safety_monitor/logic.py, flew_on_after_failure)
     "take_off; done s=90; goto to=3:-4/4:-3/2:-4 h=20 v=3; wait s=5; kill module=dsp",
+    # seed 41, sequence 61 (after the four-hop path), rebuilt for a fresh robot: a route swapped back to the RAL's
+    # slot after the pan & tilt task had ended sent the rest mode again (untraced_command; fixed in 0772388)
+    "pan_tilt pan=30; wait s=2; abort; wait s=2; route datos=20; wait s=2; route datos=10; wait s=5",
 ]
 """The same, found on the pan & tilt robot (uav1_sim.toml, the campaign's ``uav`` profile)."""
 
