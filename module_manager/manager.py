@@ -190,8 +190,9 @@ class Manager(RouteControl, MriService):
                              for n, m in manifest.modes.items() if m.module in manifest.modules}
         """Mode slot → its fields that carry stream data: delivered once, never kept (task_data.kept)."""
         self.carried_from: dict[str, dict[str, int]] = {}
-        """Mode slot → the fields its current value carries for a task → the slot number each datum came from
-        (a route swapped back to that number sends the mode again: MriService._resend_carried)."""
+        """Mode slot → the fields a task's start carried in it → the slot number each datum came from (set at every
+        task start; a route swapped back to that number sends the mode again while its value still carries the
+        datum: MriService._resend_carried)."""
         self.tasks = TaskBook(manifest.tasks, frozenset(n for n, m in manifest.modes.items() if not m.restore),
                               self.mode_streams)
         self.task_uses = task_modules(manifest)

@@ -88,8 +88,6 @@ class MriService:
         slot = next((n for n, m in self.m.modes.items() if m.module == req.module), None)
         if slot is None:
             return mri.MriReply(ok=False, reason=f"no mode slot drives module {req.module!r}")
-        with self.lock:
-            self.carried_from.pop(slot, None)
         try:
             ok, why, code = self.publish_mode(slot, req.mode)
         except msgspec.ValidationError as exc:
@@ -182,8 +180,6 @@ class MriService:
                     what = f"task {req.task_id}" if req.task_id else f"{req.task_type} task"
                     return mri.MriReply(ok=False, reason=f"no {what} is running", data=self.task_list())
                 changes = self.tasks.end(req.task_type, now, req.status, req.detail)
-                for slot in {*changes.modes, *changes.withdraw}:  # the value the task's data rode in is gone
-                    self.carried_from.pop(slot, None)
             self._touch()
         ok, why, code = self.apply_changes(changes, ending=isinstance(req, mri.EndTask))
         if not ok and isinstance(req, mri.SetTask):
@@ -198,7 +194,8 @@ class MriService:
     def _resend_carried(self, module: str, input_slot: str, number: int) -> None:
         """``module``'s ``input_slot`` was routed back to the slot whose datum its task's mode carries: that datum
         lives in the mode, not in the source slot (module_manager/task_data.py), so the mode is sent again with
-        it, as delivered (without stream data): the module acts on the task's data again, as a re-read would."""
+        it, as delivered (without stream data): the module acts on the task's data again, as a re-read would. Only
+        while the mode's value carries that datum: once the task has ended, its slot holds another value."""
         with self.lock:
             slot = next((n for n, m in self.m.modes.items() if m.module == module
                          and self.carried_from.get(n, {}).get(input_slot) == number), None)

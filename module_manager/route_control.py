@@ -30,7 +30,6 @@ class RouteControl:
     lock: Any
     modules: Any
     m: Any
-    carried_from: dict[str, dict[str, int]]
 
     def _control_value(self, mod: _Module) -> msgspec.Struct:
         assert mod.info.control_type is not None
@@ -130,7 +129,6 @@ class RouteControl:
         """Delete a mode slot's latched value (its task ended): its module is told nothing (no mode, no answer
         awaited) and a module restarted later gets no mode to run again (docs/gcs.md, "When a task ends")."""
         with self.lock:
-            self.carried_from.pop(slot, None)
             if self.modes.get(slot) is not None:
                 self._mode_pubs[slot].withdraw()
                 self.modes[slot] = None

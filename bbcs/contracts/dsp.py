@@ -632,7 +632,9 @@ FORWARDED_DSP_ERROR_BASE = 1000
 """A DSP error about one of a module's own batches is forwarded on that module's ERROR as 1000 + the code."""
 FLIGHT_FAULTS = frozenset({ErrorCode.GPS_LOST, ErrorCode.LOW_BATTERY, ErrorCode.ROTOR_RPM, ErrorCode.SENSOR_FAULT})
 """The DSP's own faults (its ERROR messages, not answers to a command) that affect the tasks ordered from above: the
-path follower forwards them (1000 + code) and the RAL fails the running movement tasks on them."""
+path follower forwards them (1000 + code) and the RAL fails the running movement tasks on them. A telemetry frame
+the DSP process refused (TELEMETRY_REFUSED, 105) is not one of them and never reaches the path follower
+(docs/error_codes.md)."""
 
 
 def representable(x: float) -> bool:

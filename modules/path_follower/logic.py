@@ -32,12 +32,6 @@ MODE_CHANGE = 0
 COMMAND = 1
 ABORT = 0
 
-FORWARDED_FAULTS = p.FLIGHT_FAULTS
-"""DSP faults (not answers to a command) that directly affect the tasks ordered from above: forwarded. They are the
-DSP's own ERROR messages; a telemetry frame the DSP process refused (TELEMETRY_REFUSED, 105) is not one of them and
-never reaches this module (docs/error_codes.md)."""
-
-
 FIELD_CODES: dict[tuple[str, str], FollowerError] = {
     ("control_entrada", "slot_entrada_control_modos"): FollowerError.CONTROL_ENTRADA_OUT_OF_RANGE,
     ("control_entrada", "slot_entrada_heading"): FollowerError.CONTROL_ENTRADA_OUT_OF_RANGE,
@@ -255,12 +249,12 @@ def on_dsp_error(
 ) -> Decision:
     """A DSP error that affects the tasks ordered from above → forwarded on ERROR as 1000 + code.
 
-    Those are failures of this module's own batches and the faults in :data:`FORWARDED_FAULTS`. When the
-    failed batch was a mode change (``restore_mode``), ``mode_before`` is restored: the DSP did not
-    change mode.
+    Those are failures of this module's own batches and the DSP's flight faults (``dsp.FLIGHT_FAULTS``). When
+    the failed batch was a mode change (``restore_mode``), ``mode_before`` is restored: the DSP did not change
+    mode.
     """
     own = report.sender == module
-    if not own and not (report.sender == "" and report.code in FORWARDED_FAULTS):
+    if not own and not (report.sender == "" and report.code in p.FLIGHT_FAULTS):
         return Decision(state)
     new = replace(state, mode=mode_before) if own and restore_mode else state
     return Decision(
