@@ -65,16 +65,19 @@ def cold_start(manifest: Path, expect: str) -> float:
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "module_manager.cli", str(manifest), "--once-up",
                              "--listen", f"tcp/127.0.0.1:{free_port()}"], cwd=str(ROOT), env=bench_env(),
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     up = None
+    said: list[str] = []
     assert proc.stdout is not None
     for line in proc.stdout:
-        if expect in line:
+        said.append(line.rstrip())
+        if expect in line and up is None:
             up = time.perf_counter() - t0
     proc.wait(60)
     proc.stdout.close()
     if up is None or proc.returncode != 0:
-        raise SystemExit(f"cromat launch did not come up (exit {proc.returncode})")
+        tail = "\n".join(said[-40:])
+        raise SystemExit(f"cromat launch did not come up (exit {proc.returncode}); what it said:\n{tail}")
     return up
 
 
