@@ -3,7 +3,8 @@
 simulator). The RAL admits the survey, starts the manifest's ``survey`` task (DATOS from the generator's slot),
 sends the generator the request; the generated waypoints reach the DSP simulator (its record), the aircraft flies
 them (GRI position) and the GRI reports the task completed; afterwards DATOS is routed back. A survey the
-generator cannot fly is refused with the generator's reason and the task ends failed.
+generator cannot fly is refused with the generator's reason and the task ends failed. The robot flies in
+lockstep at ``--speed max`` (docs/simulation.md).
 """
 
 from __future__ import annotations
@@ -26,9 +27,6 @@ from test_gcs_mission import ROBOT, SimRobot, connect  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
 from launch_support import ROOT, Launch  # noqa: E402
 
-TIME_SCALE = 8.0
-"""Simulated seconds per wall second (the DSP simulator; the lidar simulators follow its clock). Nothing here
-looks at the scans, so faster than test_survey_dtm's 3 (whose terrain model needs their density): 50 s -> 26 s."""
 HOME = (37.4117, -6.0025)
 M_PER_DEG = 111_320.0
 # about 60 m × 90 m north of home: two sweep lines at 25 m
@@ -42,8 +40,10 @@ def manifest(tmp_path: Path) -> tuple[Path, Path]:
     record = tmp_path / "dsp.jsonl"
     dsp = '"--tcp", "127.0.0.1:{port:dsp}"'
     assert dsp + "]" in text, "the DSP simulator's command line in uav1_lidar_sim.toml changed"
-    text = text.replace(dsp + "]", f'{dsp}, "--time-scale", "{TIME_SCALE:g}", "--record", "{record}"]')
+    text = text.replace(dsp + "]", f'{dsp}, "--record", "{record}"]')
     text = text.replace('params = { ldmrs_host', f'params = {{ out_dir = "{tmp_path}", ldmrs_host')
+    if "lockstep = true" not in text:  # nothing here looks at the scans (test_survey_dtm does, free-running)
+        text = text.replace("\n[bus]\n", "\n[sim]\nlockstep = true\n\n[bus]\n", 1)
     path = tmp_path / "uav1_lidar_sim.toml"
     path.write_text(text)
     return path, record
@@ -52,7 +52,7 @@ def manifest(tmp_path: Path) -> tuple[Path, Path]:
 @pytest.fixture
 def robot(tmp_path: Path) -> Iterator[SimRobot]:
     path, record = manifest(tmp_path)
-    la = Launch(path, tmp_path)
+    la = Launch(path, tmp_path, "--speed", "max")
     gcs = None
     try:
         la.wait_line("modules up", timeout_s=150)

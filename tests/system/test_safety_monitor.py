@@ -5,19 +5,19 @@ command key, with no task behind it, reaches the DSP and is reported, with its e
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from monitor_support import attach_monitor, free_udp_port, send_truth_to  # noqa: E402
-from test_gcs_mission import ROBOT, TIME_SCALE, SimRobot, connect, grid_path, launch_robot  # noqa: E402
+from test_gcs_mission import ROBOT, SimRobot, connect, grid_path, launch_robot  # noqa: E402
 
 from bbcs import keys
 from bbcs.contracts import dsp as p
 from bbcs.contracts import gri
 from bbcs.contracts.safety import Invariant, Severity
+from bbcs.lockstep import SimSettings, settings_env
 from bbcs.session import local_client, open_session
 from bbcs.slots import Kind, OutputSlot, Publisher
 from bbcs.testing import wait_until
@@ -29,10 +29,12 @@ WATCH_AFTER_S = 20.0
 @pytest.mark.timeout(240)  # a whole robot launched and flown: 60-110 s at a load of 40-50 on 2 cores
 def test_monitor_sees_a_clean_flight_and_reports_a_command_with_no_task(tmp_path: Path) -> None:
     truth = free_udp_port()
-    la, record = launch_robot(tmp_path, edit=send_truth_to(truth))
+    la, record = launch_robot(tmp_path, lockstep=True, edit=send_truth_to(truth))
     gcs = None
     try:
-        with attach_monitor(la.port, tmp_path, truth_port=truth) as monitor:
+        # a lockstep member (as in the campaign): the simulation steps only once the monitor has judged the last step
+        sim = SimSettings(robot=ROBOT, connect=[f"tcp/127.0.0.1:{la.port}"], speed="max")
+        with attach_monitor(la.port, tmp_path, truth_port=truth, env=settings_env(sim)) as monitor:
             gcs = connect(la.port, "ground1")
             robot = SimRobot(la, gcs, record)
             monitor.wait_watching()
@@ -49,8 +51,9 @@ def test_monitor_sees_a_clean_flight_and_reports_a_command_with_no_task(tmp_path
                 done = robot.wait_event(lambda e, r=reply: e.task_id == r.task_id and e.kind != "task_accepted",
                                         90, f"{type(task).__name__} ended", after=start)
                 assert done.kind == "task_completed", done
-            robot.wait_state(lambda s: s.airborne is False, 15, "on the ground")
-            time.sleep(WATCH_AFTER_S / TIME_SCALE)
+            landed = robot.wait_state(lambda s: s.airborne is False, 15, "on the ground")
+            robot.wait_state(lambda s: s.stamp >= landed.stamp + WATCH_AFTER_S, 60,
+                             f"{WATCH_AFTER_S:g} simulated seconds on the ground")
             flight = monitor.settle()
             assert flight.verdicts >= 3 and flight.truth > 100 and flight.commands > 5 and flight.gri_compared > 5, \
                 flight
