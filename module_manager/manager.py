@@ -193,8 +193,11 @@ class Manager(RouteControl, MriService):
         """Mode slot → the fields a task's start carried in it → the slot number each datum came from (set at every
         task start; a route swapped back to that number sends the mode again while its value still carries the
         datum: MriService._resend_carried)."""
+        self.mode_data = {n: self.mode_fields[n] & set(manifest.modules[m.module].inputs)
+                          for n, m in manifest.modes.items() if m.module in manifest.modules}
+        """Mode slot → its fields that can carry a task's datum (named after an input of its module)."""
         self.tasks = TaskBook(manifest.tasks, frozenset(n for n, m in manifest.modes.items() if not m.restore),
-                              self.mode_streams)
+                              self.mode_streams, self.mode_data)
         self.task_uses = task_modules(manifest)
         self.task_lost_with = {name: used - set(manifest.tasks[name].survives) for name, used in self.task_uses.items()}
         """Manifest task → the modules whose exit ends it as failed (its effect lost with them)."""

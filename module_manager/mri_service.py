@@ -199,7 +199,7 @@ class MriService:
         with self.lock:
             slot = next((n for n, m in self.m.modes.items() if m.module == module
                          and self.carried_from.get(n, {}).get(input_slot) == number), None)
-            value = self.modes.get(slot) if slot is not None else None
+            value = self.tasks.shown(slot) if slot is not None else None  # the running task's, never an ended one's
         if slot is not None and value is not None and value.get(input_slot) is not None:
             origins = self.carried_from.get(slot, {})
             self.publish_mode(slot, kept(value, self.mode_streams.get(slot, frozenset())) or {})

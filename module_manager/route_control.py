@@ -120,8 +120,7 @@ class RouteControl:
                     self.modes[slot] = previous  # the module kept its mode
                     return False, why, ack.code
                 left = end - self.clock()
-                if left <= 0 or not mod.sup.running:
-                    self.modes[slot] = previous
+                if left <= 0 or not mod.sup.running:  # the value stays: it is what the slot holds for a restart
                     return False, f"module {mode.module} did not answer mode {wanted} within {ACK_TIMEOUT_S:g} s", None
                 self.changed.wait(min(left, 0.1))
 

@@ -87,13 +87,16 @@ class TaskBook:
     """The running task of each type, what it replaced, and the recently ended tasks."""
 
     def __init__(self, tasks: dict[str, TaskDef], no_restore: frozenset[str] = frozenset(),
-                 streams: Mapping[str, frozenset[str]] | None = None) -> None:
+                 streams: Mapping[str, frozenset[str]] | None = None,
+                 data: Mapping[str, frozenset[str]] | None = None) -> None:
         """``no_restore``: mode slots whose old value is never re-published when a task ends (manifest
         ``restore = false``); a moving type's modes are never re-published whatever it says (:func:`ending`).
-        ``streams``: per mode slot, its fields that carry stream data (never shown again)."""
+        ``streams``: per mode slot, its fields that carry stream data (never shown again). ``data``: per mode slot,
+        every field that can carry a task's datum (module_manager/task_data.py): a slot's base never keeps one."""
         self.tasks = tasks
         self.no_restore = no_restore
         self.streams = dict(streams or {})
+        self.data = dict(data or {})
         self.stop = stop_task(tasks)
         self._running: dict[str, _Running] = {}
         self._base_routes: dict[RouteKey, int] = {}
@@ -130,8 +133,8 @@ class TaskBook:
             if self._top_route(key) is None:
                 self._base_routes[key] = value
         for slot, mode in saved_modes.items():
-            if self._top_mode(slot) is None:
-                self._base_modes[slot] = mode
+            if self._top_mode(slot) is None:  # no task under it: a datum still in the slot's value is an ended one's
+                self._base_modes[slot] = kept(mode, self.data.get(slot, frozenset()))
         self._running[t.type] = _Running(task, saved_routes, saved_modes, {k: dict(v) for k, v in t.modes.items()})
         self.version += 1
         return Changes(routes={**restore.routes, **wanted_routes},
@@ -166,6 +169,12 @@ class TaskBook:
         modes: dict[str, dict[str, Any] | None] = {slot: dict(v) for slot, v in stop.items()}
         withdraw = frozenset(self.tasks[running.task.name].modes) - set(modes)
         return Changes(routes=routes, modes=modes, withdraw=withdraw)
+
+    def shown(self, slot: str) -> dict[str, Any] | None:
+        """What the topmost running task that sets mode ``slot`` shows there (its data without stream data), or
+        None when no running task sets it."""
+        top = self._top_mode(slot)
+        return None if top is None else dict(top.modes[slot])
 
     # --- layers: the topmost running task that sets a slot gives its value --------------------------------
 

@@ -191,6 +191,9 @@ class GriService:
         for slot in ("heading", "path", "pt_datos"):
             if slot in data:
                 self.publish(slot, data[slot])
+        if "pt_datos" in data:
+            with self.lock:
+                self._pt_on_slot = task_id
         if isinstance(req, t.Bridge) and self._refs_pub is not None:
             self._refs_pub.publish(RefsSegCam(ref_altura=req.ref_altitude, error_longitudinal=req.error_longitudinal,
                                               error_lateral=req.error_lateral, ref_heading=req.ref_heading,

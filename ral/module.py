@@ -170,10 +170,15 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
         self._generated: dict[int, tuple[t.Waypoint, ...]] = {}
         """Task id → the path the generator planned for it (what a survey/orbit is judged on, ``ral.tasks.judge``)."""
         self._pt_sent: dict[int, float] = {}
-        self._then: dict[int, t.TaskParams] = {}
-        """A task to start once the task of this id completes (a fleet target after the take-off it needed)."""
         """Pan & tilt tasks (id) whose angles have not been seen reached → when they were last sent
         (``ral.tasks.pan_tilt_check``)."""
+        self._pt_on_slot: int | None = None
+        """The task whose datum the RAL last put on ``pt_datos`` (a resend, a tracked target, the data its mode did
+        not carry); the value is withdrawn when that task ends: a pan & tilt datum belongs to its task, and one left
+        on the slot would be read again by an input routed back to it, or by a module restarted later, with no task
+        behind it (campaign seed 41)."""
+        self._then: dict[int, t.TaskParams] = {}
+        """A task to start once the task of this id completes (a fleet target after the take-off it needed)."""
         self.pt_resends = 0
         """Pan & tilt angles sent again because the telemetry showed the gimbal elsewhere."""
         self._speed_acked = threading.Condition()

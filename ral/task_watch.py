@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from bbcs import SlotError
 from bbcs.contracts import mri
 from bbcs.contracts import tasks as t
 from bbcs.contracts.error_codes import RalErrorCode, error_name
@@ -64,6 +65,14 @@ class TaskWatch:
                     self._progress.pop(task_id, None)
                     self._finished.add(task_id)
                     out.append(("task_cancelled", info, "ended (no record of how)"))
+            withdraw = self._pt_on_slot is not None and self._pt_on_slot in self._finished
+            if withdraw:
+                self._pt_on_slot = None
+        if withdraw:
+            try:
+                self.output("pt_datos").withdraw()
+            except SlotError:  # stopping: the slot (and its value) go with the module
+                pass
         for kind, info, detail in out:
             self.emit(kind, task_id=info.id, task_type=info.task_type, detail=detail)
 
@@ -80,7 +89,7 @@ class TaskWatch:
             if tel.airborne is False and tel.position is not None:
                 self.home = tel.position
             verdicts = []
-            resend = []
+            resend: list[tuple[int, t.TaskParams | None]] = []
             for task_id, info in self._live.items():
                 v = judge(info, self._progress[task_id], tel, self.home, self.limits, self.judge_cfg, now,
                           generated=self._generated.get(task_id))
@@ -93,15 +102,17 @@ class TaskWatch:
                         del self._pt_sent[task_id]  # arrived: whatever moves the gimbal later is not fought
                     elif check == "resend":
                         self._pt_sent[task_id] = now
-                        resend.append(info.params)
+                        resend.append((task_id, info.params))
             for task_id in set(self._pt_sent) - set(self._live):
                 del self._pt_sent[task_id]
             faults = self.health.update(tel, list(self._live.values()), self.home)
-        for req in resend:
+        for task_id, req in resend:
             assert isinstance(req, t.SetPanTilt)
             self.pt_resends += 1
             self.log.info("pan & tilt at %s/%s, not at the task's %g/%g: its angles sent again", tel.pan_deg,
                           tel.tilt_deg, req.pan, req.tilt)
+            with self.lock:
+                self._pt_on_slot = task_id
             self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
         for info, status, detail in verdicts:
             self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status=status, detail=detail))

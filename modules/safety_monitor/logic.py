@@ -98,6 +98,10 @@ class MonitorConfig:
     min_clearance_m: float | None = None
     """The robot .conf's MIN_CLEARANCE, metres above the take-off point."""
     serves: Mapping[str, frozenset[str]] = field(default_factory=lambda: dict(DEFAULT_SERVES))
+    moving_types: frozenset[str] = frozenset({"movement"})
+    """Task types that fly the aircraft: invariant 2 judges their failures by the aircraft's progress. A pan & tilt
+    or tracking task fails with its gimbal, whatever the aircraft flies meanwhile for another task (campaign seed 41,
+    sequence 113: a look-at failed when the pan & tilt was killed, during a goto)."""
     monitor_name: str = "safety_monitor"
     """Errors this module itself reported never count as the robot reporting a loss of control."""
     decide_after_s: float = 3.0
@@ -490,6 +494,8 @@ class SafetyMonitor:
         aircraft did: the robot can no longer carry it out safely. Then what matters is that the aircraft stops
         flying it instead of flying on with nobody commanding it."""
         assert info.ended is not None
+        if info.task_type not in self.cfg.moving_types:
+            return  # the aircraft's progress is another task's
         if robot_fault(info):
             end = info.ended + self.cfg.lost_stop_s
             if any(o.task_type == info.task_type and info.ended < o.started < end for o in self.tasks.values()):

@@ -56,6 +56,11 @@ UAV_REGRESSIONS = [
     # seed 41, sequence 61 (after the four-hop path), rebuilt for a fresh robot: a route swapped back to the RAL's
     # slot after the pan & tilt task had ended sent the rest mode again (untraced_command; fixed in 0772388)
     "pan_tilt pan=30; wait s=2; abort; wait s=2; route datos=20; wait s=2; route datos=10; wait s=5",
+    # seed 41, sequence 113, rebuilt for a fresh robot: a look-at failed when the pan & tilt was killed during a
+    # goto, and the monitor judged the goto's flight as the look-at's (flew_on_after_failure); invariant 2 judges
+    # the tasks that fly the aircraft
+    "look_at at=1:1; wait s=2; take_off; done s=90; goto to=3:-3 h=20 v=3; wait s=3; kill module=pan_tilt; "
+    "done s=90",
 ]
 """The same, found on the pan & tilt robot (uav1_sim.toml, the campaign's ``uav`` profile)."""
 

@@ -280,3 +280,30 @@ def test_a_task_under_another_shows_its_carried_state_data_again_but_never_its_p
     assert back.modes == {"pt_mode": {"m": 0, "datos": {"ref_pan": 30.0}}}
     assert back.routes == {("pt", "datos"): 10}
     assert book.end("pan_tilt").modes == {"pt_mode": {"m": 2}}, "the rest mode, as before the first task"
+
+
+def test_a_slot_base_never_keeps_the_datum_of_an_ended_task() -> None:
+    """Campaign seed 41, sequences 155, 179, 197: the gimbal's mode slot still held an ended pan & tilt task's
+    angles when a track started with nothing under it; that value became the slot's base, and the track's end (a
+    pan & tilt killed) put it back: the restarted pan & tilt pointed at angles no task had asked for. A slot's base
+    is the value before any running task set it, so a datum in it is an ended task's: it is never kept."""
+    tasks = {
+        "angles": TaskDef(type="pan_tilt", routes={"pt.datos": 10}, modes={"pt_mode": {"m": 0}}),
+        "track": TaskDef(type="perception", routes={"pt.datos": 20}, modes={"pt_mode": {"m": 1}}),
+    }
+    book = TaskBook(tasks, data={"pt_mode": frozenset({"datos"})})
+    left = {"pt_mode": {"m": 0, "datos": {"ref_pan": -70.0, "ref_tilt": 0.0}}}
+    book.start("track", t.Track(), 1.0, {("pt", "datos"): 10}, left)
+    assert book.shown("pt_mode") == {"m": 1}
+    assert book.end("perception", 2.0, "failed").modes == {"pt_mode": {"m": 0}}, "the mode, not the datum"
+    assert book.shown("pt_mode") is None, "no task sets the slot"
+
+
+def test_shown_is_the_running_layer_with_its_carried_state_data() -> None:
+    tasks = {"angles": TaskDef(type="pan_tilt", routes={"pt.datos": 10}, modes={"pt_mode": {"m": 0}})}
+    book = TaskBook(tasks, streams={"pt_mode": frozenset({"path"})}, data={"pt_mode": frozenset({"datos", "path"})})
+    ch = book.start("angles", t.SetPanTilt(pan=30.0, tilt=-20.0), 1.0, {("pt", "datos"): 10}, {"pt_mode": {"m": 2}})
+    book.carry("pan_tilt", ch, {"pt_mode": {"datos": {"ref_pan": 30.0}, "path": [1]}})
+    assert book.shown("pt_mode") == {"m": 0, "datos": {"ref_pan": 30.0}}
+    assert book.end("pan_tilt", 2.0).modes == {"pt_mode": {"m": 2}}
+    assert book.shown("pt_mode") is None

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import msgspec
 import pytest
+import zenoh
 
 from bbcs import keys
 from bbcs.context import ModuleContext
@@ -338,9 +339,11 @@ def test_pan_tilt_angles_are_sent_again_while_the_telemetry_shows_the_gimbal_els
     from ral.tasks import PT_RESEND_S
 
     sent: list[DatosPT] = []
+    withdrawn: list[zenoh.Sample] = []
     sub = rig.gcs.session.declare_subscriber(
         keys.slot_key(ROBOT, "ral", "pt_datos"),
-        lambda s: sent.append(msgspec.msgpack.decode(s.payload.to_bytes(), type=DatosPT)),
+        lambda s: withdrawn.append(s) if s.kind == zenoh.SampleKind.DELETE else sent.append(
+            msgspec.msgpack.decode(s.payload.to_bytes(), type=DatosPT)),
     )
     try:
         reply = rig.gcs.send(ROBOT, gri.SetPanTilt(pan=33.0, tilt=-21.0))
@@ -369,6 +372,14 @@ def test_pan_tilt_angles_are_sent_again_while_the_telemetry_shows_the_gimbal_els
             gimbal_at(0.0, 0.0)  # vision (or a swapped route) moves the gimbal away: not fought
             time.sleep(0.1)
         assert len(sent) == count, "once the angles were reached, nothing more is sent"
+
+        # campaign seed 41: the angles the RAL put on its slot belong to the task; once it has ended they are
+        # withdrawn, so an input routed back to the slot (or a pan & tilt restarted later) reads no datum
+        assert withdrawn == []
+        reply = rig.gcs.send(ROBOT, gri.Cancel(task_type="pan_tilt"))
+        assert reply.accepted, reply.reason
+        wait_until(lambda: rig.manager.telemetry() or bool(withdrawn), 10, "ral/pt_datos withdrawn")
+        assert len(sent) == count
     finally:
         sub.undeclare()
 

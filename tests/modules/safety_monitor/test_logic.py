@@ -257,6 +257,19 @@ def test_a_task_failed_with_its_module_is_judged_by_whether_the_aircraft_then_st
     assert run(taken_over, 50) == [], "the new task's flight is not the failed one's"
 
 
+def test_a_gimbal_task_failed_while_the_aircraft_flies_another_task_is_no_breach() -> None:
+    """Campaign seed 41, sequence 113: a look-at failed when the pan & tilt was killed, during a goto; the aircraft
+    flying on is the goto's doing. Invariant 2 judges the tasks that fly the aircraft."""
+    for detail in (f"module pan_tilt exited (-9): {mri.EFFECT_LOST}",
+                   mri.module_error_detail("pan_tilt", 1002, "DSP_WRONG_MODE")):
+        m = monitor()
+        for i in range(61):
+            telemetry(m, 20.0 + i / 2, queue=3 if i < 10 else 2, nav_m=200.0 - 2.5 * i)
+        book(m, 30.0, goto_task(None, status="running"),
+             task(4, "look_at", 12.0, 30.0, task_type="pan_tilt", status="failed", detail=detail))
+        assert run(m, 50) == [], detail
+
+
 def test_a_task_failed_on_the_dsps_own_flight_fault_is_judged_like_a_lost_module() -> None:
     """Campaign seed 23, sequence 54: the RAL failed a survey on the DSP's LOW_BATTERY while it was flown. A flight
     fault (GPS, battery, rotor, sensor) fails the task whatever the aircraft did; another module error does not
