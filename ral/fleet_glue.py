@@ -125,10 +125,8 @@ class FleetGlue:
         """A tracked world target moved: aim the running look_at task at it (False once that task ended)."""
         with self.lock:
             running = task_id in self._live
-            if running:
-                self._pt_on_slot = task_id
         if running:
-            self.publish("pt_datos", DatosPT(latitud=target.lat, longitud=target.lon, altura=target.alt))
+            self._put_pt_datos(task_id, DatosPT(latitud=target.lat, longitud=target.lon, altura=target.alt))
         return running
 
 

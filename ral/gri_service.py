@@ -188,12 +188,12 @@ class GriService:
                 return problem
         if isinstance(req, t.Survey | t.Orbit):
             return self._request_path(req, task_id)
-        for slot in ("heading", "path", "pt_datos"):
+        for slot in ("heading", "path"):
             if slot in data:
                 self.publish(slot, data[slot])
-        if "pt_datos" in data:
-            with self.lock:
-                self._pt_on_slot = task_id
+        pt = data.get("pt_datos")
+        if isinstance(pt, DatosPT):
+            self._put_pt_datos(task_id, pt)
         if isinstance(req, t.Bridge) and self._refs_pub is not None:
             self._refs_pub.publish(RefsSegCam(ref_altura=req.ref_altitude, error_longitudinal=req.error_longitudinal,
                                               error_lateral=req.error_lateral, ref_heading=req.ref_heading,

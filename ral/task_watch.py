@@ -76,6 +76,13 @@ class TaskWatch:
         for kind, info, detail in out:
             self.emit(kind, task_id=info.id, task_type=info.task_type, detail=detail)
 
+    def _put_pt_datos(self, task_id: int, datum: DatosPT) -> None:
+        """Put ``datum`` on ``pt_datos`` for task ``task_id``: the one place the RAL does, so the value is withdrawn
+        when that task ends (``_sync``)."""
+        with self.lock:
+            self._pt_on_slot = task_id
+        self.publish("pt_datos", datum)
+
     def _sync_list(self, data: Any) -> None:
         if isinstance(data, mri.TaskList):
             with self.lock:
@@ -111,9 +118,7 @@ class TaskWatch:
             self.pt_resends += 1
             self.log.info("pan & tilt at %s/%s, not at the task's %g/%g: its angles sent again", tel.pan_deg,
                           tel.tilt_deg, req.pan, req.tilt)
-            with self.lock:
-                self._pt_on_slot = task_id
-            self.publish("pt_datos", DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
+            self._put_pt_datos(task_id, DatosPT(ref_pan=req.pan, ref_tilt=req.tilt))
         for info, status, detail in verdicts:
             self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status=status, detail=detail))
         for fault in faults:
