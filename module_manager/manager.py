@@ -55,7 +55,7 @@ from module_manager.process import Child, Priority, stop_children
 from module_manager.route_control import RouteControl
 from module_manager.standby import context_line, standby_argv
 from module_manager.status_lines import print_line
-from module_manager.supervision import Kill, Phase, Spawn, Supervisor, startable
+from module_manager.supervision import Kill, Phase, Spawn, Supervisor, launch_gave_up, startable
 from module_manager.task_data import kept
 from module_manager.tasks import TaskBook
 
@@ -802,9 +802,8 @@ class Manager(RouteControl, MriService):
                     next_status = now + status_interval
                 if once_up and self.all_up_at is not None:
                     break
-                if once_up and not self._waiting and all(m.sup.phase in (Phase.UP, Phase.FAILED, Phase.STOPPED)
-                                                         for m in self.modules.values()) and self.all_up_at is None:
-                    self.out("not every module came up")
+                if once_up and self.all_up_at is None and self._gave_up():
+                    self.out("not every module came up: " + self.not_up_reasons())
                     code = 1
                     break
                 self._sleep_until_event(0.02)
@@ -814,6 +813,30 @@ class Manager(RouteControl, MriService):
         finally:
             self.shutdown()
         return code
+
+    def _gave_up(self) -> bool:
+        """Every module has settled and one of them is down for good. Read under the lock in one pass: a module
+        promoted to up by a bus callback since the last ``step`` is up, not a failure (the next step counts the
+        robot up). Reading the phases outside the lock once took a launch whose last module had just come up for
+        one that gave up."""
+        with self.lock:
+            if self._waiting:
+                return False
+            return launch_gave_up(m.sup.phase for m in self.modules.values())
+
+    def not_up_reasons(self) -> str:
+        """Each module that is not up, with its state, last exit and the last line of its log: what a launch that
+        gave up says, so the user sees which module failed and why without opening the logs."""
+        with self.lock:
+            down = [(n, m) for n, m in self.modules.items() if m.sup.phase is not Phase.UP]
+        why = []
+        for name, mod in down:
+            sup = mod.sup
+            log = self.log_dir / f"{name}.log" if self.log_dir is not None else None
+            last = _last_line(log) if log is not None else ""
+            why.append(f"{name} {sup.state}" + (f" ({sup.reason})" if sup.reason else "")
+                       + (f"; its log ends: {last}" if last else ""))
+        return "; ".join(why) or "none (a module went down after the others came up)"
 
     def launch_refused(self) -> str | None:
         """Why the launch must stop: a module refused its configuration before the robot was up (see

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import enum
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -317,6 +317,14 @@ def startable(waiting: set[str], after: dict[str, tuple[str, ...]], phases: dict
         elif all(phases[d] is Phase.UP for d in deps):
             start.append(name)
     return start, blocked
+
+
+def launch_gave_up(phases: Iterable[Phase]) -> bool:
+    """A launch waiting for its robot to come up (``--once-up``) gives up when every module has settled and one
+    of them is down for good. Every module up is no failure: the robot is up."""
+    seen = list(phases)
+    return (all(p in (Phase.UP, Phase.FAILED, Phase.STOPPED) for p in seen)
+            and any(p is not Phase.UP for p in seen))
 
 
 def backoff_delay(policy: Policy, recent_restarts: int) -> float:

@@ -224,6 +224,19 @@ def test_a_module_refusing_its_configuration_at_launch_stops_the_whole_launch(la
     assert log.count("invalid configuration (test)") == 1, "started exactly once"
 
 
+def test_once_up_with_a_module_that_never_comes_up_exits_1_naming_it_and_why(launch):
+    """``--once-up`` (the launch benchmark, a user checking a manifest) that gives up says which module failed
+    and how; the modules that came up are not named."""
+    la = launch("--once-up", edit=add_crasher)
+    assert la.proc.wait(60) == 1
+    la.reader.join(10)
+    said = next(line for line in la.lines if "not every module came up" in line)
+    named = said.split("not every module came up: ", 1)[1]
+    assert named.startswith("crasher failed (exited with status 3; restart intensity exceeded"), said
+    assert not any(f"{n} " in named for n in ("src_a", "src_b", "sink")), said
+    assert group_members(la.pgid) == [], "processes of the launch left running"
+
+
 def test_a_module_refusing_its_configuration_once_up_is_failed_and_not_retried(launch, clients, tmp_path):
     """Once the robot is up, a module whose restart refuses its configuration is failed, never retried, and the
     others keep running (a robot in flight is not stopped for it)."""

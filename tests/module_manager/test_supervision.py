@@ -6,7 +6,16 @@ import pytest
 
 from bbcs.errors import EXIT_CONFIG
 from module_manager.manifest import find_cycle
-from module_manager.supervision import Kill, Phase, Policy, Spawn, Supervisor, backoff_delay, startable
+from module_manager.supervision import (
+    Kill,
+    Phase,
+    Policy,
+    Spawn,
+    Supervisor,
+    backoff_delay,
+    launch_gave_up,
+    startable,
+)
 
 
 def started(policy: Policy, needs_ack: bool = True, now: float = 0.0) -> Supervisor:
@@ -271,3 +280,11 @@ def test_find_cycle():
     assert find_cycle({"a": ["b"], "b": ["c"], "c": []}) == []
     assert find_cycle({"a": ["b"], "b": ["c"], "c": ["a"]}) == ["a", "b", "c", "a"]
     assert find_cycle({"x": [], "a": ["b"], "b": ["b"]}) == ["b", "b"]
+
+
+def test_a_launch_gives_up_only_when_every_module_settled_and_one_is_down() -> None:
+    assert not launch_gave_up([Phase.UP, Phase.UP]), "every module up is the robot up, not a failure"
+    assert launch_gave_up([Phase.UP, Phase.FAILED])
+    assert launch_gave_up([Phase.STOPPED, Phase.UP])
+    assert not launch_gave_up([Phase.FAILED, Phase.STARTING]), "one still starting may yet come up"
+    assert not launch_gave_up([Phase.UP, Phase.RESTARTING])
