@@ -81,6 +81,8 @@ class SimRobot:
         self.record = record
         self.lock = threading.Lock()
         self.states: list[gri.GriState] = []
+        self.received = 0
+        """GRI states received so far (``states`` keeps only the last 50)."""
         self.events: list[gri.GriEvent] = []
         gcs.watch(ROBOT, self._on_state)
         gcs.events(ROBOT, self._on_event)
@@ -88,6 +90,7 @@ class SimRobot:
     def _on_state(self, state: gri.GriState) -> None:
         with self.lock:
             self.states.append(state)
+            self.received += 1
             del self.states[:-50]
 
     def _on_event(self, event: gri.GriEvent) -> None:
@@ -166,10 +169,14 @@ def grid_path(center: object, steps: list[tuple[int, int]] = LOOP, scale: int = 
     ]
 
 
-def launch_robot(tmp_path: Path, **manifest_kw) -> tuple[Launch, Path]:
-    """The robot launched (``sim_manifest``'s options); with ``lockstep=True`` at ``--speed max``."""
+def launch_robot(tmp_path: Path, speed: str | None = "max", **manifest_kw) -> tuple[Launch, Path]:
+    """The robot launched (``sim_manifest``'s options); with ``lockstep=True`` at ``--speed`` ``speed``, or with
+    ``speed=None`` paced by the simulator's ``--time-scale`` (``sim_manifest``'s ``time_scale``): a robot that
+    waits on the wall clock for most of a test (replies, the link failsafe) then spends no processor time
+    stepping ahead while it waits."""
     manifest, record = sim_manifest(tmp_path, **manifest_kw)
-    la = Launch(manifest, tmp_path, *(("--speed", "max") if manifest_kw.get("lockstep") else ()))
+    paced = manifest_kw.get("lockstep") and speed is not None
+    la = Launch(manifest, tmp_path, *(("--speed", speed) if paced else ()))
     try:
         la.wait_line(f"all {N_MODULES} modules up", 90)
     except BaseException:

@@ -1,4 +1,4 @@
-"""Issue 33 end to end on the shipped simulated UAV (``bbcs_conf/uav1_sim.toml``, simulator 4× real time): the
+"""Issue 33 end to end on the shipped simulated UAV (``bbcs_conf/uav1_sim.toml`` in lockstep at ``--speed max``): the
 gateway (``cromat mavlink``, a process) on the robot's router, flown by MAVSDK as any MAVLink vehicle is, read by
 pymavlink. Checked by effect: what reached the DSP simulator (its record), what the GRI shows (a ground station of
 its own), what MAVSDK was told.
@@ -25,8 +25,15 @@ from mavlink_support import ROOT, Mav, first, gateway, run_async  # noqa: E402
 from test_gcs_mission import GRID_DEG, ROBOT, SimRobot, connect, launch_robot  # noqa: E402
 
 pytestmark = pytest.mark.timeout(240)
-WATCH_S = 5.0
-"""Wall seconds watched after a flight task ends (20 simulated seconds at the simulator's 4×)."""
+WATCH_S = 20.0
+"""Simulated seconds watched after a flight task ends (the GRI state's stamps: the robot flies in lockstep)."""
+
+
+def watch_quiet(robot: SimRobot, what: str) -> None:
+    """For ``WATCH_S`` simulated seconds after ``what``, nothing reaches the DSP."""
+    after, since = len(robot.commands()), robot.state.stamp
+    robot.wait_state(lambda s: s.stamp >= since + WATCH_S, 120, f"{WATCH_S:g} simulated s after {what}")
+    assert [c["name"] for c in robot.commands()[after:]] == [], f"the DSP received commands after {what}"
 
 
 class Site:
@@ -37,7 +44,7 @@ class Site:
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
     tmp = tmp_path_factory.mktemp("uav")
-    la, record = launch_robot(tmp)
+    la, record = launch_robot(tmp, lockstep=True)
     gcs = gw = qgc = None
     try:
         gcs = connect(la.port, "observer", link=False)
@@ -237,10 +244,7 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
     end = robot.wait_state(lambda s: s.waypoints_queued == 0, 20, "the queue empty")
     assert end.position is not None
     assert _metres(end.position.lat, end.position.lon, *path[-1]) < 8.0
-    # nothing unrequested follows the mission's end
-    after = len(robot.commands())
-    time.sleep(WATCH_S)
-    assert [c["name"] for c in robot.commands()[after:]] == []
+    watch_quiet(robot, "the mission's end")  # nothing unrequested follows it
     assert not any(e.kind in ("failsafe", "task_failed") for e in robot.events), robot.events
 
     rtl_texts: list[str] = []
@@ -287,9 +291,7 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
     landed = robot.wait_state(lambda s: s.airborne is False, 30, "landed in the GRI")
     assert landed.position is not None
     assert _metres(landed.position.lat, landed.position.lon, home.lat, home.lon) < 8.0  # landed home
-    after = len(robot.commands())
-    time.sleep(WATCH_S)
-    assert [c["name"] for c in robot.commands()[after:]] == []
+    watch_quiet(robot, "the landing")
 
 
 def test_fence_upload_becomes_a_no_fly_zone_the_ral_enforces(site: Site) -> None:
