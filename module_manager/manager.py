@@ -86,6 +86,17 @@ def _last_line(path: Path) -> str:
     return lines[-1][-300:] if lines else ""
 
 
+DUE_SLACK_S = 1e-6
+"""A robot state due at simulated time T is due at T minus float rounding: a simulator's time is a sum of its
+physics steps (ten 0.02 s steps make 0.19999999999999998 s), and without this slack the state due at 0.2 s
+waited for the next barrier step, so on a UAV in lockstep only 58 % of the 0.2 s steps carried one."""
+
+
+def state_due(now: float, due_at: float) -> bool:
+    """Whether the robot state due at ``due_at`` is due at ``now`` (both on the robot's clock)."""
+    return now + DUE_SLACK_S >= due_at
+
+
 class LaunchError(RuntimeError):
     """Something the manager needs before modules can start failed (router, a simulator's readiness)."""
 
@@ -426,7 +437,7 @@ class Manager(RouteControl, MriService):
             return "modules starting"
         if self._mri_busy:
             return "serving an MRI request"
-        if self.sim is not None and (self._state_dirty or self.sim.clock.monotonic() >= self.next_state_at):
+        if self.sim is not None and (self._state_dirty or state_due(self.sim.clock.monotonic(), self.next_state_at)):
             # due at this simulated time: published now, from the ask (the loop would take up to its next wake)
             with self.lock:
                 self._state_dirty = False
@@ -791,7 +802,7 @@ class Manager(RouteControl, MriService):
                     raise LaunchError(refused)
                 now = self.clock()
                 state_now = now if self.sim is None else self.sim.clock.monotonic()  # due on the robot's clock
-                if self._state_dirty or state_now >= self.next_state_at:
+                if self._state_dirty or state_due(state_now, self.next_state_at):
                     self._state_dirty = False
                     self.next_state_at = state_now + self.m.raw.robot.state_period_s
                     if self._state_pub is not None:

@@ -36,8 +36,9 @@ MANIFEST_DIR = MANIFEST.parent
 def make_robot(tmp_path: Path) -> Iterator[Factory]:
     made: list[tuple[object, object]] = []
 
-    def make(link: bool = True, **manifest_kw: object) -> SimRobot:
-        la, record = launch_robot(tmp_path, speed=None, lockstep=True, **manifest_kw)
+    def make(link: bool = True, speed: str | None = None, **manifest_kw: object) -> SimRobot:
+        """A robot in lockstep, paced at the simulator's 4x (``speed=None``) or at ``--speed`` ``speed``."""
+        la, record = launch_robot(tmp_path, speed=speed, lockstep=True, **manifest_kw)
         gcs = None
         try:
             gcs = connect(la.port, "ground1", link=link)

@@ -44,7 +44,7 @@ def listen(robot, module: str, slot: str, into: list, type_=None):  # type: igno
 
 
 def test_a_goto_reaches_the_dsp_as_one_mode_message_and_nothing_follows(make_robot: Factory) -> None:  # noqa: F811
-    robot = make_robot(lockstep=True)
+    robot = make_robot(speed="max")
     up = robot.ensure_airborne()
     assert up.position is not None
     modes: list[ControlModoSegCam] = []
@@ -87,7 +87,7 @@ def test_a_goto_reaches_the_dsp_as_one_mode_message_and_nothing_follows(make_rob
 def test_a_pan_tilt_task_is_one_message_to_the_module(make_robot: Factory) -> None:  # noqa: F811
     """And a datum the manager cannot decode as its slot's struct (angles out of range, sent straight to the MRI,
     past the RAL's admission) refuses the task with the reason: no task starts, nothing reaches the DSP."""
-    robot = make_robot(lockstep=True)
+    robot = make_robot(speed="max")
     modes: list[ModoFuncionamientoPT] = []
     ral_data: list[str] = []
     subs = [listen(robot, "manager", "pan_tilt_mode", modes, ModoFuncionamientoPT),
@@ -133,7 +133,7 @@ def test_a_path_follower_restarted_mid_path_does_not_fly_the_path_again(make_rob
     """The mode slot keeps the task's mode for a restarted module, but not the path it carried (a stream is
     delivered once): the DSP flies on with its own queue and the task, which survives the path follower's restart,
     completes at the path's end."""
-    robot = make_robot(lockstep=True)
+    robot = make_robot(speed="max")
     up = robot.ensure_airborne()
     assert up.position is not None
     path = grid_path(up.position, [(i, 0) for i in range(1, 6)], scale=2)

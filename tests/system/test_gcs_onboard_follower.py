@@ -44,7 +44,7 @@ def cross_track_m(p: tuple[float, float], corners: list[tuple[float, float]]) ->
 def test_gcs_follow_path_with_the_onboard_follower_flies_mode_3(make_robot: Factory) -> None:  # noqa: F811
     # in lockstep (docs/simulation.md): mode 3 sends SET_REFS every 50 ms of simulated time, acknowledged one by
     # one, and the acknowledgements' retry budget is on the same clock, so a loaded machine cannot starve it
-    robot = make_robot(lockstep=True)
+    robot = make_robot(speed="max")
     start = len(robot.events)
     took_off = robot.gcs.send(ROBOT, t.TakeOff(height=10.0))
     assert took_off.accepted, took_off.reason
