@@ -431,6 +431,13 @@ class Manager(RouteControl, MriService):
         if self.sim is not None:
             self.sim.join(s, self.sim_busy)
 
+    def stamp(self) -> float:
+        """Now on the robot's clock (seconds since 1970), for what the manager stamps (its errors, tasks, states):
+        the simulation's time in lockstep, as every module and the RAL stamp. The RAL compares them: a module
+        error fails the tasks started before it, a telemetry refusal stands until telemetry stamped after it; on
+        the wall clock, behind simulated time, neither could happen at --speed max."""
+        return time.time() if self.sim is None else self.sim.clock.time()
+
     def sim_busy(self) -> str:
         """Lockstep: what the manager must still do before the simulation may step ('' = nothing)."""
         if self.all_up_at is None:
@@ -507,7 +514,7 @@ class Manager(RouteControl, MriService):
             return
         with self.lock:
             self.modules[name].last_error = code
-            self.errors.append(mri.ErrorEvent(module=name, code=code, stamp=time.time()))
+            self.errors.append(mri.ErrorEvent(module=name, code=code, stamp=self.stamp()))
             self._touch()
 
     def _on_telemetry(self, decode: Callable[[bytes], RobotTelemetry], sample: zenoh.Sample) -> None:
@@ -726,7 +733,7 @@ class Manager(RouteControl, MriService):
     def _fail_tasks_using(self, module: str, detail: str) -> None:
         """A module the running tasks rely on went down: those tasks end as failed (their routes/modes restored
         off the main thread, which must not wait for acknowledgements)."""
-        for changes in self.tasks.fail_needing({module}, self.task_lost_with, time.time(), detail):
+        for changes in self.tasks.fail_needing({module}, self.task_lost_with, self.stamp(), detail):
             threading.Thread(target=self.apply_changes, args=(changes,), kwargs={"ending": True}, name="task-fail",
                              daemon=True).start()
         self._touch()
@@ -767,7 +774,7 @@ class Manager(RouteControl, MriService):
 
     def robot_state(self) -> mri.RobotState:
         with self.lock:
-            return mri.RobotState(robot=self.m.robot, kind=self.m.kind, stamp=time.time(), telemetry=self.telemetry,
+            return mri.RobotState(robot=self.m.robot, kind=self.m.kind, stamp=self.stamp(), telemetry=self.telemetry,
                                   modules=[self.module_status(n) for n in self.modules], tasks=self.tasks.active(),
                                   ended=list(self.tasks.ended), task_version=self.tasks.version,
                                   task_epoch=self.epoch, errors=list(self.errors), home=self.home,

@@ -8,7 +8,6 @@ acknowledgement never blocks the Zenoh callbacks that bring it.
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import msgspec
@@ -145,7 +144,7 @@ class MriService:
         with self.lock:
             routes = {(n, i): v for n, m in self.modules.items() for i, v in m.routes.items()}
             modes = dict(self.modes)
-            now = time.time()
+            now = self.stamp()
             if isinstance(req, mri.SetTask):
                 if req.name not in self.m.tasks:
                     known = ", ".join(self.m.tasks) or "none"
@@ -185,7 +184,7 @@ class MriService:
         if not ok and isinstance(req, mri.SetTask):
             with self.lock:  # refused: the task never ran; what it changed is put back
                 task = self.tasks.running(self.m.tasks[req.name].type)
-                undo = self.tasks.end(task.task_type, time.time(), "failed", why) if task is not None else None
+                undo = self.tasks.end(task.task_type, self.stamp(), "failed", why) if task is not None else None
                 self._touch()
             if undo is not None:
                 self.apply_changes(undo, ending=True)

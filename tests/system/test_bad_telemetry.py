@@ -7,7 +7,6 @@ of the bad frame; and nothing fails in the seconds after, when the RAL's persist
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -53,7 +52,7 @@ def test_one_bad_telemetry_frame_during_a_goto_does_not_end_it(tmp_path: Path) -
         goal = grid_path(up.position, steps=[(6, 0)])[0]  # 6 grid cells north: about 67 m, 13 s at 5 m/s
         goal = gri.Waypoint(lat=goal.lat, lon=goal.lon, alt=up.home.alt + 15.0)
 
-        since = time.time()  # the manager stamps the errors it lists with the wall clock
+        since = robot.state.stamp  # the robot's clock (simulated time): the manager stamps its errors on it
         start = len(robot.events)
         reply = gcs.send(ROBOT, gri.Goto(waypoints=[goal], speed=5.0))
         assert reply.accepted, reply.reason
@@ -85,6 +84,42 @@ def test_one_bad_telemetry_frame_during_a_goto_does_not_end_it(tmp_path: Path) -
         with robot.lock:
             failed = [e for e in robot.events[start:] if e.kind == "task_failed"]
         assert not failed, failed
+    finally:
+        if gcs is not None:
+            gcs.close()
+        la.stop()
+        la.cleanup()
+
+
+def test_refused_telemetry_that_persists_fails_the_goto_in_simulated_time(tmp_path: Path) -> None:
+    """The other side of the same rule, in lockstep at --speed max: 6 s of refused frames (the DSP's 20 Hz
+    telemetry, 120 frames) and nothing valid after them fail the goto once the refusal stood the RAL's window,
+    judged on the robot's one clock (the manager's error stamps against the telemetry's: with the manager on the
+    wall clock, behind simulated time, the refusal looked older than the last good frame and never stood)."""
+    control = free_udp_port()
+    la, record = launch_robot(tmp_path, lockstep=True, edit=with_control_port(control))
+    gcs = None
+    try:
+        gcs = connect(la.port, "ground1")
+        robot = SimRobot(la, gcs, record)
+        up = robot.ensure_airborne()
+        assert up.position is not None and up.home is not None
+        goal = grid_path(up.position, steps=[(12, 0)])[0]  # about 134 m north: 27 s at 5 m/s, longer than the fault
+        goal = gri.Waypoint(lat=goal.lat, lon=goal.lon, alt=up.home.alt + 15.0)
+        since = robot.state.stamp
+        start = len(robot.events)
+        reply = gcs.send(ROBOT, gri.Goto(waypoints=[goal], speed=5.0))
+        assert reply.accepted, reply.reason
+        robot.wait_state(lambda s: any(t.kind == "goto" for t in s.tasks) and bool(s.waypoints_queued), 20,
+                         "the goto flying")
+        assert send_command("127.0.0.1", control, "spoil position.lat=200 120") == "ok spoil position.lat=200.0 x120"
+        wait_until(lambda: REFUSED in [(m, c) for m, c, _ in errors_since(robot, since)], 15,
+                   "the refused frames reported on the GRI state")
+        first_refused = min(s for m, c, s in errors_since(robot, since) if (m, c) == REFUSED)
+        done = robot.wait_event(lambda e: e.task_id == reply.task_id and e.kind != "task_accepted", 60,
+                                "the goto ended", after=start)
+        assert done.kind == "task_failed" and "no valid telemetry" in done.detail, done
+        assert done.stamp - first_refused >= TELEMETRY_FAULT_WINDOW_S, (done.stamp, first_refused)
     finally:
         if gcs is not None:
             gcs.close()
