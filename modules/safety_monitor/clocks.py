@@ -2,9 +2,9 @@
 
 Why: the monitor compares stamps written by different processes (the task book, the DSP process's ``sent``
 records, the GRI, the simulator's truth). On a robot they are all wall-clock stamps. In a lockstep simulation the
-robot's clock is simulated time (``epoch + t``), but not every process stamps on it: the RAL and the telemetry
-module do, the Module Manager's task book and the DSP process's ``sent`` records are stamped with the wall clock,
-and the simulator's truth carries its own ``time_s`` (seconds since the simulation began). Comparing a wall stamp
+robot's clock is simulated time (``epoch + t``), but not every process stamps on it: the RAL, the telemetry module
+and the Module Manager (its task book and errors) do, the DSP process's ``sent`` records are stamped with the wall
+clock, and the simulator's truth carries its own ``time_s`` (seconds since the simulation began). Comparing a wall stamp
 with a simulated one looks up the aircraft at another moment of the flight (at ``--speed max`` the simulation runs
 seconds or minutes ahead of the wall, and starts behind it).
 
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import bisect
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 from bbcs.clock import SimTime
 
@@ -36,20 +36,27 @@ MAX_STEPS = 200_000
 """Steps remembered for the wall → robot look-up (11 simulated hours at 0.2 s a step)."""
 
 
+STAMPED_ON_WALL: dict[str, bool] = {"dsp": True, "manager": False, "ral": False, "telemetry": False}
+"""Which clock each source stamps on in lockstep (True: the wall), as the processes are built: the DSP process's
+``sent`` records on the wall; the Module Manager, the RAL and the telemetry module on the robot's clock. Known from
+the start, so a stamp is never guessed while the two clocks are still close (the simulation starts near the wall):
+a task started then and judged later was once put on the wrong clock. Still learned from fresh stamps."""
+
+
 class RobotTime:
     """Stamps in, robot time out. ``robot_now``: the robot's clock (the module's ``bbcs_clock.time``); ``wall``:
     the host's. Without lockstep (``simulated`` False) every stamp is already on the one clock, the wall."""
 
     def __init__(self, robot_now: Callable[[], float], *, simulated: bool,
-                 wall: Callable[[], float] = time.time) -> None:
+                 wall: Callable[[], float] = time.time, known: Mapping[str, bool] | None = None) -> None:
         self.robot_now = robot_now
         self.simulated = simulated
         self.wall = wall
         self.epoch: float | None = None
         self._walls: list[float] = []
         self._robot: list[float] = []
-        self.on_wall: dict[str, bool] = {}
-        """Source → whether it stamps on the wall clock (learned from its fresh stamps)."""
+        self.on_wall: dict[str, bool] = dict(known or {})
+        """Source → whether it stamps on the wall clock (``known`` at the start, learned from its fresh stamps)."""
 
     def note_step(self, now: SimTime, wall: float | None = None) -> None:
         """The stepper's ``SimTime`` has just arrived (any thread): from this wall instant the robot's clock reads

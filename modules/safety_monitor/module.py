@@ -46,7 +46,7 @@ from bbcs.contracts.safety import BREACH_SLOT, CODE_OF, STATUS_SLOT, Breach, Mon
 from bbcs.contracts.tasks import TaskInfo
 from bbcs.contracts.vehicle_truth import decode_truth
 from bbcs.lockstep import clock_key
-from modules.safety_monitor.clocks import RobotTime
+from modules.safety_monitor.clocks import STAMPED_ON_WALL, RobotTime
 from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor
 
 STATUS_PERIOD_S = 1.0
@@ -125,7 +125,7 @@ class SafetyMonitorModule(Module):
         super().__init__(context)
         self.clock = self.bbcs_clock.time
         """The robot's clock: every judgement and every stamp the monitor compares is on it."""
-        self.robot_time = RobotTime(self.clock, simulated=self.sim is not None)
+        self.robot_time = RobotTime(self.clock, simulated=self.sim is not None, known=STAMPED_ON_WALL)
         cfg = load_config(context)
         if self.sim is not None:  # a process's clock moves at a frame's end: its stamps may be a frame early
             cfg = dataclasses.replace(cfg, stamp_lag_s=self.sim.step_s)

@@ -131,6 +131,19 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
         yield robot
 
 
+def heard(session: object, marker: str, marks: list[bytes], what: bytes, timeout_s: float = 20.0) -> None:
+    """``what`` put on ``marker`` from ``session`` until the station's subscriber has it. A session just opened
+    may not yet know the router's subscribers and drop its first puts: before an attack, a marker heard proves the
+    attacker's puts reach the router (else "changes nothing" would prove nothing); after it, the first marker
+    heard follows every forged put (one session's puts stay in order)."""
+    for _ in range(round(timeout_s / 0.25)):
+        session.put(marker, what)  # type: ignore[attr-defined]
+        threading.Event().wait(0.25)
+        if what in marks:
+            return
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for the attacker's marker {what!r}")
+
+
 def sees_every_module(gcs: Gcs) -> None:
     """Wait until the station lists the robot and its state shows every module up (the manager saw each token)."""
     wait_until(lambda: gcs.robots(1.0) == [ROBOT], 30, "the robot in the GCS's robot list")
@@ -319,10 +332,10 @@ def test_history_injection_on_the_live_robot_changes_nothing(robot: Robot) -> No
                     attacker.session, key, cache=zenoh.ext.CacheConfig(1), publisher_detection=True,
                     sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=0.5)) for key in forged]
                 try:
+                    heard(attacker.session, marker, marks, b"ready")
                     for pub, value in zip(pubs, forged.values(), strict=True):
                         pub.put(msgspec.msgpack.encode(value))
-                    attacker.session.put(marker, b"after the forged publishers")
-                    wait_until(lambda: marks, 20, "the attacker's marker")
+                    heard(attacker.session, marker, marks, b"after the forged publishers")
                     # a late publisher is detected by its token and asked at once; give an admitted one time
                     threading.Event().wait(3.0)
                 finally:
@@ -374,9 +387,9 @@ def test_gcs_survey_works_and_a_module_identity_cannot_request_a_trajectory(robo
             with robot.client("vision", name="intruder", timeout_s=5.0) as attacker:
                 forged = TrajectoryRequest(request_id=FORGED_ID, orbit=OrbitRequest(
                     centre=Vertex(lat=home.lat, lon=home.lon), radius=40.0, height=20.0))
+                heard(attacker.session, marker, marks, b"ready")
                 attacker.session.put(keys.slot_key(ROBOT, "trajectory", "request"), msgspec.msgpack.encode(forged))
-                attacker.session.put(marker, b"after the forged request")
-                wait_until(lambda: marks, 20, "the attacker's marker")
+                heard(attacker.session, marker, marks, b"after the forged request")
             # the legitimate path: take off, then a survey from the GCS
             if not state.airborne:
                 reply = gcs.send(ROBOT, gri.TakeOff(height=10.0))
@@ -431,10 +444,10 @@ def test_a_secure_robot_takes_part_in_fleet_allocation_and_a_module_identity_can
             mark = len(robot.commands())
             forged_at = (round(home.lat - 0.0004, 4), round(home.lon - 0.0004, 4))
             with robot.client("vision", name="intruder", timeout_s=5.0) as attacker:
+                heard(attacker.session, marker, marks, b"ready")
                 FleetView(attacker.session).post(FleetTask(id="forged", targets=[FleetTarget(
                     id="f0", lat=forged_at[0], lon=forged_at[1], alt=home.alt + 10.0)], posted_by="gcs"))
-                attacker.session.put(marker, b"after the forged fleet task")
-                wait_until(lambda: marks, 20, "the attacker's marker")
+                heard(attacker.session, marker, marks, b"after the forged fleet task")
             target = (round(home.lat + 0.0003, 4), round(home.lon + 0.0002, 4))
             ground = robot.pki.with_name("pki-ground")  # the station signs with its own TLS identity
             view.post(FleetTask(id="secure_t1", targets=[FleetTarget(id="s0", lat=target[0], lon=target[1],
