@@ -13,7 +13,8 @@ The parts (docs/simulation.md, "Lockstep"):
   (``activity``), what its own threads still hold (``busy``, e.g. a DSP batch not yet sent) and device counters
   (``counts``, e.g. bytes on the DSP line).
 - **The barrier** (:class:`Barrier`, pure, with an injected wall time): a step is handled once every member has
-  answered a round not busy, the stepper's own check passes (the DSP line carried every byte both ways), and two
+  answered a round not busy, the stepper's own check passes (the DSP line carried every byte both ways), every
+  device link between two members carried every byte both ways (``unpaired_wires``), and two
   consecutive rounds show the same activity everywhere (nothing was still travelling between members). A member
   that does not answer within ``deadline_s`` wall seconds is left behind (named in the log) until it answers
   again: its heartbeat then stops in simulated time, and the manager's watchdog, on simulated time, restarts it.
@@ -135,7 +136,44 @@ class Done(msgspec.Struct, frozen=True, kw_only=True):
     busy: str = ""
     """Why the member is not finished although its loop is idle (its own threads' work); '' when finished."""
     counts: dict[str, int] = msgspec.field(default_factory=dict)
-    """Device counters the stepper compares with its own (e.g. bytes on the DSP line)."""
+    """Device counters the stepper compares with its own (e.g. bytes on the DSP line), and the ends of device links
+    between two members, which the barrier pairs (``wire_counts``, ``unpaired_wires``)."""
+
+
+WIRE_PREFIX = "wire/"
+"""Counts named ``wire/<link>/tx`` and ``wire/<link>/rx`` are a device link's two ends (see ``unpaired_wires``)."""
+
+
+def wire_counts(link: str, tx: int, rx: int) -> dict[str, int]:
+    """One end of a device link, as a member reports it in ``Done.counts``: the bytes it wrote on the link and
+    the bytes it read *and handled* from it (``link`` names the link the same way at both ends)."""
+    return {f"{WIRE_PREFIX}{link}/tx": tx, f"{WIRE_PREFIX}{link}/rx": rx}
+
+
+def unpaired_wires(answers: Mapping[str, Done]) -> str:
+    """The barrier's rule for device links between two members ('' when met): for every link reported by two
+    members (``wire_counts``), what each end wrote the other has read, both ways. A link reported by one member
+    alone (its other end is not a member, or was left behind) is not judged; nor one reported by more than two
+    (not a point-to-point link). E.g. the lidar simulators (``modules/lidar_logger/sim``) and the lidar logger on
+    the MTi-G's pty and the LD-MRS's TCP connection: a scan written but not yet read keeps the step open."""
+    ends: dict[str, dict[str, tuple[int, int]]] = {}
+    for member, done in answers.items():
+        for key, value in done.counts.items():
+            if not key.startswith(WIRE_PREFIX):
+                continue
+            link, _, direction = key[len(WIRE_PREFIX):].rpartition("/")
+            if not link or direction not in ("tx", "rx"):
+                continue
+            tx, rx = ends.setdefault(link, {}).get(member, (0, 0))
+            ends[link][member] = (value, rx) if direction == "tx" else (tx, value)
+    unmet = []
+    for link, by_member in sorted(ends.items()):
+        if len(by_member) != 2:
+            continue
+        (a, (a_tx, a_rx)), (b, (b_tx, b_rx)) = sorted(by_member.items())
+        if a_tx != b_rx or b_tx != a_rx:
+            unmet.append(f"link {link}: {a} wrote {a_tx} B ({b} read {b_rx}), {b} wrote {b_tx} B ({a} read {a_rx})")
+    return "; ".join(unmet)
 
 
 _encode = msgspec.msgpack.Encoder().encode
@@ -292,7 +330,8 @@ class Barrier:
         busy = {m: d.busy for m, d in answers.items() if d.busy}
         if set(busy) & set(self.required):
             self.started = now  # nobody is late while a required member (the manager starting the robot) holds the step
-        unmet = self.check(answers) if self.check is not None else ""
+        unmet = "; ".join(w for w in (self.check(answers) if self.check is not None else "",
+                                      unpaired_wires(answers)) if w)
         vector = {m: (d.activity, tuple(sorted(d.counts.items()))) for m, d in answers.items()}
         if not busy and not unmet and vector == self.previous:
             return Decision(Verdict.STEP)

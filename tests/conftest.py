@@ -70,6 +70,7 @@ HEAVY_STACKS = frozenset({
     "tests/modules/uquad/test_system_health.py",
     "tests/system/test_fleet_robot_death.py",
     "tests/cromat/mavlink/test_uquad_fleet.py",
+    "tests/modules/lidar_logger/test_lockstep_survey.py",
 })
 """Test files that run several robot stacks, or one with the lidar simulators' ray casting, for a minute or more.
 

@@ -28,9 +28,14 @@ class TwoSlotBuffer(Generic[T]):
         self.dropped = 0
         self.refused_after_close = 0
 
-    def put(self, item: T) -> bool:
-        """Receiver side. False when the item was not stored (buffer full, or closed)."""
+    def put(self, item: T, wait_s: float = 0.0) -> bool:
+        """Receiver side. False when the item was not stored (buffer full, or closed). ``wait_s`` > 0: wait that
+        many wall seconds at most for the writer to free the slot before dropping (a lockstep simulation, where
+        the simulation waits for the receiver instead of the receiver losing what the writer has not caught up
+        with)."""
         with self._cond:
+            if wait_s > 0:
+                self._cond.wait_for(lambda: self._closed or self._state[self._next_msg] == EMPTY, wait_s)
             if self._closed:
                 self.refused_after_close += 1
                 return False

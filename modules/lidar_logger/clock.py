@@ -71,4 +71,34 @@ class ScaledClock:
         return seconds / self.scale
 
 
+class RobotClock:
+    """A robot's ``bbcs.clock.Clock`` (a lockstep simulation's ``SimClock``) as the logger's ``Clock``: simulated
+    seconds that stand still while the simulation waits. ``wall`` cannot know how long simulated seconds last on
+    the wall, so it answers a short poll (the waits here look at the clock again after it)."""
+
+    scale = 1.0
+    POLL_S = 0.02
+
+    def __init__(self, clock) -> None:  # bbcs.clock.Clock (not imported: this module stays free of the bus)
+        self._clock = clock
+
+    def now(self) -> float:
+        return self._clock.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            self._clock.sleep(seconds)
+
+    def wait(self, event: threading.Event, seconds: float) -> bool:
+        end = self.now() + max(seconds, 0.0)
+        while not event.is_set():
+            if self.now() >= end:
+                return False
+            event.wait(self.POLL_S)
+        return True
+
+    def wall(self, seconds: float) -> float:
+        return min(max(seconds, 0.0), self.POLL_S)
+
+
 SYSTEM_CLOCK = SystemClock()

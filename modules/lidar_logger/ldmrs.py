@@ -43,6 +43,11 @@ log = logging.getLogger("lidar_logger.ldmrs")
 FREQUENCIES = {12.5: 3200, 25.0: 6400, 50.0: 12800}
 
 
+def ldmrs_link(host: str, port: int) -> str:
+    """The LD-MRS's device link as both ends name it in a lockstep simulation's counts."""
+    return f"ldmrs:{host}:{port}"
+
+
 class LdmrsError(RuntimeError):
     """The scanner refused a command, did not answer, or the connection failed."""
 
@@ -149,6 +154,11 @@ class LdmrsClient:
         self.unexpected_replies = 0
         self.handler_errors = 0
         self.disconnected: str | None = None
+        self.bytes_tx = 0
+        """Bytes sent to the scanner on this connection."""
+        self.bytes_handled = 0
+        """Bytes received from the scanner and handled: counted once every message they completed was dispatched
+        (a scan handed to ``on_scan`` and back). A lockstep simulation compares it with what the simulator sent."""
         self._sock: socket.socket | None = None
         self._send_lock = threading.Lock()
         self._waiters: dict[int, deque[PendingReply]] = {}
@@ -194,6 +204,7 @@ class LdmrsClient:
                 break
             for msg in self.parser.feed(chunk):
                 self._dispatch(msg.data_type, msg.payload)
+            self.bytes_handled += len(chunk)
             self._note_damaged()
         self._note_damaged()
         self._report(self.refusals.poll(float("inf")))
@@ -251,6 +262,12 @@ class LdmrsClient:
             err1, err2, warn1, warn2 = self.last_error_warning
             log.warning("LD-MRS errors 0x%04X 0x%04X warnings 0x%04X 0x%04X", err1, err2, warn1, warn2)
 
+    @property
+    def awaiting_replies(self) -> int:
+        """Commands sent whose reply has not come."""
+        with self._waiters_lock:
+            return sum(len(q) for q in self._waiters.values())
+
     def _fail_waiters(self) -> None:
         with self._waiters_lock:
             waiting = [w for q in self._waiters.values() for w in q]
@@ -271,6 +288,7 @@ class LdmrsClient:
         try:
             with self._send_lock:
                 self._sock.sendall(data)
+                self.bytes_tx += len(data)
         except OSError as exc:
             raise LdmrsError(f"cannot send command 0x{cmd:04X} to LD-MRS: {exc}") from None
         return waiter

@@ -22,21 +22,25 @@ import msgspec
 import serial
 
 from bbcs.contracts.error_codes import LidarLoggerError
+from bbcs.lockstep import wire_counts
 from modules.lidar_logger.binlog import BinaryLogWriter
 from modules.lidar_logger.buffer import TwoSlotBuffer
 from modules.lidar_logger.clock import SYSTEM_CLOCK, Clock
 from modules.lidar_logger.georef import Mounting
-from modules.lidar_logger.ldmrs import LdmrsClient, LdmrsError, ScannerConfig
+from modules.lidar_logger.ldmrs import LdmrsClient, LdmrsError, ScannerConfig, ldmrs_link
 from modules.lidar_logger.ldmrs_proto import Cmd
 from modules.lidar_logger.ldmrs_scan import Scan, layer_elevation_deg
 from modules.lidar_logger.logdata import ScanRecord
 from modules.lidar_logger.mtdata import Pose, utc_to_posix
-from modules.lidar_logger.mtig import MTiG, MTiGError, PoseSample, PoseSource
+from modules.lidar_logger.mtig import MTiG, MTiGError, PoseSample, PoseSource, mtig_link
 from modules.lidar_logger.textlog import TextLogWriter, date_stamp
 from modules.lidar_logger.vehicles import VEHICLES
 
 STOP_REPLY_TIMEOUT_S = 2.0
 """Wall seconds to wait for the StopMeasure acknowledgement while still writing what arrives."""
+LOCKSTEP_WAIT_S = 30.0
+"""Lockstep: wall seconds the receiver waits at most for a scan's pose or for a free buffer slot (the simulation
+waits for it meanwhile; only a dead pose source or writer makes it give up)."""
 
 
 @dataclass(frozen=True)
@@ -112,8 +116,16 @@ class LidarLogger:
     def __init__(self, settings: LoggerSettings, *, clock: Clock = SYSTEM_CLOCK, out: IO[str] | None = None,
                  on_pose: Callable[[Pose], None] | None = None,
                  on_scan: Callable[[ScanRecord], None] | None = None,
-                 on_refused: Callable[[int, str], None] | None = None) -> None:
+                 on_refused: Callable[[int, str], None] | None = None, lockstep: bool = False) -> None:
         self.s = settings
+        self.lockstep = lockstep
+        """A lockstep simulation (docs/simulation.md, docs/lidar_logger.md §8): ``clock`` is simulated time, a
+        scan takes the newest MTi-G sample stamped at or before its end (the receiver waits for it) instead of
+        the newest one received, a full buffer makes the receiver wait instead of dropping, and the run reports
+        what it still holds (``lockstep_busy``) and the bytes on both device links (``lockstep_counts``).
+        Without it nothing here differs."""
+        self._scanner: LdmrsClient | None = None
+        self._mtig_link = ""
         self.on_scan = on_scan
         """Called on the receiver thread with every scan and its pose (the module publishes it on the bus)."""
         self.clock = clock
@@ -154,6 +166,37 @@ class LidarLogger:
     def latest_pose(self) -> PoseSample | None:
         return self._source.latest() if self._source else None
 
+    # --- lockstep (docs/simulation.md) ---
+
+    def lockstep_busy(self) -> str:
+        """What the run holds that the simulation must wait for ('' = nothing): the devices being configured (the
+        scanner must start measuring at the same simulated instant in every run), an LD-MRS command awaiting its
+        reply. Bytes on the links are compared through ``lockstep_counts``."""
+        state = self.state
+        if state == "starting":
+            return "configuring the MTi-G"
+        if state == "waiting_pose":
+            sample = self.latest_pose()
+            return "a valid pose: configuring the LD-MRS" if sample is not None and sample.pose.valid == 1 else ""
+        if state == "configuring":
+            return "configuring the LD-MRS"
+        scanner = self._scanner
+        if state != "finished" and scanner is not None and scanner.awaiting_replies:
+            return "an LD-MRS command awaiting its reply"
+        return ""
+
+    def lockstep_counts(self) -> dict[str, int]:
+        """Both device links, one end each (``bbcs.lockstep.wire_counts``): what the logger wrote and what it read
+        and handled, named as the simulators name them (the MTi-G's pty, the LD-MRS's address)."""
+        counts: dict[str, int] = {}
+        source, scanner = self._source, self._scanner
+        if source is not None and self.state != "finished":
+            counts.update(wire_counts(mtig_link(self._mtig_link), *source.lockstep_counts()))
+        if scanner is not None and self.state != "finished":
+            counts.update(wire_counts(ldmrs_link(self.s.ldmrs_host, self.s.ldmrs_port), scanner.bytes_tx,
+                                      scanner.bytes_handled))
+        return counts
+
     def _say(self, text: str) -> None:
         if self.s.progress:
             print(f"[lidar] {text}", file=self.out, flush=True)
@@ -167,9 +210,11 @@ class LidarLogger:
         config_file: IO[str] | None = None
         try:
             mtig = MTiG(s.mtig_port, baudrate=s.mtig_baud)
+            self._mtig_link = os.path.realpath(s.mtig_port)
             mtig.configure(s.lever_arm)
             self._source = PoseSource(mtig, period=s.pose_period_s, clock=self.clock, on_pose=self.on_pose,
-                                      on_refused=self._refused(LidarLoggerError.POSE_REFUSED))
+                                      on_refused=self._refused(LidarLoggerError.POSE_REFUSED),
+                                      lockstep=self.lockstep)
             self._source.start()
             self.state = "waiting_pose"
             self._say(f"MTi-G configured on {mtig.port_name}; waiting for a valid pose (status 7)")
@@ -185,6 +230,7 @@ class LidarLogger:
             scanner = LdmrsClient(s.ldmrs_host, s.ldmrs_port)
             scanner.on_refused = self._refused(LidarLoggerError.SCAN_REFUSED)
             scanner.connect()
+            self._scanner = scanner
             status = scanner.get_status()
             if s.sync_scanner_clock:
                 scanner.set_time(self._utc_now())
@@ -234,14 +280,22 @@ class LidarLogger:
         """Receiver thread: attach the newest pose, hand the scan to the writer."""
         self._index += 1
         self._last_event = self.clock.now()
-        sample: PoseSample | None = self._source.latest() if self._source else None
+        if self.lockstep and self._source is not None:
+            # simulated time: the scan arrives at its end, the newest pose then is the newest sample stamped at or
+            # before it, whichever of the two reading threads ran first on the wall
+            sample = self._source.sample_for(scan.end_time, self._stop, LOCKSTEP_WAIT_S)
+        else:
+            sample = self._source.latest() if self._source else None
         assert sample is not None  # measuring only starts after a valid pose
         pose = sample.pose
-        stale = pose.valid == 1 and self._last_event - sample.t > self.s.pose_stale_s
+        if self.lockstep:
+            stale = pose.valid == 1 and scan.end_time - utc_to_posix(pose.utc) > self.s.pose_stale_s
+        else:
+            stale = pose.valid == 1 and self._last_event - sample.t > self.s.pose_stale_s
         if stale:
             pose = msgspec.structs.replace(pose, valid=0)
         record = ScanRecord(self._index, scan, pose)
-        if self._buffer.put(record) and stale:
+        if self._buffer.put(record, LOCKSTEP_WAIT_S if self.lockstep else 0.0) and stale:
             self._stale += 1
         if self.on_scan is not None:
             self.on_scan(record)

@@ -14,6 +14,10 @@ group's keys in lower case). The run starts when the module starts; SIGTERM/SIGI
 to idle, files closed) and then the module. A run that ends by itself (duration, silent scanner, error)
 leaves the module up with its final status until it is stopped, so a supervisor does not start a new
 flight log by restarting it.
+
+In a lockstep simulation (``CROMAT_SIM``, docs/simulation.md) the run is on simulated time and the module tells the
+barrier what it still holds and the bytes on its two device links (``lockstep_busy``, ``lockstep_counts``), which
+the barrier pairs with the lidar simulators' (docs/lidar_logger.md §8). Without it nothing of that runs.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import msgspec
 from bbcs import ConfError, Module, ModuleContext, OutputSlot, Safety
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.lidar import LidarScan
+from modules.lidar_logger.clock import RobotClock
 from modules.lidar_logger.config import (
     LidarConf,
     conf_errors,
@@ -92,8 +97,11 @@ class LidarLoggerModule(Module):
                 raise
             raise ConfError(f"lidar_logger: {exc}", path=context.conf or "manifest params") from None
         self._mounting = settings.mounting
+        # a lockstep simulation (CROMAT_SIM): the run on simulated time, reporting its device links to the barrier
+        lockstep = self.bbcs_clock.simulated
         self.logger = LidarLogger(settings, on_pose=self._publish_pose, on_scan=self._publish_scan,
-                                  on_refused=self._report_refused)
+                                  on_refused=self._report_refused, lockstep=lockstep,
+                                  **({"clock": RobotClock(self.bbcs_clock)} if lockstep else {}))
         self._thread = threading.Thread(target=self._acquire, name="lidar-run", daemon=True)
 
     def on_start(self) -> None:
@@ -101,6 +109,15 @@ class LidarLoggerModule(Module):
 
     def on_tick(self) -> None:
         self._publish_status()
+
+    def lockstep_busy(self) -> str:
+        """Lockstep: the devices being configured, a scanner command awaiting its reply (``LidarLogger``)."""
+        return self.logger.lockstep_busy()
+
+    def lockstep_counts(self) -> dict[str, int]:
+        """Lockstep: bytes written and read-and-handled on the MTi-G and LD-MRS links: the step ends only when the
+        lidar simulators' counts pair with them (``bbcs.lockstep.unpaired_wires``)."""
+        return self.logger.lockstep_counts()
 
     def on_stop(self) -> None:
         self.logger.request_stop("signal")

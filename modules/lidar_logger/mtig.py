@@ -18,7 +18,15 @@ from dataclasses import dataclass
 import serial
 
 from modules.lidar_logger.clock import SYSTEM_CLOCK, Clock
-from modules.lidar_logger.mtdata import POSE_MODE, POSE_SETTINGS, MTDataError, Pose, decode_pose, layout
+from modules.lidar_logger.mtdata import (
+    POSE_MODE,
+    POSE_SETTINGS,
+    MTDataError,
+    Pose,
+    decode_pose,
+    layout,
+    utc_to_posix,
+)
 from modules.lidar_logger.refusals import Refusals
 from modules.lidar_logger.xbus import ERROR_CODES, MID, Frame, FrameParser, ack_of, build_frame
 
@@ -26,6 +34,19 @@ SCENARIO_AEROSPACE = 3
 """XKF scenario id of 'Aerospace' on the MTi-G (General 1, Automotive 2, Aerospace 3, ...)."""
 SKIP_FACTOR_ON_REQUEST = 0xFFFF
 """Output skip factor meaning 'send MTData only when asked with ReqData'."""
+LOCKSTEP_REPLY_TIMEOUT_S = 2.0
+"""Lockstep: simulated seconds a ReqData may go unanswered (ten steps of 0.2 s). Simulated time stands still while
+the step waits, so a wait for the barrier is never taken for a silent device; a dead simulator is, once the stepper
+goes on without it."""
+LOCKSTEP_HISTORY = 1000
+"""Lockstep: samples kept to attach a scan's pose by time (20 simulated seconds at 50 Hz)."""
+TIME_TIE_S = 1e-6
+"""Two UTC stamps closer than this are the same instant (the MTi-G's ns and the LD-MRS's 2^-32 s encodings)."""
+
+
+def mtig_link(port: str) -> str:
+    """The MTi-G's device link as both ends name it in a lockstep simulation's counts: the tty it really is."""
+    return f"mtig:{port}"
 
 
 class MTiGError(RuntimeError):
@@ -53,6 +74,14 @@ class MTiG:
         self.device_id: int | None = None
         self.timeouts = 0
         self.unexpected_frames = 0
+        self.bytes_tx = 0
+        """Bytes written to the device."""
+        self.bytes_rx = 0
+        """Bytes read from the device."""
+        self.bytes_handled = 0
+        """Bytes read *and handled*: ``bytes_rx`` as it stood when a request last waited for a frame with none
+        left over (every frame read before had been returned to its caller, who handled it before asking again).
+        A lockstep simulation compares it with what the simulator wrote (``PoseSource.lockstep_counts``)."""
 
     # --- transport ---
 
@@ -60,30 +89,39 @@ class MTiG:
     def parser(self) -> FrameParser:
         return self._parser
 
-    def _next_frame(self, deadline: float) -> Frame | None:
+    def _next_frame(self, deadline: float, clock: Callable[[], float] = time.monotonic,
+                    cancel: threading.Event | None = None) -> Frame | None:
+        if not self._frames:
+            self.bytes_handled = self.bytes_rx
         while not self._frames:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            remaining = deadline - clock()
+            if remaining <= 0 or (cancel is not None and cancel.is_set()):
                 return None
             chunk = self._ser.read(max(self._ser.in_waiting, 1))
             if chunk:
+                self.bytes_rx += len(chunk)
                 self._frames.extend(self._parser.feed(chunk))
         return self._frames.popleft()
 
     def request(self, mid: int, data: bytes = b"", *, reply: int | None = None, timeout: float | None = None,
-                retries: int | None = None) -> Frame:
+                retries: int | None = None, clock: Callable[[], float] = time.monotonic,
+                cancel: threading.Event | None = None) -> Frame:
         """Send a message and return the expected reply (``MID+1`` unless ``reply`` is given).
 
         Frames that are not the reply (streamed MTData before GoToConfig, late answers) are skipped and
-        counted; an Error message raises at once; a silent device is retried, then raises.
+        counted; an Error message raises at once; a silent device is retried, then raises. ``timeout`` is in
+        seconds of ``clock`` (a lockstep simulation's pose source: simulated seconds); ``cancel`` set gives up
+        at once (the pose source stopping).
         """
         want = ack_of(mid) if reply is None else reply
         timeout = self.reply_timeout if timeout is None else timeout
         for _ in range(self.retries if retries is None else retries):
-            self._ser.write(build_frame(mid, data))
-            deadline = time.monotonic() + timeout
+            frame_out = build_frame(mid, data)
+            self._ser.write(frame_out)
+            self.bytes_tx += len(frame_out)
+            deadline = clock() + timeout
             while True:
-                frame = self._next_frame(deadline)
+                frame = self._next_frame(deadline, clock, cancel)
                 if frame is None:
                     break
                 if frame.mid == want:
@@ -154,11 +192,12 @@ class MTiG:
 
     # --- measurement ---
 
-    def read_pose(self, timeout: float | None = None) -> Pose:
+    def read_pose(self, timeout: float | None = None, *, clock: Callable[[], float] = time.monotonic,
+                  cancel: threading.Event | None = None) -> Pose:
         """ReqData → MTData → Pose. Raises MTiGError (no answer) or MTDataError (bad payload)."""
         if self.mode is None or self.settings is None:
             raise MTiGError("configure() the device before reading poses")
-        frame = self.request(MID.REQ_DATA, reply=MID.MTDATA, timeout=timeout, retries=1)
+        frame = self.request(MID.REQ_DATA, reply=MID.MTDATA, timeout=timeout, retries=1, clock=clock, cancel=cancel)
         return decode_pose(frame.data, self.mode, self.settings)
 
     def close(self) -> None:
@@ -180,9 +219,15 @@ class PoseSource:
 
     def __init__(self, device: MTiG, *, period: float = 0.02, clock: Clock = SYSTEM_CLOCK,
                  max_failures: int = 25, on_pose: Callable[[Pose], None] | None = None,
-                 on_refused: Callable[[str], None] | None = None) -> None:
+                 on_refused: Callable[[str], None] | None = None, lockstep: bool = False) -> None:
         self.device = device
         self.period = period
+        self.lockstep = lockstep
+        """A lockstep simulation (docs/simulation.md): the device paces the polling (the simulated MTi-G answers
+        each ReqData with its next sample once simulated time has reached it, so the next request goes at once),
+        replies are awaited in ``clock`` seconds (simulated), and every sample is kept to attach scans by time
+        (``sample_for``)."""
+        self._history: deque[tuple[float, PoseSample]] = deque(maxlen=LOCKSTEP_HISTORY)
         self.clock = clock
         self.max_failures = max_failures
         self.on_pose = on_pose
@@ -210,12 +255,41 @@ class PoseSource:
 
     def stop(self) -> None:
         self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
 
     def latest(self) -> PoseSample | None:
         with self._cond:
             return self._latest
+
+    def sample_for(self, posix: float, stop: threading.Event, wall_limit_s: float = 30.0) -> PoseSample | None:
+        """Lockstep: the newest sample stamped (MTi-G UTC) at or before ``posix``, once a sample at or after it
+        has arrived (so no later one can still be at or before it), the source failed or ``stop`` is set. The
+        wall limit only keeps a dead source from hanging the caller; in lockstep the simulated MTi-G has answered
+        up to the scan's instant before the step can end. None when no sample was ever received."""
+        end = time.monotonic() + wall_limit_s
+        with self._cond:
+            while not stop.is_set() and self.failed is None and time.monotonic() < end and not self._stopping():
+                if self._history and self._history[-1][0] >= posix - TIME_TIE_S:
+                    break
+                self._cond.wait(timeout=0.05)
+            best = None
+            for utc, sample in reversed(self._history):
+                if utc <= posix + TIME_TIE_S:
+                    best = sample
+                    break
+            if best is None:
+                best = self._history[0][1] if self._history else self._latest
+            return best
+
+    def _stopping(self) -> bool:
+        return self._stop.is_set()
+
+    def lockstep_counts(self) -> tuple[int, int]:
+        """Lockstep: bytes written to the MTi-G and bytes read from it and handled (``MTiG.bytes_handled``)."""
+        return self.device.bytes_tx, self.device.bytes_handled
 
     def wait_valid(self, stop: threading.Event, poll: float = 0.05) -> PoseSample | None:
         """Block until a sample with ``valid == 1`` arrives; None if ``stop`` is set or the source failed."""
@@ -254,9 +328,14 @@ class PoseSource:
         consecutive = 0
         next_t = self.clock.now()
         reply_timeout = max(0.2, min(1.0, self.clock.wall(10 * self.period)))
+        if self.lockstep:
+            reply_timeout = LOCKSTEP_REPLY_TIMEOUT_S
         while not self._stop.is_set():
             try:
-                pose = self.device.read_pose(timeout=reply_timeout)
+                if self.lockstep:
+                    pose = self.device.read_pose(timeout=reply_timeout, clock=self.clock.now, cancel=self._stop)
+                else:
+                    pose = self.device.read_pose(timeout=reply_timeout)
             except (MTiGError, MTDataError, serial.SerialException, OSError) as exc:
                 consecutive += 1
                 self.failures += 1
@@ -273,6 +352,10 @@ class PoseSource:
                 sample = PoseSample(pose, self.clock.now())
                 with self._cond:
                     self._latest = sample
+                    if self.lockstep:
+                        utc = utc_to_posix(pose.utc)
+                        if utc == utc:  # not NaN: a sample before the device had the time is never attached
+                            self._history.append((utc, sample))
                     self.samples += 1
                     self.valid_samples += pose.valid
                     self._cond.notify_all()
@@ -282,6 +365,8 @@ class PoseSource:
                     except Exception:  # a subscriber's failure must not stop the polling
                         self.callback_errors += 1
             self._note_damaged()
+            if self.lockstep:
+                continue  # the device paces the polling: its next sample is answered when simulated time reaches it
             next_t += self.period
             now = self.clock.now()
             if next_t < now:

@@ -16,6 +16,10 @@ setpoint), ``clock`` (wall: Ts from elapsed wall time, as the seed; imu: 10 ms p
 faster-than-real-time simulation), ``record_raw`` (a file: every IMU byte read is appended, a raw log for the
 fake mode), ``nice`` (default 0: the process's scheduling niceness, every thread; negative needs the right to
 raise priority, as a flight computer's loop has; refused → a warning and the default).
+
+In a lockstep simulation (``CROMAT_SIM``, docs/uquad.md §1.1) the flight loop times itself by the simulator's
+frames whatever ``clock`` says, stamps its data and telemetry with simulated time, judges the driver's ack
+timeout on it, and answers the barrier with what its threads have handled (modules/uquad/lockstep.py).
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from modules.uquad.core import FlightCore
 from modules.uquad.geo import Home
 from modules.uquad.gps import FakeGps, LocalGps, NmeaReader
 from modules.uquad.imu_protocol import ImuParser
+from modules.uquad.lockstep import FRAME_S, FlightLedger, crossed, flight_time, sim_epoch
 from modules.uquad.motor_client import MotorClient
 from modules.uquad.params import load_uquad_params, uquad_param_errors
 from modules.uquad.planner import Mode, apply_task, heading_deg
@@ -51,6 +56,12 @@ from modules.uquad.structs import ControlEntradaUquad, ImuRaw, MotorCommandLog, 
 from modules.uquad.transport import Stream, read_available
 
 TELEMETRY_PERIOD_S = 0.1
+TELEMETRY_EVERY = round(TELEMETRY_PERIOD_S / FRAME_S)
+"""Lockstep: the telemetry period in IMU frames (simulated time)."""
+TELEMETRY_PHASE = TELEMETRY_EVERY // 2
+"""Lockstep: the telemetry goes out half a period off the simulator's steps (frames 5, 15, ...): the last one of a
+step has reached the manager when the step ends and the robot state due then carries it (published at the step's
+end, it would race the state, which would carry it or the one before)."""
 STATE_EVERY = 2  # state published every this many IMU frames (50 Hz)
 SWITCH_INTERVAL_S = 0.0005
 """The interpreter's thread switch interval in this process (default 5 ms): the flight thread, woken by the
@@ -90,6 +101,15 @@ class UquadModule(Module):
         self.gps_url = p.gps or self.cfg.values.GPS_PORT
         self.motor_url = p.motor
         self.clock_mode = p.clock
+        self.lockstep = self.sim is not None
+        """A lockstep simulation: the flight loop's time is the frames' and its stamps are simulated time."""
+        if self.lockstep and self.clock_mode != "imu":
+            self.log.warning("lockstep: the flight loop times itself by the simulator's IMU frames (clock = imu), "
+                             "not by the wall clock its params ask for")
+            self.clock_mode = "imu"
+        self.ledger = FlightLedger()
+        self._epoch: float | None = None
+        """Lockstep: the simulation's epoch (wall time of simulated 0), once the clock has it."""
         self.record_raw = p.record_raw
         self.nice = p.nice
         self.core = FlightCore(self.cfg, load_calibration(self.cfg.imu_calib_file), p.controller)
@@ -132,6 +152,8 @@ class UquadModule(Module):
             self._outbox.put_nowait((slot, value))
         except queue.Full:
             self.outbox_dropped += 1
+        else:
+            self.ledger.queued += 1
 
     def _write_bus(self) -> None:
         while (item := self._outbox.get()) is not None:
@@ -140,6 +162,31 @@ class UquadModule(Module):
             except Exception:  # a closed session at shutdown: nothing more to write
                 self.log.exception("publishing %s failed", item[0])
                 return
+            finally:
+                self.ledger.published += 1
+
+    def lockstep_busy(self) -> str:
+        """Lockstep: data the flight thread queued for the bus that the writer has not published yet."""
+        return self.ledger.busy()
+
+    def lockstep_counts(self) -> dict[str, int]:
+        """Lockstep: the device links' bytes and commands the flight thread has finished with (the simulator
+        compares them with its own), and what left the module (modules/uquad/lockstep.py)."""
+        return self.ledger.counts(self.error_count)
+
+    def _stamp(self, flight_now: float) -> float:
+        """A datum's stamp: the wall clock, or in lockstep the simulated time of the frame it comes from."""
+        if self.lockstep:
+            if self._epoch is None:  # fixed once the stepper's time has reached the clock (before any frame)
+                self._epoch = sim_epoch(self.bbcs_clock)
+            if self._epoch is not None:
+                return self._epoch + flight_now
+        return time.time()
+
+    def _link_now(self, flight_now: float) -> float:
+        """What the driver link's ack timeout is measured on: the wall clock (its acks arrive in real time), or in
+        lockstep the frames' time (the simulator waits for each set-point, so an ack is late only in it)."""
+        return flight_now if self.lockstep else time.monotonic()
 
     def on_modo(self, m: UquadMode) -> None:
         self._inbox.put(("mode", Mode(m.modo)))
@@ -176,6 +223,7 @@ class UquadModule(Module):
             link = Stream(self.motor_url)
             assert link.socket is not None
             motor = MotorClient(link.socket, v.MOTOR_MIN, v.MOTOR_MAX, v.MOTOR_ACK_TIMEOUT)
+            self.ledger.motor_tx = 0
         raw_log = open(self.record_raw, "ab") if self.record_raw else None  # noqa: SIM115 - closed below
         self.parser, self.nmea, self.motor = parser, nmea, motor
         fds = [imu.fileno(), self._wake_r] + ([gps.fileno()] if gps else []) + ([motor.fileno()] if motor else [])
@@ -199,10 +247,12 @@ class UquadModule(Module):
                         gps_data = b""
                     for fix in nmea.feed(gps_data):
                         self.core.on_gps(LocalGps(*self.home.to_local(fix.lat, fix.lon, fix.alt), fix.ve, fix.vn))
+                    self.ledger.gps_rx += len(gps_data)
                 if imu.fileno() not in ready:
                     continue
                 data, lost = read_available(imu)  # frames read with the end are handled, then the loop stops
                 t_read = time.monotonic()
+                frames_before = frames
                 batch = parser.feed(data)
                 # on the wall clock, what was read together is one step (the seed's main); on the IMU's clock
                 # (replay of a raw log, faster-than-real-time simulation) every frame is a step of its own
@@ -211,33 +261,38 @@ class UquadModule(Module):
                     if not group or self.stopping:
                         break
                     frames += len(group)
-                    now = frames * 0.01 if self.clock_mode == "imu" else t_read
+                    now = flight_time(frames) if self.clock_mode == "imu" else t_read
                     refusals = self.core.stats.calibration_refusals
                     cuts = self.core.stats.tumble_cuts
                     cmd = self.core.on_frames(group, now)  # the estimator and the law run once per read
                     if cmd is not None:
                         self._command(cmd, now, t_read, motor)  # first: nothing else waits in front of it
                     if self.core.stats.tumble_cuts != cuts:  # motors cut (the zeros above): tell the RAL now
-                        self._publish_telemetry(tumbling=True)
+                        self._publish_telemetry(tumbling=True, stamp=self._stamp(now))
                         self.report_error(UquadErrorCode.LOSS_OF_CONTROL, self.core.stats.errors[-1])
                     if self.core.stats.calibration_refusals != refusals:
                         self.report_error(UquadErrorCode.CALIBRATION_REFUSED, self.core.stats.errors[-1])
                     if fake_gps is not None and self.core.calibrated and (g := fake_gps.poll(now)) is not None:
                         self.core.on_gps(g)
-                    stamp = time.time()
+                    stamp = self._stamp(now)
                     for frame in group:
                         self._send("imu_raw", ImuRaw(stamp=stamp, **frame._asdict()))
                     if frames // STATE_EVERY != (frames - len(group)) // STATE_EVERY and self.core.calibrated:
                         self._publish_state(stamp)
                 if raw_log is not None:
                     raw_log.write(data)
-                wall = time.monotonic()
-                if wall >= next_tel:
-                    next_tel = wall + TELEMETRY_PERIOD_S
-                    self._publish_telemetry()
+                if self.lockstep:  # every TELEMETRY_EVERY frames of simulated time
+                    if crossed(frames_before - TELEMETRY_PHASE, frames - TELEMETRY_PHASE, TELEMETRY_EVERY):
+                        self._publish_telemetry(stamp=self._stamp(flight_time(frames)))
+                else:
+                    wall = time.monotonic()
+                    if wall >= next_tel:
+                        next_tel = wall + TELEMETRY_PERIOD_S
+                        self._publish_telemetry()
                 if lost is not None:
                     self.report_error(UquadErrorCode.IMU_LOST, str(lost))
                     break
+                self.ledger.imu_rx += len(data)  # last: everything this read brought is handled and queued
         finally:
             st = parser.stats
             self.log.info("flight loop stopped: frames=%d bad_frames=%d bytes_discarded=%d control_actions=%d",
@@ -274,23 +329,25 @@ class UquadModule(Module):
         """Hand the command to the driver link; the latency ends there (the seed's IMU → control action), and only
         then are the driver's acks read and checked and the action logged."""
         sent = list(cmd)
-        if motor is not None:  # the driver link always runs on the wall clock (its acks arrive in real time)
-            sent = motor.send(time.monotonic(), cmd)
+        if motor is not None:  # the link's ack timeout on the wall clock, in lockstep on the frames' (_link_now)
+            sent = motor.send(self._link_now(now), cmd)
+            self.ledger.motor_tx = motor.sent
         latency = time.monotonic() - t_read
         self.latencies.append(latency)
         if motor is not None:
             motor.on_readable(time.monotonic())  # acks already here count, even while a burst of frames is handled
-            error = motor.check(time.monotonic())
+            error = motor.check(self._link_now(now))
             if error and not self.driver_error:
                 self.driver_error = error
                 action = self.cfg.values.MOTOR_ERROR_ACTION
                 self.report_error(UquadErrorCode.DRIVER_ERROR, f"{error}: {action}")
                 if action == "cut":
                     self.core.set_mode(Mode.IDLE)
-                    motor.send(time.monotonic(), [0.0] * 4)
+                    motor.send(self._link_now(now), [0.0] * 4)
+                    self.ledger.motor_tx = motor.sent
                 else:
                     self.core.set_mode(Mode.LAND)
-        self._send("control", MotorCommandLog(stamp=time.time(), speeds=_vec(sent),
+        self._send("control", MotorCommandLog(stamp=self._stamp(now), speeds=_vec(sent),
                                                 ts=float(self.core.stats.last_ts), latency_s=latency))
 
     def _publish_state(self, stamp: float) -> None:
@@ -300,12 +357,14 @@ class UquadModule(Module):
             rates=_vec(self.core.gyro), acc_bias=_vec(k.acc_bias), mode=int(self.core.planner.mode),
             setpoint=_vec(self.core.planner.sp)))
 
-    def _publish_telemetry(self, tumbling: bool = False) -> None:
+    def _publish_telemetry(self, tumbling: bool = False, stamp: float | None = None) -> None:
         """The generic telemetry; ``tumbling``: sent at the cut, still airborne (it is: falling, motors off) so the
-        RAL judges the attitude that made it (the planner is idle from now on)."""
+        RAL judges the attitude that made it (the planner is idle from now on). ``stamp``: now (the wall clock)
+        unless given (lockstep: the simulated time of the frame it describes)."""
         core = self.core
+        stamp = time.time() if stamp is None else stamp
         if not core.calibrated:
-            self._send("telemetry", RobotTelemetry(stamp=time.time(), mode=int(Mode.IDLE), mode_name="calibrating",
+            self._send("telemetry", RobotTelemetry(stamp=stamp, mode=int(Mode.IDLE), mode_name="calibrating",
                                                    airborne=False))
             return
         k = core.kalman
@@ -315,7 +374,7 @@ class UquadModule(Module):
         planner = core.planner
         queued = len(planner.waypoints) if planner.mode is Mode.GOTO else 0
         self._send("telemetry", RobotTelemetry(
-            stamp=time.time(),
+            stamp=stamp,
             position=GeoPoint(lat=lat, lon=lon, alt=alt),
             attitude=Attitude(roll=float(np.degrees(psi)), pitch=float(np.degrees(phi)), yaw=heading_deg(theta)),
             velocity=VelocityNED(vn=float(k.velocity[1]), ve=float(k.velocity[0]), vd=-float(k.velocity[2])),

@@ -18,13 +18,16 @@ Process: ``python -m modules.uquad.motor_driver --conf C --listen 127.0.0.1:P --
 With ``--lockstep`` (the simulator's lockstep, docs/uquad.md) the driver forwards exactly one set-point per
 command and no keep-alive, and its clock is the commands' (one control period, 10 ms × CONTROL_EVERY, each): the
 ramp lasts MOTOR_RAMP_S of simulated time whatever the load. Its silence timeout cannot fire on that clock; a
-controller gone silent is stopped by the simulated ESCs' own timeout, on simulated time.
+controller gone silent is stopped by the simulated ESCs' own timeout, on simulated time. A lockstep launch
+(``CROMAT_SIM`` in its environment: the simulator steps on the bus barrier) implies ``--lockstep``: the barrier
+counts one set-point per command.
 """
 
 from __future__ import annotations
 
 import argparse
 import enum
+import os
 import select
 import signal
 import socket
@@ -32,6 +35,7 @@ import sys
 import time
 from dataclasses import dataclass
 
+from bbcs.lockstep import SIM_ENV
 from modules.uquad import motor_protocol as mp
 from modules.uquad.motor_protocol import AckStatus
 
@@ -231,7 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     v = load_config(args.conf).values
     logic = DriverLogic(v.MOTOR_MIN, v.MOTOR_MAX, v.MOTOR_RAMP_S, v.MOTOR_CMD_TIMEOUT)
-    command_period = 0.01 * v.CONTROL_EVERY if args.lockstep else None
+    lockstep = args.lockstep or bool(os.environ.get(SIM_ENV))
+    command_period = 0.01 * v.CONTROL_EVERY if lockstep else None
     proc = DriverProcess(logic, _addr(args.listen), _addr(args.esc), v.MOTOR_SEND_PERIOD, command_period)
     signal.signal(signal.SIGTERM, lambda *_: proc.stop())
     signal.signal(signal.SIGINT, lambda *_: proc.stop())

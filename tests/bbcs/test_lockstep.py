@@ -24,6 +24,8 @@ from bbcs.lockstep import (
     Verdict,
     settings_env,
     settings_from_env,
+    unpaired_wires,
+    wire_counts,
 )
 from bbcs.module import Module
 from bbcs.session import local_client, open_session
@@ -132,6 +134,57 @@ def test_a_member_that_leaves_is_no_longer_waited_for() -> None:
     b.answer(done("a", 0, 0, 1))
     b.left("dead")
     assert b.decide(0.1).verdict is Verdict.ASK
+
+
+def wired(member: str, step: int, rnd: int, activity: int, busy: str = "", **links: tuple[int, int]) -> Done:
+    counts: dict[str, int] = {}
+    for link, (tx, rx) in links.items():
+        counts.update(wire_counts(link, tx, rx))
+    return Done(member=member, step=step, round=rnd, activity=activity, busy=busy, counts=counts)
+
+
+def test_a_device_link_pairs_what_one_end_wrote_with_what_the_other_read() -> None:
+    def answers(*dones: Done) -> dict[str, Done]:
+        return {d.member: d for d in dones}
+
+    assert unpaired_wires(answers(wired("sim", 0, 0, 0, mtig=(120, 30)),
+                                  wired("logger", 0, 0, 0, mtig=(30, 120)))) == ""
+    # a scan written by the simulator and not yet read by the logger
+    unmet = unpaired_wires(answers(wired("sim", 0, 0, 0, ldmrs=(5000, 40)), wired("logger", 0, 0, 0, ldmrs=(40, 4200))))
+    assert unmet == "link ldmrs: logger wrote 40 B (sim read 40), sim wrote 5000 B (logger read 4200)"
+    # a request written by the logger and not yet handled by the simulator
+    assert "link mtig" in unpaired_wires(answers(wired("sim", 0, 0, 0, mtig=(120, 30)),
+                                                 wired("logger", 0, 0, 0, mtig=(36, 120))))
+    # each link on its own: one settled, the other not
+    unmet = unpaired_wires(answers(wired("sim", 0, 0, 0, mtig=(120, 30), ldmrs=(10, 2)),
+                                   wired("logger", 0, 0, 0, mtig=(30, 120), ldmrs=(2, 9))))
+    assert unmet.startswith("link ldmrs:") and "mtig" not in unmet
+    # one end alone (its other end not a member, or left behind), three ends, other counts: not judged
+    assert unpaired_wires(answers(wired("sim", 0, 0, 0, mtig=(120, 30)))) == ""
+    assert unpaired_wires(answers(wired("a", 0, 0, 0, x=(1, 0)), wired("b", 0, 0, 0, x=(0, 0)),
+                                  wired("c", 0, 0, 0, x=(0, 0)))) == ""
+    assert unpaired_wires(answers(done("dsp", 0, 0, 0, dsp_bytes_tx=10, dsp_bytes_rx=3),
+                                  done("x", 0, 0, 0, dsp_bytes_tx=1, dsp_bytes_rx=2))) == ""
+
+
+def test_a_step_waits_until_both_ends_of_a_device_link_agree() -> None:
+    b = barrier("lidar_sim", "lidar_logger")
+    b.answer(wired("lidar_sim", 0, 0, 100, mtig=(100, 24), ldmrs=(9000, 64)))
+    b.answer(wired("lidar_logger", 0, 0, 7, mtig=(24, 100), ldmrs=(64, 4000)))  # half a scan read
+    d = b.decide(0.1)
+    assert d.verdict is Verdict.ASK and "link ldmrs" in d.why and d.delay > 0  # asked again after a pause
+    for rnd in (1, 2):  # the logger has read the scan: two quiet rounds, then the step
+        b.answer(wired("lidar_sim", 0, rnd, 100, mtig=(100, 24), ldmrs=(9000, 64)))
+        b.answer(wired("lidar_logger", 0, rnd, 8, mtig=(24, 100), ldmrs=(64, 9000)))
+        d = b.decide(0.2 + rnd)
+    assert d.verdict is Verdict.STEP
+    # a stepper's own check and the links' rule both hold the step, and both are named
+    b = barrier("lidar_sim", "lidar_logger", check=lambda answers: "DSP line: 3 B unread")
+    b.answer(wired("lidar_sim", 0, 0, 1, mtig=(10, 0)))
+    b.answer(wired("lidar_logger", 0, 0, 1, mtig=(0, 4)))
+    d = b.decide(0.1)
+    assert d.verdict is Verdict.ASK and d.why == ("DSP line: 3 B unread; link mtig: lidar_logger wrote 0 B "
+                                                  "(lidar_sim read 0), lidar_sim wrote 10 B (lidar_logger read 4)")
 
 
 def test_settings_travel_in_the_environment() -> None:

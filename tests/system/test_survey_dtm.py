@@ -1,8 +1,10 @@
 """Issue 18, the one-command mission: launch, survey, terrain model, error against the simulator's terrain.
 
-Exactly the procedure of docs/lidar_logger.md §14, sped up: ``cromat launch`` of ``bbcs_conf/uav1_lidar_sim.toml``
-(the DSP simulator's helicopter; the MTi-G and LD-MRS simulators flying with it over the analytic terrain through
-the truth link; the lidar logger logging; the trajectory generator; the RAL), take-off, then
+Exactly the procedure of docs/lidar_logger.md §14, in a lockstep simulation at ``--speed max``
+(docs/simulation.md): ``cromat launch`` of ``bbcs_conf/uav1_lidar_sim.toml`` with ``[sim] lockstep = true`` (the DSP
+simulator's helicopter stepping on the barrier; the MTi-G and LD-MRS simulators flying with it over the analytic
+terrain through the truth link, members of the barrier, so every scan is logged with its pose whatever the
+machine's load; the lidar logger logging; the trajectory generator; the RAL), take-off, then
 ``cromat gcs task uav1 survey POLYGON.geojson --height H --overlap P`` (the CLI, as a user types it), wait for
 the task's completion (GRI events), stop the launch (the logger closes its files), ``cromat lidar dtm`` of the
 flight's log clipped to the polygon (the CLI again), and the GeoTIFF read back and compared with the analytic
@@ -34,8 +36,8 @@ from launch_support import ROOT, Launch, child_env  # noqa: E402
 
 rasterio = pytest.importorskip("rasterio")
 
-TIME_SCALE = 3.0
-"""Simulated seconds per wall second (DSP simulator; the lidar simulators follow its clock)."""
+SPEED = "max"
+"""``cromat launch --speed``: as fast as every member of the barrier allows (the lidar simulators among them)."""
 HOME = (37.4117, -6.0025, 12.0)
 """The DSP simulator's default home: the analytic terrain is anchored there (height 0 at home)."""
 HEIGHT = 30.0
@@ -53,10 +55,10 @@ MAX_ERR_M = 0.5
 def manifest(tmp_path: Path) -> Path:
     text = (ROOT / "bbcs_conf" / "uav1_lidar_sim.toml").read_text()
     text = text.replace('conf = "uav1.conf"', f'conf = "{ROOT / "bbcs_conf" / "uav1.conf"}"')
-    dsp = '"--tcp", "127.0.0.1:{port:dsp}"'
-    assert dsp + "]" in text, "the DSP simulator's command line in uav1_lidar_sim.toml changed"
-    text = text.replace(dsp + "]", f'{dsp}, "--time-scale", "{TIME_SCALE:g}"]')
     assert '"--follow-udp", "{port:truth}"' in text, "the lidar simulators no longer follow the DSP simulator"
+    if "lockstep = true" not in text:
+        assert "\n[bus]\n" in text, "uav1_lidar_sim.toml has no [bus] table to put [sim] before"
+        text = text.replace("\n[bus]\n", "\n[sim]\nlockstep = true\n\n[bus]\n", 1)
     text = text.replace("params = { ldmrs_host", f'params = {{ out_dir = "{tmp_path / "lidar"}", ldmrs_host')
     path = tmp_path / "uav1_lidar_sim.toml"
     path.write_text(text)
@@ -85,7 +87,7 @@ def cromat(*args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[
 
 @pytest.fixture
 def robot(tmp_path: Path) -> Iterator[SimRobot]:
-    la = Launch(manifest(tmp_path), tmp_path)
+    la = Launch(manifest(tmp_path), tmp_path, "--speed", SPEED)
     gcs = None
     try:
         la.wait_line("modules up", timeout_s=150)

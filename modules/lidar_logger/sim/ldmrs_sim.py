@@ -14,9 +14,12 @@ messages, messages sent in pieces.
 from __future__ import annotations
 
 import functools
+import math
+import os
 import select
 import socket
 import struct
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -74,6 +77,10 @@ class LdmrsOptions:
     """Put 1-40 junk bytes before every k-th message (0 = never)."""
     split_sends: bool = False
     """Send every message in three pieces a little apart, so the driver sees it across several reads."""
+    release_grid: float | None = None
+    """Lockstep (docs/lidar_logger.md §8): a scan leaves at the first instant of this grid (clock seconds from 0)
+    at or after its end, the MTi-G simulator's sample grid: the sample a driver attaches to it (the newest at or
+    before its end) has then been answerable too. None: it leaves as soon as it has ended."""
 
 
 CATCH_UP_BURST = 4
@@ -204,8 +211,14 @@ class LdmrsDevice:
     # --- scans ---
 
     def due(self, t: float) -> bool:
-        """True when the scan in progress has ended by clock time ``t``."""
-        return self.measuring and t >= self._next_start + self.sweep
+        """True when the scan in progress has ended by clock time ``t`` (lockstep: and its release instant)."""
+        if not self.measuring:
+            return False
+        end = self._next_start + self.sweep
+        grid = self.options.release_grid
+        if grid is None:
+            return t >= end
+        return math.ceil(end / grid - 1e-9) * grid <= t + 1e-6
 
     def next_due(self) -> float | None:
         return self._next_start + self.sweep if self.measuring else None
@@ -283,6 +296,21 @@ class LdmrsSimulator(BackgroundServer):
         """Clock time of every accepted connection."""
         self.messages_sent = 0
         self._garbage_rng = np.random.default_rng(self.device.options.seed + 1)
+        self.bytes_tx = 0
+        """Bytes sent on the current connection."""
+        self.bytes_rx = 0
+        """Bytes received on the current connection and handled (every command they completed answered)."""
+        self.lockstep = self.device.options.release_grid is not None
+        self._work = threading.Lock()
+        """Held while the thread builds and sends scans or answers commands: ``lockstep_busy`` sees the device
+        between two passes."""
+        subscribe = getattr(world.clock, "subscribe", None)
+        self._wake_fd: int | None = subscribe() if self.lockstep and subscribe is not None else None
+
+    def lockstep_busy(self, now: float) -> str:
+        """Lockstep: what the scanner has still to send at clock time ``now`` ('' = nothing)."""
+        with self._work:
+            return "LD-MRS: a scan to send" if self.device.due(now) else ""
 
     def _release(self) -> None:
         self._listener.close()
@@ -299,18 +327,29 @@ class LdmrsSimulator(BackgroundServer):
             a, b = len(msg) // 3, 2 * len(msg) // 3
             for piece in (msg[:a], msg[a:b], msg[b:]):
                 client.sendall(piece)
+                self.bytes_tx += len(piece)
                 time.sleep(0.0005)
         else:
             client.sendall(msg)
+            self.bytes_tx += len(msg)
+
+    def _drain_wake(self) -> None:
+        if self._wake_fd is not None:
+            try:
+                os.read(self._wake_fd, 4096)
+            except (BlockingIOError, OSError):
+                pass
 
     def _serve(self) -> None:
         clock = self.world.clock
         client: socket.socket | None = None
         parser = MessageParser()
+        wake = [] if self._wake_fd is None else [self._wake_fd]
         while not self._stop.is_set():
             if client is None:
-                ready, _, _ = select.select([self._listener], [], [], 0.05)
-                if ready:
+                ready, _, _ = select.select([self._listener, *wake], [], [], 0.05)
+                self._drain_wake()
+                if self._listener in ready:
                     try:
                         client, _ = self._listener.accept()
                     except BlockingIOError:
@@ -318,34 +357,41 @@ class LdmrsSimulator(BackgroundServer):
                     client.setblocking(True)
                     client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                     parser = MessageParser()
+                    with self._work:
+                        self.bytes_tx = self.bytes_rx = 0
                     self.connected_at.append(clock.now())
                 now = clock.now()
-                while self.device.due(now):
-                    self.device.take_scan(send=False)
+                with self._work:
+                    while self.device.due(now):
+                        self.device.take_scan(send=False)
                 continue
             due = self.device.next_due()
             now = clock.now()
             timeout = 0.05 if due is None else min(0.05, max(0.0, clock.wall(due - now)))
             try:
-                ready, _, _ = select.select([client], [], [], timeout)
-                now = clock.now()
-                burst = 0
-                # scans that ended before the commands below are read; a simulator far behind (a loaded machine)
-                # still reads its commands every few scans, so a StopMeasure is answered while it catches up
-                while self.device.due(now) and burst < CATCH_UP_BURST:
-                    scan = self.device.take_scan(send=True)
-                    burst += 1
-                    if scan is not None:
-                        self._send(client, DataType.SCAN, encode_scan(scan), now)
-                if ready:
-                    chunk = client.recv(65536)
-                    if not chunk:
-                        raise ConnectionResetError("client closed")
-                    for msg in parser.feed(chunk):
-                        if msg.data_type == DataType.COMMAND:
-                            reply = self.device.handle_command(msg.payload, clock.now())
-                            if reply is not None:
-                                self._send(client, DataType.REPLY, reply, clock.now())
+                ready, _, _ = select.select([client, *wake], [], [], timeout)
+                self._drain_wake()
+                with self._work:
+                    now = clock.now()
+                    burst = 0
+                    # scans that ended before the commands below are read; a simulator far behind (a loaded
+                    # machine) still reads its commands every few scans, so a StopMeasure is answered while it
+                    # catches up
+                    while self.device.due(now) and burst < CATCH_UP_BURST:
+                        scan = self.device.take_scan(send=True)
+                        burst += 1
+                        if scan is not None:
+                            self._send(client, DataType.SCAN, encode_scan(scan), now)
+                    if client in ready:
+                        chunk = client.recv(65536)
+                        if not chunk:
+                            raise ConnectionResetError("client closed")
+                        for msg in parser.feed(chunk):
+                            if msg.data_type == DataType.COMMAND:
+                                reply = self.device.handle_command(msg.payload, clock.now())
+                                if reply is not None:
+                                    self._send(client, DataType.REPLY, reply, clock.now())
+                        self.bytes_rx += len(chunk)
             except OSError:
                 client.close()
                 client = None

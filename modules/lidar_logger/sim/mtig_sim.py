@@ -10,9 +10,11 @@ follows the world's timeline 0 → 5 → 7.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import struct
+import threading
 import tty
 from dataclasses import dataclass, field
 
@@ -34,6 +36,8 @@ DEFAULT_DEVICE_ID = 0x00500123
 """An MTi-G device id (type nibble 0x005)."""
 ERR_INVALID_MESSAGE = 0x04
 ERR_INVALID_PARAMETER = 0x21
+TIME_EPS_S = 1e-6
+"""A sample instant and a clock time closer than this are the same (sums of 0.02 s physics steps drift)."""
 
 
 @dataclass
@@ -53,7 +57,15 @@ class MTiGDevice:
     """(clock time, MID, data) of every message received."""
     poses_sent: list[tuple[float, object]] = field(default_factory=list)
     """(clock time, Pose) of every MTData answering a ReqData."""
-
+    sample_period: float | None = None
+    """Lockstep (docs/lidar_logger.md §8): ReqData is answered with the device's *next* sample of a series every
+    ``sample_period`` clock seconds (on a grid from clock 0), held until the clock reaches it: the requests are
+    paced by simulated time, so the samples a driver gets do not depend on when its requests came on the wall.
+    None: answered at once with the pose at the clock's time (a real device's newest sample)."""
+    pending: int = 0
+    """Lockstep: ReqData received and not yet answered."""
+    next_index: int | None = None
+    """Lockstep: grid index of the next sample to answer (set by the first ReqData)."""
     def _mtdata(self, t: float, record: bool) -> bytes:
         pose = self.world.true_pose(t)
         payload = encode_pose_payload(pose, self.mode, self.settings, self.sample_counter)
@@ -80,6 +92,11 @@ class MTiGDevice:
             self.state = "measurement"
             return ack()
         if mid == MID.REQ_DATA:
+            if self.sample_period is not None:
+                if self.next_index is None:
+                    self.next_index = max(0, math.ceil(t / self.sample_period - TIME_EPS_S))
+                self.pending += 1
+                return []
             return [self._mtdata(t, record=True)]
         if mid == MID.REQ_DID:
             return ack(struct.pack(">I", self.device_id))
@@ -136,6 +153,19 @@ class MTiGDevice:
     def stream(self, t: float) -> bytes:
         return self._mtdata(t, record=False)
 
+    def answerable(self, t: float) -> bool:
+        """Lockstep: a held ReqData whose sample instant the clock (``t``) has reached."""
+        return (self.sample_period is not None and self.pending > 0 and self.next_index is not None
+                and self.next_index * self.sample_period <= t + TIME_EPS_S)
+
+    def answer_held(self) -> bytes:
+        """Lockstep: the MTData of the next sample (``answerable`` first)."""
+        assert self.sample_period is not None and self.next_index is not None
+        frame = self._mtdata(self.next_index * self.sample_period, record=True)
+        self.next_index += 1
+        self.pending -= 1
+        return frame
+
     def first_status_time(self, status: int) -> float | None:
         """Clock time of the first ReqData answered with this status byte."""
         for t, pose in self.poses_sent:
@@ -145,7 +175,13 @@ class MTiGDevice:
 
 
 class MTiGSimulator(BackgroundServer):
-    """The device on a pty, served by a thread. ``port`` is the path a driver opens."""
+    """The device on a pty, served by a thread. ``port`` is the path a driver opens.
+
+    In a lockstep simulation (the device's ``sample_period`` set) it also counts the bytes it wrote and the bytes
+    it read and handled (``bytes_tx``, ``bytes_rx``), says what it still has to do at a clock time
+    (``lockstep_busy``), wakes when the world's clock moves (``world.clock.subscribe()``, ``sim/lockstep.py``) and
+    stays silent until the driver has written to it (a driver's open flushes what the pty held: the power-up stream
+    would be written and never read)."""
 
     THREAD_NAME = "mtig-sim"
 
@@ -159,6 +195,14 @@ class MTiGSimulator(BackgroundServer):
         self.port = os.ttyname(self._slave)
         self.parser = FrameParser()
         self.dropped_writes = 0
+        self.bytes_tx = 0
+        self.bytes_rx = 0
+        self.lockstep = self.device.sample_period is not None
+        self._work = threading.Lock()
+        """Held while the thread reads, answers or streams: ``lockstep_busy`` sees the device between two passes."""
+        subscribe = getattr(world.clock, "subscribe", None)
+        self._wake_fd: int | None = subscribe() if self.lockstep and subscribe is not None else None
+        self._next_stream: float | None = None
 
     def _release(self) -> None:
         for fd in (self._master, self._slave):
@@ -173,36 +217,59 @@ class MTiGSimulator(BackgroundServer):
 
     def _write(self, data: bytes) -> None:
         try:
-            os.write(self._master, data)
+            self.bytes_tx += os.write(self._master, data)
         except BlockingIOError:
             self.dropped_writes += 1  # nobody reads the port: a real UART would overrun too
 
+    def lockstep_busy(self, now: float) -> str:
+        """Lockstep: what the device has still to write at clock time ``now`` ('' = nothing)."""
+        with self._work:
+            if self.device.answerable(now):
+                return "MTi-G: a ReqData to answer"
+            if self._streaming() and self._next_stream is not None and now >= self._next_stream:
+                return "MTi-G: a sample to stream"
+            return ""
+
+    def _streaming(self) -> bool:
+        return self.device.stream_interval() is not None and (not self.lockstep or self.bytes_rx > 0)
+
     def _serve(self) -> None:
         clock = self.world.clock
-        next_stream: float | None = None
+        fds = [self._master] if self._wake_fd is None else [self._master, self._wake_fd]
         while not self._stop.is_set():
             interval = self.device.stream_interval()
             now = clock.now()
-            if interval is None:
-                next_stream = None
+            if interval is None or not self._streaming():
+                self._next_stream = None
                 timeout = 0.05
             else:
-                if next_stream is None:
-                    next_stream = now
-                timeout = min(0.05, max(0.0, clock.wall(next_stream - now)))
-            ready, _, _ = select.select([self._master], [], [], timeout)
-            if ready:
+                if self._next_stream is None:
+                    self._next_stream = now
+                timeout = min(0.05, max(0.0, clock.wall(self._next_stream - now)))
+            if self.device.answerable(now):
+                timeout = 0.0
+            ready, _, _ = select.select(fds, [], [], timeout)
+            if self._wake_fd is not None and self._wake_fd in ready:
                 try:
-                    chunk = os.read(self._master, 4096)
+                    os.read(self._wake_fd, 4096)
                 except (BlockingIOError, OSError):
-                    chunk = b""
-                for frame in self.parser.feed(chunk):
-                    for reply in self.device.handle(frame, clock.now()):
-                        self._write(reply)
-            if next_stream is not None and self.device.stream_interval() is not None:
-                now = clock.now()
-                if now >= next_stream:
-                    self._write(self.device.stream(now))
-                    next_stream += interval
-                    if next_stream < now:  # fell behind: skip samples rather than send a burst
-                        next_stream = now + interval
+                    pass
+            with self._work:
+                if self._master in ready:
+                    try:
+                        chunk = os.read(self._master, 4096)
+                    except (BlockingIOError, OSError):
+                        chunk = b""
+                    for frame in self.parser.feed(chunk):
+                        for reply in self.device.handle(frame, clock.now()):
+                            self._write(reply)
+                    self.bytes_rx += len(chunk)
+                while self.device.answerable(clock.now()):
+                    self._write(self.device.answer_held())
+                if self._next_stream is not None and self._streaming():
+                    now = clock.now()
+                    if now >= self._next_stream:
+                        self._write(self.device.stream(now))
+                        self._next_stream += interval
+                        if self._next_stream < now:  # fell behind: skip samples rather than send a burst
+                            self._next_stream = now + interval

@@ -18,6 +18,13 @@ Every ``answer_every``-th frame is answered (the flight module's CONTROL_EVERY).
 ``answer_timeout_s`` (wall) steps on with the last set-point and is counted; ``silent_after`` of them in a row
 mean the controller is gone: the simulator runs on the clock again (its ESC timeout stops the motors) until the
 ESC link answers again.
+
+**On the bus barrier** (``use_stepper``; the CLI does it when ``CROMAT_SIM`` is in its environment: a lockstep
+launch, docs/simulation.md): the simulator is the robot's stepper. It runs ``step_s`` simulated seconds of frames
+(each still waiting for its set-point, as above, for up to the launch's ``deadline_s`` of wall time), publishes the
+simulated time, asks the barrier, and steps on once every member has handled the step and nothing is still on the
+device links (modules/uquad/sim/lockstep.py); ``speed`` then paces whole steps (None: as fast as answered). The
+truth lines then also carry ``stamp``, the sample's simulated time as the robot's clocks read it (epoch + t).
 """
 
 from __future__ import annotations
@@ -29,13 +36,18 @@ import socket
 import time
 import tty
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from modules.uquad import motor_protocol as mp
 from modules.uquad.gps import encode as encode_nmea
 from modules.uquad.imu_protocol import encode_ascii, encode_binary
+from modules.uquad.sim.lockstep import DeviceLinks, LinkCheck, frames_per_step, next_step_at
 from modules.uquad.sim.quad import QuadSim
+
+if TYPE_CHECKING:
+    from bbcs.lockstep import Done, Stepper
 
 MOTORS = 4
 
@@ -67,6 +79,10 @@ class TcpEnd:
         self.listener = socket.create_server((host, port))
         self.listener.setblocking(False)
         self.client: socket.socket | None = None
+        self.connections = 0
+        """Clients accepted so far (lockstep counts each link per connection)."""
+        self.tx = 0
+        """Bytes written to the current client."""
         host, port = self.listener.getsockname()[:2]
         self.url = f"tcp://{host}:{port}"
 
@@ -85,6 +101,8 @@ class TcpEnd:
             if self.client is not None:
                 self.client.close()
             self.client = conn
+            self.connections += 1
+            self.tx = 0
             return b""
         assert self.client is not None
         try:
@@ -102,13 +120,15 @@ class TcpEnd:
         if self.client is None:
             return 0
         try:
-            return self.client.send(data)
+            sent = self.client.send(data)
         except (BlockingIOError, InterruptedError):
             return 0
         except OSError:
             self.client.close()
             self.client = None
             return 0
+        self.tx += sent
+        return sent
 
     def close(self) -> None:
         if self.client:
@@ -126,6 +146,8 @@ class PtyEnd:
         os.set_blocking(self.master, False)
         self.url = os.ttyname(self._slave)
         self.connected = True  # a pty is always "connected": unread bytes wait in its buffer
+        self.connections = 1
+        self.tx = 0
 
     def fds(self) -> list[int]:
         return [self.master]
@@ -138,9 +160,11 @@ class PtyEnd:
 
     def write(self, data: bytes) -> int:
         try:
-            return os.write(self.master, data)
+            sent = os.write(self.master, data)
         except OSError:
             return 0
+        self.tx += sent
+        return sent
 
     def close(self) -> None:
         os.close(self.master)
@@ -188,6 +212,41 @@ class SimServer:
         self._answering = False
         """Lockstep: the ESC link has answered since it connected and has not gone silent."""
         self._misses = 0
+        self._next_imu = IMU_PERIOD
+        self._next_gps = gps_period
+        self._next_truth = 0.0
+        self._frames = 0
+        self.stepper: Stepper | None = None
+        """On the bus barrier (``use_stepper``), or None: on the clock / the device links only."""
+        self.step_s = 0.2
+        self.step_speed: float | None = None
+        self._link_check = LinkCheck()
+        self._esc_rx = 0
+        self._esc_rx_connection = 0
+        self.wall_s = 0.0
+        """Wall seconds ``run`` took (the lockstep summary)."""
+
+    def use_stepper(self, stepper: Stepper, step_s: float, speed: float | None, deadline_s: float) -> None:
+        """Step on this bus barrier (before ``run``): ``step_s`` of frames a step, at most ``speed`` times real time
+        (None: as fast as answered), each frame's set-point waited for up to ``deadline_s`` wall seconds (the
+        barrier's own patience with a slow member). The device links' lockstep is on."""
+        self.stepper = stepper
+        self.step_s = step_s
+        self.step_speed = speed
+        self.lockstep = True
+        self.answer_timeout_s = deadline_s
+        stepper.barrier.check = self._links_settled
+
+    def links(self) -> DeviceLinks:
+        """The device links' counters as the barrier's check reads them."""
+        esc = self.esc
+        return DeviceLinks(imu_tx=self.imu.tx, imu_readers=self.imu.connections,
+                           gps_tx=self.gps.tx if self.gps is not None else 0,
+                           esc_rx=self._esc_rx if self._esc_rx_connection == esc.connections else 0,
+                           esc_connection=esc.connections, esc_connected=esc.connected)
+
+    def _links_settled(self, answers: dict[str, Done]) -> str:
+        return self._link_check(answers, self.links())
 
     def stop(self) -> None:
         self._stop = True
@@ -196,16 +255,25 @@ class SimServer:
         return [e for e in (self.imu, self.gps, self.esc, self.truth, self.control) if e is not None]
 
     def _poll(self, timeout: float) -> None:
-        owners = {fd: end for end in self.ends() for fd in end.fds()}
+        owners: dict[int, TcpEnd | PtyEnd | None] = {fd: end for end in self.ends() for fd in end.fds()}
+        if self.stepper is not None:
+            owners[self.stepper.wake_fd] = None
         ready, _, _ = select.select(list(owners), [], [], max(0.0, timeout))
         for fd in ready:
             end = owners[fd]
+            if end is None:  # the barrier's answers: read by the stepper's poll
+                assert self.stepper is not None
+                self.stepper.drain_wake()
+                continue
             data = end.readable(fd)
             if end is self.esc and not self.esc.connected:
                 self._answering = False  # a new driver link must answer before the simulator waits on it
             if end is self.esc and data:
                 self._answering = self.lockstep
+                if self._esc_rx_connection != self.esc.connections:
+                    self._esc_rx_connection, self._esc_rx = self.esc.connections, 0
                 for frame in self.esc_parser.feed(data):
+                    self._esc_rx += 1
                     self.stats.esc_frames += 1
                     self.stats.last_esc = list(mp.speeds(frame))
                     self.sim.command(self.stats.last_esc)
@@ -234,7 +302,8 @@ class SimServer:
 
     def _truth_line(self) -> bytes:
         s = self.sim
-        doc = {"t": round(s.t, 4), "x": [round(float(v), 5) for v in s.x], "w": [round(float(v), 2) for v in s.w],
+        doc = {"t": round(s.t, 4), **({"stamp": round(self.stepper.epoch + s.t, 4)} if self.stepper else {}),
+               "x": [round(float(v), 5) for v in s.x], "w": [round(float(v), 2) for v in s.w],
                "on_ground": s.on_ground, "imu_frames": self.stats.imu_frames, "esc_frames": self.stats.esc_frames,
                "esc_timeouts": self.stats.esc_timeouts, "imu_bytes_lost": self.stats.imu_bytes_lost,
                "esc": [round(float(v), 2) for v in self.stats.last_esc],
@@ -246,6 +315,8 @@ class SimServer:
         self.stats.lockstep_waits += 1
         deadline = time.monotonic() + self.answer_timeout_s
         while self.stats.esc_frames == esc_frames_before and self._answering and not self._stop:
+            if self.stepper is not None and not self.imu.connected:
+                return  # on the barrier: the flight module gone (its IMU link closed), nobody will answer
             left = deadline - time.monotonic()
             if left <= 0:
                 self.stats.lockstep_timeouts += 1
@@ -255,49 +326,89 @@ class SimServer:
                     print(f"uquad sim: no ESC answer to {self._misses} frames: on the clock again at "
                           f"t={self.sim.t:.2f}", flush=True)
                 return
-            self._poll(left)
+            self._poll(min(left, 0.5))  # a stop (a signal) is seen within 0.5 s however long the wait
         self._misses = 0
 
     def run(self, duration_s: float | None = None) -> None:
         """Serve until ``stop()`` (or ``duration_s`` of simulated time)."""
+        started = time.monotonic()
+        try:
+            if self.stepper is not None:
+                self._run_stepped(self.stepper, duration_s)
+                return
+            sim = self.sim
+            period = IMU_PERIOD / self.speed
+            next_wall = time.monotonic() + period
+            while not self._stop and (duration_s is None or sim.t < duration_s):
+                self._poll(next_wall - time.monotonic())
+                now = time.monotonic()
+                if now < next_wall:
+                    continue
+                # on the clock, late frames catch up; in lockstep a slow step delays the ones after it
+                next_wall = max(next_wall + period, now) if self._answering else next_wall + period
+                self._frame(self._next_imu)
+                self._next_imu += IMU_PERIOD
+        finally:
+            self.wall_s = time.monotonic() - started
+
+    def _run_stepped(self, stepper: Stepper, duration_s: float | None) -> None:
+        """On the bus barrier: ``step_s`` of frames, then the barrier; nothing moves before it is settled."""
         sim = self.sim
-        period = IMU_PERIOD / self.speed
-        next_wall = time.monotonic() + period
-        next_imu = IMU_PERIOD
-        next_gps = self.gps_period
-        next_truth = 0.0
-        frames = 0
+        per_step = frames_per_step(self.step_s)
+        step = per_step * IMU_PERIOD  # whole frames: the flight loop's frame count stays simulated time
+        step_wall = None if self.step_speed is None else step / self.step_speed
+        settled = False
+        next_wall = time.monotonic()
+        start = sim.t
+        stepper.begin(start)  # step 0: nothing moves before the whole robot is up and has answered
         while not self._stop and (duration_s is None or sim.t < duration_s):
-            self._poll(next_wall - time.monotonic())
-            now = time.monotonic()
-            if now < next_wall:
+            if not settled:
+                self._poll(stepper.timeout())
+                settled = stepper.poll()
                 continue
-            # on the clock, late frames catch up; in lockstep a slow step delays the ones after it
-            next_wall = max(next_wall + period, now) if self._answering else next_wall + period
-            while sim.t + PHYSICS_DT / 2 < next_imu:
-                sim.step(PHYSICS_DT)
-                sim.t += PHYSICS_DT
-            sim.t = next_imu
-            if sim.t - self._last_esc_t > self.esc_timeout_s and np.any(sim.w_cmd):
-                sim.command([0.0] * 4)  # commands stopped: the ESCs stop the motors
-                self.stats.esc_timeouts += 1
-            if self.gps is not None and sim.t >= next_gps:  # before the IMU frame: read first, in lockstep too
-                next_gps += self.gps_period
-                if self.gps.write(encode_nmea(sim.gps_fix(), 43_200.0 + sim.t)):
-                    self.stats.gps_fixes += 1
-            if self.truth is not None and sim.t >= next_truth:
-                next_truth += self.truth_period
-                self.truth.write(self._truth_line())
-            frame = self.encode(sim.imu_frame())
-            esc_before = self.stats.esc_frames
-            next_imu += IMU_PERIOD
-            if self.imu.connected:
-                sent = self.imu.write(frame)
-                self.stats.imu_frames += 1
-                self.stats.imu_bytes_lost += len(frame) - sent
-                frames += 1
-                if self._answering and frames % self.answer_every == 0:
-                    self._await_answer(esc_before)
+            now = time.monotonic()
+            if step_wall is not None and now < next_wall:
+                self._poll(next_wall - now)  # paced: commands and faults still read meanwhile
+                continue
+            # the step ends at start + step as a member computing a period (``now + period``) adds it: summed frame
+            # by frame it may end an ulp short of that, and a robot state due every step would wait for the next
+            end = start + step
+            for i in range(1, per_step + 1):
+                if self._stop:
+                    break
+                self._frame(end if i == per_step else start + i * IMU_PERIOD)
+            next_wall = next_step_at(next_wall, now, step_wall)
+            start = end
+            stepper.begin(sim.t)
+            settled = False
+
+    def _frame(self, at: float) -> None:
+        """One IMU period: the physics to the frame's time ``at``, the ESCs' timeout, GPS and truth when due, then the
+        IMU frame and (device lockstep, once the ESC link answers) the wait for the set-point computed from it."""
+        sim = self.sim
+        while sim.t + PHYSICS_DT / 2 < at:
+            sim.step(PHYSICS_DT)
+            sim.t += PHYSICS_DT
+        sim.t = at
+        if sim.t - self._last_esc_t > self.esc_timeout_s and np.any(sim.w_cmd):
+            sim.command([0.0] * 4)  # commands stopped: the ESCs stop the motors
+            self.stats.esc_timeouts += 1
+        if self.gps is not None and sim.t >= self._next_gps:  # before the IMU frame: read first, in lockstep too
+            self._next_gps += self.gps_period
+            if self.gps.write(encode_nmea(sim.gps_fix(), 43_200.0 + sim.t)):
+                self.stats.gps_fixes += 1
+        if self.truth is not None and sim.t >= self._next_truth:
+            self._next_truth += self.truth_period
+            self.truth.write(self._truth_line())
+        frame = self.encode(sim.imu_frame())
+        esc_before = self.stats.esc_frames
+        if self.imu.connected:
+            sent = self.imu.write(frame)
+            self.stats.imu_frames += 1
+            self.stats.imu_bytes_lost += len(frame) - sent
+            self._frames += 1
+            if self._answering and self._frames % self.answer_every == 0:
+                self._await_answer(esc_before)
 
     def close(self) -> None:
         for end in self.ends():

@@ -169,3 +169,117 @@ def test_lockstep_sends_the_next_imu_frame_only_after_the_set_point_answering_th
         out, _ = proc.communicate(timeout=10)
     assert "no ESC answer to 5 frames: on the clock again" in out
     assert re.search(r"lockstep_waits=(\d+) lockstep_timeouts=(\d+)", out).group(2) == "5"
+
+
+def test_on_the_bus_barrier_a_step_waits_for_every_member_and_every_byte_on_the_device_links():
+    """``CROMAT_SIM`` in its environment (a lockstep launch): the simulator process is the robot's stepper on a real
+    router. Nothing moves while the manager holds the first step, nor before the IMU link has a reader; then each
+    step of 0.1 simulated s writes its 10 IMU frames and waits until the flight module (a stand-in here, answering
+    with the bytes it has read) has handled all of them, and, once set-points flow, until each command sent has
+    arrived as a set-point. The truth carries the simulated time as the robot's clocks read it."""
+    import json
+    import socket
+    import threading
+
+    from bbcs.clock import SimClock
+    from bbcs.lockstep import MANAGER_MEMBER, Member, SimSettings, settings_env
+    from bbcs.session import local_client, open_session
+    from bbcs.testing import Processes, child_env, start_router, wait_until
+    from modules.uquad import motor_protocol as mp
+    from modules.uquad.lockstep import IMU_KEY, MOTOR_KEY
+
+    robot = "r1"
+    frame_b = 28  # a binary IMU frame
+
+    class StandIn:
+        """A member answering every ask (unless held) with the counts ``counts()`` gives at that moment."""
+
+        def __init__(self, session, name, counts=dict) -> None:  # noqa: ANN001 - a test double
+            self.clock = SimClock()
+            self.hold = threading.Event()
+            self.held = []
+            self.counts = counts
+            self.member = Member(session, robot, name, self._on_ask)
+
+        def _on_ask(self, ask) -> None:  # noqa: ANN001
+            self.clock.advance(ask.now)
+            if self.hold.is_set():
+                self.held.append(ask)
+                return
+            self.member.answer(ask, 0, counts=self.counts())
+
+    procs = Processes()
+    sessions = []
+    imu = esc = truth = None
+    try:
+        port = start_router(procs)
+        sessions = [open_session(local_client(port)) for _ in range(2)]
+        manager = StandIn(sessions[0], MANAGER_MEMBER)
+        manager.hold.set()
+        settings = SimSettings(robot=robot, connect=[f"tcp/127.0.0.1:{port}"], speed="max", step_s=0.1)
+        sim = procs.start(["-m", "modules.uquad.sim", "--conf", str(CONF), "--gps", "none"],
+                          env=child_env(**settings_env(settings)), stdout=subprocess.PIPE, text=True)
+        ready = sim.stdout.readline()
+        assert "uquad sim ready" in ready, ready
+        ports = {name: int(p) for name, p in re.findall(r"(\w+)=tcp://127.0.0.1:(\d+)", ready)}
+        wait_until(lambda: manager.held, 10, "the first ask")
+        truth = socket.create_connection(("127.0.0.1", ports["truth"]))
+        truth.settimeout(10)
+        manager.hold.clear()
+        manager.member.answer(manager.held[-1], 0)
+        time.sleep(0.5)
+        assert manager.clock.monotonic() == 0.0, "stepped before the IMU link had a reader"
+
+        handled = {"imu": 0, "sent": 0}
+        uquad = StandIn(sessions[1], "uquad", lambda: {IMU_KEY: handled["imu"], MOTOR_KEY: handled["sent"]})
+        time.sleep(0.3)  # its token seen by the stepper before the IMU link connects
+        imu = Stream(f"tcp://127.0.0.1:{ports['imu']}")
+        received = bytearray()
+
+        def read_for(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                received.extend(imu.read())
+                time.sleep(0.005)
+
+        for step in range(1, 4):  # each step: its 10 frames, then nothing until the stand-in has handled them
+            read_for(0.5)
+            assert len(received) == step * 10 * frame_b, (step, len(received))
+            assert abs(uquad.clock.monotonic() - step * 0.1) < 1e-9
+            assert abs(manager.clock.monotonic() - step * 0.1) < 1e-9
+            handled["imu"] = len(received)
+
+        # set-points: a command the flight module has sent whose set-point has not arrived holds the step
+        handled["sent"] = 1
+        read_for(0.5)
+        handled["imu"] = len(received)  # the IMU side handled: only the ESC link holds the step now
+        read_for(0.5)
+        at, got = manager.clock.monotonic(), len(received)
+        read_for(0.5)
+        assert (manager.clock.monotonic(), len(received)) == (at, got), "stepped before the driver connected"
+        esc = socket.create_connection(("127.0.0.1", ports["esc"]))
+        read_for(0.5)
+        assert (manager.clock.monotonic(), len(received)) == (at, got), "stepped with a set-point on its way"
+        esc.sendall(mp.esc([0.0] * 4))  # the set-point arrives: the step settles, and from now on each frame waits
+        for _ in range(25):  # the device links' lockstep inside the steps: one frame per set-point
+            before = len(received)
+            wait_until(lambda n=before: bool(received.extend(imu.read()) or len(received) > n), 10, "the next frame")
+            assert len(received) == before + frame_b
+            handled["imu"] = len(received)
+            handled["sent"] += 1
+            esc.sendall(mp.esc([0.0] * 4))
+        assert abs(manager.clock.monotonic() - (at + 0.2)) < 1e-9  # two whole steps of 10 frames, the third waits
+
+        buf = b""
+        while buf.count(b"\n") < 3:
+            buf += truth.recv(65536)
+        line = json.loads(buf.split(b"\n")[2])
+        epoch = manager.clock.time() - manager.clock.monotonic()
+        assert abs(line["stamp"] - (epoch + line["t"])) < 1e-3, (line["stamp"], line["t"], epoch)
+    finally:
+        for end in (imu, esc, truth):
+            if end is not None:
+                end.close()
+        for s in sessions:
+            s.close()
+        procs.stop_all()

@@ -1,7 +1,9 @@
 """End to end: ``cromat launch`` of uquad1_sim.toml (router, quadrotor simulator, motor driver, flight module,
-three loggers, the RAL — the real Module Manager) and a ground station on the GCS API: take off, fly a
-4-waypoint square, land. Checked by effect: the simulator's true state (its truth port) follows the square and
-ends on the ground with the motors stopped; the ground station is told each task completed; the loggers wrote.
+three loggers, the RAL — the real Module Manager) in lockstep (``[sim] lockstep = true``, ``--speed max``: the
+simulator steps on the bus barrier, every bus process reads simulated time, and the deadlines below are simulated
+seconds, docs/uquad.md §1.1) and a ground station on the GCS API: take off, fly a 4-waypoint square, land.
+Checked by effect: the simulator's true state (its truth port) follows the square and ends on the ground with the
+motors stopped; the ground station is told each task completed; the loggers wrote.
 The take-off height is the ground station's (not the .conf's default of 3 m), and the seed's manual mode moves
 the hover point from the ground station with every ESC set-point in [MOTOR_MIN, MOTOR_MAX]; a manual step that
 would leave the allowed heights is refused with the reason and moves nothing.
@@ -9,13 +11,7 @@ would leave the allowed heights is refused with the reason and moves nothing.
 
 from __future__ import annotations
 
-import json
-import re
-import socket
 import sys
-import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,100 +23,42 @@ from modules.uquad.config import load_config
 from modules.uquad.geo import Home
 from ral.gcs.api import Gcs, session_config
 
+from .lockstep_flight import MANIFEST, SPEED, Truth, lockstep_manifest, sim_ports
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "module_manager"))
-from launch_support import ROOT, Launch  # noqa: E402
+from launch_support import Launch  # noqa: E402
 
 ROBOT = "uquad1"
-MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
 SIDE_M = 4.0
 FAILSAFE_S = 2.0
-"""The link-loss failsafe (land) after this long without the pilot's ground station."""
+"""The link-loss failsafe (land) after this long without the pilot's ground station (the RAL judges the ground
+station's link on the wall clock: a ground station is outside the simulation)."""
 HEIGHT_M = 4.5
+"""Not the .conf's TAKEOFF_HEIGHT_DEFAULT (3 m): the ground station's height must reach the quad."""
 TAKE_OFF_DONE_M = 0.6 + 0.3
 """A take-off completes once the robot's own estimate is within the manifest's altitude_tolerance_m (0.6 m) of its
 height; the truth may lie a little further, by the estimator's error (a clean-clone run: 1.399 m for 2 m)."""
-"""Not the .conf's TAKEOFF_HEIGHT_DEFAULT (3 m): the ground station's height must reach the quad."""
-
-
-class Truth:
-    """Reads the simulator's truth stream (JSON lines of the true state)."""
-
-    def __init__(self, port: int) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port))
-        self.lines: list[dict] = []
-        self.thread = threading.Thread(target=self._read, daemon=True)
-        self.thread.start()
-
-    def _read(self) -> None:
-        buf = b""
-        while True:
-            try:
-                data = self.sock.recv(65536)
-            except OSError:
-                return
-            if not data:
-                return
-            buf += data
-            *done, buf = buf.split(b"\n")
-            self.lines += [json.loads(line) for line in done if line]
-
-    @property
-    def last(self) -> dict:
-        return self.lines[-1]
-
-    def settled(self, window_s: float, metres: float) -> bool:
-        """Whether the quad stayed within ``metres`` of where it is now over the last ``window_s`` simulated s."""
-        lines = self.lines
-        end = lines[-1]["t"]
-        if lines[0]["t"] > end - window_s:
-            return False
-        here = np.array(lines[-1]["x"][:3])
-        for line in reversed(lines):
-            if line["t"] < end - window_s:
-                return True
-            if np.linalg.norm(np.array(line["x"][:3]) - here) >= metres:
-                return False
-        return True
-
-    def wait(self, predicate: Callable[[], bool], sim_s: float, what: str) -> None:
-        """Poll ``predicate`` with a deadline in simulated seconds: the simulator steps in lockstep with the flight
-        loop, so on a loaded machine the flight runs slower and the same, and a wall deadline would judge the load.
-        A wall guard (ten times as long, a minute at least) ends the wait if the simulator stops."""
-        start = self.last["t"]
-        wall_end = time.monotonic() + max(60.0, 10.0 * sim_s)
-        while not predicate():
-            if self.last["t"] - start > sim_s or time.monotonic() > wall_end:
-                raise AssertionError(f"not within {sim_s:g} simulated s ({self.last['t'] - start:.1f} s passed, "
-                                     f"the wall guard {'passed' if time.monotonic() > wall_end else 'not passed'}): "
-                                     f"{what}")
-            time.sleep(0.01)
-
-    def close(self) -> None:
-        self.sock.close()
 
 
 def manifest(tmp_path: Path) -> Path:
-    """The shipped uquad1_sim.toml as it is (its flight processes at real-time priority where the OS allows it,
-    the .conf's motor timeouts), with the loggers writing into tmp_path and a short link-loss failsafe."""
-    text = MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{MANIFEST.parent / "uquad1.conf"}"')
-    text = text.replace('params = { kind = "imu_raw" }', f'params = {{ kind = "imu_raw", dir = "{tmp_path}" }}')
-    text = text.replace('params = { kind = "control" }', f'params = {{ kind = "control", dir = "{tmp_path}" }}')
-    text = text.replace('params = { kind = "state" }', f'params = {{ kind = "state", dir = "{tmp_path}" }}')
-    assert 'failsafe_timeout_s = "10"' in text
-    text = text.replace('failsafe_timeout_s = "10"', f'failsafe_timeout_s = "{FAILSAFE_S:g}"')
-    path = tmp_path / "uquad1_sim.toml"
-    path.write_text(text)
-    return path
+    """The shipped uquad1_sim.toml as it is (its flight processes at a flight computer's priority where the OS allows
+    it, the .conf's motor timeouts), in lockstep, with the loggers writing into tmp_path and a short link-loss
+    failsafe."""
+
+    def short_failsafe(text: str) -> str:
+        assert 'failsafe_timeout_s = "10"' in text
+        return text.replace('failsafe_timeout_s = "10"', f'failsafe_timeout_s = "{FAILSAFE_S:g}"')
+
+    return lockstep_manifest(tmp_path, short_failsafe)
 
 
 @pytest.mark.timeout(300)
 def test_take_off_square_land_from_the_ground_station(tmp_path):
-    launch = Launch(manifest(tmp_path), tmp_path)
+    launch = Launch(manifest(tmp_path), tmp_path, *SPEED)
     gcs = truth = pilot = None
     try:
         launch.wait_line("modules up in", 120)
-        sim_log = (tmp_path / "logs" / "uquad_sim.log").read_text()
-        truth = Truth(int(re.search(r"truth=tcp://127.0.0.1:(\d+)", sim_log).group(1)))
+        truth = Truth(sim_ports(tmp_path / "logs")["truth"])
         gcs = Gcs(session_config([f"tcp/127.0.0.1:{launch.port}"]), timeout_s=10.0)
         pilot = Gcs(session_config([f"tcp/127.0.0.1:{launch.port}"]), name="pilot", link=[ROBOT])
         events: list[gri.GriEvent] = []
@@ -128,17 +66,18 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         states: list[gri.GriState] = []
         gcs.watch(ROBOT, states.append)
 
-        def completed(reply: gri.TaskReply, what: str, timeout_s: float) -> None:
+        def completed(reply: gri.TaskReply, what: str, sim_s: float) -> None:
             assert reply.accepted, reply.reason
-            wait_until(lambda: any(e.kind == "task_completed" and e.task_id == reply.task_id for e in events),
-                       timeout_s, what)
+            truth.wait(lambda: any(e.kind == "task_completed" and e.task_id == reply.task_id for e in events),
+                       sim_s, what)
 
-        wait_until(lambda: states and states[-1].position is not None and states[-1].kind == "uquad", 60,
+        truth.wait(lambda: states and states[-1].position is not None and states[-1].kind == "uquad", 60,
                    "calibrated uquad telemetry in the GRI state")
         home = states[-1].position
         assert states[-1].airborne is False
         completed(gcs.send(ROBOT, gri.TakeOff(height=HEIGHT_M)), "take-off completed", 60)
-        assert truth.last["x"][2] > HEIGHT_M - TAKE_OFF_DONE_M and not truth.last["on_ground"]
+        assert truth.last["x"][2] > HEIGHT_M - TAKE_OFF_DONE_M and not truth.last["on_ground"], (
+            truth.last, states[-1].telemetry)
 
         cfg = load_config(MANIFEST.parent / "uquad1.conf")
         local = Home(cfg.home_lat, cfg.home_lon, cfg.home_alt)  # the simulator's (truth's) origin
@@ -168,7 +107,7 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
             print("UQUAD LOG", (tmp_path / "logs" / "uquad.log").read_text()[-3000:])
             raise
         assert gcs.abort(ROBOT).accepted
-        wait_until(lambda: any(e.kind == "aborted" for e in events), 10, "the ground station told of the abort")
+        truth.wait(lambda: any(e.kind == "aborted" for e in events), 10, "the ground station told of the abort")
         truth.wait(lambda: np.linalg.norm(truth.last["x"][6:9]) < 0.3, 20, "stopped after the abort")
         stopped_at = truth.last["x"][0]
         assert stopped_at < SIDE_M * 3 - 2.0 and not truth.last["on_ground"], (
@@ -216,6 +155,8 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         start = len(events)
         pilot.close()
         pilot = None
+        # the link's loss is judged on the wall clock (FAILSAFE_S: the ground station is outside the simulation),
+        # the landing that follows in simulated time
         wait_until(lambda: any(e.kind == "failsafe" for e in events[start:]), 20, "the failsafe at the ground station")
         truth.wait(lambda: truth.last["on_ground"] and max(truth.last["w"]) == 0.0, 60,
                    "landed by the failsafe, motors stopped")
@@ -227,6 +168,10 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         if truth is not None:
             truth.close()
         launch.stop()
+        launch.cleanup()
     for kind in ("imu_raw", "state", "control"):  # one logging process per data type wrote its file
         lines = (tmp_path / f"{ROBOT}_{kind}.jsonl").read_text().splitlines()
         assert len(lines) > 100, kind
+    sim_log = (tmp_path / "logs" / "uquad_sim.log").read_text()
+    assert "goes on" not in sim_log, sim_log[-3000:]  # no step went on without a member or with a link unsettled
+    print(sim_log.strip().splitlines()[-1])
