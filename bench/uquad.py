@@ -29,7 +29,6 @@ import json
 import math
 import re
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -44,6 +43,7 @@ from bbcs.net import free_port
 from bbcs.testing import child_env
 from modules.uquad.config import load_config
 from modules.uquad.geo import Home
+from modules.uquad.sim.truth_stream import TruthStream
 
 ROBOT = "uquad1"
 MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
@@ -93,26 +93,6 @@ def wait(pred, timeout_s: float, what: str) -> None:  # noqa: ANN001
     raise TimeoutError(f"timed out after {timeout_s:g} s waiting for {what}")
 
 
-class Truth:
-    def __init__(self, port: int) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port))
-        self.lines: list[dict] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        buf = b""
-        while True:
-            try:
-                data = self.sock.recv(65536)
-            except OSError:
-                return
-            if not data:
-                return
-            buf += data
-            *done, buf = buf.split(b"\n")
-            self.lines += [json.loads(line) for line in done if line]
-
-
 def _edit(text: str, old: str, new: str) -> str:
     if text.count(old) != 1:
         raise SystemExit(f"{MANIFEST.name} changed: {old!r} is not in it once; bench/uquad.py must follow")
@@ -157,7 +137,7 @@ def flight(tmp: Path, side: float, nice: int = 0) -> dict:
     gcs = None
     try:
         launch.wait_up()
-        truth = Truth(int(re.search(r"truth=tcp://127.0.0.1:(\d+)", launch.log("uquad_sim")).group(1)))
+        truth = TruthStream(int(re.search(r"truth=tcp://127.0.0.1:(\d+)", launch.log("uquad_sim")).group(1)))
         gcs = Gcs(session_config([f"tcp/127.0.0.1:{launch.port}"]), timeout_s=10.0)
         events: list = []
         states: list = []

@@ -7,6 +7,8 @@ of the bad frame; and nothing fails in the seconds after, when the RAL's persist
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -18,6 +20,7 @@ from bbcs.contracts.dsp import LinkErrorCode
 from bbcs.testing import wait_until
 from modules.dsp.sim.control import send_command
 from ral.faults import TELEMETRY_FAULT_WINDOW_S
+from ral.gcs.api import Gcs
 
 REFUSED = ("dsp", int(LinkErrorCode.TELEMETRY_REFUSED))
 WATCH_AFTER_S = 20.0
@@ -40,7 +43,10 @@ def errors_since(robot: SimRobot, since: float) -> list[tuple[str, int, float]]:
                   key=lambda e: e[2])
 
 
-def test_one_bad_telemetry_frame_during_a_goto_does_not_end_it(tmp_path: Path) -> None:
+@contextmanager
+def airborne(tmp_path: Path, cells_north: int) -> Iterator[tuple[SimRobot, Gcs, int, gri.Waypoint]]:
+    """The robot in lockstep at --speed max with the DSP simulator's control port, airborne; yields it, its
+    ground station, the control port and a goal ``cells_north`` grid cells north, 15 m above home."""
     control = free_udp_port()
     la, record = launch_robot(tmp_path, lockstep=True, edit=with_control_port(control))
     gcs = None
@@ -49,9 +55,18 @@ def test_one_bad_telemetry_frame_during_a_goto_does_not_end_it(tmp_path: Path) -
         robot = SimRobot(la, gcs, record)
         up = robot.ensure_airborne()
         assert up.position is not None and up.home is not None
-        goal = grid_path(up.position, steps=[(6, 0)])[0]  # 6 grid cells north: about 67 m, 13 s at 5 m/s
-        goal = gri.Waypoint(lat=goal.lat, lon=goal.lon, alt=up.home.alt + 15.0)
+        goal = grid_path(up.position, steps=[(cells_north, 0)])[0]
+        yield robot, gcs, control, gri.Waypoint(lat=goal.lat, lon=goal.lon, alt=up.home.alt + 15.0)
+    finally:
+        if gcs is not None:
+            gcs.close()
+        la.stop()
+        la.cleanup()
 
+
+def test_one_bad_telemetry_frame_during_a_goto_does_not_end_it(tmp_path: Path) -> None:
+    # 6 grid cells north: about 67 m, 13 s at 5 m/s
+    with airborne(tmp_path, 6) as (robot, gcs, control, goal):
         since = robot.state.stamp  # the robot's clock (simulated time): the manager stamps its errors on it
         start = len(robot.events)
         reply = gcs.send(ROBOT, gri.Goto(waypoints=[goal], speed=5.0))
@@ -84,11 +99,6 @@ def test_one_bad_telemetry_frame_during_a_goto_does_not_end_it(tmp_path: Path) -
         with robot.lock:
             failed = [e for e in robot.events[start:] if e.kind == "task_failed"]
         assert not failed, failed
-    finally:
-        if gcs is not None:
-            gcs.close()
-        la.stop()
-        la.cleanup()
 
 
 def test_refused_telemetry_that_persists_fails_the_goto_in_simulated_time(tmp_path: Path) -> None:
@@ -96,16 +106,8 @@ def test_refused_telemetry_that_persists_fails_the_goto_in_simulated_time(tmp_pa
     telemetry, 120 frames) and nothing valid after them fail the goto once the refusal stood the RAL's window,
     judged on the robot's one clock (the manager's error stamps against the telemetry's: with the manager on the
     wall clock, behind simulated time, the refusal looked older than the last good frame and never stood)."""
-    control = free_udp_port()
-    la, record = launch_robot(tmp_path, lockstep=True, edit=with_control_port(control))
-    gcs = None
-    try:
-        gcs = connect(la.port, "ground1")
-        robot = SimRobot(la, gcs, record)
-        up = robot.ensure_airborne()
-        assert up.position is not None and up.home is not None
-        goal = grid_path(up.position, steps=[(12, 0)])[0]  # about 134 m north: 27 s at 5 m/s, longer than the fault
-        goal = gri.Waypoint(lat=goal.lat, lon=goal.lon, alt=up.home.alt + 15.0)
+    # 12 grid cells north: about 134 m, 27 s at 5 m/s, longer than the fault
+    with airborne(tmp_path, 12) as (robot, gcs, control, goal):
         since = robot.state.stamp
         start = len(robot.events)
         reply = gcs.send(ROBOT, gri.Goto(waypoints=[goal], speed=5.0))
@@ -120,8 +122,3 @@ def test_refused_telemetry_that_persists_fails_the_goto_in_simulated_time(tmp_pa
                                 "the goto ended", after=start)
         assert done.kind == "task_failed" and "no valid telemetry" in done.detail, done
         assert done.stamp - first_refused >= TELEMETRY_FAULT_WINDOW_S, (done.stamp, first_refused)
-    finally:
-        if gcs is not None:
-            gcs.close()
-        la.stop()
-        la.cleanup()

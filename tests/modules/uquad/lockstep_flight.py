@@ -4,15 +4,14 @@ docs/uquad.md §1.1) and the simulator's truth stream, read with deadlines in si
 
 from __future__ import annotations
 
-import json
 import re
-import socket
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+
+from modules.uquad.sim.truth_stream import TruthStream
 
 ROOT = Path(__file__).resolve().parents[3]
 MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
@@ -46,32 +45,9 @@ def sim_ports(log_dir: Path) -> dict[str, int]:
     return {name: int(port) for name, port in re.findall(r"(\w+)=tcp://127.0.0.1:(\d+)", text)}
 
 
-class Truth:
+class Truth(TruthStream):
     """The simulator's truth stream (JSON lines of the true state). In lockstep each line carries ``t`` (simulated
     seconds since the start) and ``stamp`` (the same instant as the robot's clocks read it: GRI and error stamps)."""
-
-    def __init__(self, port: int) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port))
-        self.lines: list[dict] = []
-        self.thread = threading.Thread(target=self._read, daemon=True)
-        self.thread.start()
-
-    def _read(self) -> None:
-        buf = b""
-        while True:
-            try:
-                data = self.sock.recv(65536)
-            except OSError:
-                return
-            if not data:
-                return
-            buf += data
-            *done, buf = buf.split(b"\n")
-            self.lines += [json.loads(line) for line in done if line]
-
-    @property
-    def last(self) -> dict:
-        return self.lines[-1]
 
     @property
     def epoch(self) -> float:
