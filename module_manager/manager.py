@@ -526,8 +526,17 @@ class Manager(RouteControl, MriService):
             self.telemetry = value
             if value.airborne is False and value.position is not None:
                 self.home = value.position
-            if self.sim is not None:
-                self.sim.activity += 1
+            if self.sim is None:
+                return
+            self.sim.activity += 1
+            # lockstep: a state per telemetry sample, published as it comes. The robot state due at a step is
+            # published at the step's ask, and telemetry from the modules has no order with the stepper's time: the
+            # state then carried the step's last sample or the one before, by chance, and the RAL judged different
+            # samples run to run (a uQuad's tumble of 0.3 s was seen in one state or in two: its 604 at 0.59 or
+            # 1.14 s). Every sample reaches the RAL, in order, whatever the timing.
+            self.next_state_at = max(self.next_state_at, self.sim.clock.monotonic() + self.m.raw.robot.state_period_s)
+            if self._state_pub is not None:
+                self._state_pub.publish(self.robot_state())
 
     def _touch(self) -> None:
         self._state_dirty = True

@@ -129,10 +129,15 @@ class TaskWatch:
         (published now), the running movement tasks failed with the reason, the robot's health action run as a
         failsafe."""
         code = RalErrorCode.LOSS_OF_CONTROL
+        now = self.clock()
         with self.lock:
-            self._error_log.append(mri.ErrorEvent(module="ral", code=int(code), name=code.name, stamp=self.clock(),
+            self._error_log.append(mri.ErrorEvent(module="ral", code=int(code), name=code.name, stamp=now,
                                                   detail=fault.detail, severity=fault.severity))
-            self._next_state = 0.0
+        # on the GRI at once, not at the next tick: the judge runs on the loop as the telemetry comes in, and the
+        # tick after it is a whole step later in lockstep (the uQuad's 604 once reached the GRI 1.09 s after the
+        # truth showed the tumble, where the budget is 1 s)
+        self._next_state = now + self.cfg.state_period_s
+        self._publish_state(now)
         self.report_error(int(code), fault.detail)
         for info in fault.fail:
             self._jobs.put(mri.EndTask(task_type=info.task_type, task_id=info.id, status="failed",

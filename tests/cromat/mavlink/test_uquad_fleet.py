@@ -22,15 +22,30 @@ from ral.gcs.api import Gcs, session_config
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parents[1] / "system"))
-sys.path.insert(0, str(HERE.parents[1] / "modules" / "uquad"))
 sys.path.insert(0, str(HERE.parents[1] / "module_manager"))
 from launch_support import Launch  # noqa: E402
 from mavlink_support import ROOT, Mav, first, gateway, run_async  # noqa: E402
 from test_gcs_mission import sim_manifest  # noqa: E402
-from test_system_square import manifest as uquad_manifest  # noqa: E402
 
 pytestmark = pytest.mark.timeout(300)
 QUAD, UAV = "uquad1", "uav1"
+QUAD_MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
+FAILSAFE_S = 2.0
+
+
+def uquad_manifest(tmp_path: Path) -> Path:
+    """The shipped uquad1_sim.toml as it is, free-running (a fleet is not in lockstep, docs/simulation.md), with
+    the loggers writing into tmp_path and a short link-loss failsafe."""
+    text = QUAD_MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{QUAD_MANIFEST.parent / "uquad1.conf"}"')
+    for kind in ("imu_raw", "control", "state"):
+        old = f'params = {{ kind = "{kind}" }}'
+        assert old in text, f"uquad1_sim.toml's {kind} logger changed"
+        text = text.replace(old, f'params = {{ kind = "{kind}", dir = "{tmp_path}" }}')
+    assert 'failsafe_timeout_s = "10"' in text
+    text = text.replace('failsafe_timeout_s = "10"', f'failsafe_timeout_s = "{FAILSAFE_S:g}"')
+    path = tmp_path / "uquad1_sim.toml"
+    path.write_text(text)
+    return path
 
 
 class Fleet:
