@@ -5,6 +5,7 @@ monitor as the oracle; prints the sequences run, the simulated hours and the mon
     python bench/campaign.py                          # the default seed and count, under 3 minutes
     python bench/campaign.py --sequences 200 --seed 7 # longer (--budget-s 0: no wall budget)
     python bench/campaign.py --robot uav              # uav1_sim.toml: pan & tilt, route swaps, path modes 1 and 3
+    python bench/campaign.py --robot uquad            # uquad1_sim.toml: the quadrotor (invariants 2, 3 and 5)
     python bench/campaign.py --robot survey --steps 'take_off; done s=90; orbit at=1:0 r=25; done s=90'
     python bench/campaign.py --smoke                  # one short sequence (seconds of flight)
 

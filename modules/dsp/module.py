@@ -269,7 +269,7 @@ class DspModule(Module):
                 return
             name = type(cmd).__name__
             self.publish(contract.SENT_SLOT, contract.DspSent(sender=batch.sender, batch_id=batch.batch_id,
-                                                              command=cmd, stamp=time.time()))
+                                                              command=cmd, stamp=self.bbcs_clock.time()))
             try:
                 self.link.send(cmd)
             except DspRejected as exc:

@@ -2,9 +2,9 @@
 
 Why: the monitor compares stamps written by different processes (the task book, the DSP process's ``sent``
 records, the GRI, the simulator's truth). On a robot they are all wall-clock stamps. In a lockstep simulation the
-robot's clock is simulated time (``epoch + t``), but not every process stamps on it: the RAL, the telemetry module
-and the Module Manager (its task book and errors) do, the DSP process's ``sent`` records are stamped with the wall
-clock, and the simulator's truth carries its own ``time_s`` (seconds since the simulation began). Comparing a wall stamp
+robot's clock is simulated time (``epoch + t``); the RAL, the telemetry module, the Module Manager (its task book
+and errors) and the DSP process (its ``sent`` records) stamp on it, a process built otherwise on the wall clock, and
+the simulator's truth carries its own ``time_s`` (seconds since the simulation began). Comparing a wall stamp
 with a simulated one looks up the aircraft at another moment of the flight (at ``--speed max`` the simulation runs
 seconds or minutes ahead of the wall, and starts behind it).
 
@@ -36,11 +36,12 @@ MAX_STEPS = 200_000
 """Steps remembered for the wall → robot look-up (11 simulated hours at 0.2 s a step)."""
 
 
-STAMPED_ON_WALL: dict[str, bool] = {"dsp": True, "manager": False, "ral": False, "telemetry": False}
-"""Which clock each source stamps on in lockstep (True: the wall), as the processes are built: the DSP process's
-``sent`` records on the wall; the Module Manager, the RAL and the telemetry module on the robot's clock. Known from
-the start, so a stamp is never guessed while the two clocks are still close (the simulation starts near the wall):
-a task started then and judged later was once put on the wrong clock. Still learned from fresh stamps."""
+STAMPED_ON_WALL: dict[str, bool] = {"dsp": False, "manager": False, "ral": False, "telemetry": False}
+"""Which clock each source stamps on in lockstep (True: the wall), as the processes are built: all on the robot's
+clock (the DSP process's ``sent`` records since 2026-11-28: mapped from the wall by the step in force, a command
+could land a frame before the task the manager had started, exactly, at that step). Known from the start, so a
+stamp is never guessed while the two clocks are still close (the simulation starts near the wall): a task started
+then and judged later was once put on the wrong clock. Still learned from fresh stamps."""
 
 
 class RobotTime:
@@ -108,3 +109,14 @@ class RobotTime:
         if wall is None:
             wall = abs(s - self.wall()) < abs(s - self.robot_now())
         return self.from_wall(s) if wall else s
+
+
+def truth_behind(read_s: float, step_s: float, period_s: float = 0.0) -> bool:
+    """Lockstep: whether the truth read so far (up to simulated ``read_s``) may still miss a sample of the step that
+    ends at ``step_s``. A simulator that sends its truth at every step's end (the DSP simulator, ``period_s`` 0) is
+    behind until it has read ``step_s`` itself. One that samples its truth every ``period_s`` at its own instants
+    (the uQuad simulator's 0.05 s at its 0.01 s frames) may have sent the step's last sample up to a period before
+    its end: it is behind only while what it read is more than a period old (else a step whose end no sample fell on
+    waited out the 2 wall seconds of silence: the uQuad campaign flew at 0.1x once its sums of 0.05 s and 0.2 s
+    drifted an ulp apart)."""
+    return read_s < step_s - period_s - 1e-6

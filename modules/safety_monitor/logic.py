@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import DspSent
+from bbcs.contracts.error_codes import RalErrorCode, UquadErrorCode
 from bbcs.contracts.gri import GriEvent, GriState
 from bbcs.contracts.mri import EFFECT_LOST, reported_error
 from bbcs.contracts.robot import RobotTelemetry
@@ -38,6 +39,8 @@ GOAL_KINDS = frozenset({"goto", "follow_path", "survey", "orbit"})
 """Task kinds that end at a place: their goal is the last waypoint the DSP was sent while they ran."""
 CLIMB_KINDS = frozenset({"take_off", "land"})
 """Movement that crosses MIN_CLEARANCE on purpose."""
+LOSS_OF_CONTROL_CODES = frozenset({int(RalErrorCode.LOSS_OF_CONTROL), int(UquadErrorCode.LOSS_OF_CONTROL)})
+"""The RAL's loss of control from the telemetry (604) and the uQuad flight module's tumble cut (706)."""
 SKEW_S = 0.05
 MAX_SENT = 50_000
 """Clock difference tolerated between the processes that stamp a task and a command (one machine)."""
@@ -85,6 +88,28 @@ def robot_fault(info: TaskInfo) -> bool:
         code is not None and code - p.FORWARDED_DSP_ERROR_BASE in p.FLIGHT_FAULTS)
 
 
+def judged_invariants(dsp_commands: bool, truth: bool) -> frozenset[Invariant]:
+    """The invariants the monitor can judge on a robot: 1 and 4 are about DSP commands (none on a uQuad, whose
+    flight module drives its motors itself), 3 needs the simulator's truth (simulation only); 2 and 5 are judged
+    from the truth, else the DSP telemetry (on a uQuad without truth: nothing to judge them on)."""
+    out = {Invariant.TASK_VERDICT, Invariant.ENVELOPE}
+    if dsp_commands:
+        out |= {Invariant.COMMAND_TRACED, Invariant.ABORT_LATENCY}
+    if truth:
+        out.add(Invariant.GRI_TRUTH)
+    elif not dsp_commands:
+        out -= {Invariant.TASK_VERDICT, Invariant.ENVELOPE}
+    return frozenset(out)
+
+
+VEHICLES: Mapping[str, Mapping[str, bool]] = {
+    "uav": {"dsp_commands": True, "gri_airborne_is_motors": False},
+    "uquad": {"dsp_commands": False, "gri_airborne_is_motors": True},
+}
+"""What a robot kind means for the monitor (:class:`MonitorConfig`'s fields): the UAV flies through a DSP whose
+airborne flag flips at lift-off; the uQuad has no DSP and says airborne while its motors run."""
+
+
 def ground_distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
     """Horizontal metres between two points (bbcs.geodesy: the model every other process uses)."""
     return distance_m(lat1, lon1, lat2, lon2)
@@ -102,6 +127,13 @@ class MonitorConfig:
     """Task types that fly the aircraft: invariant 2 judges their failures by the aircraft's progress. A pan & tilt
     or tracking task fails with its gimbal, whatever the aircraft flies meanwhile for another task (campaign seed 41,
     sequence 113: a look-at failed when the pan & tilt was killed, during a goto)."""
+    dsp_commands: bool = True
+    """Whether the robot flies through a DSP (the UAV): its commands are judged (invariant 1), an abort must reach
+    it (invariant 4) and a goal may be the DSP's grid point. A uQuad has none (:func:`judged_invariants`)."""
+    gri_airborne_is_motors: bool = False
+    """The robot's ``airborne`` means its motors run (the uQuad: its planner is not idle, docs/uquad.md §5, from the
+    take-off's motor ramp on the ground to the landing's stop), not that it is off the ground (the UAV's DSP flag):
+    then only ``airborne=False`` while the truth is surely in the air is wrong (motors off in the air)."""
     monitor_name: str = "safety_monitor"
     """Errors this module itself reported never count as the robot reporting a loss of control."""
     decide_after_s: float = 3.0
@@ -134,6 +166,9 @@ class MonitorConfig:
     loc_spin_deg_s: float = 200.0
     loc_impact_m_s: float = 2.0
     loc_report_s: float = 1.0
+    loc_fail_window_s: float = 3.0
+    """A task failed on a loss of control the truth showed begun at most this long before (the robot's report is due
+    within ``loc_report_s``, the task's end follows it) failed on a robot fault."""
     report_wait_s: float = 2.5
     """How long after the 1 s window a report may take to reach the monitor (the GRI state comes once a second)."""
     abort_latency_s: float = 0.1
@@ -196,6 +231,8 @@ class SafetyMonitor:
         """(stamp, what): errors and failure events the robot told its ground stations."""
         self._loc: _Episode | None = None
         self._loc_ok_since: float | None = None
+        self._loc_starts: deque[float] = deque(maxlen=100)
+        """When each loss of control the truth showed began."""
         self._gri_pos: _Episode | None = None
         self._gri_air: _Episode | None = None
         self._gri_pending: deque[RobotTelemetry] = deque(maxlen=1000)
@@ -226,7 +263,7 @@ class SafetyMonitor:
             if old is not None and old.ended is not None:
                 continue  # an ended record never changes
             self.tasks[key] = info
-            if info.name == "abort" and key not in self._judged_tasks:
+            if info.name == "abort" and self.cfg.dsp_commands and key not in self._judged_tasks:
                 self._aborts_due.add(key)
             if info.ended is not None and key not in self._judged_tasks:
                 wait = self.cfg.lost_stop_s if robot_fault(info) else self.cfg.verdict_wait_s
@@ -310,7 +347,8 @@ class SafetyMonitor:
                                       f"the GRI shows the aircraft {d:.1f} m from where it is", ev)
         if tel.airborne is not None:
             expected = self._truth_airborne(tel.stamp)
-            wrong = expected is not None and expected != tel.airborne
+            wrong = expected is not None and expected != tel.airborne \
+                and not (self.cfg.gri_airborne_is_motors and (tel.airborne or self._cut_after_loss(tel.stamp)))
             ev = [f"GRI telemetry at {tel.stamp:.2f}: airborne={tel.airborne}",
                   f"truth over the {self.cfg.airborne_window_s:g} s before"
                   + (f" (to {self.cfg.stamp_lag_s:g} s after)" if self.cfg.stamp_lag_s else "")
@@ -459,7 +497,8 @@ class SafetyMonitor:
             if goal is None:
                 return None
             # the DSP flies to the waypoint as its protocol carries it (degrees x 10^4): either is the goal
-            q = (round(goal[0] * p.LATLON_SCALE) / p.LATLON_SCALE, round(goal[1] * p.LATLON_SCALE) / p.LATLON_SCALE)
+            q = (round(goal[0] * p.LATLON_SCALE) / p.LATLON_SCALE, round(goal[1] * p.LATLON_SCALE) / p.LATLON_SCALE) \
+                if self.cfg.dsp_commands else goal  # no DSP (a uQuad): the goal as the task gave it
             d = min(ground_distance_m(pos.lat, pos.lon, goal[0], goal[1]),
                     ground_distance_m(pos.lat, pos.lon, q[0], q[1]))
             dz = abs(pos.alt - goal[2])
@@ -471,12 +510,15 @@ class SafetyMonitor:
             return None
         return wrong, ev
 
-    def progress(self, start: float, end: float, kind: str = "") -> list[str]:
+    def progress(self, start: float, end: float, kind: str = "",
+                 goal: tuple[float, float, float] | None = None) -> list[str]:
         """How the aircraft progressed in [start, end] by the DSP's own account (empty: it did not): waypoints
-        reached (the queue shortened), the distance to the same nav target shrinking, the height changing."""
+        reached (the queue shortened), the distance to the same nav target shrinking, the height changing. A robot
+        without a DSP (a uQuad): by the truth, the distance to the task's ``goal`` shrinking, the height changing
+        (:meth:`truth_progress`)."""
         window = [s for s in self.telemetry if start <= s.t <= end]
         if len(window) < 2:
-            return []
+            return [] if self.cfg.dsp_commands else self.truth_progress(start, end, kind, goal)
         first, last = window[0], window[-1]
         seen = []
         if first.queue is not None and last.queue is not None and last.queue < first.queue:
@@ -488,6 +530,26 @@ class SafetyMonitor:
             seen.append(f"altitude {first.alt:.1f} -> {last.alt:.1f} m")
         return seen
 
+    def truth_progress(self, start: float, end: float, kind: str = "",
+                       goal: tuple[float, float, float] | None = None) -> list[str]:
+        """Progress in [start, end] by the truth (a robot with no DSP telemetry): the distance to ``goal`` shrank by
+        ``progress_m``, or (take-off, landing) the height changed by it."""
+        window = [tr for s, tr in self.truth if start <= s <= end]
+        if len(window) < 2:
+            return []
+        first, last = window[0], window[-1]
+        seen = []
+        if goal is not None:
+            def dist(tr: VehicleTruth) -> float:
+                return math.hypot(ground_distance_m(tr.lat, tr.lon, goal[0], goal[1]), tr.alt - goal[2])
+
+            d0, d1 = dist(first), dist(last)
+            if d0 - d1 >= self.cfg.progress_m:
+                seen.append(f"distance to the goal {d0:.1f} -> {d1:.1f} m (truth)")
+        if kind in CLIMB_KINDS and abs(last.alt - first.alt) >= self.cfg.progress_m:
+            seen.append(f"altitude {first.alt:.1f} -> {last.alt:.1f} m (truth)")
+        return seen
+
     def _judge_failed(self, info: TaskInfo) -> None:
         """Invariant 2: a task is never failed while the aircraft makes progress. A task failed on a robot fault
         (:func:`robot_fault`: a module it relies on exited, the DSP's own flight fault) is failed whatever the
@@ -496,25 +558,51 @@ class SafetyMonitor:
         assert info.ended is not None
         if info.task_type not in self.cfg.moving_types:
             return  # the aircraft's progress is another task's
-        if robot_fault(info):
+        if robot_fault(info) or self._confirmed_loss_of_control(info):
             end = info.ended + self.cfg.lost_stop_s
             if any(o.task_type == info.task_type and info.ended < o.started < end for o in self.tasks.values()):
                 return  # a new task of its type took over before the aircraft was due to have stopped
-            seen = self.progress(end - self.cfg.lost_window_s, end, info.kind or info.name)
+            seen = self.progress(end - self.cfg.lost_window_s, end, info.kind or info.name, self._goal_of(info))
             if seen:
                 ev = [f"task {info.id} {info.name} failed at {info.ended:.3f}: {info.detail}",
                       f"{self.cfg.lost_stop_s - self.cfg.lost_window_s:g}-{self.cfg.lost_stop_s:g} s after "
-                      "(DSP telemetry): " + "; ".join(seen)]
+                      f"({self._progress_source}): " + "; ".join(seen)]
                 self._breach(Invariant.TASK_VERDICT, "flew_on_after_failure", Severity.ERROR, info.ended,
                              f"task {info.id} {info.name} failed on a robot fault, and the aircraft flew on", ev,
                              info.id)
             return
-        seen = self.progress(info.ended - self.cfg.progress_window_s, info.ended, info.kind or info.name)
+        seen = self.progress(info.ended - self.cfg.progress_window_s, info.ended, info.kind or info.name,
+                             self._goal_of(info))
         if seen:
             ev = [f"task {info.id} {info.name} failed at {info.ended:.3f}: {info.detail}",
-                  f"in the {self.cfg.progress_window_s:g} s before (DSP telemetry): " + "; ".join(seen)]
+                  f"in the {self.cfg.progress_window_s:g} s before ({self._progress_source}): " + "; ".join(seen)]
             self._breach(Invariant.TASK_VERDICT, "failed_while_progressing", Severity.ERROR, info.ended,
                          f"task {info.id} {info.name} failed while the aircraft made progress", ev, info.id)
+
+    def _cut_after_loss(self, stamp: float) -> bool:
+        """A robot whose ``airborne`` is its motors running (the uQuad) cuts them when it tumbles (its failsafe, error
+        706) and says so while it still falls: right when the truth showed a loss of control begun at most
+        ``loc_fail_window_s`` before ``stamp`` (whether the robot reported it is invariant 3's other rule)."""
+        return any(stamp - self.cfg.loc_fail_window_s <= t <= stamp + SKEW_S + self.cfg.stamp_lag_s
+                   for t in self._loc_starts)
+
+    def _confirmed_loss_of_control(self, info: TaskInfo) -> bool:
+        """Whether ``info`` failed on a loss of control (the RAL's ``loss of control (...)``, or a module's 604/706)
+        that the truth shows too, begun within ``loc_fail_window_s`` before the failure: a robot fault (a motor
+        lost: the aircraft may well have been closing on its goal the instant before it tumbled). A loss of control
+        the truth does not show is not one: that failure is judged by the aircraft's progress as any other (a spin
+        the RAL saw on wrongly stamped telemetry, campaign seed 31)."""
+        code = reported_error(info.detail)
+        said = info.detail.startswith("loss of control") or code in LOSS_OF_CONTROL_CODES
+        assert info.ended is not None
+        return said and any(info.ended - self.cfg.loc_fail_window_s <= t <= info.ended for t in self._loc_starts)
+
+    @property
+    def _progress_source(self) -> str:
+        return "DSP telemetry" if self.cfg.dsp_commands else "truth"
+
+    def _goal_of(self, info: TaskInfo) -> tuple[float, float, float] | None:
+        return self.goal(info) if (info.kind in GOAL_KINDS or info.name in GOAL_KINDS) else None
 
     # 4. abort within 100 ms
     def _judge_aborts(self, now: float) -> None:
@@ -560,6 +648,7 @@ class SafetyMonitor:
             why.append(f"ground contact at {-truth.vel_neu[2]:.1f} m/s down")
         if why and self._loc is None:
             self._loc = _Episode(now, evidence=[f"truth at {now:.3f} (sim {truth.time_s:.2f} s): " + "; ".join(why)])
+            self._loc_starts.append(now)
             self._loc_ok_since = None
         elif not why and self._loc is not None:
             self._loc_ok_since = self._loc_ok_since if self._loc_ok_since is not None else now

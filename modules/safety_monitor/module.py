@@ -21,7 +21,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, Literal
 
 import msgspec
 import zenoh
@@ -44,10 +44,12 @@ from bbcs.contracts import gri, mri
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.safety import BREACH_SLOT, CODE_OF, STATUS_SLOT, Breach, MonitorStatus
 from bbcs.contracts.tasks import TaskInfo
-from bbcs.contracts.vehicle_truth import decode_truth
+from bbcs.contracts.vehicle_truth import VehicleTruth, decode_truth
 from bbcs.lockstep import clock_key
-from modules.safety_monitor.clocks import STAMPED_ON_WALL, RobotTime
-from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor
+from bbcs.params import ParamError
+from modules.safety_monitor.clocks import STAMPED_ON_WALL, RobotTime, truth_behind
+from modules.safety_monitor.logic import VEHICLES, MonitorConfig, SafetyMonitor, judged_invariants
+from modules.safety_monitor.uquad_truth import UQUAD_TRUTH_PERIOD_S, BadTruthLine, truth_from_bytes
 
 STATUS_PERIOD_S = 1.0
 TRUTH_EVERY_S = 0.05
@@ -59,6 +61,10 @@ class _Limits(msgspec.Struct, kw_only=True):
     """The robot .conf keys the monitor reads (the RAL's own limits: docs/conf_format.md)."""
 
     MIN_CLEARANCE: float | None = None
+    HOME_LAT: float | None = None
+    HOME_LON: float | None = None
+    HOME_ALT: float | None = None
+    """The uQuad's home (its simulator's origin: its truth is in metres from it)."""
     GEOFENCE: Annotated[list[float], msgspec.Meta(min_length=3, max_length=3)] | None = None
 
 
@@ -72,6 +78,12 @@ class MonitorParams(msgspec.Struct, frozen=True, kw_only=True):
     loc_attitude_deg: Annotated[float, msgspec.Meta(gt=0, le=180)] | None = None
     truth_udp: Annotated[str, msgspec.Meta(pattern=r"^(((127\.0\.0\.1|localhost)?:)?[0-9]{1,5})?$")] = ""
     """The simulator's truth datagrams: a port (or ``127.0.0.1:PORT``) on this machine; empty: none."""
+    vehicle: Literal["uav", "uquad"] = "uav"
+    """``uav``: flies through a DSP (its commands and aborts judged); ``uquad``: no DSP (invariants 2, 3 and 5 only,
+    :func:`~modules.safety_monitor.logic.judged_invariants`)."""
+    truth_tcp: Annotated[str, msgspec.Meta(pattern=r"^(((127\.0\.0\.1|localhost)?:)?[0-9]{1,5})?$")] = ""
+    """The uQuad simulator's truth stream (``--truth 127.0.0.1:PORT``, JSON lines) on this machine; empty: none.
+    Needs the .conf's HOME_LAT/HOME_LON/HOME_ALT (the simulator's origin)."""
 
 
 def monitor_param_errors(params: dict[str, str]) -> list[tuple[str, str]]:
@@ -95,13 +107,26 @@ def load_config(context: ModuleContext) -> MonitorConfig:
                           ("goal_tolerance_m", "gri_position_m", "abort_latency_s", "loc_attitude_deg")
                           if getattr(params, name) is not None}
     return MonitorConfig(robot=context.robot, geofence=fence, min_clearance_m=clearance,
-                         monitor_name=context.module, **kw)
+                         monitor_name=context.module, **VEHICLES[params.vehicle], **kw)
 
 
 def truth_port(context: ModuleContext) -> int | None:
     """The truth UDP port on 127.0.0.1, or None; a ``ParamError`` for anything else."""
     raw = load_params(MonitorParams, context.params, what="safety_monitor").truth_udp
     return int(raw.rpartition(":")[2]) if raw else None
+
+
+def uquad_truth_source(context: ModuleContext) -> tuple[int, tuple[float, float, float]] | None:
+    """The uQuad simulator's truth stream port on 127.0.0.1 and its origin (the .conf's HOME_*), or None; a
+    ``ParamError`` when the port is given and the .conf has no home."""
+    raw = load_params(MonitorParams, context.params, what="safety_monitor").truth_tcp
+    if not raw:
+        return None
+    limits = load_conf(context.conf).to_struct(_Limits) if context.conf else _Limits()
+    if limits.HOME_LAT is None or limits.HOME_LON is None or limits.HOME_ALT is None:
+        raise ParamError("truth_tcp: the robot .conf has no HOME_LAT, HOME_LON and HOME_ALT (the uQuad simulator's "
+                         "origin)")
+    return int(raw.rpartition(":")[2]), (limits.HOME_LAT, limits.HOME_LON, limits.HOME_ALT)
 
 
 class SafetyMonitorModule(Module):
@@ -131,6 +156,9 @@ class SafetyMonitorModule(Module):
             cfg = dataclasses.replace(cfg, stamp_lag_s=self.sim.step_s)
         self.monitor = SafetyMonitor(cfg)
         self._truth_port = truth_port(context)
+        self._uquad_truth = uquad_truth_source(context)
+        self._truth_period = UQUAD_TRUTH_PERIOD_S if self._uquad_truth is not None else 0.0
+        """Simulated seconds between two truth samples the simulator sends (0: one at every step's end)."""
         self._truth_sock: socket.socket | None = None
         self._truth_thread: threading.Thread | None = None
         self._watching: list[Any] = []
@@ -162,16 +190,24 @@ class SafetyMonitorModule(Module):
             self._truth_sock.settimeout(0.2)
             self._truth_thread = threading.Thread(target=self._read_truth, name="safety-truth", daemon=True)
             self._truth_thread.start()
+        elif self._uquad_truth is not None:
+            self._truth_thread = threading.Thread(target=self._read_uquad_truth, name="safety-truth", daemon=True)
+            self._truth_thread.start()
+        judged = judged_invariants(self.monitor.cfg.dsp_commands,
+                                   self._truth_port is not None or self._uquad_truth is not None)
+        self.log.info("judging invariants %s", ", ".join(str(int(i)) for i in sorted(judged)))
         self.log.info("watching %s (truth %s)", robot,
-                      f"on udp 127.0.0.1:{self._truth_port}" if self._truth_port else "none: not a simulation")
+                      f"on udp 127.0.0.1:{self._truth_port}" if self._truth_port else
+                      f"the uQuad simulator's on tcp 127.0.0.1:{self._uquad_truth[0]}" if self._uquad_truth else
+                      "none: not a simulation")
 
     def on_stop(self) -> None:
         for entity in self._watching:
             entity.undeclare()
         self._watching.clear()
+        if self._truth_thread is not None:
+            self._truth_thread.join(1.0)
         if self._truth_sock is not None:
-            if self._truth_thread is not None:
-                self._truth_thread.join(1.0)
             self._truth_sock.close()
 
     def _decoded(self, typ: type, handler: Callable[[float, Any], None]) -> Callable[[zenoh.Sample], None]:
@@ -233,15 +269,54 @@ class SafetyMonitorModule(Module):
                 self._truth_read = (truth.time_s, time.monotonic())
                 continue
             last = truth.time_s
-            if self.sim is None:  # the simulator's own time: stamped as it arrives (the wall clock)
-                self.call_soon(lambda t=truth: self.monitor.on_truth(self.clock(), t))
+            self._take_truth(truth)
+
+    def _take_truth(self, truth: VehicleTruth) -> None:
+        """One truth sample to the decisions, on the robot's clock (the reading thread)."""
+        if self.sim is None:  # the simulator's own time: stamped as it arrives (the wall clock)
+            self.call_soon(lambda t=truth: self.monitor.on_truth(self.clock(), t))
+            return
+        # lockstep: the simulator is the stepper, its time_s is the robot clock's t. Its physics runs ahead of the
+        # processes' clocks (they move at the frame's end), so the truth is stamped from its own time
+        stamp = self.robot_time.truth(truth.time_s)
+        if stamp is not None:
+            self.call_soon(lambda t=truth, n=stamp: self.monitor.on_truth(n, t))
+        self._truth_read = (truth.time_s, time.monotonic())  # after the hand-over: the loop is busy with it
+
+    def _read_uquad_truth(self) -> None:
+        """The uQuad simulator's truth stream (TCP, one JSON line a sample, every 0.05 simulated s): connected again
+        whenever it closes (the simulator serves one client at a time). A line cut by a write the simulator could
+        not finish is dropped."""
+        assert self._uquad_truth is not None
+        port, home = self._uquad_truth
+        seq = 0
+        while not self.stopping:
+            try:
+                sock = socket.create_connection(("127.0.0.1", port), timeout=1.0)
+            except OSError:
+                time.sleep(0.2)
                 continue
-            # lockstep: the DSP simulator is the stepper, its time_s is the robot clock's t. Its physics runs ahead
-            # of the processes' clocks (they move at the frame's end), so the truth is stamped from its own time
-            stamp = self.robot_time.truth(truth.time_s)
-            if stamp is not None:
-                self.call_soon(lambda t=truth, n=stamp: self.monitor.on_truth(n, t))
-            self._truth_read = (truth.time_s, time.monotonic())  # after the hand-over: the loop is busy with it
+            sock.settimeout(0.2)
+            buf = b""
+            with sock:
+                while not self.stopping:
+                    try:
+                        data = sock.recv(65536)
+                    except TimeoutError:
+                        continue
+                    except OSError:
+                        break
+                    if not data:
+                        break
+                    *lines, buf = (buf + data).split(b"\n")
+                    for line in lines:
+                        try:
+                            truth = truth_from_bytes(line, home, seq)
+                        except BadTruthLine as exc:
+                            self.log.warning("bad uQuad truth line dropped: %s", exc)
+                            continue
+                        seq += 1
+                        self._take_truth(truth)
 
     def lockstep_busy(self) -> str:
         """In lockstep the simulator sends the truth of a step before it asks the step, over UDP outside the bus:
@@ -252,7 +327,8 @@ class SafetyMonitorModule(Module):
         if read is None or time.monotonic() - read[1] > TRUTH_SILENT_S:
             return ""
         t = self.bbcs_clock.monotonic()
-        return f"truth read up to {read[0]:.2f} s of {t:.2f} s" if read[0] < t - 1e-6 else ""
+        return f"truth read up to {read[0]:.2f} s of {t:.2f} s" if truth_behind(read[0], t, self._truth_period) \
+            else ""
 
     def on_dsp_sent(self, msg: p.DspSent) -> None:
         self.robot_time.learn("dsp", msg.stamp)

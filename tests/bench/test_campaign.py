@@ -1,8 +1,9 @@
 """The randomized mission campaign in CI (docs/simulation.md, "Campaign"): the regressions it found, then a
 seeded sequence of tasks and faults, on the shipped uav1_lidar_sim.toml in lockstep, the flight-safety monitor as
-the oracle. Every planned sequence flown, no incident, zero breaches, and a monitor that did watch (commands judged,
-verdicts given, the GRI compared with the truth on the robot's clock): an oracle that saw nothing would pass
-anything. A failure prints each failing sequence with the command that flies it again.
+the oracle; the regressions of uav1_sim.toml and of uquad1_sim.toml each on their robot. Every planned sequence
+flown, no incident, zero breaches, and a monitor that did watch (commands judged, verdicts given, the GRI compared
+with the truth on the robot's clock): an oracle that saw nothing would pass anything. A failure prints each failing
+sequence with the command that flies it again.
 """
 
 from __future__ import annotations
@@ -98,3 +99,31 @@ def test_the_uav_regressions_show_no_breach(tmp_path: Path) -> None:
     outcomes = result.sequences[0]["outcomes"]
     assert outcomes[-1].startswith("done s=90: task") and "task_completed" in outcomes[-1], outcomes
     assert sum(s["watched"]["commands_judged"] for s in result.sequences) > 0
+
+
+UQUAD_REGRESSIONS = [
+    # found flying the uQuad (uquad1_sim.toml) with its own truth fed to the monitor, both the monitor's: its first
+    # take-off, where the GRI says airborne from the motors' ramp on the ground (the uQuad's flag is its motors
+    # running, docs/uquad.md §5), and the motor lost mid-goto, where the flight module cuts its motors while the
+    # quadrotor still falls (airborne=False in the air: gri_airborne); and the goto, closing on its goal, fails with
+    # the tumble (a robot fault, else failed_while_progressing); all judged as the failsafe they are (test_uquad.py)
+    "take_off h=3; done s=90; goto to=4:0 h=3 v=2; wait s=2; motor_loss motor=1; wait s=20",
+]
+"""The same, on the uQuad (the campaign's ``uquad`` profile: invariants 2, 3 and 5 against its own truth)."""
+
+
+@pytest.mark.timeout(300)
+def test_the_uquad_regressions_show_no_breach(tmp_path: Path) -> None:
+    result = run_campaign(SEED, 0, [PROFILES["uquad"]], tmp_path, budget_s=BUDGET_S, shrink_budget=0,
+                          given=[parse_steps(text) for text in UQUAD_REGRESSIONS])
+    report = "\n\n".join(f.report() for f in result.failures)
+    assert sorted(s["index"] for s in result.sequences) == list(range(-len(UQUAD_REGRESSIONS), 0)), result.summary()
+    assert not result.incidents, f"{result.summary()}\n{report}"
+    assert not [b for s in result.sequences for b in s["breaches"]], f"{result.summary()}\n{report}"
+    seq = result.sequences[0]
+    assert any(o.startswith("motor_loss motor=1: motor 1 lost") and "'ok': True" in o for o in seq["outcomes"]), seq
+    # the robot reported the loss of control and failed the goto with it (the monitor judged that failure)
+    assert any("LOSS_OF_CONTROL" in f or "loss of control" in f for f in seq["failed"]), seq["failed"]
+    watched = seq["watched"]
+    # invariant 3 on the uQuad's own truth, on the robot's clock; invariant 2's verdicts (take-off, the goto)
+    assert watched["truth"] > 100 and watched["gri_compared"] > 50 and watched["verdicts"] >= 2, watched

@@ -4,31 +4,40 @@ flight-safety monitor as the oracle, and the runner of :mod:`campaign_steps` on 
 The manifest is the shipped one with only the simulation's instruments added: lockstep (``[sim] lockstep =
 true``), the .conf's absolute path, and on the DSP simulator's command line its record, its fault-injection
 control port and its truth sent to the monitor (on ``uav1_lidar_sim.toml``, whose lidar simulators already take
-the truth, through a tee in this process). Everything started here is stopped by :meth:`CampaignRobot.close`.
+the truth, through a tee in this process); on ``uquad1_sim.toml`` its simulator's truth stream and control port on
+ports chosen here, the monitor connected to the truth (``vehicle=uquad``). Everything started here is stopped by
+:meth:`CampaignRobot.close`.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
+import subprocess
 import sys
 import threading
 import time
 import tomllib
 from collections import deque
-from contextlib import ExitStack
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
+from bbcs import keys
 from bbcs.clock import SimTime
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
+from bbcs.contracts.safety import BREACH_SLOT, STATUS_SLOT, Breach, MonitorStatus
+from bbcs.geodesy import LocalFrame
 from bbcs.lockstep import SimSettings, clock_key, settings_env
 from bbcs.session import local_client, open_session
+from bbcs.testing import child_env, stop_process, wait_until
 from modules.dsp.sim.control import send_command
 from ral.gcs.api import Gcs, GcsError, session_config
 
@@ -40,7 +49,6 @@ from campaign_steps import Cell, Profile, Step  # noqa: E402
 from launch_support import Launch, group_members  # noqa: E402
 from monitor_support import MonitorView, attach_monitor, free_udp_port  # noqa: E402
 
-ROBOT = "uav1"
 GRID_DEG = 1e-4
 END_EVENTS = frozenset({"task_completed", "task_cancelled", "task_replaced", "task_failed", "aborted",
                         "task_rejected"})
@@ -99,6 +107,33 @@ def _replace_once(text: str, old: str, new: str, what: str) -> str:
     return text.replace(old, new, 1)
 
 
+def uquad_campaign_manifest(profile: Profile, workdir: Path, truth: int, control: int) -> Path:
+    """The shipped uquad1_sim.toml with the simulation's instruments: lockstep, the .conf's absolute path, the
+    loggers writing into the work folder, and the simulator's truth stream and control port on ports chosen here
+    (the monitor connects to the truth, the campaign to the control port)."""
+    shipped = ROOT / "bbcs_conf" / profile.manifest
+    text = shipped.read_text()
+    text = _replace_once(text, 'conf = "uquad1.conf"', f'conf = "{shipped.parent / "uquad1.conf"}"', "the .conf")
+    if "lockstep = true" not in text:
+        text = _replace_once(text, "\n[bus]\n", "\n[sim]\nlockstep = true\n\n[bus]\n", "[bus]")
+    text = _replace_once(text, '"--truth", "127.0.0.1:{port:truth}"', f'"--truth", "127.0.0.1:{truth}"',
+                         "the simulator's truth stream")
+    text = _replace_once(text, '"--control", "127.0.0.1:{port:control}"', f'"--control", "127.0.0.1:{control}"',
+                         "the simulator's control port")
+    for kind in ("imu_raw", "state", "control"):
+        text = _replace_once(text, f'params = {{ kind = "{kind}" }}',
+                             f'params = {{ kind = "{kind}", dir = "{workdir / "logs_uquad"}" }}', f"the {kind} logger")
+    path = workdir / profile.manifest
+    path.write_text(text)
+    return path
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
 def campaign_manifest(profile: Profile, workdir: Path, monitor_truth: int, control: int) -> tuple[Path, Path,
                                                                                                   Tee | None]:
     """The shipped manifest with the simulation's instruments (module docstring). Returns (manifest, DSP record,
@@ -130,6 +165,42 @@ def campaign_manifest(profile: Profile, workdir: Path, monitor_truth: int, contr
     return path, record, tee
 
 
+UQUAD_GOAL_TOLERANCE_M = 3.0
+"""The monitor's goal tolerance on a uQuad (invariant 2): its default of 10 m is the UAV's (the DSP's 11 m grid);
+the uQuad's RAL completes a goto within 1 m of its estimate, whose GPS error is well under 2 m."""
+
+
+@contextmanager
+def attach_uquad_monitor(router_port: int, workdir: Path, *, robot: str, conf: Path, truth_tcp: int,
+                         env: dict[str, str]) -> Iterator[MonitorView]:
+    """The safety monitor on the uQuad's router (as :func:`monitor_support.attach_monitor` for the UAV): no DSP
+    (``vehicle=uquad``), the simulator's truth stream on ``truth_tcp``; always stopped, its session closed."""
+    log = workdir / "safety_monitor.log"
+    args = [sys.executable, "-m", "modules.safety_monitor", "--robot", robot, "--connect",
+            f"tcp/127.0.0.1:{router_port}", "--conf", str(conf), "--param", "vehicle=uquad",
+            "--param", f"truth_tcp={truth_tcp}", "--param", f"goal_tolerance_m={UQUAD_GOAL_TOLERANCE_M:g}"]
+    with open(log, "w") as out:
+        proc = subprocess.Popen(args, cwd=str(ROOT), env=child_env(**env), stdout=out, stderr=subprocess.STDOUT)
+    view = MonitorView(proc, log)
+    session = None
+    subs = []
+    try:
+        session = open_session(local_client(router_port))
+        for slot, typ, handler in ((BREACH_SLOT, Breach, view.on_breach), (STATUS_SLOT, MonitorStatus,
+                                                                            view.on_status)):
+            decode = msgspec.msgpack.Decoder(typ).decode
+            subs.append(session.declare_subscriber(
+                keys.slot_key(robot, "safety_monitor", slot),
+                lambda sample, d=decode, h=handler: h(d(sample.payload.to_bytes()))))
+        yield view
+    finally:
+        for sub in subs:
+            sub.undeclare()
+        if session is not None:
+            session.close()
+        stop_process(proc)
+
+
 @dataclass
 class Outcome:
     """What one step did, as the runner saw it (for the report of a failing sequence)."""
@@ -144,9 +215,16 @@ class Anchor:
     lat: float
     lon: float
     alt: float
+    cell_m: float = 0.0
+    """0: cells of the DSP's grid; else metres per cell north and east in the local frame at the anchor."""
 
     def at(self, cell: Cell, height: float | None = None) -> tuple[float, float, float]:
-        """A grid cell's coordinates (on the DSP's 10^-4 degree grid), ``height`` metres above the anchor."""
+        """A grid cell's coordinates (on the DSP's 10^-4 degree grid, or ``cell_m`` metres a cell in the local frame
+        at the anchor), ``height`` metres above the anchor."""
+        if self.cell_m:
+            lat, lon, _ = LocalFrame(self.lat, self.lon, self.alt).to_geo(cell[1] * self.cell_m,
+                                                                            cell[0] * self.cell_m)
+            return lat, lon, self.alt + (height or 0.0)
         lat = round(round(self.lat / GRID_DEG) * GRID_DEG + cell[0] * GRID_DEG, 4)
         lon = round(round(self.lon / GRID_DEG) * GRID_DEG + cell[1] * GRID_DEG, 4)
         return lat, lon, self.alt + (height or 0.0)
@@ -210,6 +288,7 @@ class CampaignRobot:
 
     def __init__(self, profile: Profile, workdir: Path, *, log=print, launch_timeout_s: float = 180.0) -> None:
         self.profile = profile
+        self.robot = profile.robot
         self.workdir = workdir
         self.log = log
         self.stack = ExitStack()
@@ -220,6 +299,8 @@ class CampaignRobot:
         self.sim_t = 0.0
         self._sim_seen = time.monotonic()
         self.link: Gcs | None = None
+        self.lost_motors: set[int] = set()
+        """uQuad motors a ``motor_loss`` took, repaired by the reset."""
         self.killed: dict[str, int] = {}
         """Module → pid killed and not yet seen replaced by a new process that is up."""
         self._kills: dict[str, deque[float]] = {}
@@ -235,8 +316,14 @@ class CampaignRobot:
     def _start(self, timeout_s: float) -> None:
         workdir = self.workdir
         workdir.mkdir(parents=True, exist_ok=True)
-        truth, self.control = free_udp_port(), free_udp_port()
-        manifest, self.record, tee = campaign_manifest(self.profile, workdir, truth, self.control)
+        uquad = self.profile.manifest.startswith("uquad")
+        tee = None
+        if uquad:  # the simulator's truth stream is TCP (a server the monitor connects to), so is its control port
+            truth, self.control = free_tcp_port(), free_tcp_port()
+            manifest, self.record = uquad_campaign_manifest(self.profile, workdir, truth, self.control), None
+        else:
+            truth, self.control = free_udp_port(), free_udp_port()
+            manifest, self.record, tee = campaign_manifest(self.profile, workdir, truth, self.control)
         sup = tomllib.loads(manifest.read_text()).get("supervision", {})
         self.intensity, self.period_s = int(sup.get("intensity", 5)), float(sup.get("period_s", 10.0))
         if tee is not None:
@@ -250,26 +337,46 @@ class CampaignRobot:
         self.session = open_session(local_client(self.launch.port))
         self.stack.callback(self.session.close)
         decode = msgspec.msgpack.Decoder(SimTime).decode
-        sub = self.session.declare_subscriber(clock_key(ROBOT), lambda s: self._on_time(decode(s.payload.to_bytes())))
+        sub = self.session.declare_subscriber(clock_key(self.robot),
+                                              lambda s: self._on_time(decode(s.payload.to_bytes())))
         self.stack.callback(sub.undeclare)
         self.gcs = Gcs(session_config([endpoint]), name="campaign", timeout_s=20.0)
         self.stack.callback(self.gcs.close)
-        self.gcs.watch(ROBOT, self._on_state)
-        self.gcs.events(ROBOT, self._on_event)
+        self.gcs.watch(self.robot, self._on_state)
+        self.gcs.events(self.robot, self._on_event)
         self._open_link()
         self.stack.callback(self._close_link)
         # a lockstep member: the simulation steps only once the monitor has judged what the last step produced
         # (an outside observer falls behind a simulation at --speed max on a loaded machine)
-        sim = SimSettings(robot=ROBOT, connect=[endpoint], speed="max")
-        self.monitor: MonitorView = self.stack.enter_context(
-            attach_monitor(self.launch.port, workdir, truth_port=truth, env=settings_env(sim)))
-        first = self._wait(lambda: self.state is not None and self.state.home is not None
+        sim = SimSettings(robot=self.robot, connect=[endpoint], speed="max")
+        if uquad:
+            self.monitor = self.stack.enter_context(attach_uquad_monitor(
+                self.launch.port, workdir, robot=self.robot, conf=ROOT / "bbcs_conf" / "uquad1.conf", truth_tcp=truth,
+                env=settings_env(sim)))
+        else:
+            self.monitor = self.stack.enter_context(
+                attach_monitor(self.launch.port, workdir, truth_port=truth, env=settings_env(sim)))
+        # the uQuad's GRI has no home before its first take-off: its anchor is where it stands at the start
+        first = self._wait(lambda: self.state is not None and (self.state.home is not None or uquad)
                            and self.state.position is not None and self.state.link == "up", 60.0,
                            "a GRI state with home, position and the campaign's link")
-        assert first.home is not None
-        self.anchor = Anchor(first.home.lat, first.home.lon, first.home.alt)
-        self.monitor.wait_watching(60.0)
+        origin = first.home or first.position
+        assert origin is not None
+        self.anchor = Anchor(origin.lat, origin.lon, origin.alt, self.profile.cell_m)
+        if uquad:  # no DSP telemetry on a uQuad: the book, the GRI and the simulator's truth
+            wait_until(lambda: self._uquad_watched(), 60.0, "the safety monitor watching the uQuad")
+        else:
+            self.monitor.wait_watching(60.0)
         self.ready_s = time.monotonic() - t0
+
+    monitor: MonitorView
+
+    def _uquad_watched(self) -> bool:
+        st = self.monitor.status
+        if self.monitor.proc.poll() is not None:
+            raise AssertionError(f"the monitor exited {self.monitor.proc.returncode}: "
+                                 f"{self.monitor.log.read_text()[-2000:]}")
+        return st is not None and st.books > 0 and st.gri_states > 0 and st.truth > 0
 
     def _stop_launch(self) -> None:
         try:
@@ -282,7 +389,7 @@ class CampaignRobot:
         self.stack.close()
 
     def _open_link(self) -> None:
-        self.link = Gcs(session_config([f"tcp/127.0.0.1:{self.launch.port}"]), name="campaign_link", link=[ROBOT])
+        self.link = Gcs(session_config([f"tcp/127.0.0.1:{self.launch.port}"]), name="campaign_link", link=[self.robot])
 
     def _close_link(self) -> None:
         if self.link is not None:
@@ -378,19 +485,30 @@ class CampaignRobot:
             return f"link cut {s['s']:g} wall s"
         if op == "bad_frame":
             return send_command("127.0.0.1", self.control, f"spoil {s['field']}={s['value']} {s['count']}")
+        if op == "motor_loss":
+            answer = self._motor(s["motor"], 0.0)
+            if answer.get("ok"):
+                self.lost_motors.add(s["motor"])
+            return f"motor {s['motor']} lost: {answer}"
         if op == "restart_ral":
             state = self.state
             ral = next((m for m in (state.modules if state else []) if m.name == "ral"), None)
-            reply = self.gcs.restart(ROBOT, "ral")
+            reply = self.gcs.restart(self.robot, "ral")
             if reply.accepted and ral is not None and ral.pid is not None:
                 # the reset waits for a new RAL process: a state published before the restart still shows the old
                 # one up, and a `land` sent to it then got no answer (seed 7, sequence 136's incident)
                 self.killed["ral"] = ral.pid
             return self._reply(reply)
         if op == "route":
-            routes = self.gcs.route(ROBOT, "pan_tilt", "datos", s["datos"])
+            routes = self.gcs.route(self.robot, "pan_tilt", "datos", s["datos"])
             return f"pan_tilt.datos = {routes.routes.get('pan_tilt', {}).get('datos')}"
-        return self._reply(self.gcs.send(ROBOT, task_request(s, self.anchor)))
+        return self._reply(self.gcs.send(self.robot, task_request(s, self.anchor)))
+
+    def _motor(self, motor: int, efficiency: float) -> dict[str, Any]:
+        """The uQuad simulator's control port: that motor's thrust efficiency from the next physics step on."""
+        with socket.create_connection(("127.0.0.1", self.control), timeout=10.0) as sock:
+            sock.sendall(json.dumps({"motor": motor, "efficiency": efficiency}).encode() + b"\n")
+            return json.loads(sock.makefile("rb").readline())
 
     def _reply(self, reply: gri.TaskReply) -> str:
         if reply.accepted:
@@ -449,16 +567,21 @@ class CampaignRobot:
         ground, and the monitor's last judgements made."""
         if self.link is None:
             self._open_link()
+        for motor in sorted(self.lost_motors):  # repaired (the aircraft is on the ground by now: its failsafe)
+            answer = self._motor(motor, 1.0)
+            if not answer.get("ok"):
+                raise Stuck(f"motor {motor} not repaired: {answer}")
+        self.lost_motors.clear()
         self.wait_healthy()
         if self.profile.routes:
-            routes = self.gcs.routes(ROBOT).routes.get("pan_tilt", {})
+            routes = self.gcs.routes(self.robot).routes.get("pan_tilt", {})
             if routes.get("datos") != self.profile.routes[0]:
-                self.gcs.route(ROBOT, "pan_tilt", "datos", self.profile.routes[0])
+                self.gcs.route(self.robot, "pan_tilt", "datos", self.profile.routes[0])
         tried: list[str] = []
         for _ in range(3):
             if self._on_ground():
                 break
-            reply = self.gcs.send(ROBOT, gri.Land())
+            reply = self.gcs.send(self.robot, gri.Land())
             if not reply.accepted:
                 tried.append(f"land refused at t={self.sim_t:.1f}: {reply.reason}")
                 self.wait_healthy()  # a module it needs may have gone down since (a restart is on the wall clock)

@@ -4,13 +4,15 @@ seeded generator of sequences. Pure: no robot, no clock.
 A **step** is one thing a ground station or the world does to the robot: a task (``take_off``, ``goto``,
 ``follow_path`` in path mode 0, 1 or 3, ``survey``, ``orbit``, ``land``, ``hold``, ``abort``, ``pan_tilt``,
 ``look_at``, ``track``), a route swap (``route``), a fault (``kill`` -9 of a module, ``link_loss``, a bad telemetry
-frame ``bad_frame``, ``restart_ral``) or time passing (``wait`` simulated seconds, ``done``: until the last task
-ends). Its text is ``op key=value ...``; a sequence is its steps joined by ``; ``, so a failing one is printed as
-a command line that runs it again (``python bench/campaign.py --robot uav --steps "take_off; done s=60"``).
+frame ``bad_frame``, ``restart_ral``, ``motor_loss`` on the uQuad) or time passing (``wait`` simulated seconds,
+``done``: until the last task ends). Its text is ``op key=value ...``; a sequence is its steps joined by ``; ``,
+so a failing one is printed as a command line that runs it again (``python bench/campaign.py --robot uav
+--steps "take_off; done s=60"``).
 
 Places are grid cells of the DSP protocol's 10^-4 degrees (``north:east``) from the robot's **anchor** (where the
 simulator put it at launch), heights in metres above the anchor: the runner turns them into coordinates, so a
-sequence means the same flight on every launch, wherever earlier sequences left the aircraft.
+sequence means the same flight on every launch, wherever earlier sequences left the aircraft. On the uQuad (a
+small quadrotor, :attr:`Profile.cell_m`) a cell is 2 metres of its local frame instead.
 """
 
 from __future__ import annotations
@@ -75,13 +77,14 @@ ARGS: dict[str, dict[str, Arg]] = {
     "link_loss": {"s": Arg(float, _num, default=3.0)},
     "bad_frame": {"field": Arg(_word), "value": Arg(_word), "count": Arg(int, default=1)},
     "restart_ral": {},
+    "motor_loss": {"motor": Arg(int)},
     "wait": {"s": Arg(float, _num, default=5.0)},
     "done": {"s": Arg(float, _num, default=60.0)},
 }
 """Every step: its arguments, how each is read and written, the default when left out (None: required)."""
 TASKS = frozenset({"take_off", "land", "hold", "abort", "goto", "follow_path", "survey", "orbit", "pan_tilt",
                    "look_at", "track"})
-FAULTS = frozenset({"kill", "link_loss", "bad_frame", "restart_ral"})
+FAULTS = frozenset({"kill", "link_loss", "bad_frame", "restart_ral", "motor_loss"})
 FOLLOW_MODES = (0, 1, 3)
 """follow_path's path modes: 0 the DSP's follower, 1 with a heading, 3 the path follower module's onboard one."""
 
@@ -162,6 +165,25 @@ class Profile:
     """Slots ``route`` may put on the pan & tilt's DATOS (its manifest default first)."""
     bad_fields: tuple[tuple[str, str], ...] = ()
     """Telemetry fields and values a ``bad_frame`` may spoil (the DSP simulator's control port)."""
+    robot: str = "uav1"
+    """The robot's name in its manifest."""
+    cell_m: float = 0.0
+    """0: places are cells of the DSP's 10^-4 degree grid (about 11 m); else metres of the robot's local
+    east-north-up frame per cell (the uQuad, a small quadrotor: its tests fly within about 12 m of home)."""
+    heights: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0)
+    speeds: tuple[float, ...] = (3.0, 5.0, 8.0)
+    take_off_h: float | None = None
+    """The take-off height the generator asks (None: the step's default, 10 m)."""
+    follow_modes: tuple[int, ...] = (0,)
+    motors: int = 0
+    """Motors a ``motor_loss`` may take (the uQuad simulator's control port: that motor gives no thrust until the
+    reset repairs it); 0: none."""
+
+    @property
+    def faults(self) -> frozenset[str]:
+        """The faults the generator gives this robot (a bad telemetry frame needs the DSP simulator)."""
+        return FAULTS - ({"bad_frame"} if not self.bad_fields else set()) \
+            - ({"motor_loss"} if not self.motors else set())
 
 
 DSP_BAD_FIELDS = (("position.lat", "200"), ("heading", "180"), ("attitude.roll", "nan"), ("status.mode", "9"),
@@ -172,23 +194,30 @@ PROFILES: dict[str, Profile] = {
         tasks=frozenset({"take_off", "land", "hold", "abort", "goto", "follow_path", "pan_tilt", "look_at",
                          "track"}),
         killable=("dsp", "telemetry", "pan_tilt", "path_follower", "vision", "ral"),
-        routes=(10, 20), bad_fields=(*DSP_BAD_FIELDS, ("pan_tilt.mode", "5"))),
+        routes=(10, 20), bad_fields=(*DSP_BAD_FIELDS, ("pan_tilt.mode", "5")), follow_modes=FOLLOW_MODES),
     "survey": Profile(
         "survey", "uav1_lidar_sim.toml",
         tasks=frozenset({"take_off", "land", "hold", "abort", "goto", "follow_path", "survey", "orbit"}),
         killable=("dsp", "telemetry", "path_follower", "trajectory", "ral"),
         bad_fields=DSP_BAD_FIELDS),
+    "uquad": Profile(
+        "uquad", "uquad1_sim.toml",
+        tasks=frozenset({"take_off", "land", "hold", "abort", "goto", "follow_path"}),
+        # the flight module is restart = "never" (a restarted flight loop would recalibrate in the air), and the
+        # simulator and the motor driver are processes, not modules: the loggers and the RAL are restarted
+        killable=("log_imu_raw", "log_state", "log_control", "ral"),
+        robot="uquad1", cell_m=2.0, heights=(2.0, 3.0, 4.0, 5.0), speeds=(1.0, 2.0, 3.0), take_off_h=3.0,
+        motors=4),
 }
-"""The robots in lockstep. The uQuad is not among them: its simulator does not step on the barrier yet
-(docs/simulation.md, "Lockstep", "Not built")."""
+"""The robots in lockstep: the DSP's UAV in two manifests and the uQuad (its simulator the stepper,
+docs/uquad.md §1.1)."""
 
 
 # ---------------------------------------------------------------- the generator
 
-HEIGHTS = (10.0, 15.0, 20.0, 25.0)
-SPEEDS = (3.0, 5.0, 8.0)
 AREA = 4
-"""Places lie within this many grid cells of the anchor (about 45 m): the aircraft never wanders off."""
+"""Places lie within this many cells of the anchor (about 45 m on the DSP's grid, 8 m on the uQuad's): the
+aircraft never wanders off."""
 
 
 @dataclass(frozen=True)
@@ -224,14 +253,14 @@ def _route(rng: random.Random, n: int) -> tuple[Cell, ...]:
 def _task(rng: random.Random, op: str, profile: Profile) -> Step:
     """A task the robot admits: the survey's lines wide enough for the generator's turns (uav1_lidar_sim.toml:
     at 25 m or more with 20 % overlap or less), heights above MIN_CLEARANCE, speeds within MAX_SPEED."""
-    h = rng.choice(HEIGHTS)
+    h = rng.choice(profile.heights)
     if op == "take_off":
-        return step(op)
+        return step(op) if profile.take_off_h is None else step(op, h=profile.take_off_h)
     if op == "goto":
-        return step(op, to=_route(rng, rng.randint(1, 3)), h=h, v=rng.choice(SPEEDS))
+        return step(op, to=_route(rng, rng.randint(1, 3)), h=h, v=rng.choice(profile.speeds))
     if op == "follow_path":
-        modes = FOLLOW_MODES if profile.name == "uav" else (0,)
-        return step(op, mode=rng.choice(modes), to=_route(rng, rng.randint(2, 4)), h=h, v=rng.choice(SPEEDS))
+        return step(op, mode=rng.choice(profile.follow_modes), to=_route(rng, rng.randint(2, 4)), h=h,
+                    v=rng.choice(profile.speeds))
     if op == "survey":
         return step(op, at=(_cell(rng),), size=((rng.randint(2, 4), rng.randint(2, 4)),),
                     h=rng.choice((25.0, 30.0)), overlap=rng.choice((0.0, 0.1, 0.2)))
@@ -246,8 +275,11 @@ def _task(rng: random.Random, op: str, profile: Profile) -> Step:
 
 
 def _fault(rng: random.Random, profile: Profile, cfg: GenConfig) -> Step:
-    kinds = ["kill", "link_loss", "restart_ral"] + (["bad_frame"] * 2 if profile.bad_fields else [])
+    kinds = ["kill", "link_loss", "restart_ral"] + (["bad_frame"] * 2 if profile.bad_fields else []) \
+        + (["motor_loss"] if profile.motors else [])
     kind = rng.choice(kinds)
+    if kind == "motor_loss":
+        return step(kind, motor=rng.randrange(profile.motors))
     if kind == "kill":
         return step(kind, module=rng.choice(profile.killable))
     if kind == "link_loss":

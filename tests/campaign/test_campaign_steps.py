@@ -83,9 +83,24 @@ def test_generated_sequences_fit_their_robot() -> None:
                         assert all(abs(n) <= AREA and abs(e) <= AREA for n, e in s[key]), str(s)
         # over 300 sequences every task the robot offers, every fault and both kinds of waiting came up
         assert profile.tasks <= ops, (name, profile.tasks - ops)
-        assert FAULTS <= ops and {"wait", "done"} <= ops, name
+        assert profile.faults <= ops and not (FAULTS - profile.faults) & ops and {"wait", "done"} <= ops, name
         assert modes == ({0, 1, 3} if name == "uav" else {0}), name
     assert "route" in {s.op for i in range(300) for s in generate(11, i, PROFILES["uav"])}
+
+
+def test_the_uquads_sequences_are_sized_for_a_small_quadrotor() -> None:
+    """bbcs_conf/uquad1.conf: MIN_CLEARANCE 1 m, MAX_HEIGHT 20 m, MAX_SPEED 4 m/s; places in metres of its local
+    frame (2 m a cell: within 8 m of home, as its tests fly), never the UAV's 11 m grid cells; no bad DSP frame, a
+    lost motor instead."""
+    p = PROFILES["uquad"]
+    assert (p.robot, p.cell_m) == ("uquad1", 2.0)
+    steps = [s for i in range(300) for s in generate(11, i, p)]
+    assert {s["h"] for s in steps if s.op == "take_off"} == {3.0}
+    assert all(1.0 < s["h"] <= 20.0 and 0.0 < s["v"] <= 4.0 for s in steps if s.op in ("goto", "follow_path"))
+    assert {s["module"] for s in steps if s.op == "kill"} == {"log_imu_raw", "log_state", "log_control", "ral"}
+    assert "bad_frame" not in {s.op for s in steps}
+    assert {s["motor"] for s in steps if s.op == "motor_loss"} == {0, 1, 2, 3}  # its simulator's control port
+    assert "motor_loss" not in {s.op for i in range(300) for s in generate(11, i, PROFILES["uav"])}
 
 
 def test_every_sequence_starts_from_the_ground_and_takes_off_before_flying_mostly() -> None:

@@ -22,7 +22,7 @@ from bbcs.contracts.tasks import Goto, TaskInfo, Waypoint
 from bbcs.contracts.vehicle_truth import VehicleTruth
 from bbcs.geodesy import metres_per_degree
 from bbcs.lockstep import SimSettings, settings_env
-from modules.safety_monitor.clocks import RobotTime
+from modules.safety_monitor.clocks import RobotTime, truth_behind
 from modules.safety_monitor.logic import MonitorConfig, SafetyMonitor
 from modules.safety_monitor.module import SafetyMonitorModule
 
@@ -234,3 +234,14 @@ def test_in_lockstep_the_step_waits_until_its_truth_is_read(lockstep_module: Saf
     assert m.lockstep_busy() == ""
     m._truth_read = (0.8, time.monotonic() - 3.0)  # silent for 3 wall s: not waited for
     assert m.lockstep_busy() == ""
+
+
+def test_a_step_is_waited_for_until_its_truth_is_read_to_the_truths_own_period() -> None:
+    """The DSP simulator sends a truth at every step's end: behind until that one is read. The uQuad simulator
+    samples every 0.05 s at its 0.01 s frames: a step ending at 31.599999999999923 (sums of 0.2 s) whose last line
+    came at 31.56 (its sums of 0.05 s an ulp past 31.55) is read; the line before it is not enough."""
+    assert truth_behind(31.4, 31.6) and not truth_behind(31.6, 31.6)
+    assert truth_behind(31.59, 31.6)  # the DSP simulator's truth: to the step's end
+    end = 31.599999999999923
+    assert not truth_behind(31.56, end, 0.05) and not truth_behind(31.55, end, 0.05)
+    assert truth_behind(31.5, end, 0.05) and truth_behind(31.4, end, 0.05)

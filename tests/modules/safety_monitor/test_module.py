@@ -9,7 +9,7 @@ import pytest
 from bbcs.conf import ConfError
 from bbcs.context import ModuleContext
 from bbcs.params import ParamError
-from modules.safety_monitor.module import SafetyMonitorModule, load_config, truth_port
+from modules.safety_monitor.module import SafetyMonitorModule, load_config, truth_port, uquad_truth_source
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -44,3 +44,18 @@ def test_param_hook_names_the_nearest_key_and_agrees_with_the_load() -> None:
     assert "bad value '-1'" in errors["abort_latency_s"]
     with pytest.raises(ParamError, match="goal_tolerance: unknown safety_monitor parameter"):
         load_config(context(goal_tolerance="12"))
+
+
+def test_a_uquad_monitor_reads_its_simulators_truth_stream_from_home_and_judges_no_dsp() -> None:
+    conf = str(ROOT / "bbcs_conf" / "uquad1.conf")
+    cfg = load_config(context(conf=conf, vehicle="uquad", truth_tcp="127.0.0.1:9100"))
+    assert (cfg.dsp_commands, cfg.gri_airborne_is_motors, cfg.min_clearance_m, cfg.geofence) == (False, True, 1.0,
+                                                                                                  None)
+    assert uquad_truth_source(context(conf=conf, truth_tcp="127.0.0.1:9100")) == (9100, (-34.918, -56.166, 30.0))
+    assert uquad_truth_source(context(conf=conf)) is None
+    uav = load_config(context(conf=str(ROOT / "bbcs_conf" / "uav1.conf")))
+    assert (uav.dsp_commands, uav.gri_airborne_is_motors) == (True, False)  # the default: the UAV, as before
+    with pytest.raises(ParamError, match="HOME_LAT"):  # the UAV's .conf has no home: the truth's origin unknown
+        uquad_truth_source(context(conf=str(ROOT / "bbcs_conf" / "uav1.conf"), truth_tcp="9100"))
+    with pytest.raises(ParamError, match="vehicle"):
+        load_config(context(vehicle="helicopter"))
