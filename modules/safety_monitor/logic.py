@@ -399,8 +399,9 @@ class SafetyMonitor:
         """What is behind a sent command (None: nothing)."""
         types = self.cfg.serves.get(msg.sender, frozenset())
         c = msg.stamp
-        for info in self.tasks.values():
-            if info.task_type in types and info.started - SKEW_S <= c \
+        for info in self.tasks.values():  # in lockstep the sender's clock may still read the frame before the
+            # manager's (it moves when its loop takes the frame's ask): a command up to a frame early is the task's
+            if info.task_type in types and info.started - SKEW_S - self.cfg.stamp_lag_s <= c \
                     and (info.ended is None or c <= info.ended + SKEW_S):
                 return f"task {info.id} {info.name} ({info.origin})"
         if is_stop(msg.command) or is_mode_restore(msg.command):

@@ -97,6 +97,22 @@ def test_a_command_after_its_task_ended_is_a_critical_breach() -> None:
     assert "SetMode" in b.summary and any("1 land completed" in line for line in b.evidence)
 
 
+def test_in_lockstep_a_command_stamped_a_frame_before_its_task_started_is_the_tasks() -> None:
+    """A process's clock moves to a frame's time when its loop takes the frame's ask: the DSP process may stamp a
+    command for a task the manager started at frame k with frame k-1's time. One frame, not more; on a robot (one
+    wall clock) not at all."""
+    lockstep = monitor(stamp_lag_s=0.2)
+    book(lockstep, 30.0, task(1, "take_off", 10.0))
+    sent(lockstep, 9.8, p.SetMode(mode=p.Mode.TAKE_OFF))
+    assert run(lockstep, 40) == []
+    sent(lockstep, 9.5, p.SetMode(mode=p.Mode.TAKE_OFF))
+    assert kinds(run(lockstep, 40)) == ["untraced_command"]
+    robot = monitor()
+    book(robot, 30.0, task(1, "take_off", 10.0))
+    sent(robot, 9.8, p.SetMode(mode=p.Mode.TAKE_OFF))
+    assert kinds(run(robot, 40)) == ["untraced_command"]
+
+
 def test_a_stop_command_at_a_task_end_is_traced_but_not_a_motion_command() -> None:
     m = monitor()
     book(m, 30.0, task(1, "goto", 10.0, 25.0, status="completed"))
