@@ -15,29 +15,25 @@ import json
 import os
 import signal
 import socket
-import subprocess
 import sys
 import threading
 import time
 import tomllib
 from collections import deque
-from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import AbstractContextManager, ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
-from bbcs import keys
 from bbcs.clock import SimTime
 from bbcs.contracts import gri
 from bbcs.contracts import tasks as t
-from bbcs.contracts.safety import BREACH_SLOT, STATUS_SLOT, Breach, MonitorStatus
 from bbcs.geodesy import LocalFrame
 from bbcs.lockstep import SimSettings, clock_key, settings_env
 from bbcs.session import local_client, open_session
-from bbcs.testing import child_env, stop_process, wait_until
+from bbcs.testing import wait_until
 from modules.dsp.sim.control import send_command
 from ral.gcs.api import Gcs, GcsError, session_config
 
@@ -170,35 +166,13 @@ UQUAD_GOAL_TOLERANCE_M = 3.0
 the uQuad's RAL completes a goto within 1 m of its estimate, whose GPS error is well under 2 m."""
 
 
-@contextmanager
 def attach_uquad_monitor(router_port: int, workdir: Path, *, robot: str, conf: Path, truth_tcp: int,
-                         env: dict[str, str]) -> Iterator[MonitorView]:
-    """The safety monitor on the uQuad's router (as :func:`monitor_support.attach_monitor` for the UAV): no DSP
+                         env: dict[str, str]) -> AbstractContextManager[MonitorView]:
+    """The safety monitor on the uQuad's router (:func:`monitor_support.attach_monitor`): no DSP
     (``vehicle=uquad``), the simulator's truth stream on ``truth_tcp``; always stopped, its session closed."""
-    log = workdir / "safety_monitor.log"
-    args = [sys.executable, "-m", "modules.safety_monitor", "--robot", robot, "--connect",
-            f"tcp/127.0.0.1:{router_port}", "--conf", str(conf), "--param", "vehicle=uquad",
-            "--param", f"truth_tcp={truth_tcp}", "--param", f"goal_tolerance_m={UQUAD_GOAL_TOLERANCE_M:g}"]
-    with open(log, "w") as out:
-        proc = subprocess.Popen(args, cwd=str(ROOT), env=child_env(**env), stdout=out, stderr=subprocess.STDOUT)
-    view = MonitorView(proc, log)
-    session = None
-    subs = []
-    try:
-        session = open_session(local_client(router_port))
-        for slot, typ, handler in ((BREACH_SLOT, Breach, view.on_breach), (STATUS_SLOT, MonitorStatus,
-                                                                            view.on_status)):
-            decode = msgspec.msgpack.Decoder(typ).decode
-            subs.append(session.declare_subscriber(
-                keys.slot_key(robot, "safety_monitor", slot),
-                lambda sample, d=decode, h=handler: h(d(sample.payload.to_bytes()))))
-        yield view
-    finally:
-        for sub in subs:
-            sub.undeclare()
-        if session is not None:
-            session.close()
-        stop_process(proc)
+    return attach_monitor(router_port, workdir, robot=robot, conf=conf, env=env,
+                          params={"vehicle": "uquad", "truth_tcp": str(truth_tcp),
+                                  "goal_tolerance_m": f"{UQUAD_GOAL_TOLERANCE_M:g}"})
 
 
 @dataclass

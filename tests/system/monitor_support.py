@@ -121,14 +121,18 @@ class MonitorView:
 
 @contextmanager
 def attach_monitor(router_port: int, tmp_path: Path, *, robot: str = "uav1", conf: Path = CONF,
-                   truth_port: int | None = None, env: dict[str, str] | None = None) -> Iterator[MonitorView]:
+                   truth_port: int | None = None, env: dict[str, str] | None = None,
+                   params: dict[str, str] | None = None) -> Iterator[MonitorView]:
     """Run a safety monitor on the robot's router for the block; always stopped, its session closed. ``env``: more
-    environment (a lockstep robot's ``CROMAT_SIM``: the monitor is then a member the simulation waits for)."""
+    environment (a lockstep robot's ``CROMAT_SIM``: the monitor is then a member the simulation waits for);
+    ``params``: more of its parameters (a uQuad's ``vehicle``, ``truth_tcp``)."""
     log = tmp_path / "safety_monitor.log"
     args = [sys.executable, "-m", "modules.safety_monitor", "--robot", robot, "--connect",
             f"tcp/127.0.0.1:{router_port}", "--conf", str(conf)]
     if truth_port is not None:
         args += ["--param", f"truth_udp={truth_port}"]
+    for name, value in (params or {}).items():
+        args += ["--param", f"{name}={value}"]
     with open(log, "w") as out:
         proc = subprocess.Popen(args, cwd=str(ROOT), env=child_env(**(env or {})), stdout=out, stderr=subprocess.STDOUT)
     view = MonitorView(proc, log)
