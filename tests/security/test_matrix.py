@@ -118,12 +118,29 @@ class Observer:
 
 
 def attempt_then_marker(who: Sessions, attacker: str, key: str, observer: Observer) -> None:
-    """``attacker`` puts b"forged" on ``key``, then a marker on its own heartbeat key; waits for the marker."""
+    """``attacker`` puts b"forged" on ``key``, then a marker on its own heartbeat key; waits for the marker.
+
+    Before the attack, a b"ready" marker is put until the observer has it: a session just opened may not yet know
+    the router's subscribers and drop its first puts (a CI run timed out on the marker), and an attack never sent
+    would prove nothing. After it, the first marker heard follows the forged put (one session's puts stay in
+    order)."""
     s = who(attacker)
-    s.put(key, b"forged")
     marker = f"{R}/{attacker}/@heartbeat" if attacker in (*MODULES, "ral") else "cromat/@gcs/gcs/marker"
-    s.put(marker, b"marker")
-    wait_until(lambda: observer.values(marker), 20, f"{attacker}'s marker")
+
+    def heard(what: bytes) -> None:
+        end = time.monotonic() + 20.0
+        while time.monotonic() < end:
+            s.put(marker, what)
+            again = time.monotonic() + 0.25
+            while time.monotonic() < again:
+                if what in observer.values(marker):
+                    return
+                time.sleep(0.005)
+        raise AssertionError(f"timed out after 20 s waiting for {attacker}'s marker {what!r}")
+
+    heard(b"ready")
+    s.put(key, b"forged")
+    heard(b"marker")
 
 
 # --- TLS: refused at connect --------------------------------------------------------------------------------
