@@ -102,6 +102,22 @@ class Processes:
                     stream.close()
 
 
+def put_until_heard(put: Callable[[], None], heard: Callable[[], bool], what: str, deadline_s: float = 20.0) -> None:
+    """``put`` again every 0.25 s until ``heard``; fail naming ``what`` at the deadline. A Zenoh session just opened
+    may not yet know the router's subscribers and drop its first puts: an attack test first makes its attacker
+    heard (an attack never sent would prove nothing), then a marker heard after the attack follows it (one
+    session's puts stay in order)."""
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        put()
+        again = time.monotonic() + 0.25
+        while time.monotonic() < again:
+            if heard():
+                return
+            time.sleep(0.005)
+    raise AssertionError(f"timed out after {deadline_s:g} s waiting for {what}")
+
+
 def wait_until(predicate: Callable[[], bool], deadline_s: float = 10.0, what: str = "condition") -> None:
     """Poll ``predicate`` until true; fail the test naming ``what`` at the deadline (no fixed sleeps)."""
     end = time.monotonic() + deadline_s

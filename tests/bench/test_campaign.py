@@ -88,14 +88,20 @@ def test_regressions_and_seeded_sequences_show_no_breach(tmp_path: Path) -> None
     assert watched["gri_compared"] > 100, watched
 
 
-@pytest.mark.timeout(300)
-def test_the_uav_regressions_show_no_breach(tmp_path: Path) -> None:
-    result = run_campaign(SEED, 0, [PROFILES["uav"]], tmp_path, budget_s=BUDGET_S, shrink_budget=0,
-                          given=[parse_steps(text) for text in UAV_REGRESSIONS])
+def fly_regressions(robot: str, regressions: list[str], tmp_path: Path):  # noqa: ANN201 - campaign_run's result
+    """Every regression of ``robot`` flown once, in order: each flown, no incident, no breach (the report printed)."""
+    result = run_campaign(SEED, 0, [PROFILES[robot]], tmp_path, budget_s=BUDGET_S, shrink_budget=0,
+                          given=[parse_steps(text) for text in regressions])
     report = "\n\n".join(f.report() for f in result.failures)
-    assert sorted(s["index"] for s in result.sequences) == list(range(-len(UAV_REGRESSIONS), 0)), result.summary()
+    assert sorted(s["index"] for s in result.sequences) == list(range(-len(regressions), 0)), result.summary()
     assert not result.incidents, f"{result.summary()}\n{report}"
     assert not [b for s in result.sequences for b in s["breaches"]], f"{result.summary()}\n{report}"
+    return result
+
+
+@pytest.mark.timeout(300)
+def test_the_uav_regressions_show_no_breach(tmp_path: Path) -> None:
+    result = fly_regressions("uav", UAV_REGRESSIONS, tmp_path)
     outcomes = result.sequences[0]["outcomes"]
     assert outcomes[-1].startswith("done s=90: task") and "task_completed" in outcomes[-1], outcomes
     assert sum(s["watched"]["commands_judged"] for s in result.sequences) > 0
@@ -114,12 +120,7 @@ UQUAD_REGRESSIONS = [
 
 @pytest.mark.timeout(300)
 def test_the_uquad_regressions_show_no_breach(tmp_path: Path) -> None:
-    result = run_campaign(SEED, 0, [PROFILES["uquad"]], tmp_path, budget_s=BUDGET_S, shrink_budget=0,
-                          given=[parse_steps(text) for text in UQUAD_REGRESSIONS])
-    report = "\n\n".join(f.report() for f in result.failures)
-    assert sorted(s["index"] for s in result.sequences) == list(range(-len(UQUAD_REGRESSIONS), 0)), result.summary()
-    assert not result.incidents, f"{result.summary()}\n{report}"
-    assert not [b for s in result.sequences for b in s["breaches"]], f"{result.summary()}\n{report}"
+    result = fly_regressions("uquad", UQUAD_REGRESSIONS, tmp_path)
     seq = result.sequences[0]
     assert any(o.startswith("motor_loss motor=1: motor 1 lost") and "'ok': True" in o for o in seq["outcomes"]), seq
     # the robot reported the loss of control and failed the goto with it (the monitor judged that failure)

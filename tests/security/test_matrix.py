@@ -27,7 +27,7 @@ import zenoh.ext
 from bbcs import acl
 from bbcs.errors import SessionError
 from bbcs.session import SessionConfig, TlsConfig, open_session
-from bbcs.testing import Processes, free_port, wait_port, wait_until
+from bbcs.testing import Processes, free_port, put_until_heard, wait_port, wait_until
 from cromat import certs
 from modules.dsp.sim.record import read_record
 
@@ -120,23 +120,14 @@ class Observer:
 def attempt_then_marker(who: Sessions, attacker: str, key: str, observer: Observer) -> None:
     """``attacker`` puts b"forged" on ``key``, then a marker on its own heartbeat key; waits for the marker.
 
-    Before the attack, a b"ready" marker is put until the observer has it: a session just opened may not yet know
-    the router's subscribers and drop its first puts (a CI run timed out on the marker), and an attack never sent
-    would prove nothing. After it, the first marker heard follows the forged put (one session's puts stay in
-    order)."""
+    Before the attack, a b"ready" marker until the observer has it (``put_until_heard``: a CI run timed out on a
+    marker a just-opened session dropped); after it, the first marker heard follows the forged put."""
     s = who(attacker)
     marker = f"{R}/{attacker}/@heartbeat" if attacker in (*MODULES, "ral") else "cromat/@gcs/gcs/marker"
 
     def heard(what: bytes) -> None:
-        end = time.monotonic() + 20.0
-        while time.monotonic() < end:
-            s.put(marker, what)
-            again = time.monotonic() + 0.25
-            while time.monotonic() < again:
-                if what in observer.values(marker):
-                    return
-                time.sleep(0.005)
-        raise AssertionError(f"timed out after 20 s waiting for {attacker}'s marker {what!r}")
+        put_until_heard(lambda: s.put(marker, what), lambda: what in observer.values(marker),
+                        f"{attacker}'s marker {what!r}")
 
     heard(b"ready")
     s.put(key, b"forged")

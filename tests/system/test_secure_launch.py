@@ -30,7 +30,7 @@ from bbcs.contracts.fleet import FleetTarget, FleetTask
 from bbcs.contracts.path_follower import DatosSegCam
 from bbcs.contracts.trajectory import OrbitRequest, TrajectoryRequest, TrajectoryStatus, Vertex
 from bbcs.signing import StationSigner
-from bbcs.testing import child_env, free_port, wait_until
+from bbcs.testing import child_env, free_port, put_until_heard, wait_until
 from cromat import certs
 from module_manager.manifest import ManifestError, load_manifest
 from ral.fleet_gcs import FleetView
@@ -131,17 +131,10 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
         yield robot
 
 
-def heard(session: object, marker: str, marks: list[bytes], what: bytes, timeout_s: float = 20.0) -> None:
-    """``what`` put on ``marker`` from ``session`` until the station's subscriber has it. A session just opened
-    may not yet know the router's subscribers and drop its first puts: before an attack, a marker heard proves the
-    attacker's puts reach the router (else "changes nothing" would prove nothing); after it, the first marker
-    heard follows every forged put (one session's puts stay in order)."""
-    for _ in range(round(timeout_s / 0.25)):
-        session.put(marker, what)  # type: ignore[attr-defined]
-        threading.Event().wait(0.25)
-        if what in marks:
-            return
-    raise AssertionError(f"timed out after {timeout_s:g} s waiting for the attacker's marker {what!r}")
+def heard(session: object, marker: str, marks: list[bytes], what: bytes) -> None:
+    """``what`` put on ``marker`` from ``session`` until the station's subscriber has it (``put_until_heard``)."""
+    put_until_heard(lambda: session.put(marker, what), lambda: what in marks,  # type: ignore[attr-defined]
+                    f"the attacker's marker {what!r}")
 
 
 def sees_every_module(gcs: Gcs) -> None:
