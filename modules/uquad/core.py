@@ -30,7 +30,7 @@ from modules.uquad.gps import LocalGps
 from modules.uquad.imu_protocol import ImuFrame
 from modules.uquad.kalman import Kalman
 from modules.uquad.planner import Mode, Planner, PlannerConfig
-from modules.uquad.upset import TumbleCut
+from modules.uquad.upset import FallWatch, TumbleCut
 
 
 @dataclass
@@ -66,6 +66,8 @@ class FlightCore:
             ground_height=v.GROUND_HEIGHT, max_height=v.MAX_HEIGHT, accel=v.SETPOINT_ACCEL))
         self.every = v.CONTROL_EVERY
         self.tumble = TumbleCut(v.CUT_TILT_DEG, v.CUT_TILT_S)
+        self.fall = FallWatch()
+        """After a tumble cut: falling until the IMU shows the quadrotor at rest (reported airborne till then)."""
         self.raw_queue = RawQueue(v.IMU_QUEUE_LEN, v.IMU_FIR) if v.IMU_FIR else None
         """The seed's FIR filter on the raw frames (off by default, as the seed flew): IMU_FIR in the .conf."""
         self.spinup_s = v.MOTOR_RAMP_S + 0.3
@@ -142,11 +144,13 @@ class FlightCore:
         k.predict(data.acc, data.gyro, dt)
         k.update_attitude(data.euler, data.acc_norm_dev, data.mag_norm_dev, flying=self.planner.airborne)
         k.update_altitude(data.altitude_m)
-        if not self.planner.airborne:
+        self.fall.update(now, float(np.linalg.norm(data.gyro)), data.acc_norm_dev)
+        if not self.planner.airborne and not self.fall.falling:  # motors cut in the air: not still, falling
             k.update_still()
         if self.tumble.update(now, float(k.euler[0]), float(k.euler[1]), self.planner.airborne):
             self.planner.set_mode(Mode.IDLE, k.position.copy(), float(k.euler[2]))  # motors off, now
             self.stats.tumble_cuts += 1
+            self.fall.cut()
             self.stats.errors.append(self.tumble.reason)
             self.controller.reset()
             self._motors_on_at = None

@@ -359,7 +359,8 @@ class UquadModule(Module):
 
     def _publish_telemetry(self, tumbling: bool = False, stamp: float | None = None) -> None:
         """The generic telemetry; ``tumbling``: sent at the cut, still airborne (it is: falling, motors off) so the
-        RAL judges the attitude that made it (the planner is idle from now on). ``stamp``: now (the wall clock)
+        RAL judges the attitude that made it (the planner is idle from now on); airborne, with 706, until the IMU
+        shows it at rest (``FallWatch``). ``stamp``: now (the wall clock)
         unless given (lockstep: the simulated time of the frame it describes)."""
         core = self.core
         stamp = time.time() if stamp is None else stamp
@@ -380,8 +381,8 @@ class UquadModule(Module):
             velocity=VelocityNED(vn=float(k.velocity[1]), ve=float(k.velocity[0]), vd=-float(k.velocity[2])),
             heading_deg=heading_deg(theta),
             mode=int(planner.mode), mode_name=planner.mode.name.lower(),
-            airborne=planner.airborne or tumbling, waypoints_queued=queued,
-            error_code=(UquadErrorCode.LOSS_OF_CONTROL if tumbling else
+            airborne=planner.airborne or tumbling or core.fall.falling, waypoints_queued=queued,
+            error_code=(UquadErrorCode.LOSS_OF_CONTROL if tumbling or core.fall.falling else
                         UquadErrorCode.DRIVER_ERROR if self.driver_error else 0),
         ))
 

@@ -6,6 +6,10 @@ vertical) for ``CUT_TILT_S`` has lost its attitude — a motor or propeller lost
 can be flown without attitude: motors running only drive it, tumbling, into the ground or along it upside down.
 So the flight loop stops them at once, as a ``cut`` driver error does, without waiting for the bus; the RAL is
 told by error 706 and by the telemetry (ral/health.py), and its landing then finds the quadrotor on the ground.
+
+After the cut the planner is idle, but the quadrotor is still falling: :class:`FallWatch` keeps it reported
+airborne (and error 706 in its telemetry) until its IMU shows it at rest, so no landing is judged completed in
+mid-air (the campaign found one: a motor lost 3 m up during a landing, reported landed while falling).
 """
 
 from __future__ import annotations
@@ -42,3 +46,34 @@ class TumbleCut:
                        f"{math.degrees(pitch_rad):.0f}°) for {self.hold_s:g} s, beyond CUT_TILT_DEG "
                        f"{self.max_tilt_deg:g}°: motors cut")
         return True
+
+
+@dataclass
+class FallWatch:
+    """From a tumble cut until the quadrotor rests: the gyro below ``rest_rate_rad_s`` and the specific force
+    within ``rest_acc_dev`` of 1 g (free fall reads 0 g, a tumble turns) for ``rest_s``. The motors being off,
+    nothing else tells a fall from a quadrotor lying on the ground."""
+
+    rest_rate_rad_s: float = 0.3
+    rest_acc_dev: float = 0.1
+    rest_s: float = 0.5
+    falling: bool = False
+    _still_since: float | None = None
+
+    def cut(self) -> None:
+        """The motors were cut in the air: falling from now on."""
+        self.falling = True
+        self._still_since = None
+
+    def update(self, now: float, gyro_norm_rad_s: float, acc_norm_dev: float) -> bool:
+        """Whether still falling after this sample."""
+        if not self.falling:
+            return False
+        if gyro_norm_rad_s <= self.rest_rate_rad_s and abs(acc_norm_dev) <= self.rest_acc_dev:
+            self._still_since = now if self._still_since is None else self._still_since
+            if now - self._still_since >= self.rest_s:
+                self.falling = False
+                self._still_since = None
+        else:
+            self._still_since = None
+        return self.falling

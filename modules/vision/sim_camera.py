@@ -91,6 +91,7 @@ class SimulatedCamera(CameraSource):
         self.noise_sigma = float(noise_sigma)
         self.grey = grey
         self._rng = np.random.default_rng(seed)
+        self._noise_bank: NDArray[np.float32] | None = None
         self._clock = clock
         self.epoch = clock() if epoch is None else float(epoch)
         self._seq = 0
@@ -144,8 +145,18 @@ class SimulatedCamera(CameraSource):
         )
         img = rgb @ LUMA if self.grey else rgb
         if self.noise_sigma > 0.0:
-            img = img + self._rng.standard_normal(img.shape, dtype=np.float32) * np.float32(self.noise_sigma)
+            img = img + self._noise(img.shape)
         return np.clip(img + np.float32(0.5), 0.0, 255.0).astype(np.uint8)
+
+    def _noise(self, shape: tuple[int, ...]) -> NDArray[np.float32]:
+        """Gaussian sensor noise for one frame: a window at a random offset into a bank of twice a frame's
+        samples, drawn once. Drawing a frame's samples anew cost more than rendering it (every frame of every
+        simulated flight); each pixel's noise is still Gaussian and the frames' windows differ."""
+        size = math.prod(shape)
+        if self._noise_bank is None or self._noise_bank.size != 2 * size:
+            self._noise_bank = self._rng.standard_normal(2 * size, dtype=np.float32) * np.float32(self.noise_sigma)
+        start = int(self._rng.integers(0, size + 1))
+        return self._noise_bank[start:start + size].reshape(shape)
 
     def read(self) -> Frame | None:
         """Render a frame at the current clock time; None before the first ``set_state`` or after close."""

@@ -114,6 +114,10 @@ UQUAD_REGRESSIONS = [
     # quadrotor still falls (airborne=False in the air: gri_airborne); and the goto, closing on its goal, fails with
     # the tumble (a robot fault, else failed_while_progressing); all judged as the failsafe they are (test_uquad.py)
     "take_off h=3; done s=90; goto to=4:0 h=3 v=2; wait s=2; motor_loss motor=1; wait s=20",
+    # the robot's (seed 7, sequence 16): a motor lost as a landing starts; the motors cut at the tumble turned
+    # `airborne` false in the air and the RAL completed the landing 3 m up (completed_away_from_goal). The flight
+    # module now reports a quadrotor falling after a cut airborne until its IMU shows it at rest (upset.FallWatch)
+    "take_off h=3; done s=90; motor_loss motor=1; land; done s=90",
 ]
 """The same, on the uQuad (the campaign's ``uquad`` profile: invariants 2, 3 and 5 against its own truth)."""
 
@@ -128,3 +132,9 @@ def test_the_uquad_regressions_show_no_breach(tmp_path: Path) -> None:
     watched = seq["watched"]
     # invariant 3 on the uQuad's own truth, on the robot's clock; invariant 2's verdicts (take-off, the goto)
     assert watched["truth"] > 100 and watched["gri_compared"] > 50 and watched["verdicts"] >= 2, watched
+    landing = result.sequences[1]["outcomes"]
+    # the landing flown into the fall fails with the loss of control; it is never reported completed
+    accepted = next(o for o in landing if o.startswith("land: accepted task"))
+    task = accepted.split()[3]
+    assert landing[-1].startswith(f"done s=90: task {task} task_failed") and (
+        "LOSS_OF_CONTROL" in landing[-1] or "loss of control" in landing[-1]), landing

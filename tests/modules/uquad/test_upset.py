@@ -18,7 +18,7 @@ import pytest
 from modules.uquad import model
 from modules.uquad.planner import Mode
 from modules.uquad.sim.server import parse_control
-from modules.uquad.upset import TumbleCut, tilt_deg
+from modules.uquad.upset import FallWatch, TumbleCut, tilt_deg
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from closed_loop import ROOT, ClosedLoop  # noqa: E402
@@ -36,6 +36,21 @@ def test_tumble_rule_needs_the_tilt_for_hold_s_with_the_motors_on() -> None:
     assert "tilted 75°" in cut.reason and "CUT_TILT_DEG 70°" in cut.reason
     assert not cut.update(0.30, R(170), 0.0, False)  # motors already off: nothing to cut
     assert not cut.update(0.50, R(170), 0.0, False)
+
+
+def test_after_a_cut_the_quadrotor_is_falling_until_the_imu_shows_it_at_rest_for_rest_s() -> None:
+    fall = FallWatch(rest_rate_rad_s=0.3, rest_acc_dev=0.1, rest_s=0.5)
+    assert not fall.update(0.0, 0.0, 0.0)  # no cut: never falling
+    fall.cut()
+    assert fall.update(0.1, 0.0, -1.0)  # free fall reads 0 g
+    assert fall.update(0.2, 5.0, 0.0)  # turning
+    assert fall.update(0.3, 0.1, 0.02)  # still from here...
+    assert fall.update(0.7, 0.1, 0.02)
+    assert fall.update(0.75, 0.1, 0.5)  # ...a bounce: the wait starts again
+    assert fall.update(0.8, 0.1, 0.02)
+    assert fall.update(1.29, 0.1, 0.02)
+    assert not fall.update(1.30, 0.1, 0.02)  # at rest for 0.5 s
+    assert not fall.update(1.4, 5.0, -1.0)  # carried away afterwards: no cut, not a fall
 
 
 def test_upside_down_is_tilted_however_roll_and_pitch_share_it() -> None:
@@ -63,10 +78,13 @@ def test_a_motor_lost_in_hover_is_cut_soon_after_the_truth_tilts_and_stays_off()
         if cut_at is None and loop.core.stats.tumble_cuts:
             cut_at = loop.t
             assert not np.any(loop.core.last_command)  # the stop command, at once
+        if cut_at is not None and not loop.sim.on_ground:
+            assert loop.core.fall.falling, f"in the air {loop.t - cut_at:.2f} s after the cut, not reported falling"
     assert tilted_at is not None and cut_at is not None, "the quadrotor must tumble and be cut"
     assert cut_at - tilted_at < 0.4, (tilted_at - failed_at, cut_at - failed_at)
     assert loop.core.planner.mode is Mode.IDLE and loop.core.stats.tumble_cuts == 1
     assert loop.sim.on_ground and not np.any(loop.sim.w > 1.0), "on the ground with the motors stopped"
+    assert not loop.core.fall.falling, "at rest on the ground: no longer reported falling"
     loop.core.set_mode(Mode.LAND)  # a landing asked after the cut finds it on the ground: nothing starts
     loop.run(0.5)
     assert loop.core.planner.mode is Mode.IDLE and not np.any(loop.sim.w > 1.0)
