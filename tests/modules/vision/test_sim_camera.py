@@ -143,3 +143,37 @@ def test_close_and_argument_checks():
     cam.close()
     with pytest.raises(ValueError):
         SimulatedCamera(WORLD, noise_sigma=-1.0)
+
+
+def _texture_per_point(tex, east, north):
+    """The texture's definition evaluated at each point (no table): cell and field from the coordinates."""
+    ix = np.floor(east / np.float32(tex.cell_m)).astype(np.int32)
+    iy = np.floor(north / np.float32(tex.cell_m)).astype(np.int32)
+    fx = np.floor(east / np.float32(tex.field_m)).astype(np.int32)
+    fy = np.floor(north / np.float32(tex.field_m)).astype(np.int32)
+    return tex.cell_colour(ix, iy, fx, fy)
+
+
+def test_the_texture_table_gives_the_colours_of_the_definition_inside_and_outside_it():
+    rng = np.random.default_rng(4)
+    tex = GroundTexture(seed=7)
+    for span in (300.0, 2000.0):  # within the table's 1 km square, and mostly beyond it
+        east = rng.uniform(-span, span, (60, 80)).astype(np.float32)
+        north = rng.uniform(-span, span, (60, 80)).astype(np.float32)
+        np.testing.assert_array_equal(tex.colour(east, north), _texture_per_point(tex, east, north))
+    odd = GroundTexture(field_m=15.0)  # fields not a whole number of cells: no table, the same definition
+    east = rng.uniform(-100, 100, (10, 10)).astype(np.float32)
+    north = rng.uniform(-100, 100, (10, 10)).astype(np.float32)
+    np.testing.assert_array_equal(odd.colour(east, north), _texture_per_point(odd, east, north))
+
+
+def test_sensor_noise_has_its_sigma_and_differs_frame_to_frame():
+    quiet = make_camera([])
+    noisy = make_camera([], noise_sigma=6.0)
+    for cam in (quiet, noisy):
+        cam.set_state_enu((0.0, 0.0, 50.0), Gimbal(pan=0.0, tilt=-90.0))
+    clean = quiet.read().image.astype(np.float64)
+    first = noisy.read().image.astype(np.float64) - clean
+    second = noisy.read().image.astype(np.float64) - clean
+    assert abs(first.mean()) < 0.2 and 5.4 < first.std() < 6.6, (first.mean(), first.std())
+    assert not np.array_equal(first, second)
