@@ -81,9 +81,9 @@ the other workers run the rest of the suite."""
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Heavy files first (a stable sort: their own order kept), so their one work unit starts at once; within
-    them, the files with an ``alone`` test first. At the start of the run the other worker is in one of the
+    them, the files with an ``alone`` test first. At the start of the run the other workers are in the
     unit-test files xdist hands out first (the ones with most tests), and the ``alone`` file waits seconds for
-    it to end; placed last, it would wait for whatever long system file was running."""
+    them to end; placed last, it would wait for whatever long system file was running."""
     root = config.rootpath
     alone = config.stash[_alone_files] = {item.path for item in items if item.get_closest_marker("alone") is not None}
     items.sort(key=lambda item: (item.path.relative_to(root).as_posix() not in HEAVY_STACKS, item.path not in alone))
@@ -109,12 +109,12 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | 
 # ------------------------------------------------------------------ test files that run alone under xdist
 #
 # A test marked ``alone`` (ten robot stacks: about 80 processes) takes both cores for a minute; beside it, the other
-# worker's tests missed their deadlines. Pausing the other worker between two tests is not enough: a module-scoped
+# workers' tests missed their deadlines. Pausing the other workers between two tests is not enough: a module-scoped
 # robot stack of a file it is half-way through keeps running, slows the ten robots and is starved by them (a CI run
 # with per-test turns lost a pan command of such a stack). So each xdist worker holds a turn per test *file*, from
 # its first test's set-up to its last test's tear-down (its module fixtures with it): shared for ordinary files,
-# exclusive for a file with an ``alone`` test, which therefore starts once the other worker has finished its current
-# file, and no new file starts meanwhile (bbcs.testing.run_turn). Without xdist, nothing is locked.
+# exclusive for a file with an ``alone`` test, which therefore starts once the other workers have finished their
+# current files, and no new file starts meanwhile (bbcs.testing.run_turn). Without xdist, nothing is locked.
 
 ALONE_DIR = "cromat_alone_dir"
 _alone_dir = pytest.StashKey[str]()

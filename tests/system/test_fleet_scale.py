@@ -5,7 +5,7 @@ targets, and every target is flown by the robot that won it (its DSP simulator's
 
 About 80 processes: it takes a 2-core machine's two cores for about a minute, so it is one of the heavy files
 (tests/conftest.py's ``HEAVY_STACKS``) that one xdist worker runs one after another, the first of them, and it is
-marked ``alone``: it starts once the other worker has finished its current test file, and that worker starts no
+marked ``alone``: it starts once the other workers have finished their current test files, and they start no
 other file until it is done (beside it, their deadlines were missed).
 """
 
