@@ -2,8 +2,12 @@
 
 A starved flight loop let a quadrotor touch the ground at 53° of roll, or fall and spin 43 m away from home, while
 the GRI said "airborne, goto running, no errors". The RAL now judges every robot's :class:`RobotTelemetry` (any
-kind: a field the robot does not report turns its detector off) with four rules, each a small state machine on
+kind: a field the robot does not report turns its detector off) with five rules, each a small state machine on
 the telemetry's own stamps (pure: no bus, no clock of its own):
+
+- ``robot`` (critical): the telemetry's ``error_code`` is one its robot kind uses to say it lost control itself
+  (``bbcs.contracts.error_codes.LOSS_OF_CONTROL_CODES``: the uQuad's 706, its tumble cut), at once: the robot's
+  own estimate runs at its frame rate, the rules below see it at the telemetry's;
 
 - ``attitude`` (critical): the tilt (from roll and pitch) beyond ``max_tilt_deg`` for ``tilt_s``;
 - ``ground`` (critical): airborne at or below ``ground_m`` above the take-off point, after having been above
@@ -39,7 +43,7 @@ from ral.failsafe import FailsafeAction
 from ral.tasks import limits_conf_errors
 
 HealthAction = Literal["land", "hold", "none"]
-Detector = Literal["attitude", "ground", "off_path", "spin"]
+Detector = Literal["robot", "attitude", "ground", "off_path", "spin"]
 MOVEMENT_KINDS = frozenset({"take_off", "land", "goto", "follow_path", "follow_vision_path", "hold", "survey",
                             "orbit", "manual", "bridge"})
 """GRI kinds of the tasks that move the robot: the ones a loss of control fails."""
@@ -112,8 +116,10 @@ class _Persist:
 class HealthMonitor:
     cfg: HealthConfig = field(default_factory=HealthConfig)
     _last: float | None = None
+    loss_codes: frozenset[int] = frozenset()
+    """Telemetry ``error_code`` values by which this robot says it lost control (the ``robot`` rule)."""
     _persist: dict[str, _Persist] = field(default_factory=lambda: {d: _Persist() for d in
-                                                                   ("attitude", "ground", "off_path", "spin")})
+                                                                   ("robot", "attitude", "ground", "off_path", "spin")})
     _cleared_ground: bool = False
     _headings: deque[tuple[float, float]] = field(default_factory=deque)
     """(stamp, heading unwrapped) of the last ``spin_s`` and a bit."""
@@ -141,6 +147,7 @@ class HealthMonitor:
             self._acting = False
         found: list[tuple[Detector, Severity, str]] = []
         rules: tuple[tuple[Detector, str | None, float], ...] = (
+            ("robot", self._robot(tel), 0.0),
             ("attitude", self._attitude(tel), cfg.tilt_s),
             ("ground", self._ground(tel, home, moving), 0.0),
             ("off_path", self._off_path(tel, moving), cfg.off_s),
@@ -151,6 +158,8 @@ class HealthMonitor:
                 found.append((detector, Severity.ERROR if detector == "off_path" else Severity.CRITICAL, why))
         if not any(p.reported for p in self._persist.values()):
             self._acting = False  # the episode is over: a later one may act again
+        if self._acting:  # the action this episode asked is what the robot does about it: not failed by it
+            moving = [i for i in moving if not (i.origin == "failsafe" and i.kind in ("land", "hold"))]
         out = []
         for detector, severity, why in found:
             self.faults += 1
@@ -165,7 +174,13 @@ class HealthMonitor:
             moving = []  # failed once, by the first fault
         return out
 
-    # ------------------------------------------------------------ the four rules: why it is a fault, or None
+    # ------------------------------------------------------------ the five rules: why it is a fault, or None
+
+    def _robot(self, tel: RobotTelemetry) -> str | None:
+        code = tel.error_code
+        if code is not None and code in self.loss_codes:
+            return f"the robot reports it lost control (error {code})"
+        return None
 
     def _attitude(self, tel: RobotTelemetry) -> str | None:
         a = tel.attitude

@@ -51,7 +51,7 @@ from bbcs import (
 )
 from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
-from bbcs.contracts.error_codes import RalErrorCode
+from bbcs.contracts.error_codes import LOSS_OF_CONTROL_CODES, RalErrorCode
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.pan_tilt import DatosPT
 from bbcs.contracts.path_follower import (
@@ -110,7 +110,8 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
         super().__init__(context)
         self.cfg, self.task_names = RalConfig.from_params(context.params)
         self.limits = load_limits(context.conf) if context.conf else Limits(max_speed=p_max_speed())
-        self.health = HealthMonitor(load_health(context.conf) if context.conf else HealthConfig())
+        self.health = HealthMonitor(load_health(context.conf) if context.conf else HealthConfig(),
+                                    loss_codes=LOSS_OF_CONTROL_CODES.get(self.cfg.kind, frozenset()))
         """Loss of control seen in the robot's own telemetry (ral/health.py)."""
         self.clock = clock if clock is not None else self.bbcs_clock.time
         """The robot's clock (simulated time in lockstep, bbcs/clock.py): the task judge, stamps, state period."""

@@ -138,6 +138,11 @@ class UquadErrorCode(IntEnum):
     """The estimate shows the quadrotor tumbling (tilt beyond CUT_TILT_DEG for CUT_TILT_S): the motors were cut."""
 
 
+LOSS_OF_CONTROL_CODES: dict[str, frozenset[int]] = {"uquad": frozenset({UquadErrorCode.LOSS_OF_CONTROL})}
+"""By robot kind, the codes in its telemetry's ``error_code`` that say the robot itself has lost control (the
+uQuad's tumble cut): the RAL reports them as a loss of control at once (ral/health.py, ``robot``)."""
+
+
 class LidarLoggerError(IntEnum):
     """Codes on the lidar logger's ERROR slot. The refused datum is dropped, counted and never logged or published."""
 

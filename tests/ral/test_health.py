@@ -6,11 +6,13 @@ from __future__ import annotations
 import math
 import time
 
+import msgspec
 import pytest
 
 from bbcs.conf import ConfError, parse_conf
 from bbcs.contracts import gri, mri
 from bbcs.contracts import tasks as t
+from bbcs.contracts.error_codes import LOSS_OF_CONTROL_CODES
 from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry
 from bbcs.contracts.safety import Severity
 from bbcs.geodesy import offset
@@ -74,6 +76,27 @@ def test_attitude_beyond_the_limit_for_tilt_s_is_one_critical_fault_that_lands_a
     assert (f.detector, f.severity, f.stamp) == ("attitude", Severity.CRITICAL, 0.4)  # 53° at 0.2, held 0.2 s
     assert f.action is FailsafeAction.LAND and [i.id for i in f.fail] == [7]
     assert "tilted 70°" in f.detail and "limit 45°" in f.detail
+
+
+def test_the_robots_own_loss_of_control_code_is_a_critical_fault_at_once_once_per_episode() -> None:
+    mon = HealthMonitor(HealthConfig(tilt_s=0.2), loss_codes=LOSS_OF_CONTROL_CODES["uquad"])
+    running = [goto()]
+    cut = msgspec.structs.replace(tel(0.3, roll=75.0), error_code=706)  # the uQuad's tumble cut, still falling
+    faults = run(mon, [tel(0.0), tel(0.1, roll=50.0), cut], running)
+    assert [(f.detector, f.severity, f.stamp) for f in faults] == [("robot", Severity.CRITICAL, 0.3)]
+    assert "lost control (error 706)" in faults[0].detail and [i.id for i in faults[0].fail] == [7]
+    later = [msgspec.structs.replace(tel(0.4 + 0.1 * i, roll=120.0), error_code=706) for i in range(5)]
+    # the same episode (the goto failed by the first fault, the failsafe's landing running): the attitude rule's
+    # fault follows, with no second action, and does not fail the landing the first one asked for
+    landing = msgspec.structs.replace(task("land", t.Land(), task_id=9), origin="failsafe")
+    assert [(f.detector, f.action, f.fail) for f in run(mon, later, [landing])] == [("attitude", None, ())]
+
+
+def test_a_code_is_a_loss_of_control_only_for_the_kind_that_says_so() -> None:
+    uav = HealthMonitor(HealthConfig(), loss_codes=LOSS_OF_CONTROL_CODES.get("uav", frozenset()))
+    assert run(uav, [msgspec.structs.replace(tel(0.0), error_code=706)], [goto()]) == []
+    uquad = HealthMonitor(HealthConfig(), loss_codes=LOSS_OF_CONTROL_CODES["uquad"])
+    assert run(uquad, [msgspec.structs.replace(tel(0.0), error_code=701)], [goto()]) == []  # a driver error
 
 
 def test_attitude_glitch_shorter_than_tilt_s_is_no_fault_and_pitch_counts_too() -> None:
