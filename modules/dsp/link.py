@@ -24,6 +24,7 @@ import serial
 from bbcs.clock import WALL, Clock
 from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import LinkStats
+from bbcs.serial_io import write_all
 from modules.dsp.codec import DSP_TO_PC_LENGTHS, DspDecodeError, decode, encode_payload
 from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
 from modules.dsp.framing import MAX_FRAME, Frame, FrameParser, build_frame
@@ -33,6 +34,9 @@ if TYPE_CHECKING:
     from modules.dsp.config import DspConfig
 
 log = logging.getLogger(__name__)
+
+WRITE_TIMEOUT_S = 2.0
+"""A frame the port takes no byte of for this long fails the link (``bbcs.serial_io.write_all``)."""
 
 
 _COUNTERS = tuple(f for f in LinkStats.__struct_fields__ if f not in (
@@ -44,7 +48,7 @@ def open_port(url: str, baudrate: int, *, read_timeout: float = 0.02,
               exclusive: bool = True) -> serial.Serial:
     """Open ``url`` with pyserial; DspLinkError saying plainly when it is missing, busy or not permitted."""
     try:
-        return serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout, write_timeout=2.0,
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=read_timeout, write_timeout=WRITE_TIMEOUT_S,
                                      exclusive=exclusive)
     except serial.SerialException as exc:
         code = exc.errno if isinstance(exc.errno, int) else (exc.args[0] if exc.args and isinstance(
@@ -243,11 +247,10 @@ class DspLink:
     def _write(self, frame: bytes) -> None:
         try:
             with self._write_lock:
-                self._serial.write(frame)
+                write_all(self._serial, frame, WRITE_TIMEOUT_S, lambda n: self._count("bytes_tx", n))
         except (serial.SerialException, OSError) as exc:
             raise DspLinkError(f"writing to DSP port {self.url} failed: {exc}") from exc
         self._count("frames_sent")
-        self._count("bytes_tx", len(frame))
 
     def _read_loop(self) -> None:
         ser = self._serial

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import serial
 
+from bbcs.serial_io import write_all
 from modules.lidar_logger.clock import SYSTEM_CLOCK, Clock
 from modules.lidar_logger.mtdata import (
     POSE_MODE,
@@ -31,6 +32,8 @@ from modules.lidar_logger.refusals import Refusals
 from modules.lidar_logger.xbus import ERROR_CODES, MID, Frame, FrameParser, ack_of, build_frame
 
 SCENARIO_AEROSPACE = 3
+WRITE_TIMEOUT_S = 1.0
+"""A request the port takes no byte of for this long fails (``bbcs.serial_io.write_all``)."""
 """XKF scenario id of 'Aerospace' on the MTi-G (General 1, Automotive 2, Aerospace 3, ...)."""
 SKIP_FACTOR_ON_REQUEST = 0xFFFF
 """Output skip factor meaning 'send MTData only when asked with ReqData'."""
@@ -61,7 +64,7 @@ class MTiG:
         if isinstance(port, serial.SerialBase):
             self._ser = port
         else:
-            self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.02, write_timeout=1.0)
+            self._ser = serial.serial_for_url(port, baudrate=baudrate, timeout=0.02, write_timeout=WRITE_TIMEOUT_S)
         self.port_name = getattr(self._ser, "name", None) or str(port)
         self.reply_timeout = reply_timeout
         self.retries = retries
@@ -84,6 +87,9 @@ class MTiG:
         A lockstep simulation compares it with what the simulator wrote (``PoseSource.lockstep_counts``)."""
 
     # --- transport ---
+
+    def _sent(self, n: int) -> None:
+        self.bytes_tx += n
 
     @property
     def parser(self) -> FrameParser:
@@ -117,8 +123,7 @@ class MTiG:
         timeout = self.reply_timeout if timeout is None else timeout
         for _ in range(self.retries if retries is None else retries):
             frame_out = build_frame(mid, data)
-            self._ser.write(frame_out)
-            self.bytes_tx += len(frame_out)
+            write_all(self._ser, frame_out, WRITE_TIMEOUT_S, self._sent)
             deadline = clock() + timeout
             while True:
                 frame = self._next_frame(deadline, clock, cancel)
