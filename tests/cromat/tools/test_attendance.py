@@ -56,11 +56,15 @@ def test_list_counts_publishers_and_subscribers(admin: bool, capsys: pytest.Capt
             wait_port(port)
         else:
             port = start_router(procs)
+        heard = threading.Event()
         for sel in (KEY, "cromat/r1/*/*", "cromat/r2/x/y"):  # a ground station, a recorder, someone else's
             session = open_session(local_client(port))
             sessions.append(session)
-            session.declare_subscriber(sel, lambda _s: None)
+            session.declare_subscriber(sel, lambda _s: heard.set() if _s.key_expr == KEY else None)
         thread = publish_until(stop, port)
+        # a sample the router carried: the publisher's declaration, sent before it on its link, is in the router
+        # (a clean-clone run at load 50 listed the key with 0 publishers: the tool asked before it had arrived)
+        assert heard.wait(20), "the publisher's samples never reached the subscribers"
         argv = ["--connect", f"tcp/127.0.0.1:{port}", "--timeout", "2", "list", "--robot", "r1", "--window", "1.5"]
         assert bus_cli.main([*argv, "--json"]) == 0
         row = {r["key"]: r for r in map(json.loads, capsys.readouterr().out.splitlines())}[KEY]
