@@ -68,10 +68,13 @@ def test_a_station_revoked_while_the_robot_runs_has_its_task_refused_and_the_oth
                                                                   alt=home.alt + 10.0)]), gcs2)
             wait_until(lambda: ral_log.exists() and "revoked by the fleet CA" in ral_log.read_text(), 30,
                        "the RAL's refusal of gcs2's task")
+            # the robot it is for named as a station names it (its RAL's liveliness), not only from the fleet
+            # states this view has heard (a clean-clone run at load 50: no decision at all within 30 s)
             view.post(FleetTask(id="genuine", targets=[FleetTarget(id="g0", lat=genuine_at[0], lon=genuine_at[1],
-                                                                   alt=home.alt + 10.0)]), gcs1)
+                                                                   alt=home.alt + 10.0)]), gcs1, live=[ROBOT])
             dec = view.wait(lambda: view.agreed("genuine", {ROBOT}), 30)
-            assert dec is not None and dec.routes[ROBOT] == ["g0"], view.decisions("genuine")
+            assert dec is not None and dec.routes[ROBOT] == ["g0"], (
+                view.decisions("genuine"), view.abstentions("genuine"), ral_log.read_text()[-3000:])
             wait_until(lambda: genuine_at in _added(rob, mark), 60, "gcs's target at the DSP simulator")
             assert stolen_at not in _added(rob, mark)
             assert view.answered("stolen") == set() and view.decisions("stolen") == {}
