@@ -46,7 +46,9 @@ def test_a_linked_station_gets_the_events_that_answered_its_link(router_port: in
             pub.publish(event(1, "link_up"))
             answered.set()
 
-    watcher = robot.liveliness().declare_subscriber(gri.gcs_alive_key("station"), on_token)
+    # with history, as the RAL watches the stations: a token declared before this subscription reached the router
+    # is still seen (without it, a clean-clone run at load 30 never saw the station's token)
+    watcher = robot.liveliness().declare_subscriber(gri.gcs_alive_key("station"), on_token, history=True)
     other = station = None
     try:
         other = Gcs(local_client(router_port), name="other", timeout_s=10.0)
