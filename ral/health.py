@@ -8,7 +8,6 @@ the telemetry's own stamps (pure: no bus, no clock of its own):
 - ``robot`` (critical): the telemetry's ``error_code`` is one its robot kind uses to say it lost control itself
   (``bbcs.contracts.error_codes.LOSS_OF_CONTROL_CODES``: the uQuad's 706, its tumble cut), at once: the robot's
   own estimate runs at its frame rate, the rules below see it at the telemetry's;
-
 - ``attitude`` (critical): the tilt (from roll and pitch) beyond ``max_tilt_deg`` for ``tilt_s``;
 - ``ground`` (critical): airborne at or below ``ground_m`` above the take-off point, after having been above
   ``ground_clear_m`` since it left the ground, with no landing running;
@@ -115,9 +114,9 @@ class _Persist:
 @dataclass
 class HealthMonitor:
     cfg: HealthConfig = field(default_factory=HealthConfig)
-    _last: float | None = None
     loss_codes: frozenset[int] = frozenset()
     """Telemetry ``error_code`` values by which this robot says it lost control (the ``robot`` rule)."""
+    _last: float | None = None
     _persist: dict[str, _Persist] = field(default_factory=lambda: {d: _Persist() for d in
                                                                    ("robot", "attitude", "ground", "off_path", "spin")})
     _cleared_ground: bool = False
