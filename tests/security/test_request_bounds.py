@@ -83,6 +83,10 @@ def _round(rnd: random.Random) -> list[bytes]:
             range(4)] + [DEEP_MAP, DEEP_ARRAY, b"\xdd\xff\xff\xff\xff", b"\xc1", b""])
 
 
+WARM_ROUNDS = 5
+"""Rounds before the kept memory is judged: a process's first requests allocate what it then reuses."""
+
+
 def _rss_mb(pid: int) -> float:
     status = Path(f"/proc/{pid}/status").read_text()
     return int(status.split("VmRSS:")[1].split()[0]) / 1024
@@ -111,9 +115,12 @@ def test_every_malformed_request_is_answered_and_the_ral_keeps_no_memory_for_the
                     if payload in (DEEP_MAP, DEEP_ARRAY):
                         assert "nested deeper than" in reply.reason, reply.reason
             rss.append(_rss_mb(ral.pid))
-        growth = rss[-1] - rss[0]
+        # kept memory grows with the rounds; the first ones also warm the process up (a clean-clone run: +20 MB
+        # between rounds 1 and 2, then 3 MB over 18 rounds, flat for the last 9), so it is judged after WARM_ROUNDS
+        growth = rss[-1] - rss[WARM_ROUNDS - 1]
         print(f"\nRAL resident memory over 20 rounds of {len(KEYS) * 17} malformed requests: "
-              f"{rss[0]:.0f} -> {rss[-1]:.0f} MB")
+              f"{rss[0]:.0f} MB after the first, {rss[WARM_ROUNDS - 1]:.0f} MB after {WARM_ROUNDS}, "
+              f"{rss[-1]:.0f} MB after the last")
         assert growth < 8, f"the RAL kept {growth:.0f} MB for refused requests: {rss}"
     finally:
         for e in manager.entities:

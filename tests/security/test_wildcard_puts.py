@@ -13,6 +13,7 @@ writer shown to get through afterwards (so the input was live when the wildcard 
 from __future__ import annotations
 
 import json
+import os
 import select
 import subprocess
 import threading
@@ -108,9 +109,20 @@ def _codes(inbox: Inbox, module: str) -> list[int]:
     return [msgspec.msgpack.decode(v, type=ErrorReport).code for v in inbox.values(f"{R}/{module}/error")]
 
 
-def _start(procs: Processes, rig: Rig, module: str, *args: str) -> None:
+def _start(procs: Processes, rig: Rig, module: str, *args: str, nice: int | None = None) -> None:
+    """The module's process on the rig's bus; ``nice``: its manifest's scheduling priority, set as the Module
+    Manager sets it (module_manager/process.py: a refusal leaves the inherited one)."""
+
+    def prioritise() -> None:
+        if nice is not None:
+            try:
+                os.setpriority(os.PRIO_PROCESS, 0, nice)
+            except PermissionError:
+                pass
+
     procs.start(["-m", f"modules.{module}", "--robot", ROBOT, "--bus",
-                 msgspec.json.encode(rig.config(module)).decode(), *args], stderr=subprocess.DEVNULL)
+                 msgspec.json.encode(rig.config(module)).decode(), *args], stderr=subprocess.DEVNULL,
+                preexec_fn=prioritise)
 
 
 def test_a_wildcard_put_by_the_dsp_identity_reaches_no_aircraft(rig: Rig, tmp_path: Path) -> None:
