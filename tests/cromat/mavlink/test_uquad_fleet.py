@@ -30,19 +30,16 @@ from test_gcs_mission import sim_manifest  # noqa: E402
 pytestmark = pytest.mark.timeout(300)
 QUAD, UAV = "uquad1", "uav1"
 QUAD_MANIFEST = ROOT / "bbcs_conf" / "uquad1_sim.toml"
-FAILSAFE_S = 2.0
 
 
 def uquad_manifest(tmp_path: Path) -> Path:
     """The shipped uquad1_sim.toml as it is, free-running (a fleet is not in lockstep, docs/simulation.md), with
-    the loggers writing into tmp_path and a short link-loss failsafe."""
+    the loggers writing into tmp_path (the link-loss failsafe as shipped: nothing here loses its link)."""
     text = QUAD_MANIFEST.read_text().replace('conf = "uquad1.conf"', f'conf = "{QUAD_MANIFEST.parent / "uquad1.conf"}"')
     for kind in ("imu_raw", "control", "state"):
         old = f'params = {{ kind = "{kind}" }}'
         assert old in text, f"uquad1_sim.toml's {kind} logger changed"
         text = text.replace(old, f'params = {{ kind = "{kind}", dir = "{tmp_path}" }}')
-    assert 'failsafe_timeout_s = "10"' in text
-    text = text.replace('failsafe_timeout_s = "10"', f'failsafe_timeout_s = "{FAILSAFE_S:g}"')
     path = tmp_path / "uquad1_sim.toml"
     path.write_text(text)
     return path
