@@ -38,6 +38,7 @@ import numpy as np
 from bbcs import ConfError, Control, InputSlot, Kind, Module, OutputSlot, Safety
 from bbcs.contracts.error_codes import UquadErrorCode
 from bbcs.contracts.errors import ErrorReport
+from bbcs.contracts.mri import MODE_ACK_SLOT, ModeAck, mode_echo
 from bbcs.contracts.path_follower import DatosSegCam  # the RAL's path slot type
 from bbcs.contracts.robot import Attitude, GeoPoint, RobotTelemetry, VelocityNED
 from bbcs.contracts.tasks import TaskData
@@ -82,6 +83,7 @@ class UquadModule(Module):
         OutputSlot("state", UquadState, safety=Safety.UNSAFE),
         OutputSlot("control", MotorCommandLog, kind=Kind.STREAM),
         OutputSlot("error", ErrorReport),
+        OutputSlot(MODE_ACK_SLOT, ModeAck),
     )
     control = Control(ControlEntradaUquad, {"slot_entrada_modo": "modo", "slot_entrada_path": "path",
                                             "slot_entrada_task": "task"})
@@ -189,7 +191,18 @@ class UquadModule(Module):
         return flight_now if self.lockstep else time.monotonic()
 
     def on_modo(self, m: UquadMode) -> None:
-        self._inbox.put(("mode", Mode(m.modo)))
+        """Queue the mode for the flight loop, then answer it (``ack = true`` in the manifest): the manager replies
+        to the task only after this answer, so the RAL's path for the task is queued behind its mode, never ahead of
+        it (a hold's mode arriving after a goto's path would clear the waypoints: docs/bus.md, "Mode and data in
+        order"). After a driver error only a landing is taken; anything else is refused, and the task with it."""
+        mode = Mode(m.modo)
+        if self.driver_error and mode is not Mode.LAND:
+            why = f"mode {mode.name} refused after a driver error ({self.driver_error}): only a landing is taken"
+            self.publish(MODE_ACK_SLOT, ModeAck(mode=mode_echo(m), accepted=False,
+                                                code=int(UquadErrorCode.DRIVER_ERROR), reason=why))
+            return
+        self._inbox.put(("mode", mode))
+        self.publish(MODE_ACK_SLOT, ModeAck(mode=mode_echo(m), accepted=True))
 
     def on_path(self, d: DatosSegCam) -> None:
         if d.n_points != len(d.puntos):
