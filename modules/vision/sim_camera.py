@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,20 +26,26 @@ from .source import CameraSource, Frame
 LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 
 
-def render_view(
+class GroundView(NamedTuple):
+    """What one camera pose sees of the ground: each pixel's hit point (east, north), whether its ray hits the
+    ground, and the image without targets (texture, and sky where the ray misses)."""
+
+    east: NDArray[np.float32]
+    north: NDArray[np.float32]
+    hits: NDArray[np.bool_]
+    rgb: NDArray[np.float32]
+
+
+def ground_view(
     camera: CameraModel,
     rotation_enu_optical: NDArray[np.float64],
     position_enu: ArrayLike,
     ground_up: float,
     texture: GroundTexture,
-    targets: Sequence[tuple[float, float, float, RGB]],
     sky: RGB = (150, 190, 230),
-) -> NDArray[np.float32]:
-    """Float32 RGB image (H, W, 3) for one camera orientation/position.
-
-    ``targets`` are (east, north, radius_m, colour) discs lying on the ground plane. The ENU ray of pixel
-    (u, v) is R @ (x[u], y[v], 1) = x[u]·R[:, 0] + y[v]·R[:, 1] + R[:, 2], built by broadcasting.
-    """
+) -> GroundView:
+    """The ground as one camera orientation/position sees it. The ENU ray of pixel (u, v) is
+    R @ (x[u], y[v], 1) = x[u]·R[:, 0] + y[v]·R[:, 1] + R[:, 2], built by broadcasting."""
     x, y = camera.grid_axes()
     r = rotation_enu_optical.astype(np.float32)
     col, row = x[None, :], y[:, None]
@@ -51,11 +58,32 @@ def render_view(
     east = np.float32(pos[0]) + t * (col * r[0, 0] + row * r[0, 1] + r[0, 2])
     north = np.float32(pos[1]) + t * (col * r[1, 0] + row * r[1, 1] + r[1, 2])
     rgb = texture.colour(east, north)
-    for te, tn, radius, colour in targets:
-        inside = hits & ((east - np.float32(te)) ** 2 + (north - np.float32(tn)) ** 2 <= np.float32(radius) ** 2)
-        rgb[inside] = np.asarray(colour, np.float32)
     rgb[~hits] = np.asarray(sky, np.float32)
+    return GroundView(east, north, hits, rgb)
+
+
+def paint_targets(view: GroundView, targets: Sequence[tuple[float, float, float, RGB]]) -> NDArray[np.float32]:
+    """A new float32 RGB image (H, W, 3): ``view`` with the ``targets``, (east, north, radius_m, colour) discs lying
+    on the ground plane, painted over the ground."""
+    rgb = view.rgb.copy()
+    for te, tn, radius, colour in targets:
+        inside = view.hits & ((view.east - np.float32(te)) ** 2 + (view.north - np.float32(tn)) ** 2
+                              <= np.float32(radius) ** 2)
+        rgb[inside] = np.asarray(colour, np.float32)
     return rgb
+
+
+def render_view(
+    camera: CameraModel,
+    rotation_enu_optical: NDArray[np.float64],
+    position_enu: ArrayLike,
+    ground_up: float,
+    texture: GroundTexture,
+    targets: Sequence[tuple[float, float, float, RGB]],
+    sky: RGB = (150, 190, 230),
+) -> NDArray[np.float32]:
+    """Float32 RGB image (H, W, 3) for one camera orientation/position, ``targets`` painted on the ground."""
+    return paint_targets(ground_view(camera, rotation_enu_optical, position_enu, ground_up, texture, sky), targets)
 
 
 class SimulatedCamera(CameraSource):
@@ -97,6 +125,8 @@ class SimulatedCamera(CameraSource):
         self._seq = 0
         self._pose: AircraftPose | None = None
         self._gimbal: Gimbal | None = None
+        self._view_key: tuple[object, ...] | None = None
+        self._view: GroundView | None = None
 
     def set_state(self, pose: AircraftPose, gimbal: Gimbal) -> None:
         """Aircraft pose (LLA + attitude) and pan & tilt for the next frames."""
@@ -135,18 +165,23 @@ class SimulatedCamera(CameraSource):
         position = self.world.to_enu(self._pose.lat, self._pose.lon, self._pose.alt)
         t = self.scene_time(timestamp)
         discs = [(*tg.position(t), tg.radius_m, tg.colour) for tg in self.targets]
-        rgb = render_view(
-            self.camera,
-            enu_from_optical(self._pose, self._gimbal, self.camera.stabilised),
-            position,
-            self.ground_alt - self.world.alt0,
-            self.texture,
-            discs,
-        )
+        rgb = paint_targets(self._ground(position), discs)
         img = rgb @ LUMA if self.grey else rgb
         if self.noise_sigma > 0.0:
             img = img + self._noise(img.shape)
         return np.clip(img + np.float32(0.5), 0.0, 255.0).astype(np.uint8)
+
+    def _ground(self, position: NDArray[np.float64]) -> GroundView:
+        """The ground seen from the current pose, kept while the pose and gimbal stay the same (an aircraft on the
+        ground or holding still sees the same ground every frame: only the targets move, and they are painted
+        anew on each frame; rendering the ground was nine tenths of a frame's cost)."""
+        assert self._pose is not None and self._gimbal is not None
+        key = (self._pose, self._gimbal, position.tobytes())
+        if self._view is None or key != self._view_key:
+            self._view = ground_view(self.camera, enu_from_optical(self._pose, self._gimbal, self.camera.stabilised),
+                                     position, self.ground_alt - self.world.alt0, self.texture)
+            self._view_key = key
+        return self._view
 
     def _noise(self, shape: tuple[int, ...]) -> NDArray[np.float32]:
         """Gaussian sensor noise for one frame: a window at a random offset into a bank of twice a frame's

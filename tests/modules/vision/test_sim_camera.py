@@ -177,3 +177,19 @@ def test_sensor_noise_has_its_sigma_and_differs_frame_to_frame():
     second = noisy.read().image.astype(np.float64) - clean
     assert abs(first.mean()) < 0.2 and 5.4 < first.std() < 6.6, (first.mean(), first.std())
     assert not np.array_equal(first, second)
+
+
+def test_the_ground_kept_for_a_still_pose_gives_the_frames_a_fresh_rendering_gives():
+    """A camera holding still reuses its view of the ground; every frame is still the one rendered from nothing
+    (the target moving across the kept ground, a changed gimbal seeing new ground)."""
+    target = LinearTarget(start=(-6.0, 2.0), velocity=(3.0, 0.0), radius_m=1.5)
+    clock = Clock(0.0)
+    still = make_camera([target], clock=clock)
+    for step, gimbal in enumerate([Gimbal(pan=0.0, tilt=-80.0)] * 4 + [Gimbal(pan=10.0, tilt=-70.0)] * 2):
+        clock.now = step * 1.0
+        still.set_state_enu((0.0, 0.0, 40.0), gimbal, yaw=3.0)
+        fresh = make_camera([target], clock=clock)
+        fresh.set_state_enu((0.0, 0.0, 40.0), gimbal, yaw=3.0)
+        np.testing.assert_array_equal(still.render(clock.now), fresh.render(clock.now))
+    first, later = still.render(0.0), still.render(3.0)
+    assert not np.array_equal(first, later), "the target moved across the kept ground"
