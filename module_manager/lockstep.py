@@ -3,20 +3,34 @@
 Why the manager is a member: the robot state it publishes (telemetry, tasks, module health) is what the RAL
 judges tasks on, so it must be published at the simulated times it is due, not whenever the manager's loop next
 wakes on the wall. The manager answers each ask on Zenoh's thread, busy while modules are still starting (no step
-is taken before the whole robot is up), while it serves an MRI request, and while a robot state is due.
+is taken before the whole robot is up), while a module it restarts is coming back (``restarting``), while it serves
+an MRI request, and while a robot state is due.
 Its heartbeat watchdog measures simulated time (a module left behind by the steps stops beating in it).
 """
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 
 import zenoh
 
 from bbcs.clock import SimClock
 from bbcs.lockstep import MANAGER_MEMBER, Ask, Member, SimSettings, settings_env
 from module_manager.manifest import Manifest
+from module_manager.supervision import Phase
+
+COMING_BACK = frozenset({Phase.RESTARTING, Phase.STARTING})
+"""The phases of a module the manager is bringing back (its backoff, then its process starting)."""
+
+
+def restarting(phases: Mapping[str, Phase], stopping_to_restart: Iterable[str] = ()) -> list[str]:
+    """The modules whose restart holds the simulation: down and due back, or starting again, or stopped by a
+    restart request. Their time to come back is the machine's (a backoff on the wall clock, an interpreter
+    starting), not the flight's: held, it takes no simulated time, so the same mission gives the same flight at
+    any load, and a RAL killed just before a loss of control is back to report it within the second, as on a
+    robot, rather than some simulated seconds later at ``--speed max`` (the uQuad campaign, seed 7)."""
+    return sorted({n for n, ph in phases.items() if ph in COMING_BACK} | set(stopping_to_restart))
 
 SPEED_MAX = "max"
 

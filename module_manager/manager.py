@@ -442,6 +442,11 @@ class Manager(RouteControl, MriService):
         """Lockstep: what the manager must still do before the simulation may step ('' = nothing)."""
         if self.all_up_at is None:
             return "modules starting"
+        back = lockstep.restarting({n: m.sup.phase for n, m in self.modules.items()},
+                                   [n for n, m in self.modules.items()
+                                    if m.sup.phase is Phase.STOPPING and m.sup.state == "restarting"])
+        if back:
+            return f"restarting {', '.join(back)}"
         if self._mri_busy:
             return "serving an MRI request"
         if self.sim is not None and (self._state_dirty or state_due(self.sim.clock.monotonic(), self.next_state_at)):

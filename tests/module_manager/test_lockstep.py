@@ -9,7 +9,7 @@ import pytest
 from bbcs.clock import SimClock, SimTime
 from bbcs.lockstep import settings_from_env
 from module_manager import cli
-from module_manager.lockstep import ManagerMember, parse_speed, settings_for
+from module_manager.lockstep import ManagerMember, parse_speed, restarting, settings_for
 from module_manager.manager import state_due
 from module_manager.manifest import ManifestError, parse_manifest
 from module_manager.supervision import Kill, Phase, Policy, Spawn, Supervisor
@@ -111,3 +111,12 @@ def test_a_robot_state_is_due_every_step_when_the_simulators_time_is_a_sum_of_ph
             due_at = t + 0.2
     assert published == 1000
     assert not state_due(0.1999, 0.2) and state_due(0.19999999999999998, 0.2)
+
+
+def test_a_module_coming_back_holds_the_simulation_and_nothing_else_does() -> None:
+    phases = {"ral": Phase.UP, "dsp": Phase.UP, "vision": Phase.FAILED, "log": Phase.STOPPED}
+    assert restarting(phases) == []
+    assert restarting({**phases, "ral": Phase.RESTARTING}) == ["ral"]  # down, its backoff running
+    assert restarting({**phases, "ral": Phase.STARTING, "dsp": Phase.RESTARTING}) == ["dsp", "ral"]
+    assert restarting({**phases, "ral": Phase.STOPPING}, ["ral"]) == ["ral"]  # stopped by a restart request
+    assert restarting({**phases, "ral": Phase.STOPPING}) == []  # stopped for good: the robot goes on without it
