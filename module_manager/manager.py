@@ -155,10 +155,23 @@ FLOOD_LINE = "cromat router: flood: "
 FLOOD_REPORT_S = 10.0
 
 
-def _priority(spec: Any) -> Priority | None:
-    """A manifest entry's ``nice``/``realtime`` as the priority a child gets (None: the manager's own)."""
-    priority = Priority(spec.nice, spec.realtime)
+def _priority(spec: Any, lockstep_on: bool = False) -> Priority | None:
+    """A manifest entry's ``nice``/``realtime`` as the priority a child gets (None: the manager's own). In a lockstep
+    launch a raised priority (a negative nice, real time) is left out: the barrier makes the flight independent of
+    the machine's load, so it would only take the processors from everything else on the machine. A uQuad at
+    ``--speed max`` stepping flat out at nice -10 starved a nice-0 DSP simulator beside it for 2.5 s
+    (docs/simulation.md)."""
+    nice, realtime = spec.nice, spec.realtime
+    if lockstep_on:
+        nice = None if nice is not None and nice < 0 else nice
+        realtime = None
+    priority = Priority(nice, realtime)
     return priority if priority else None
+
+
+def raised_priorities(specs: dict[str, Any]) -> list[str]:
+    """The manifest entries asking for a raised priority (a negative nice or real time), by name."""
+    return sorted(n for n, spec in specs.items() if (spec.nice is not None and spec.nice < 0) or spec.realtime)
 
 
 def _on(cpus: list[int] | None) -> str:
@@ -358,11 +371,16 @@ class Manager(RouteControl, MriService):
         """Start every plain process (simulators) at once, then wait for each one's readiness: their start-up
         times overlap instead of adding up. Modules start only once all of them are ready."""
         t = self.clock()
+        raised = raised_priorities({**self.m.raw.processes, **{n: i.spec for n, i in self.m.modules.items()}})
+        if self.sim is not None and raised:
+            self.out(f"  lockstep: the raised priorities of {', '.join(raised)} are not applied (the simulation "
+                     "waits for every module; a raised priority would only take the processors from the rest)")
         started: list[tuple[str, Any, list[str], Child]] = []
         for name, spec in self.m.raw.processes.items():
             argv = [self.expand(a) for a in spec.command]
             child = Child(name, argv, self.child_env(spec.env), cwd=str(self.m.dir), log_dir=self.log_dir,
-                          watch_stdout=spec.ready.kind == "stdout", cpus=_cpus(spec.cpus), priority=_priority(spec))
+                          watch_stdout=spec.ready.kind == "stdout", cpus=_cpus(spec.cpus),
+                          priority=self._priority(spec))
             self.processes[name] = child
             if child.priority_refused:
                 self.out(f"  {name:<11} {child.priority_refused}")
@@ -437,6 +455,9 @@ class Manager(RouteControl, MriService):
         error fails the tasks started before it, a telemetry refusal stands until telemetry stamped after it; on
         the wall clock, behind simulated time, neither could happen at --speed max."""
         return time.time() if self.sim is None else self.sim.clock.time()
+
+    def _priority(self, spec: Any) -> Priority | None:
+        return _priority(spec, lockstep_on=self.sim is not None)
 
     def sim_busy(self) -> str:
         """Lockstep: what the manager must still do before the simulation may step ('' = nothing)."""
@@ -573,7 +594,7 @@ class Manager(RouteControl, MriService):
         env[CONTEXT_ENV] = encode_context(ctx)
         try:
             mod.child = Child(info.name, [sys.executable, "-m", info.spec.entry], env, cwd=str(self.m.dir),
-                              log_dir=self.log_dir, cpus=_cpus(info.spec.cpus), priority=_priority(info.spec))
+                              log_dir=self.log_dir, cpus=_cpus(info.spec.cpus), priority=self._priority(info.spec))
         except OSError as exc:
             mod.child = None
             mod.sup.spawn_failed(now, f"cannot start: {exc}")
@@ -599,7 +620,7 @@ class Manager(RouteControl, MriService):
         """A warm standby of ``mod`` (module_manager/standby.py): its interpreter and imports, waiting for a context."""
         return Child(mod.info.name, standby_argv(sys.executable, mod.info.spec.entry),
                      self.child_env(mod.info.spec.env), cwd=str(self.m.dir), log_dir=self.log_dir, stdin_pipe=True,
-                     cpus=_cpus(mod.info.spec.cpus), priority=_priority(mod.info.spec))
+                     cpus=_cpus(mod.info.spec.cpus), priority=self._priority(mod.info.spec))
 
     def _take_standby(self, mod: _Module, context: str) -> bool:
         """Hand the context to the module's warm standby, which becomes the module; False if there is none alive."""

@@ -129,3 +129,19 @@ def test_a_launched_module_and_process_run_at_their_manifest_nice(tmp_path: Path
         assert not any("refused by the OS" in line for line in la.lines)
     finally:
         la.cleanup()
+
+
+def test_a_lockstep_launch_leaves_raised_priorities_out_and_keeps_lowered_ones() -> None:
+    """In lockstep the barrier makes the flight independent of load: a raised priority would only take the
+    processors from the rest of the machine (a uQuad stack at nice -10 at --speed max starved a DSP simulator)."""
+    from types import SimpleNamespace
+
+    from module_manager.manager import _priority, raised_priorities
+
+    raised = SimpleNamespace(nice=-10, realtime=None)
+    rt = SimpleNamespace(nice=None, realtime=10)
+    lowered = SimpleNamespace(nice=5, realtime=None)
+    assert _priority(raised) == Priority(nice=-10) and _priority(rt) == Priority(realtime=10)
+    assert _priority(raised, lockstep_on=True) is None and _priority(rt, lockstep_on=True) is None
+    assert _priority(lowered, lockstep_on=True) == Priority(nice=5)
+    assert raised_priorities({"sim": raised, "log": lowered, "ctl": rt}) == ["ctl", "sim"]

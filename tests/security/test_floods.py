@@ -12,7 +12,6 @@ from __future__ import annotations
 import select
 import subprocess
 import sys
-import threading
 import time
 import tomllib
 from pathlib import Path
@@ -33,6 +32,29 @@ from test_wildcard_puts import ROOT, Inbox, R, Rig, _start  # noqa: E402
 from test_wildcard_puts import rig as rig  # noqa: E402, F401  (the fixture)
 
 FLOOD_S = 4.0
+FLOODER = """
+import sys, time
+import msgspec
+from bbcs.contracts import dsp as bus
+from bbcs.contracts import dsp as p
+from bbcs.dsp_client import commands_output
+from bbcs.session import SessionConfig, open_session
+from bbcs.slots import Publisher
+cfg = msgspec.json.decode(sys.argv[1], type=SessionConfig)
+key, seconds = sys.argv[2], float(sys.argv[3])
+session = open_session(cfg)
+pub = Publisher(session, key, commands_output("pan_tilt"))  # the module's own output declaration: the worst case
+print("flooding", flush=True)
+n, end = 0, time.monotonic() + seconds
+while time.monotonic() < end:
+    pub.publish(bus.DspCommands(sender="pan_tilt", batch_id=n, commands=[
+        p.SetPanTiltAngles(pan_deg=float(n % 90), tilt_deg=-10.0)]))
+    n += 1
+pub.close()
+session.close()
+print(n, flush=True)
+"""
+"""The pan & tilt identity's flood, in a process of its own: prints ``flooding``, then the batches it put."""
 SHIPPED_DSP_NICE: int = tomllib.loads((ROOT / "bbcs_conf" / "uav1_secure.toml").read_text())["modules"]["dsp"]["nice"]
 
 
@@ -40,48 +62,40 @@ def test_a_pan_tilt_flood_neither_stops_the_abort_nor_floods_the_reports(rig: Ri
     record = tmp_path / "dsp.jsonl"
     procs = Processes()
     sessions: list[zenoh.Session] = []
-    stop = threading.Event()
     try:
         sim = procs.start(["-m", "modules.dsp.sim", "--pty", "--record", str(record)], stdout=subprocess.PIPE,
                           text=True)
         assert select.select([sim.stdout], [], [], 15.0)[0], "the simulator printed nothing"
         # at the shipped manifest's priority (its DSP module's `nice`), as the Module Manager starts it: the flood
-        # is a bus attack, and the link's share of the processors is the manifest's answer to load (a clean-clone
-        # run on 3 test workers had the ABORT 2.5 s late with the DSP process at the default priority)
+        # is a bus attack, and the link's share of the processors is the manifest's answer to load
         _start(procs, rig, "dsp", "--conf", str(ROOT / "bbcs_conf" / "uav1.conf"), "--param",
                f"port={sim.stdout.readline().strip()}", nice=SHIPPED_DSP_NICE)
         dsp = procs.procs[-1]
         gcs = open_session(rig.config("gcs"))
-        flooder = open_session(rig.config("pan_tilt"))
         follower = open_session(rig.config("path_follower"))
-        sessions += [gcs, flooder, follower]
+        sessions += [gcs, follower]
         inbox = Inbox(gcs, f"{R}/dsp/link", f"{R}/dsp/errors")
         wait_until(lambda: inbox.values(f"{R}/dsp/link"), 60, "the DSP process started up")
         flood_key = f"{R}/dsp/{bus.commands_slot('pan_tilt')}"
         abort_key = f"{R}/dsp/{bus.commands_slot('path_follower')}"
-        sent = [0]
-
-        def flood() -> None:  # with the module's own output declaration (its priority): the worst case
-            pub = Publisher(flooder, flood_key, commands_output("pan_tilt"))
-            end = time.monotonic() + FLOOD_S
-            while not stop.is_set() and time.monotonic() < end:
-                pub.publish(bus.DspCommands(sender="pan_tilt", batch_id=sent[0], commands=[
-                    p.SetPanTiltAngles(pan_deg=float(sent[0] % 90), tilt_deg=-10.0)]))
-                sent[0] += 1
-            pub.close()
-
-        flooding = threading.Thread(target=flood, daemon=True)
-        flooding.start()
+        # the attacker is its own process, as a pan & tilt module is (its own Zenoh runtime): a flood thread in this
+        # process shared the runtime with the follower's session below, and its ABORT went out only when the flood
+        # ended (2.5 s late, in two clean-clone runs), which no pair of robot processes can do
+        flooding = procs.start(["-c", FLOODER, msgspec.json.encode(rig.config("pan_tilt")).decode(), flood_key,
+                                str(FLOOD_S)], stdout=subprocess.PIPE, text=True)
+        assert select.select([flooding.stdout], [], [], 30.0)[0], "the flooder never started"
+        assert flooding.stdout.readline().strip() == "flooding", "the flooder never started"
         time.sleep(1.5)  # the flood well under way
         abort = Publisher(follower, abort_key, commands_output("path_follower"))  # as the path follower sends it
         asked = time.monotonic()  # the simulator records CLOCK_MONOTONIC too ('mono'): one clock per host
         abort.publish(bus.DspCommands(sender="path_follower", commands=[p.Abort()]))
         wait_until(lambda: any(c["name"] == "ABORT" for c in read_record(record)), 30, "the ABORT at the simulator")
         took = next(c["mono"] for c in read_record(record) if c["name"] == "ABORT") - asked
-        flooding.join(FLOOD_S + 5)
+        assert select.select([flooding.stdout], [], [], FLOOD_S + 30)[0], "the flooder never ended"
+        sent = int(flooding.stdout.readline())
         reports = [msgspec.msgpack.decode(v, type=bus.DspErrorReport) for v in inbox.values(f"{R}/dsp/errors")]
         floods = [r for r in reports if r.code == bus.LinkErrorCode.FLOODED]
-        print(f"\nflood: {sent[0]} batches in {FLOOD_S:g} s; ABORT at the simulator {took * 1000:.0f} ms after it "
+        print(f"\nflood: {sent} batches in {FLOOD_S:g} s; ABORT at the simulator {took * 1000:.0f} ms after it "
               f"was put; {len(floods)} FLOODED reports, {len(reports)} reports in all")
         assert took < 2.0, f"the ABORT took {took:.2f} s under the flood; the DSP process's reports: {reports}"
         assert floods and all(r.sender == "pan_tilt" for r in floods), reports[:5]
@@ -89,7 +103,6 @@ def test_a_pan_tilt_flood_neither_stops_the_abort_nor_floods_the_reports(rig: Ri
         assert dsp.poll() is None, "the DSP process died under the flood"
         inbox.close()
     finally:
-        stop.set()
         for s in sessions:
             s.close()
         procs.stop_all()
