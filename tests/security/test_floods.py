@@ -78,9 +78,9 @@ def test_a_pan_tilt_flood_neither_stops_the_abort_nor_floods_the_reports(rig: Ri
         wait_until(lambda: inbox.values(f"{R}/dsp/link"), 60, "the DSP process started up")
         flood_key = f"{R}/dsp/{bus.commands_slot('pan_tilt')}"
         abort_key = f"{R}/dsp/{bus.commands_slot('path_follower')}"
-        # the attacker is its own process, as a pan & tilt module is (its own Zenoh runtime): a flood thread in this
-        # process shared the runtime with the follower's session below, and its ABORT went out only when the flood
-        # ended (2.5 s late, in two clean-clone runs), which no pair of robot processes can do
+        # the attacker is its own process, as a pan & tilt module is (its own interpreter and Zenoh runtime, not
+        # this test's). The ABORT 2.5 s late in two clean-clone runs was the DSP simulator starved by a lockstep
+        # uQuad at nice -10 in another test (NO_ACK for three commands in the reports), fixed in the manager
         flooding = procs.start(["-c", FLOODER, msgspec.json.encode(rig.config("pan_tilt")).decode(), flood_key,
                                 str(FLOOD_S)], stdout=subprocess.PIPE, text=True)
         assert select.select([flooding.stdout], [], [], 30.0)[0], "the flooder never started"
