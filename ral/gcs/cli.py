@@ -11,6 +11,7 @@ credentials, no answer, or no such robot.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import math
 import os
 import sys
@@ -263,6 +264,15 @@ def run(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # what was printed survives a crash of the process (a pipe is block-buffered), and a native crash names the
+    # Python frames it happened in: `cromat gcs fleet post` ended once on SIGSEGV with nothing printed (a clean-clone
+    # run, not reproduced)
+    if hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(line_buffering=True)
+    try:
+        faulthandler.enable()
+    except (OSError, ValueError):  # stderr with no descriptor (called in-process, captured): nothing to write to
+        faulthandler.disable()
     args = build_parser().parse_args(argv)
     try:
         return run(args, sys.stdout)
