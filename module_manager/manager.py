@@ -161,17 +161,20 @@ def _priority(spec: Any, lockstep_on: bool = False) -> Priority | None:
     the machine's load, so it would only take the processors from everything else on the machine. A uQuad at
     ``--speed max`` stepping flat out at nice -10 starved a nice-0 DSP simulator beside it for 2.5 s
     (docs/simulation.md)."""
-    nice, realtime = spec.nice, spec.realtime
-    if lockstep_on:
-        nice = None if nice is not None and nice < 0 else nice
-        realtime = None
-    priority = Priority(nice, realtime)
+    priority = Priority(spec.nice, spec.realtime)
+    if lockstep_on and _raised(priority):
+        priority = Priority(spec.nice if spec.nice is not None and spec.nice >= 0 else None)
     return priority if priority else None
+
+
+def _raised(p: Any) -> bool:
+    """A priority (or a manifest entry) asking for more than the default: a negative nice or real time."""
+    return (p.nice is not None and p.nice < 0) or p.realtime is not None
 
 
 def raised_priorities(specs: dict[str, Any]) -> list[str]:
     """The manifest entries asking for a raised priority (a negative nice or real time), by name."""
-    return sorted(n for n, spec in specs.items() if (spec.nice is not None and spec.nice < 0) or spec.realtime)
+    return sorted(n for n, spec in specs.items() if _raised(spec))
 
 
 def _on(cpus: list[int] | None) -> str:

@@ -73,19 +73,6 @@ def paint_targets(view: GroundView, targets: Sequence[tuple[float, float, float,
     return rgb
 
 
-def render_view(
-    camera: CameraModel,
-    rotation_enu_optical: NDArray[np.float64],
-    position_enu: ArrayLike,
-    ground_up: float,
-    texture: GroundTexture,
-    targets: Sequence[tuple[float, float, float, RGB]],
-    sky: RGB = (150, 190, 230),
-) -> NDArray[np.float32]:
-    """Float32 RGB image (H, W, 3) for one camera orientation/position, ``targets`` painted on the ground."""
-    return paint_targets(ground_view(camera, rotation_enu_optical, position_enu, ground_up, texture, sky), targets)
-
-
 class SimulatedCamera(CameraSource):
     """Renders frames of a synthetic world defined in the ENU frame ``world`` (ground at ``ground_alt``).
 

@@ -269,10 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     # run, not reproduced)
     if hasattr(sys.stdout, "reconfigure"):
         sys.stdout.reconfigure(line_buffering=True)
-    try:
-        faulthandler.enable()
-    except (OSError, ValueError):  # stderr with no descriptor (called in-process, captured): nothing to write to
-        faulthandler.disable()
+    faulthandler.enable(sys.__stderr__)  # the process's own stderr, also when a caller has captured sys.stderr
     args = build_parser().parse_args(argv)
     try:
         return run(args, sys.stdout)
