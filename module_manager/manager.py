@@ -158,9 +158,8 @@ FLOOD_REPORT_S = 10.0
 def _priority(spec: Any, lockstep_on: bool = False) -> Priority | None:
     """A manifest entry's ``nice``/``realtime`` as the priority a child gets (None: the manager's own). In a lockstep
     launch a raised priority (a negative nice, real time) is left out: the barrier makes the flight independent of
-    the machine's load, so it would only take the processors from everything else on the machine. A uQuad at
-    ``--speed max`` stepping flat out at nice -10 starved a nice-0 DSP simulator beside it for 2.5 s
-    (docs/simulation.md)."""
+    the machine's load, so it would only take the processors from everything else on the machine (a uQuad at
+    ``--speed max`` stepping flat out at nice -10; docs/simulation.md)."""
     priority = Priority(spec.nice, spec.realtime)
     if lockstep_on and _raised(priority):
         priority = Priority(spec.nice if spec.nice is not None and spec.nice >= 0 else None)

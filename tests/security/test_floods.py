@@ -79,8 +79,8 @@ def test_a_pan_tilt_flood_neither_stops_the_abort_nor_floods_the_reports(rig: Ri
         flood_key = f"{R}/dsp/{bus.commands_slot('pan_tilt')}"
         abort_key = f"{R}/dsp/{bus.commands_slot('path_follower')}"
         # the attacker is its own process, as a pan & tilt module is (its own interpreter and Zenoh runtime, not
-        # this test's). The ABORT 2.5 s late in two clean-clone runs was the DSP simulator starved by a lockstep
-        # uQuad at nice -10 in another test (NO_ACK for three commands in the reports), fixed in the manager
+        # this test's). The ABORT 2.5 s late in clean-clone runs: the DSP simulator did not acknowledge three
+        # commands in a row (NO_ACK in the reports); why it stalls is open (docs/simulation.md)
         flooding = procs.start(["-c", FLOODER, msgspec.json.encode(rig.config("pan_tilt")).decode(), flood_key,
                                 str(FLOOD_S)], stdout=subprocess.PIPE, text=True)
         assert select.select([flooding.stdout], [], [], 30.0)[0], "the flooder never started"
