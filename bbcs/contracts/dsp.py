@@ -664,8 +664,9 @@ class LinkErrorCode(IntEnum):
     FLUSHED = 103  # commands of a batch were dropped, unsent, by an ABORT
     NOT_OWNER = 104  # a sender's batch holds a command class it does not own (COMMAND_RIGHTS): not sent
     FLOODED = 106
-    """A sender put batches faster than the DSP takes them: coalesced (same set-points) or dropped past its bound,
-    and refusals beyond the first, counted; one report a second naming the sender (modules/dsp/intake.py)."""
+    """A sender put batches faster than the DSP takes them: any dropped past its bound, or 50 or more in a second
+    coalesced (same set-points) or refused beyond the first; one report a second naming the sender
+    (modules/dsp/intake.py). A few set-points superseded while the line is busy are normal and not reported."""
     TELEMETRY_REFUSED = 105
     """A telemetry frame that passed the CRC was malformed or had a field outside its declared range: dropped,
     counted (``LinkStats.telemetry_refused``) and reported on the DSP process's ERROR slot, at most once per
@@ -704,6 +705,7 @@ class LinkStats(msgspec.Struct, frozen=True, kw_only=True):
     timeouts: int = 0
     nacks: int = 0
     stray_acks: int = 0
+    preempted: int = 0  # commands that stopped waiting for their ACK because an ABORT took the line
     telemetry_frames: int = 0
     dsp_errors: int = 0
     dsp_frames_lost: int = 0  # gaps in the DSP's frame counter

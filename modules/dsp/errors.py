@@ -21,6 +21,16 @@ class DspTimeout(DspLinkError):
                          f"the baud rate right?")
 
 
+class DspPreempted(DspLinkError):
+    """An ABORT took the line while this command waited for its acknowledgement: it may or may not have been
+    carried out, and the ABORT that follows empties the DSP's queue either way."""
+
+    def __init__(self, command: str, seq: int) -> None:
+        self.command = command
+        self.seq = seq
+        super().__init__(f"{command} (seq {seq}) not acknowledged before an ABORT took the line")
+
+
 class DspRejected(DspLinkError):
     """The DSP acknowledged a command with a non-zero status: it refused it and changed nothing."""
 

@@ -10,7 +10,12 @@ separately until its error stream filled, blocked, missed its heartbeat and was 
   silently reordered or merged: they are refused, counted, and reported naming the sender);
 * a batch holding ABORT is never dropped nor coalesced: it empties every queue and goes first;
 * what was coalesced or dropped is counted per sender and reported at most once per ``window_s`` (:meth:`due`),
-  naming the sender, never once per batch.
+  naming the sender, never once per batch;
+* a set-point superseded while the line is busy is what coalescing is for, not a fault: pan & tilt follows
+  targets at the vision rate (10 Hz), so a few a second are superseded whenever a path upload holds the line. Only
+  ``flood_batches`` or more coalesced or refused in one window make a flood (any drop does): below that, the
+  window's counts are forgotten (the totals keep them). A single superseded set-point once failed a campaign's
+  path task ("module dsp reported error 106 FLOODED").
 
 Pure: no threads, no clock of its own (``now`` is passed in); the process holds its lock around it.
 """
@@ -26,6 +31,9 @@ COALESCED_SENDERS = frozenset({"pan_tilt"})
 DEFAULT_BOUND = 32
 """Batches waiting per sender: a few seconds of a normal sender's traffic (the DSP acknowledges ~100 commands/s)."""
 REPORT_WINDOW_S = 1.0
+FLOOD_BATCHES = 50
+"""Batches of one sender coalesced or refused in one window that make a flood: 5x pan & tilt's vision rate,
+a quarter of the rate the robot router lets through on its key (bbcs/acl.py ``SET_POINT_RATES_HZ``)."""
 
 
 @dataclass
@@ -37,6 +45,8 @@ class Flood:
     dropped: int = 0
     refused: int = 0
     """Batches refused for a command class the sender does not own (NOT_OWNER), beyond the one reported at once."""
+    since: float | None = None
+    """When :meth:`CommandIntake.due` first saw this window's losses."""
 
     @property
     def total(self) -> int:
@@ -54,9 +64,10 @@ class CommandIntake:
     """Batches waiting to be sent, in arrival order, at most ``bound`` per sender (module docstring)."""
 
     def __init__(self, bound: int = DEFAULT_BOUND, window_s: float = REPORT_WINDOW_S,
-                 coalesced: frozenset[str] = COALESCED_SENDERS) -> None:
+                 coalesced: frozenset[str] = COALESCED_SENDERS, flood_batches: int = FLOOD_BATCHES) -> None:
         self.bound = bound
         self.window_s = window_s
+        self.flood_batches = flood_batches
         self.coalesced = coalesced
         self._queue: deque[tuple[str, tuple[str, ...], Any]] = deque()
         self._senders: dict[str, _Sender] = {}
@@ -120,12 +131,25 @@ class CommandIntake:
         self._senders[sender].waiting -= 1
         return sender, batch
 
+    def is_flood(self, f: Flood) -> bool:
+        """A drop always counts; coalesced and refused batches only from ``flood_batches`` on (module docstring)."""
+        return f.dropped > 0 or f.coalesced + f.refused >= self.flood_batches
+
     def due(self, now: float) -> list[Flood]:
-        """The senders that lost batches since their last report, if their window has passed: each once."""
+        """The senders flooding since their last report, if their report window has passed: each once. Losses
+        below a flood are forgotten once they are a window old."""
         out = []
         for s in self._senders.values():
-            if s.flood.total and now - s.last_report >= self.window_s:
-                out.append(s.flood)
-                s.flood = Flood(s.flood.sender)
-                s.last_report = now
+            f = s.flood
+            if not f.total:
+                continue
+            if f.since is None:
+                f.since = now
+            if self.is_flood(f):
+                if now - s.last_report >= self.window_s:
+                    out.append(f)
+                    s.flood = Flood(f.sender)
+                    s.last_report = now
+            elif now - f.since >= self.window_s:
+                s.flood = Flood(f.sender)
         return out

@@ -26,7 +26,7 @@ from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import LinkStats
 from bbcs.serial_io import write_all
 from modules.dsp.codec import DSP_TO_PC_LENGTHS, DspDecodeError, decode, encode_payload
-from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
+from modules.dsp.errors import DspLinkError, DspPreempted, DspRejected, DspTimeout
 from modules.dsp.framing import MAX_FRAME, Frame, FrameParser, build_frame
 from modules.dsp.refusals import Refusal
 
@@ -105,6 +105,7 @@ class DspLink:
         self._closed = False
         self._seq = random.randrange(256)
         self._abort_generation = 0
+        self._preemptions = 0
         self._last_dsp_seq: int | None = None
         self._latest: p.Telemetry | None = None
         self._counts = dict.fromkeys(_COUNTERS, 0)
@@ -151,14 +152,25 @@ class DspLink:
 
     # --- commands ------------------------------------------------------------------------------------------
 
+    def preempt(self) -> None:
+        """An ABORT is waiting: a command other than ABORT now waiting for its acknowledgement stops waiting
+        (DspPreempted), so the ABORT goes on the line at once instead of after that command's retries (up to
+        ``(retries + 1) * ack_timeout`` with a silent DSP; the safety monitor's bound is 100 ms)."""
+        with self._cond:
+            self._preemptions += 1
+            self._cond.notify_all()
+
     def send(self, cmd: p.Command, *, timeout: float | None = None, retries: int | None = None) -> p.Ack:
-        """Send ``cmd`` and wait for its ACK. DspValueError (nothing sent), DspTimeout, DspRejected."""
+        """Send ``cmd`` and wait for its ACK. DspValueError (nothing sent), DspTimeout, DspRejected,
+        DspPreempted (an ABORT is waiting: :meth:`preempt`)."""
         payload = encode_payload(cmd)  # refuses out-of-range values before anything is sent
         name = type(cmd).__name__
         timeout = self.ack_timeout if timeout is None else timeout
         retries = self.retries if retries is None else retries
         msg_id = int(cmd.MSG_ID)
+        preemptible = not isinstance(cmd, p.Abort)
         with self._send_lock:
+            preemptions = self._preemptions
             self._raise_if_unusable(name)
             self._seq = seq = (self._seq + 1) & 0xFF
             frame = build_frame(msg_id, seq, payload)
@@ -172,11 +184,15 @@ class DspLink:
                     self._write(frame)
                     with self._cond:
                         self.clock.wait_for(self._cond, lambda: self._pending_ack is not None or self._closing
-                                            or self._failure is not None, timeout)
+                                            or self._failure is not None
+                                            or (preemptible and self._preemptions != preemptions), timeout)
                         ack = self._pending_ack
                     if ack is not None:
                         break
                     self._raise_if_unusable(name)
+                    if preemptible and self._preemptions != preemptions:
+                        self._count("preempted")
+                        raise DspPreempted(name, seq)
                 if ack is None:
                     self._count("timeouts")
                     raise DspTimeout(name, seq, retries + 1, timeout, self.url)
@@ -194,7 +210,8 @@ class DspLink:
         return [self.send(cmd) for cmd in cmds]
 
     def send_waypoints(self, points: Sequence[p.AddWaypoint]) -> int:
-        """Queue waypoints on the DSP in order; returns how many were sent before an ``abort()`` stopped them.
+        """Queue waypoints on the DSP in order; returns how many were acknowledged before an ``abort()`` stopped
+        them (the one on the line when it came may have reached the DSP too: the abort empties its queue either way).
 
         All points are range-checked first: if one is bad, none is sent (SPEC: no datum affected by an
         error is sent).
@@ -206,13 +223,17 @@ class DspLink:
         for point in points:
             if self._abort_generation != generation:
                 break
-            self.send(point)
+            try:
+                self.send(point)
+            except DspPreempted:  # the abort took the line from this point (which the DSP may have queued)
+                break
             sent += 1
         return sent
 
     def abort(self) -> p.Ack:
         """Flush: stop any waypoint list being sent from this PC, then empty the DSP's queue (ABORT)."""
         self._abort_generation += 1
+        self.preempt()
         return self.send(p.Abort())
 
     def ping(self, *, timeout: float | None = None, retries: int | None = None) -> p.Ack:

@@ -34,7 +34,7 @@ from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import COMMAND_RIGHTS, LinkErrorCode, LinkStats, commands_slot, refused_classes
 from bbcs.contracts.errors import ErrorReport
 from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
-from modules.dsp.errors import DspLinkError, DspRejected, DspTimeout
+from modules.dsp.errors import DspLinkError, DspPreempted, DspRejected, DspTimeout
 from modules.dsp.intake import CommandIntake, Flood
 from modules.dsp.link import DspLink, open_link, startup
 from modules.dsp.params import dsp_param_errors, load_dsp_params
@@ -207,6 +207,8 @@ class DspModule(Module):
                 self._abort_generation += 1
             floods = self._batches.due(time.monotonic())
             self._cond.notify_all()
+        if abort:
+            self.link.preempt()  # a command on the line stops waiting for its ACK: the ABORT goes next
         self._report_floods(floods)
         if any(isinstance(cmd, p.Abort) for cmd in batch.commands):
             self.log.info("ABORT from %s (batch %d): %d queued batches flushed", batch.sender, batch.batch_id,
@@ -277,6 +279,10 @@ class DspModule(Module):
                     first = self._batches.refuse(batch.sender, time.monotonic())
                 if first:
                     self._publish_report(exc.status, str(exc), batch, name)
+                return
+            except DspPreempted as exc:
+                self._publish_report(LinkErrorCode.FLUSHED, f"{exc}; {len(batch.commands) - i - 1} commands after "
+                                                            f"it not sent", batch, name)
                 return
             except DspTimeout as exc:
                 self._publish_report(LinkErrorCode.NO_ACK, str(exc), batch, name)

@@ -9,6 +9,7 @@ the flood is reported a handful of times (one FLOODED report a second naming pan
 
 from __future__ import annotations
 
+import os
 import select
 import subprocess
 import sys
@@ -55,6 +56,38 @@ session.close()
 print(n, flush=True)
 """
 """The pan & tilt identity's flood, in a process of its own: prints ``flooding``, then the batches it put."""
+
+
+def _cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) ``pid`` has used so far (0 once it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _router_pid(rig: Rig) -> int:
+    out = subprocess.run(["pgrep", "-f", f"bbcs.router --config {rig.tmp / 'router.json5'}"], capture_output=True,
+                         text=True).stdout.split()
+    return int(out[0]) if out else 0
+
+
+def _stall_evidence(record: Path, asked: float, inbox: Inbox, cpu: dict[str, tuple[int, float]]) -> str:
+    """What a late ABORT needs to be explained: the simulator's record around it (was each attempt received?), the
+    DSP link's counters (stray, lost, retried), each process's CPU during the flood and what else ran."""
+    lines = [f"{c['mono'] - asked:+.3f} s {c['name']} seq {c['seq']} status {c['status']}"
+             f"{' duplicate' if c['duplicate'] else ''}" for c in read_record(record) if c["mono"] - asked > -2.5]
+    links = inbox.values(f"{R}/dsp/link")
+    link = msgspec.msgpack.decode(links[-1], type=bus.LinkStats) if links else None
+    used = {name: f"{_cpu_s(pid) - before:.2f} CPU-s" for name, (pid, before) in cpu.items()}
+    ps = subprocess.run(["ps", "-eo", "pid,ni,pcpu,etimes,args", "--sort=-pcpu"], capture_output=True,
+                        text=True).stdout.splitlines()[:15]
+    return "\n".join(["the simulator's record from 2.5 s before the ABORT was put:", *lines[-60:],
+                      f"the DSP link: {link}", f"CPU used since the flood started: {used}",
+                      f"load: {Path('/proc/loadavg').read_text().strip()}", *(line[:160] for line in ps)])
+
+
 SHIPPED_DSP_NICE: int = tomllib.loads((ROOT / "bbcs_conf" / "uav1_secure.toml").read_text())["modules"]["dsp"]["nice"]
 
 
@@ -85,6 +118,8 @@ def test_a_pan_tilt_flood_neither_stops_the_abort_nor_floods_the_reports(rig: Ri
                                 str(FLOOD_S)], stdout=subprocess.PIPE, text=True)
         assert select.select([flooding.stdout], [], [], 30.0)[0], "the flooder never started"
         assert flooding.stdout.readline().strip() == "flooding", "the flooder never started"
+        cpu = {name: (pid, _cpu_s(pid)) for name, pid in (("simulator", sim.pid), ("dsp", dsp.pid),
+                                                           ("flooder", flooding.pid), ("router", _router_pid(rig)))}
         time.sleep(1.5)  # the flood well under way
         abort = Publisher(follower, abort_key, commands_output("path_follower"))  # as the path follower sends it
         asked = time.monotonic()  # the simulator records CLOCK_MONOTONIC too ('mono'): one clock per host
@@ -97,7 +132,8 @@ def test_a_pan_tilt_flood_neither_stops_the_abort_nor_floods_the_reports(rig: Ri
         floods = [r for r in reports if r.code == bus.LinkErrorCode.FLOODED]
         print(f"\nflood: {sent} batches in {FLOOD_S:g} s; ABORT at the simulator {took * 1000:.0f} ms after it "
               f"was put; {len(floods)} FLOODED reports, {len(reports)} reports in all")
-        assert took < 2.0, f"the ABORT took {took:.2f} s under the flood; the DSP process's reports: {reports}"
+        assert took < 2.0, (f"the ABORT took {took:.2f} s under the flood; the DSP process's reports: {reports}\n"
+                            + _stall_evidence(record, asked, inbox, cpu))
         assert floods and all(r.sender == "pan_tilt" for r in floods), reports[:5]
         assert len(reports) <= 3 * FLOOD_S + 10, f"{len(reports)} reports for one flood"  # never one per batch
         assert dsp.poll() is None, "the DSP process died under the flood"

@@ -57,3 +57,29 @@ def test_losses_are_reported_once_a_window_per_sender_with_their_counts() -> Non
     later = intake.due(1.0)
     assert [(f.sender, f.coalesced, f.refused) for f in later] == [("pan_tilt", 999, 1000)]
     assert intake.due(5.0) == []
+
+
+def test_set_points_superseded_at_the_vision_rate_are_no_flood_and_are_forgotten() -> None:
+    intake = CommandIntake(bound=4, window_s=1.0, flood_batches=50)
+    for second in range(5):  # 10 Hz while a path upload holds the line: each angle supersedes the waiting one
+        for i in range(10):
+            intake.offer("pan_tilt", i, ANGLES)
+            assert intake.due(second + i / 10) == []
+        intake.take()
+    assert intake.total_coalesced == 45  # counted, never reported
+
+
+def test_a_flood_of_superseded_set_points_is_reported_at_its_threshold() -> None:
+    intake = CommandIntake(bound=4, window_s=1.0, flood_batches=50)
+    reports = []
+    for i in range(51):  # the first waits, the next 50 supersede it
+        intake.offer("pan_tilt", i, ANGLES)
+        reports += intake.due(i / 1000)
+    assert [(f.sender, f.coalesced) for f in reports] == [("pan_tilt", 50)]
+
+
+def test_a_single_drop_is_reported() -> None:
+    intake = CommandIntake(bound=1, window_s=1.0, flood_batches=50)
+    intake.offer("path_follower", 0, WAYPOINT)
+    intake.offer("path_follower", 1, WAYPOINT)
+    assert [(f.sender, f.dropped) for f in intake.due(0.0)] == [("path_follower", 1)]
