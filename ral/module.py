@@ -272,6 +272,7 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
             self._manager_state = state
             self._manager_seen = self.clock()
             self._manager_new = True
+        self._take_manager_state(self._manager_seen)
 
 
     def emit(self, kind: str, *, task_id: int = 0, task_type: str = "", detail: str = "") -> None:
@@ -293,24 +294,33 @@ class Ral(GriService, TaskWatch, DriveClients, FleetGlue, Module):
 
     # ------------------------------------------------------------ main loop
 
+    def _take_manager_state(self, now: float) -> None:
+        """Follow the manager's newest state: its task book, home, errors, parameters, and every running task
+        judged against its telemetry. Run on the loop as each state comes in, not only at the next tick: in
+        lockstep the manager publishes a state per telemetry sample, and a tick judged whichever was newest when
+        it ran, so two runs of one flight judged different samples (a survey completed 0.4 s apart)."""
+        ms = self._manager_state
+        if not self._manager_new or ms is None:
+            return
+        self._manager_new = False
+        self._sync(ms.task_epoch, ms.task_version, ms.tasks, ms.ended)
+        if ms.home is not None:
+            with self.lock:  # the manager's record: a RAL restarted in flight still has the take-off point
+                self.home = ms.home
+        if ms.telemetry is not None:
+            self._fold_telemetry(ms.telemetry, now)
+        self._check_errors(ms)
+        param_events.relay(ms, self._seen_params, self.emit)
+        with self.lock:
+            running = list(self._live.values())
+        self._telemetry_fault, ends = telemetry_faults.judge(self._telemetry_fault, ms, running, now)
+        for end in ends:
+            self._jobs.put(end)
+
     def on_tick(self) -> None:
         now = self.clock()
+        self._take_manager_state(now)
         ms = self._manager_state
-        if self._manager_new and ms is not None:
-            self._manager_new = False
-            self._sync(ms.task_epoch, ms.task_version, ms.tasks, ms.ended)
-            if ms.home is not None:
-                with self.lock:  # the manager's record: a RAL restarted in flight still has the take-off point
-                    self.home = ms.home
-            if ms.telemetry is not None:
-                self._fold_telemetry(ms.telemetry, now)
-            self._check_errors(ms)
-            param_events.relay(ms, self._seen_params, self.emit)
-            with self.lock:
-                running = list(self._live.values())
-            self._telemetry_fault, ends = telemetry_faults.judge(self._telemetry_fault, ms, running, now)
-            for end in ends:
-                self._jobs.put(end)
         up = ms is not None and now - self._manager_seen <= MANAGER_STALE_S
         if up != self._manager_up:
             self._manager_up = up
