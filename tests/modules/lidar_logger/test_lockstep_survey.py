@@ -3,16 +3,16 @@
 ``bbcs_conf/uav1_lidar_sim.toml`` launched with ``[sim] lockstep = true`` at ``--speed max`` (``cromat launch``):
 the MTi-G/LD-MRS simulators are a member of the barrier and the logger's device links are paired in it
 (docs/simulation.md, "The barrier"; docs/lidar_logger.md §8). The ground station is outside any simulation: its
-requests reach the robot at whatever simulated time its wall clock allows, so here the test's station is a
-lockstep member too (``Station``): it sends each task at a step boundary, at a set simulated time (the take-off
-at 4 s, the survey at 20 s, the take-off having ended by then) and holds the simulation once it has what it
-compares. Not on the task's end event: the robot's judging of a task's end is exact to one frame (the RAL judges
-every telemetry sample, but a sample and the step's time reach it in either order: a take-off ended at 14.8 s in one
-run and 15.0 s in another), and a task sent on it would start the rest of the flight a step apart. (Before the RAL
-judged each sample as it came, its tick judged the newest, and a survey once ended two frames apart.) Asserted: the same task events (their simulated
-times within one step); the same DSP record, times included (the same flight: the DSP simulator's physics is a
-function of the commands and their times); and the same logged scans up to the survey's end: count, end times,
-attached poses, every point.
+requests reach the robot at whatever simulated time its wall clock allows, so here the test's station is a lockstep
+member too (``Station``): it sends each task at a step boundary, at a set simulated time (the take-off at 4 s, the
+survey at 20 s, the take-off having ended by then) and holds the simulation once it has what it compares. Not on the
+task's end event: the robot's judging of a task's end is exact to one frame (the RAL judges every telemetry sample,
+but a sample and the step's time reach it in either order: a take-off ended at 14.8 s in one run and 15.0 s in
+another), and a task sent on it would start the rest of the flight a step apart. (Before the RAL judged each sample
+as it came, its tick judged the newest, and a survey once ended two frames apart.) Asserted: the same task events
+(their simulated times within one step); the same DSP record, times included (the same flight: the DSP simulator's
+physics is a function of the commands and their times); and the same logged scans up to the survey's end: count, end
+times, attached poses, every point.
 """
 
 from __future__ import annotations
