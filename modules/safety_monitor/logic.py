@@ -169,6 +169,10 @@ class MonitorConfig:
     loc_fail_window_s: float = 3.0
     """A task failed on a loss of control the truth showed begun at most this long before (the robot's report is due
     within ``loc_report_s``, the task's end follows it) failed on a robot fault."""
+    loc_lead_s: float = 0.5
+    """... or begun at most this long after: the robot may know first (the uQuad's flight module reports 706 for a
+    motor it sees stop; the truth's attitude crossed the monitor's threshold 60 ms after the RAL failed the task on
+    it, once the RAL judged each state as it came)."""
     report_wait_s: float = 2.5
     """How long after the 1 s window a report may take to reach the monitor (the GRI state comes once a second)."""
     abort_latency_s: float = 0.1
@@ -589,14 +593,16 @@ class SafetyMonitor:
 
     def _confirmed_loss_of_control(self, info: TaskInfo) -> bool:
         """Whether ``info`` failed on a loss of control (the RAL's ``loss of control (...)``, or a module's 604/706)
-        that the truth shows too, begun within ``loc_fail_window_s`` before the failure: a robot fault (a motor
+        that the truth shows too, begun within ``loc_fail_window_s`` before the failure (or ``loc_lead_s`` after
+        it): a robot fault (a motor
         lost: the aircraft may well have been closing on its goal the instant before it tumbled). A loss of control
         the truth does not show is not one: that failure is judged by the aircraft's progress as any other (a spin
         the RAL saw on wrongly stamped telemetry, campaign seed 31)."""
         code = reported_error(info.detail)
         said = info.detail.startswith("loss of control") or code in LOSS_OF_CONTROL_CODES
         assert info.ended is not None
-        return said and any(info.ended - self.cfg.loc_fail_window_s <= t <= info.ended for t in self._loc_starts)
+        return said and any(info.ended - self.cfg.loc_fail_window_s <= t <= info.ended + self.cfg.loc_lead_s
+                            for t in self._loc_starts)
 
     @property
     def _progress_source(self) -> str:

@@ -461,3 +461,19 @@ def test_a_breach_describes_itself_with_its_evidence() -> None:
     b = Breach(robot="uav1", invariant=Invariant.ENVELOPE, kind="below_clearance", severity=Severity.CRITICAL,
                stamp=1.0, summary="low", evidence=["truth at 1.0", "MIN_CLEARANCE 5"])
     assert b.describe() == "[CRITICAL invariant 5 below_clearance] low\n    truth at 1.0\n    MIN_CLEARANCE 5"
+
+
+@pytest.mark.parametrize(("tumble_at", "breaches"), [(30.06, []), (31.5, ["failed_while_progressing"])])
+def test_a_robot_may_report_its_loss_of_control_just_before_the_truth_shows_it(
+        tumble_at: float, breaches: list[str]) -> None:
+    """Campaign (the uQuad regression "kill module=ral; motor_loss"): the flight module reports 706 for a motor it
+    sees stop, and the RAL failed the goto on it 60 ms before the truth's attitude crossed the threshold. A loss of
+    control the truth shows within ``loc_lead_s`` after the failure confirms it; one 1.5 s later does not."""
+    m = monitor(dsp_commands=False, gri_airborne_is_motors=True)
+    goal = Goto(waypoints=[Waypoint(lat=HOME[0] + 20 * M, lon=HOME[1], alt=HOME[2] + 10)])
+    for i in range(201):  # closing on the goal until the motor stops at 30 s, then tumbling where it is
+        now = 20.0 + i / 10
+        truth(m, now, north_m=min(now, 30.0) - 20.0, roll=70.0 if now >= tumble_at else 0.0)
+    book(m, 30.0, task(2, "goto", 20.0, 30.0, status="failed", params=goal,
+                       detail="loss of control (robot): the robot reports it lost control (error 706)"))
+    assert [k for k in kinds(run(m, 45)) if k in ("failed_while_progressing", "flew_on_after_failure")] == breaches
