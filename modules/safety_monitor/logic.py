@@ -565,8 +565,10 @@ class SafetyMonitor:
             return  # the aircraft's progress is another task's
         if robot_fault(info) or self._confirmed_loss_of_control(info):
             end = info.ended + self.cfg.lost_stop_s
-            if any(o.task_type == info.task_type and info.ended < o.started < end for o in self.tasks.values()):
-                return  # a new task of its type took over before the aircraft was due to have stopped
+            if any(o.task_type == info.task_type and o.id != info.id and info.ended <= o.started < end
+                   for o in self.tasks.values()):
+                return  # a new task of its type took over before the aircraft was due to have stopped (in lockstep
+                # it may start in the failure's own frame, stamped alike: campaign seed 41, sequence 64)
             seen = self.progress(end - self.cfg.lost_window_s, end, info.kind or info.name, self._goal_of(info))
             if seen:
                 ev = [f"task {info.id} {info.name} failed at {info.ended:.3f}: {info.detail}",

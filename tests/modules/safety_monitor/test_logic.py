@@ -271,6 +271,12 @@ def test_a_task_failed_with_its_module_is_judged_by_whether_the_aircraft_then_st
     book(taken_over, 33.0, goto_task(30.0, status="failed", detail=lost),
          task(4, "goto", 33.0, None, params=Goto(waypoints=[Waypoint(lat=HOME[0], lon=HOME[1], alt=HOME[2] + 20)])))
     assert run(taken_over, 50) == [], "the new task's flight is not the failed one's"
+    same_frame = monitor()  # campaign seed 41, sequence 64: in lockstep the next task started in the failure's frame
+    for i in range(61):
+        telemetry(same_frame, 20.0 + i / 2, queue=3 if i < 10 else 2, nav_m=200.0 - 2.5 * i)
+    book(same_frame, 30.0, goto_task(30.0, status="failed", detail=lost),
+         task(4, "orbit", 30.0, None, params=Goto(waypoints=[Waypoint(lat=HOME[0], lon=HOME[1], alt=HOME[2] + 20)])))
+    assert run(same_frame, 50) == [], "a task started with the failure's stamp took over"
 
 
 def test_a_gimbal_task_failed_while_the_aircraft_flies_another_task_is_no_breach() -> None:
