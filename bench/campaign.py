@@ -17,6 +17,7 @@ Exit 1 when the monitor saw a breach or a sequence had an incident: each is prin
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import tempfile
 from pathlib import Path
@@ -35,6 +36,12 @@ on this loaded 2-core machine however slow it is that day (sequences not run are
 SMOKE_BUDGET_S = 75.0
 """--smoke: no launch attempt or sequence starts after this (tests/bench/test_smoke.py stops a run at 110 s)."""
 SMOKE_STEPS = "take_off; done s=60; goto to=1:0 h=15 v=8; done s=60"
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    """SIGTERM ends the campaign as Ctrl+C does: every ``finally`` runs, so no launched robot is left behind (one
+    was, killed by SIGTERM mid-launch)."""
+    raise KeyboardInterrupt
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,6 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"{exc}")
     if args.sequences < 1:
         ap.error("--sequences must be at least 1")
+    signal.signal(signal.SIGTERM, _interrupt)  # the robots it launched are stopped, as on Ctrl+C
 
     with tempfile.TemporaryDirectory(prefix="cromat-campaign-") as tmp:
         workdir = Path(args.keep) if args.keep else Path(tmp)

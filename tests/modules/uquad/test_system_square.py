@@ -67,9 +67,16 @@ def test_take_off_square_land_from_the_ground_station(tmp_path):
         gcs.watch(ROBOT, states.append)
 
         def completed(reply: gri.TaskReply, what: str, sim_s: float) -> None:
+            """The task completed, and the truth read up to that instant: the event and the truth stream have no
+            order between them (the second take-off's truth was once read from before it, on the ground)."""
             assert reply.accepted, reply.reason
-            truth.wait(lambda: any(e.kind == "task_completed" and e.task_id == reply.task_id for e in events),
-                       sim_s, what)
+
+            def done() -> gri.GriEvent | None:
+                return next((e for e in events if e.kind == "task_completed" and e.task_id == reply.task_id), None)
+
+            truth.wait(lambda: done() is not None, sim_s, what)
+            stamp = done().stamp  # type: ignore[union-attr]
+            truth.wait(lambda: truth.last.get("stamp", float("inf")) >= stamp, 5, f"the truth up to: {what}")
 
         truth.wait(lambda: states and states[-1].position is not None and states[-1].kind == "uquad", 60,
                    "calibrated uquad telemetry in the GRI state")
