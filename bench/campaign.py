@@ -67,11 +67,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--sequences must be at least 1")
     signal.signal(signal.SIGTERM, _interrupt)  # the robots it launched are stopped, as on Ctrl+C
 
-    with tempfile.TemporaryDirectory(prefix="cromat-campaign-") as tmp:
-        workdir = Path(args.keep) if args.keep else Path(tmp)
-        budget = SMOKE_BUDGET_S if args.smoke else args.budget_s or None
-        result = run_campaign(args.seed, 0 if given else args.sequences, profiles, workdir, budget_s=budget,
-                              shrink_budget=0 if args.smoke else args.shrink, given=[given] if given else [])
+    try:
+        with tempfile.TemporaryDirectory(prefix="cromat-campaign-") as tmp:
+            workdir = Path(args.keep) if args.keep else Path(tmp)
+            budget = SMOKE_BUDGET_S if args.smoke else args.budget_s or None
+            result = run_campaign(args.seed, 0 if given else args.sequences, profiles, workdir, budget_s=budget,
+                                  shrink_budget=0 if args.smoke else args.shrink, given=[given] if given else [])
+    except KeyboardInterrupt:
+        print("campaign interrupted: its robots stopped, no result written", file=sys.stderr)
+        return 130
     summary = result.summary()
     rows = [("sequences run", f"{summary['campaign_sequences']}" + (f" ({result.skipped} not run: wall budget)"
                                                                    if result.skipped else "")),
