@@ -105,7 +105,7 @@ class DspLink:
         self._closed = False
         self._seq = random.randrange(256)
         self._abort_generation = 0
-        self._preemptions = 0
+        """Counts ABORTs announced (:meth:`preempt`): a waypoint list or a command waiting for its ACK stops."""
         self._last_dsp_seq: int | None = None
         self._latest: p.Telemetry | None = None
         self._counts = dict.fromkeys(_COUNTERS, 0)
@@ -157,7 +157,7 @@ class DspLink:
         (DspPreempted), so the ABORT goes on the line at once instead of after that command's retries (up to
         ``(retries + 1) * ack_timeout`` with a silent DSP; the safety monitor's bound is 100 ms)."""
         with self._cond:
-            self._preemptions += 1
+            self._abort_generation += 1
             self._cond.notify_all()
 
     def send(self, cmd: p.Command, *, timeout: float | None = None, retries: int | None = None) -> p.Ack:
@@ -170,7 +170,7 @@ class DspLink:
         msg_id = int(cmd.MSG_ID)
         preemptible = not isinstance(cmd, p.Abort)
         with self._send_lock:
-            preemptions = self._preemptions
+            generation = self._abort_generation
             self._raise_if_unusable(name)
             self._seq = seq = (self._seq + 1) & 0xFF
             frame = build_frame(msg_id, seq, payload)
@@ -185,12 +185,12 @@ class DspLink:
                     with self._cond:
                         self.clock.wait_for(self._cond, lambda: self._pending_ack is not None or self._closing
                                             or self._failure is not None
-                                            or (preemptible and self._preemptions != preemptions), timeout)
+                                            or (preemptible and self._abort_generation != generation), timeout)
                         ack = self._pending_ack
                     if ack is not None:
                         break
                     self._raise_if_unusable(name)
-                    if preemptible and self._preemptions != preemptions:
+                    if preemptible and self._abort_generation != generation:
                         self._count("preempted")
                         raise DspPreempted(name, seq)
                 if ack is None:
@@ -232,7 +232,6 @@ class DspLink:
 
     def abort(self) -> p.Ack:
         """Flush: stop any waypoint list being sent from this PC, then empty the DSP's queue (ABORT)."""
-        self._abort_generation += 1
         self.preempt()
         return self.send(p.Abort())
 

@@ -210,7 +210,7 @@ class DspModule(Module):
         if abort:
             self.link.preempt()  # a command on the line stops waiting for its ACK: the ABORT goes next
         self._report_floods(floods)
-        if any(isinstance(cmd, p.Abort) for cmd in batch.commands):
+        if abort:
             self.log.info("ABORT from %s (batch %d): %d queued batches flushed", batch.sender, batch.batch_id,
                           len(flushed))
         for old in flushed:

@@ -9,7 +9,6 @@ the flood is reported a handful of times (one FLOODED report a second naming pan
 
 from __future__ import annotations
 
-import os
 import select
 import subprocess
 import sys
@@ -29,7 +28,7 @@ from bbcs.testing import Processes, wait_until
 from modules.dsp.sim.record import read_record
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_wildcard_puts import ROOT, Inbox, R, Rig, _start  # noqa: E402
+from test_wildcard_puts import ROOT, Inbox, R, Rig, _start, set_nice  # noqa: E402
 from test_wildcard_puts import rig as rig  # noqa: E402, F401  (the fixture)
 
 FLOOD_S = 4.0
@@ -56,14 +55,6 @@ session.close()
 print(n, flush=True)
 """
 """The pan & tilt identity's flood, in a process of its own: prints ``flooding``, then the batches it put."""
-
-
-def _raise_priority(nice: int) -> None:
-    """In a child before it runs: ``nice`` where the OS allows it (as the Module Manager applies a manifest's)."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, nice)
-    except PermissionError:
-        pass
 
 
 def _sched_s(pid: int) -> tuple[float, float]:
@@ -114,7 +105,7 @@ def test_a_pan_tilt_flood_neither_stops_the_abort_nor_floods_the_reports(rig: Ri
         # of the flood's 4 s in a clean-clone run (its record empty for 3 s) while the DSP process, at the manifest's
         # priority, retried, timed out and let the ABORT pre-empt as built. It runs at the DSP process's priority
         sim = procs.start(["-m", "modules.dsp.sim", "--pty", "--record", str(record)], stdout=subprocess.PIPE,
-                          text=True, preexec_fn=lambda: _raise_priority(SHIPPED_DSP_NICE))
+                          text=True, preexec_fn=lambda: set_nice(SHIPPED_DSP_NICE))
         assert select.select([sim.stdout], [], [], 15.0)[0], "the simulator printed nothing"
         # at the shipped manifest's priority (its DSP module's `nice`), as the Module Manager starts it: the flood
         # is a bus attack, and the link's share of the processors is the manifest's answer to load

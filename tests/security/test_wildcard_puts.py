@@ -109,20 +109,21 @@ def _codes(inbox: Inbox, module: str) -> list[int]:
     return [msgspec.msgpack.decode(v, type=ErrorReport).code for v in inbox.values(f"{R}/{module}/error")]
 
 
+def set_nice(nice: int | None) -> None:
+    """In a child before it runs: a manifest's ``nice``, set as the Module Manager sets it
+    (module_manager/process.py: a refusal leaves the inherited one)."""
+    if nice is not None:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+        except PermissionError:
+            pass
+
+
 def _start(procs: Processes, rig: Rig, module: str, *args: str, nice: int | None = None) -> None:
-    """The module's process on the rig's bus; ``nice``: its manifest's scheduling priority, set as the Module
-    Manager sets it (module_manager/process.py: a refusal leaves the inherited one)."""
-
-    def prioritise() -> None:
-        if nice is not None:
-            try:
-                os.setpriority(os.PRIO_PROCESS, 0, nice)
-            except PermissionError:
-                pass
-
+    """The module's process on the rig's bus; ``nice``: its manifest's scheduling priority (:func:`set_nice`)."""
     procs.start(["-m", f"modules.{module}", "--robot", ROBOT, "--bus",
                  msgspec.json.encode(rig.config(module)).decode(), *args], stderr=subprocess.DEVNULL,
-                preexec_fn=prioritise)
+                preexec_fn=lambda: set_nice(nice))
 
 
 def test_a_wildcard_put_by_the_dsp_identity_reaches_no_aircraft(rig: Rig, tmp_path: Path) -> None:
