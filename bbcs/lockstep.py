@@ -45,6 +45,9 @@ MANAGER_MEMBER = "manager"
 ``@manager``: a key chunk starting with ``@`` is matched by no wildcard."""
 DEFAULT_STEP_S = 0.2
 DEFAULT_DEADLINE_S = 20.0
+SLOW_STEP_S = 5.0
+"""Wall seconds after which a step not yet handled is logged once with what holds it (long before the deadline
+leaves anyone behind: a stalled simulation names its cause while it is stalled)."""
 RETRY_FIRST_S = 0.002
 RETRY_MAX_S = 0.05
 """A round that finds a member busy is asked again after a pause growing from RETRY_FIRST_S to RETRY_MAX_S:
@@ -283,13 +286,17 @@ class Barrier:
     answers: dict[str, Done] = field(default_factory=dict)
     previous: dict[str, tuple[int, tuple[tuple[str, int], ...]]] | None = None
     warned_at: float = 0.0
+    begun: float = 0.0
+    """Wall time the step began (``started`` moves while a required member holds the step)."""
+    slow_logged: bool = False
     busy_rounds: int = 0
     last: dict[str, tuple[int, tuple[tuple[str, int], ...]]] = field(default_factory=dict)
     changed: list[str] = field(default_factory=list)
     """Members whose activity or counts changed between the last two rounds (what keeps a step unsettled)."""
 
     def begin(self, step: int, now: float) -> None:
-        self.step, self.round, self.started, self.warned_at = step, 0, now, now
+        self.step, self.round, self.started, self.warned_at, self.begun = step, 0, now, now, now
+        self.slow_logged = False
         self.asked = set(self.members)
         self.busy_rounds = 0
         self.last = {}
@@ -316,6 +323,14 @@ class Barrier:
         return ((self.asked & self.members) | set(self.required)) - set(self.behind)
 
     def decide(self, now: float) -> Decision:
+        decision = self._decide(now)
+        if decision.verdict is not Verdict.STEP and not self.slow_logged and now - self.begun > SLOW_STEP_S:
+            self.slow_logged = True
+            log.warning("lockstep: step %d not handled after %.1f s of wall: %s", self.step, now - self.begun,
+                        decision.why or "?")
+        return decision
+
+    def _decide(self, now: float) -> Decision:
         expected = self.expected()
         absent = set(self.required) - self.members
         if absent:
@@ -348,7 +363,8 @@ class Barrier:
         self.answers.clear()
         self.asked = set(self.members)
         return Decision(Verdict.ASK, self.round, delay,
-                        why="; ".join([*(f"{m}: {w}" for m, w in busy.items()), *([unmet] if unmet else [])]))
+                        why="; ".join([*(f"{m}: {w}" for m, w in busy.items()), *([unmet] if unmet else [])])
+                        or "still active: " + ", ".join(self.changed))
 
     def _wait(self, now: float, why: str) -> Decision:
         if now - self.warned_at > self.deadline_s:

@@ -352,6 +352,7 @@ class Module(InputReaders, RuntimeRouting):
         seq = 0
         q = self._bbcs_queue
         get = q.get
+        take = q.get_nowait
         empty = q.empty
         bulk = self._bulk
 
@@ -379,7 +380,10 @@ class Module(InputReaders, RuntimeRouting):
             for _ in range(q.qsize()):  # local events and callback inputs, in arrival order (those queued now)
                 if self._bbcs_stopping:
                     break
-                reader, item = get()
+                try:  # never a blocking get: a route switch handled here drains what was queued behind it
+                    reader, item = take()
+                except queue.Empty:
+                    break
                 if reader is not None:
                     if reader.unsafe:  # bulk: after the safe work (bbcs/priority.py)
                         bulk.defer(reader)

@@ -10,6 +10,7 @@ when no robot answers (not running, or this identity is not allowed to ask), :cl
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import deque
@@ -25,6 +26,8 @@ from bbcs.contracts import gri, mri
 from bbcs.session import SessionConfig, TlsConfig, alive_everywhere, open_session
 from bbcs.slots import declare_replaying_subscriber
 from ral.gcs import diagnose
+
+log = logging.getLogger(__name__)
 
 HEARTBEAT_S = 0.5
 LINK_EVENTS_KEPT = 256  # events of a linked robot kept for events() callbacks added after they came
@@ -166,6 +169,8 @@ class Gcs:
         self._token: Any = None
         self._beat: threading.Thread | None = None
         self._subs: list[Subscription] = []
+        self.refused_states = 0
+        """Robot states dropped because they did not decode as a ``GriState`` (a robot of another version)."""
         self._linked_events: dict[str, _EventFeed] = {}
         if isinstance(link, str):
             raise TypeError("link takes a list of robot names")
@@ -245,9 +250,14 @@ class Gcs:
 
         def on_sample(sample: zenoh.Sample) -> None:
             try:
-                callback(gri.decode_state(sample.payload.to_bytes()))
-            except msgspec.MsgspecError:
+                state = gri.decode_state(sample.payload.to_bytes())
+            except msgspec.MsgspecError as exc:
+                self.refused_states += 1
+                if self.refused_states & (self.refused_states - 1) == 0:  # the 1st, 2nd, 4th, 8th...: bounded
+                    log.warning("robot state on %s dropped (%d so far): %s", sample.key_expr, self.refused_states,
+                                exc)
                 return
+            callback(state)
 
         sub = Subscription(
             zenoh.ext.declare_advanced_subscriber(

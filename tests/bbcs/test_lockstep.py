@@ -15,6 +15,7 @@ from bbcs.context import ModuleContext
 from bbcs.lockstep import (
     MANAGER_MEMBER,
     SIM_ENV,
+    SLOW_STEP_S,
     Ask,
     Barrier,
     Done,
@@ -85,6 +86,21 @@ def test_a_busy_member_or_an_unmet_check_keeps_the_step() -> None:
     assert delays[0] > 0 and delays[1] > delays[0] and delays[2] == 0  # a busy member is not asked in a tight loop
     b.answer(done("dsp", 0, 3, 7, rx=100))
     assert b.decide(0.1).verdict is Verdict.STEP
+
+
+def test_a_step_not_handled_after_a_few_seconds_is_logged_once_with_its_cause(caplog) -> None:
+    b = Barrier(deadline_s=60.0)
+    b.joined("a")
+    b.joined("pan_tilt")
+    b.begin(0, now=100.0)
+    b.answer(done("a", 0, 0, 1))
+    with caplog.at_level("WARNING", logger="bbcs.lockstep"):
+        assert b.decide(100.0 + SLOW_STEP_S - 0.1).verdict is Verdict.WAIT
+        assert not caplog.records  # not slow yet
+        for t in (SLOW_STEP_S + 0.1, SLOW_STEP_S + 1.0):
+            assert b.decide(100.0 + t).verdict is Verdict.WAIT
+    assert [r.getMessage() for r in caplog.records] == [
+        f"lockstep: step 0 not handled after {SLOW_STEP_S + 0.1:.1f} s of wall: waiting for ['pan_tilt']"]
 
 
 def test_a_required_member_is_waited_for_without_a_deadline() -> None:

@@ -103,8 +103,30 @@ class SimRobot:
             return self.states[-1]
 
     def wait_state(self, pred: Callable[[gri.GriState], bool], timeout_s: float, what: str) -> gri.GriState:
-        wait_until(lambda: bool(self.states) and pred(self.state), timeout_s, what)
+        try:
+            wait_until(lambda: bool(self.states) and pred(self.state), timeout_s, what)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}\n{self.describe()}") from None
         return self.state
+
+    def describe(self) -> str:
+        """What the station last saw (the newest state, the last events): a timed-out wait's evidence."""
+        with self.lock:
+            state = self.states[-1] if self.states else None
+            events = self.events[-12:]
+            received = self.received
+        lines = [f"{received} states received"]
+        if state is not None:
+            tel = state.telemetry
+            lines.append(
+                f"last state: stamp {state.stamp:.2f}, manager_up {state.manager_up}, link {state.link}, "
+                f"queued {state.waypoints_queued}, airborne {state.airborne}, "
+                f"telemetry stamp {tel.stamp if tel else None}"
+            )
+            lines += [f"  task {t.task_type} {t.name} {t.kind} #{t.id} {t.status} {t.origin}" for t in state.tasks]
+            lines += [f"  error {e.module}: {e.code} {e.name} {e.detail}" for e in state.errors[-5:]]
+        lines += [f"  event {e.stamp:.2f} {e.kind} task {e.task_id} {e.detail}" for e in events]
+        return "\n".join(lines)
 
     def wait_event(
         self, pred: Callable[[gri.GriEvent], bool], timeout_s: float, what: str, after: int = 0
