@@ -21,6 +21,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import msgspec
@@ -323,7 +324,8 @@ class Manager(RouteControl, MriService):
         argv += ["--robot", self.m.robot]  # its Zenoh id from the name: the mesh refuses a second robot of it
         t = self.clock()
         self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir,
-                            watch_stdout=True, echo=self._router_line, cpus=_cpus(self.m.raw.bus.cpus))
+                            watch_stdout=True, echo=self._router_line, cpus=_cpus(self.m.raw.bus.cpus),
+                            priority=self._priority(self._router_spec()))
         host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))
         if not wait_tcp(host, port, self.m.raw.bus.ready_timeout_s, lambda: self.router.poll() is None):
             raise LaunchError(f"the router did not listen on {host}:{port} within "
@@ -332,6 +334,12 @@ class Manager(RouteControl, MriService):
                                  if (code := self.router.poll()) is None else f"it exited with code {code})"))
         self.out(f"  router      listening on {', '.join(self.listen)}{_on(self.m.raw.bus.cpus)} "
                  f"({self.clock() - t:.2f} s)")
+        if self.router.priority_refused:
+            self.out(f"  router      {self.router.priority_refused}")
+
+    def _router_spec(self) -> SimpleNamespace:
+        """The router's priority as a manifest entry's (``[bus] nice``; no real time: it would starve its modules)."""
+        return SimpleNamespace(nice=self.m.raw.bus.nice, realtime=None)
 
     def _router_line(self, line: str) -> None:
         """The router's word that the mesh refused it (another robot of this name is linked there): shown on the
@@ -373,7 +381,8 @@ class Manager(RouteControl, MriService):
         """Start every plain process (simulators) at once, then wait for each one's readiness: their start-up
         times overlap instead of adding up. Modules start only once all of them are ready."""
         t = self.clock()
-        raised = raised_priorities({**self.m.raw.processes, **{n: i.spec for n, i in self.m.modules.items()}})
+        raised = raised_priorities({"router": self._router_spec(), **self.m.raw.processes,
+                                    **{n: i.spec for n, i in self.m.modules.items()}})
         if self.sim is not None and raised:
             self.out(f"  lockstep: the raised priorities of {', '.join(raised)} are not applied (the simulation "
                      "waits for every module; a raised priority would only take the processors from the rest)")

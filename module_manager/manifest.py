@@ -112,6 +112,9 @@ class BusSection(_Section):
     itself (docs/fleet.md). Before anything starts, the launch refuses a robot name already alive there."""
     cpus: list[Annotated[int, msgspec.Meta(ge=0)]] | None = None
     """Processors the robot's router runs on (as a module's ``cpus``); None: any the manager may use."""
+    nice: Nice | None = None
+    """The robot router's nice value (as a module's ``nice``); None: the manager's. Every datum between two modules
+    crosses the router, an ABORT too: under load it must not wait behind the processes it serves."""
     links: Literal["router", "peers"] | None = None
     """How modules reach each other: ``"peers"`` (linked directly, the access policy enforced by each receiver) or
     ``"router"`` (through the router). Default: ``links.DEFAULT_LINKS`` (router); router with ``zenoh_config``."""

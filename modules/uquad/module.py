@@ -360,6 +360,11 @@ class UquadModule(Module):
                     self.ledger.motor_tx = motor.sent
                 else:
                     self.core.set_mode(Mode.LAND)
+            elif (self.driver_error and self.core.planner.mode is Mode.IDLE and not any(sent)
+                  and motor.recover(self._link_now(now))):
+                self.log.warning("the motor driver acknowledges every command in time again, on the ground with the "
+                                 "motors stopped: the driver error (%s) is cleared", self.driver_error)
+                self.driver_error = ""
         self._send("control", MotorCommandLog(stamp=self._stamp(now), speeds=_vec(sent),
                                                 ts=float(self.core.stats.last_ts), latency_s=latency))
 

@@ -19,7 +19,7 @@ from module_manager.manifest import ManifestError, load_manifest
 from module_manager.process import Child, Priority, stop_children
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from launch_support import ROOT, Launch, write_manifest  # noqa: E402
+from launch_support import ROOT, Launch, group_members, write_manifest  # noqa: E402
 
 THREADED = ("import threading, time; threading.Thread(target=time.sleep, args=(30,), daemon=True).start(); "
             "print('up', flush=True); time.sleep(30)")
@@ -111,6 +111,9 @@ def test_out_of_range_priorities_are_manifest_errors(tmp_path: Path, line: str, 
 def test_a_launched_module_and_process_run_at_their_manifest_nice(tmp_path: Path) -> None:
     def edit(text: str) -> str:
         text = text.replace('task_types = ["perception"]', 'task_types = ["perception"]\nnice = 4')
+        assert 'listen = ["tcp/127.0.0.1:{port:router}"]\n' in text
+        text = text.replace('listen = ["tcp/127.0.0.1:{port:router}"]\n',
+                            'listen = ["tcp/127.0.0.1:{port:router}"]\nnice = 2\n')  # the router's
         return text + '\n[processes.idle]\ncommand = ["sleep", "600"]\nnice = 6\n'
 
     la = Launch(write_manifest(tmp_path, edit=edit), tmp_path)
@@ -123,6 +126,9 @@ def test_a_launched_module_and_process_run_at_their_manifest_nice(tmp_path: Path
         nices = thread_nices(sink_pid)
         assert len(nices) > 3 and set(nices.values()) == {4}, nices
         assert set(thread_nices(idle_pid).values()) == {6}
+        routers = [pid for pid in group_members(la.pgid)
+                   if b"bbcs.router" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+        assert len(routers) == 1 and set(thread_nices(routers[0]).values()) == {2}
         mine = os.getpriority(os.PRIO_PROCESS, 0)
         other = next(line for line in la.lines if line.strip().startswith("src_a") and "starting, pid" in line)
         assert set(thread_nices(int(other.split("pid ")[1].split()[0].rstrip(","))).values()) == {mine}

@@ -17,6 +17,7 @@ import os
 import select
 import subprocess
 import threading
+import tomllib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,6 +70,9 @@ class Rig:
         return SessionConfig(connect=[f"tls/localhost:{self.port}"], tls=tls)
 
 
+SHIPPED_ROUTER_NICE: int | None = tomllib.loads((ROOT / "bbcs_conf" / "uav1_secure.toml").read_text())["bus"]["nice"]
+
+
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
     tmp = tmp_path_factory.mktemp("wildcard")
@@ -78,8 +82,9 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
                        "--acl", str(cfg), "--listen", f"tls/127.0.0.1:{port}"]) == 0
     procs = Processes()
     try:
+        # at the shipped secure manifest's router priority (its `[bus] nice`), as the Module Manager starts it
         procs.start(["-m", "bbcs.router", "--config", str(cfg), "--listen", f"tls/127.0.0.1:{port}"],
-                    stdout=subprocess.DEVNULL)
+                    stdout=subprocess.DEVNULL, preexec_fn=lambda: set_nice(SHIPPED_ROUTER_NICE))
         wait_port(port)
         yield Rig(port, pki, tmp)
     finally:

@@ -12,7 +12,7 @@ import pytest
 
 from modules.uquad import motor_protocol as mp
 from modules.uquad.config import load_config
-from modules.uquad.motor_client import MotorClient
+from modules.uquad.motor_client import RECOVERY_S, MotorClient
 from modules.uquad.motor_driver import DriverLogic, DriverState
 from modules.uquad.motor_protocol import AckStatus
 
@@ -178,6 +178,68 @@ def test_missing_ack_is_a_driver_error():
     assert "no ack" in client.check(10.2)
     b.close()
     a.close()
+
+
+def _answer(b: socket.socket, client: MotorClient, now: float, status: AckStatus = AckStatus.STOPPED) -> None:
+    """The driver's end: ack every command the client sent so far, and let the client read them."""
+    for seq in list(client.pending):
+        b.sendall(mp.ack(seq, status))
+    deadline = time.monotonic() + 5
+    while client.pending and time.monotonic() < deadline:
+        client.on_readable(now)
+    assert not client.pending, "the acks did not arrive"
+
+
+def test_a_late_ack_clears_after_acks_in_time_and_any_other_error_stays():
+    a, b = socket.socketpair()
+    client = MotorClient(a, 300, 750, ack_timeout_s=0.5)
+    try:
+        client.send(0.0, [0.0] * 4)
+        assert "no ack for command 1" in client.check(0.6)  # late: a loaded computer, or a dead driver
+        _answer(b, client, 0.7)  # it answers after all
+        t = 0.7
+        while t < 0.7 + RECOVERY_S - 0.05:  # commands acknowledged in time, not yet for long enough
+            client.send(t, [0.0] * 4)
+            _answer(b, client, t)
+            assert client.check(t) and not client.recover(t), t
+            t += 0.05
+        t += 0.1
+        client.send(t, [0.0] * 4)
+        _answer(b, client, t)
+        assert client.check(t)
+        assert client.recover(t) and client.check(t) == ""
+        # a refusal is not a late ack: it never clears, however long the driver answers in time afterwards
+        client.send(t, [400.0] * 4)
+        _answer(b, client, t, AckStatus.OUT_OF_RANGE)
+        assert "OUT_OF_RANGE" in client.check(t)
+        for i in range(60):
+            client.send(t + 0.05 * i, [0.0] * 4)
+            _answer(b, client, t + 0.05 * i)
+        assert not client.recover(t + 3.0) and "OUT_OF_RANGE" in client.check(t + 3.0)
+    finally:
+        a.close()
+        b.close()
+
+
+def test_an_ack_that_never_comes_never_clears():
+    a, b = socket.socketpair()
+    client = MotorClient(a, 300, 750, ack_timeout_s=0.5)
+    try:
+        client.send(0.0, [0.0] * 4)
+        assert client.check(0.6)
+        b.recv(4096)  # the driver read it and never answered: later commands answered do not excuse it
+        for i in range(1, 80):
+            client.send(0.6 + 0.05 * i, [0.0] * 4)
+            seq = client.seq
+            b.sendall(mp.ack(seq, AckStatus.STOPPED))
+        deadline = time.monotonic() + 5
+        while len(client.pending) > 1 and time.monotonic() < deadline:
+            client.on_readable(5.0)
+        assert list(client.pending) == [1]
+        assert client.check(5.0) and not client.recover(5.0)
+    finally:
+        a.close()
+        b.close()
 
 
 def test_refused_commands_keep_the_motors_running_silence_stops_them():
