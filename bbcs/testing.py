@@ -23,6 +23,7 @@ from bbcs import keys
 from bbcs.context import ModuleContext
 from bbcs.errors import SlotError
 from bbcs.events import Event, Input, RouteChange, Stop, Tick
+from bbcs.lockstep import Member
 from bbcs.module import Module
 from bbcs.net import free_port, wait_tcp
 from bbcs.routing import RouteAck
@@ -320,3 +321,52 @@ class CutRelay:
     def close(self) -> None:
         self.cut()
         self._listener.close()
+
+
+class StepGate:
+    """A test's hand on a lockstep robot's barrier (docs/simulation.md): a member that answers every step at once
+    while open and keeps the simulation at its step while closed, so what a test does over the wall clock (a
+    MAVLink command through MAVSDK, a ground station's request) lands at the simulated moment it chose, at any
+    load and speed. Closed for longer than the barrier's ``deadline_s`` it is left behind, as any member is.
+
+    ``with gate.closed():`` holds the simulation for the block's duration."""
+
+    NAME = "test_gate"
+
+    def __init__(self, session: Any, robot: str, name: str = NAME) -> None:
+        self._lock = threading.Lock()
+        self._open = True
+        self._waiting: Any = None
+        self.member = Member(session, robot, name, self._on_ask)
+
+    def _on_ask(self, ask: Any) -> None:
+        with self._lock:
+            if not self._open:
+                self._waiting = ask
+                return
+        self.member.answer(ask, 0)
+
+    def close(self) -> None:
+        """Hold the simulation at the step it is at (it finishes the step under way)."""
+        with self._lock:
+            self._open = False
+
+    def open(self) -> None:
+        with self._lock:
+            self._open = True
+            ask, self._waiting = self._waiting, None
+        if ask is not None:
+            self.member.answer(ask, 0)
+
+    @contextmanager
+    def closed(self) -> Iterator[None]:
+        self.close()
+        try:
+            yield
+        finally:
+            self.open()
+
+    def leave(self) -> None:
+        """Stop taking part (the simulation no longer waits for this gate)."""
+        self.open()
+        self.member.close()

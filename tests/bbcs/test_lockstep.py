@@ -31,7 +31,7 @@ from bbcs.lockstep import (
 from bbcs.module import Module
 from bbcs.session import local_client, open_session
 from bbcs.slots import InputSlot, Kind
-from bbcs.testing import Processes, start_router, wait_until
+from bbcs.testing import Processes, StepGate, start_router, wait_until
 
 
 def done(member: str, step: int, rnd: int, activity: int, busy: str = "", **counts: int) -> Done:
@@ -249,6 +249,33 @@ def test_a_step_over_the_bus_waits_for_every_member() -> None:
         for s in sessions:
             s.close()
         procs.stop_all()
+
+
+def test_a_test_gate_holds_the_simulation_while_closed(router: int, sessions) -> None:  # noqa: ANN001
+    """``bbcs.testing.StepGate`` over a real router: open, every step goes through; closed, the step under way
+    is not handled (however long: up to the deadline); opened again, it is."""
+    stepper_session, gate_session = sessions(), sessions()
+    stepper = Stepper(stepper_session, "r1", required=frozenset())
+    gate = StepGate(gate_session, "r1")
+    try:
+        wait_until(lambda: stepper.members == {StepGate.NAME}, 10, "the gate's token")
+
+        def step(t: float) -> None:
+            stepper.begin(t)
+            wait_until(stepper.poll, 10, f"the step to {t:g} s handled")
+
+        step(0.2)
+        step(0.4)
+        with gate.closed():
+            stepper.begin(0.6)
+            for _ in range(50):  # half a second of wall: the gate answers nothing
+                assert not stepper.poll()
+                threading.Event().wait(0.01)
+        wait_until(stepper.poll, 10, "the held step handled once the gate opened")
+        step(0.8)
+    finally:
+        gate.leave()
+        stepper.close()
 
 
 class Reading(msgspec.Struct, frozen=True, kw_only=True):

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from bbcs.conf.parser import load_conf
-from bbcs.testing import wait_until
+from bbcs.testing import StepGate, wait_until
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "system"))
@@ -37,25 +37,28 @@ def watch_quiet(robot: SimRobot, what: str) -> None:
 
 
 class Site:
-    def __init__(self, robot: SimRobot, udp: int, tcp: int, gw: object) -> None:
-        self.robot, self.udp, self.tcp, self.gw = robot, udp, tcp, gw
+    def __init__(self, robot: SimRobot, udp: int, tcp: int, gw: object, gate: StepGate) -> None:
+        self.robot, self.udp, self.tcp, self.gw, self.gate = robot, udp, tcp, gw, gate
 
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
     tmp = tmp_path_factory.mktemp("uav")
     la, record = launch_robot(tmp, lockstep=True)
-    gcs = gw = qgc = None
+    gcs = gw = qgc = gate = None
     try:
         gcs = connect(la.port, "observer", link=False)
+        gate = StepGate(gcs.session, ROBOT)
         gw, udp, tcp = gateway(la.port, "--manifest", str(ROOT / "bbcs_conf" / "uav1_sim.toml"), "-v")
         gw.wait_line(f"robot {ROBOT} is MAVLink system 1", 30)
         # an operator's ground station open throughout (QGroundControl's heartbeats): the gateway holds the robot's
         # link while one is heard, so the gaps between MAVSDK sessions are no link loss (test_secure.py has that)
         qgc = Mav(tcp, sysid=249, heartbeats=True)
         gw.wait_line(f"link to {ROBOT} held", 20)
-        yield Site(SimRobot(la, gcs, record), udp, tcp, gw)
+        yield Site(SimRobot(la, gcs, record), udp, tcp, gw, gate)
     finally:
+        if gate is not None:
+            gate.leave()
         if qgc is not None:
             qgc.close()
         if gw is not None:
@@ -212,10 +215,14 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
             await mission.upload_mission(items(path))
             mark = len(robot.commands())
             await mission.start_mission()
-            # paused once the first waypoint is reached (hold: ABORT at the DSP), then continued from where it was
+            # paused once the first waypoint is reached (hold: ABORT at the DSP), then continued from where it was.
+            # The simulation is held from the moment the test sees the waypoint reached until the hold reached the
+            # DSP: at --speed max the aircraft otherwise flew on while the pause crossed MAVSDK and the gateway on
+            # the wall clock, and under load finished the mission first (two clean-clone runs re-sent all 4 points)
             robot.wait_state(lambda s: 0 < (s.waypoints_queued or 0) < 4, 60, "the first waypoint reached")
-            await mission.pause_mission()
-            wait_until(lambda: "ABORT" in [c["name"] for c in robot.commands()[mark:]], 15, "the hold's ABORT")
+            with site.gate.closed():
+                await mission.pause_mission()
+                wait_until(lambda: "ABORT" in [c["name"] for c in robot.commands()[mark:]], 15, "the hold's ABORT")
             await asyncio.sleep(1.0)
             await mission.start_mission()
             done = await first(mission.subscribe_mission_progress(), lambda p: p.total == 4 and p.current == 4, 90)
