@@ -370,3 +370,17 @@ class StepGate:
         """Stop taking part (the simulation no longer waits for this gate)."""
         self.open()
         self.member.close()
+
+
+@contextmanager
+def running(module: Module, stop_s: float = 20.0) -> Iterator[Module]:
+    """Run ``module``'s event loop on a thread of this process (on the bus its context names) for the block; then
+    stop it and check that its loop ended within ``stop_s``."""
+    loop = threading.Thread(target=module.run, name=f"{module.module}-loop", daemon=True)
+    loop.start()
+    try:
+        yield module
+    finally:
+        module.request_stop()
+        loop.join(stop_s)
+    assert not loop.is_alive(), f"{module.module}'s loop did not stop within {stop_s:g} s"

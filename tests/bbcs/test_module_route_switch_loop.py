@@ -8,7 +8,6 @@ answered the simulator's step, and the simulation stood still until the next dat
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 
 import msgspec
@@ -19,7 +18,7 @@ from bbcs.module import Control, Module
 from bbcs.routing import SlotRef, SlotTable
 from bbcs.session import local_client
 from bbcs.slots import InputSlot, Kind
-from bbcs.testing import RouteChange, wait_alive, wait_until
+from bbcs.testing import RouteChange, running, wait_alive, wait_until
 
 
 class Angle(msgspec.Struct, frozen=True, kw_only=True):
@@ -60,16 +59,9 @@ class Follower(Module):
 
 @pytest.fixture
 def follower(router: int) -> Iterator[Follower]:
-    mod = Follower(ModuleContext(robot="r1", module="follower", bus=local_client(router), slot_table=TABLE,
-                                 routes={"datos": 7}))
-    loop = threading.Thread(target=mod.run, name="follower-loop", daemon=True)
-    loop.start()
-    try:
+    with running(Follower(ModuleContext(robot="r1", module="follower", bus=local_client(router), slot_table=TABLE,
+                                        routes={"datos": 7}))) as mod:
         yield mod
-    finally:
-        mod.request_stop()
-        loop.join(20)
-    assert not loop.is_alive(), "the module's loop did not stop"
 
 
 def test_a_switch_that_drains_the_queue_leaves_the_loop_free(follower: Follower, sessions) -> None:

@@ -16,7 +16,7 @@ from bbcs.module import Module
 from bbcs.priority import SafetyFirst
 from bbcs.session import local_client
 from bbcs.slots import Direction, InputSlot, Kind, Publisher, Safety, SlotSpec
-from bbcs.testing import wait_alive, wait_until
+from bbcs.testing import running, wait_alive, wait_until
 
 
 def test_one_bulk_item_per_cycle_while_safe_work_waits() -> None:
@@ -64,14 +64,8 @@ class Busy(Module):
 
 @pytest.fixture
 def busy(router: int) -> Iterator[Busy]:
-    mod = Busy(ModuleContext(robot="r1", module="busy", bus=local_client(router)))
-    loop = threading.Thread(target=mod.run, name="busy-loop", daemon=True)
-    loop.start()
-    try:
+    with running(Busy(ModuleContext(robot="r1", module="busy", bus=local_client(router)))) as mod:
         yield mod
-    finally:
-        mod.request_stop()
-        loop.join(20)
 
 
 def test_a_safe_datum_put_after_a_bulk_one_is_handled_first(busy: Busy, sessions) -> None:
