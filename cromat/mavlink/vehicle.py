@@ -191,7 +191,9 @@ class Vehicle:
             self.reached = offset
             self.paused_at = None
         elif role == "pause":
-            self.paused_at = self.pausing_at if self.pausing_at is not None else self.mission_index
+            # a pause with no mission running (a resend of one already answered) keeps where it was paused
+            self.paused_at = (self.pausing_at if self.pausing_at is not None
+                              else self.paused_at if self.paused_at is not None else self.mission_index)
             self.pausing_at = None
             if self.run is not None:
                 self.run.ended = True

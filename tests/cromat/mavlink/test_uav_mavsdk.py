@@ -217,8 +217,9 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
             await mission.start_mission()
             # paused once the first waypoint is reached (hold: ABORT at the DSP), then continued from where it was.
             # The simulation is held from the moment the test sees the waypoint reached until the hold reached the
-            # DSP: at --speed max the aircraft otherwise flew on while the pause crossed MAVSDK and the gateway on
-            # the wall clock, and under load finished the mission first (two clean-clone runs re-sent all 4 points)
+            # DSP, so the pause lands on the leg the test chose at any load (at --speed max the aircraft flies on
+            # while the pause crosses MAVSDK and the gateway on the wall clock). Under load MAVSDK also resends the
+            # pause when its ACK is late: the resend must not move where the mission continues (test_vehicle.py)
             robot.wait_state(lambda s: 0 < (s.waypoints_queued or 0) < 4, 60, "the first waypoint reached")
             with site.gate.closed():
                 await mission.pause_mission()

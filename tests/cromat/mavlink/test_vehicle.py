@@ -63,6 +63,28 @@ def test_a_paused_mission_continues_from_the_waypoint_it_was_flying_to() -> None
     assert v.mission_current() == (3, 4, mav.MISSION_STATE_COMPLETE) and v.newly_reached() == [3]
 
 
+def test_a_pause_resent_after_the_hold_runs_keeps_where_the_mission_stood() -> None:
+    """MAVSDK resends a command whose ACK is late; a resend that arrives once the first pause was answered (the hold
+    running, the mission's queue gone) is a second pause. It used to note the mission's start, and the continue
+    re-flew all four waypoints (the MAVSDK test in three clean-clone runs). It keeps the first pause's place."""
+    v = vehicle()
+    v.state = state([], queued=0)
+    start = map_command(v.context(), Command(mav.MAV_CMD_MISSION_START, (0.0,) * 7))
+    assert isinstance(start, Send) and isinstance(start.request, gri.FollowPath)
+    v.started("mission", 0, gri.TaskReply(accepted=True, task_id=5, task_type="movement"), start.request)
+    v.state = state([follow(5, start.request)], queued=3)  # the first waypoint passed
+    v.pause_at()
+    v.started("pause", 0, gri.TaskReply(accepted=True, task_id=6, task_type="movement"), gri.Hold())
+    v.state = state([TaskInfo(id=6, name="hold", task_type="movement", kind="hold")], queued=0)
+    assert v.paused_at == 1
+    v.pause_at()  # the resend: the hold runs, nothing of the mission is queued any more
+    v.started("pause", 0, gri.TaskReply(accepted=True, task_id=7, task_type="movement"), gri.Hold())
+    assert v.paused_at == 1 and v.mission_current() == (1, 4, mav.MISSION_STATE_PAUSED)
+    cont = map_command(v.context(), Command(mav.MAV_CMD_DO_PAUSE_CONTINUE, (1.0,) + (0.0,) * 6))
+    assert isinstance(cont, Send) and cont.offset == 1
+    assert cont.request == gri.FollowPath(waypoints=list(v.plan.waypoints[1:]))  # type: ignore[union-attr]
+
+
 def test_download_is_the_upload_else_the_running_path() -> None:
     v = vehicle()
     assert v.download_items() == ITEMS
