@@ -21,7 +21,6 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import msgspec
@@ -161,7 +160,7 @@ def _priority(spec: Any, lockstep_on: bool = False) -> Priority | None:
     launch a raised priority (a negative nice, real time) is left out: the barrier makes the flight independent of
     the machine's load, so it would only take the processors from everything else on the machine (a uQuad at
     ``--speed max`` stepping flat out at nice -10; docs/simulation.md)."""
-    priority = Priority(spec.nice, spec.realtime)
+    priority = Priority(spec.nice, getattr(spec, "realtime", None))  # the router's ``[bus]`` has no real time
     if lockstep_on and _raised(priority):
         priority = Priority(spec.nice if spec.nice is not None and spec.nice >= 0 else None)
     return priority if priority else None
@@ -169,7 +168,7 @@ def _priority(spec: Any, lockstep_on: bool = False) -> Priority | None:
 
 def _raised(p: Any) -> bool:
     """A priority (or a manifest entry) asking for more than the default: a negative nice or real time."""
-    return (p.nice is not None and p.nice < 0) or p.realtime is not None
+    return (p.nice is not None and p.nice < 0) or getattr(p, "realtime", None) is not None
 
 
 def raised_priorities(specs: dict[str, Any]) -> list[str]:
@@ -325,7 +324,7 @@ class Manager(RouteControl, MriService):
         t = self.clock()
         self.router = Child("router", argv, self.child_env({}), cwd=str(ROOT), log_dir=self.log_dir,
                             watch_stdout=True, echo=self._router_line, cpus=_cpus(self.m.raw.bus.cpus),
-                            priority=self._priority(self._router_spec()))
+                            priority=self._priority(self.m.raw.bus))
         host, port = next(ep for e in self.bus.connect if (ep := tcp_endpoint(e)))
         if not wait_tcp(host, port, self.m.raw.bus.ready_timeout_s, lambda: self.router.poll() is None):
             raise LaunchError(f"the router did not listen on {host}:{port} within "
@@ -336,10 +335,6 @@ class Manager(RouteControl, MriService):
                  f"({self.clock() - t:.2f} s)")
         if self.router.priority_refused:
             self.out(f"  router      {self.router.priority_refused}")
-
-    def _router_spec(self) -> SimpleNamespace:
-        """The router's priority as a manifest entry's (``[bus] nice``; no real time: it would starve its modules)."""
-        return SimpleNamespace(nice=self.m.raw.bus.nice, realtime=None)
 
     def _router_line(self, line: str) -> None:
         """The router's word that the mesh refused it (another robot of this name is linked there): shown on the
@@ -381,7 +376,7 @@ class Manager(RouteControl, MriService):
         """Start every plain process (simulators) at once, then wait for each one's readiness: their start-up
         times overlap instead of adding up. Modules start only once all of them are ready."""
         t = self.clock()
-        raised = raised_priorities({"router": self._router_spec(), **self.m.raw.processes,
+        raised = raised_priorities({"router": self.m.raw.bus, **self.m.raw.processes,
                                     **{n: i.spec for n, i in self.m.modules.items()}})
         if self.sim is not None and raised:
             self.out(f"  lockstep: the raised priorities of {', '.join(raised)} are not applied (the simulation "

@@ -23,6 +23,7 @@ from modules.uquad.motor_protocol import AckStatus
 RECOVERY_S = 2.0
 """Seconds (of the link's clock) of every command acknowledged in time before a late-ack error clears."""
 
+
 class MotorClient:
     def __init__(self, sock: socket.socket, min_speed: float, max_speed: float, ack_timeout_s: float) -> None:
         self.sock = sock
@@ -103,8 +104,6 @@ class MotorClient:
         if not (self.error and self.error_is_late_ack) or self.in_time_since is None:
             return False
         if now - self.in_time_since < hold_s:
-            return False
-        if self.last_status not in (AckStatus.OK, AckStatus.RAMPING, AckStatus.STOPPED):
             return False
         self.error, self.error_is_late_ack = "", False
         return True

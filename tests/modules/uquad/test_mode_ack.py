@@ -65,10 +65,13 @@ def test_a_late_driver_ack_on_the_ground_clears_once_the_driver_answers_in_time_
     import numpy as np
 
     from modules.uquad import motor_protocol as mp
+    from modules.uquad.config import load_config
     from modules.uquad.motor_client import RECOVERY_S, MotorClient
 
+    ack_timeout = load_config(CONF / "uquad1.conf").values.MOTOR_ACK_TIMEOUT  # the shipped value
+    late = ack_timeout + 0.1
     a, b = socket.socketpair()
-    motor = MotorClient(a, 300, 750, ack_timeout_s=0.5)
+    motor = MotorClient(a, 300, 750, ack_timeout_s=ack_timeout)
     errors: list[tuple[int, str]] = []
     modes: list[Mode] = []
     planner = SimpleNamespace(mode=Mode.IDLE)
@@ -89,29 +92,29 @@ def test_a_late_driver_ack_on_the_ground_clears_once_the_driver_answers_in_time_
 
     try:
         step(0.0, answer=False)
-        step(0.6)  # command 1 unanswered for 0.6 s: a driver error, reported, and the landing action taken
+        step(late)  # command 1 unanswered past the timeout: a driver error, reported, and the landing action taken
         assert mod.driver_error.startswith("no ack for command 1") and modes == [Mode.LAND]
         assert errors and errors[0][0] == UquadErrorCode.DRIVER_ERROR
         UquadModule.on_modo(mod, UquadMode(modo=2))
         assert not sent[-1][1].accepted  # take-off refused while the error stands
         b.sendall(mp.ack(1, mp.AckStatus.STOPPED))  # its ack comes after all
-        t = 0.6
-        while t < 0.6 + RECOVERY_S + 0.5:
+        t = late
+        while t < late + RECOVERY_S + 0.5:
             t = round(t + 0.02, 2)
             step(t)
-            if t < 0.6 + RECOVERY_S - 0.1:
-                assert mod.driver_error, f"cleared after {t - 0.6:.2f} s"
+            if t < late + RECOVERY_S - 0.1:
+                assert mod.driver_error, f"cleared after {t - late:.2f} s"
         assert mod.driver_error == "" and len(errors) == 1
         UquadModule.on_modo(mod, UquadMode(modo=2))
         assert sent[-1][1].accepted and list(mod._inbox.queue)[-1] == ("mode", Mode.TAKE_OFF)
 
         planner.mode = Mode.HOLD  # in the air: a late ack stays an error however well the driver answers after
         step(t + 0.1, answer=False)
-        step(t + 0.7)
+        step(t + 0.1 + late)
         assert mod.driver_error
         b.sendall(mp.ack(motor.seq - 1, mp.AckStatus.STOPPED))
         for i in range(1, 200):
-            step(t + 0.7 + 0.02 * i)
+            step(t + 0.1 + late + 0.02 * i)
         assert mod.driver_error
     finally:
         a.close()

@@ -17,6 +17,7 @@ from modules.uquad.motor_driver import DriverLogic, DriverState
 from modules.uquad.motor_protocol import AckStatus
 
 ROOT = Path(__file__).resolve().parents[3]
+SHIPPED_ACK_TIMEOUT = load_config(ROOT / "bbcs_conf" / "uquad1.conf").values.MOTOR_ACK_TIMEOUT
 
 
 def logic() -> DriverLogic:
@@ -192,13 +193,14 @@ def _answer(b: socket.socket, client: MotorClient, now: float, status: AckStatus
 
 def test_a_late_ack_clears_after_acks_in_time_and_any_other_error_stays():
     a, b = socket.socketpair()
-    client = MotorClient(a, 300, 750, ack_timeout_s=0.5)
+    client = MotorClient(a, 300, 750, ack_timeout_s=SHIPPED_ACK_TIMEOUT)
+    late = SHIPPED_ACK_TIMEOUT + 0.1
     try:
         client.send(0.0, [0.0] * 4)
-        assert "no ack for command 1" in client.check(0.6)  # late: a loaded computer, or a dead driver
-        _answer(b, client, 0.7)  # it answers after all
-        t = 0.7
-        while t < 0.7 + RECOVERY_S - 0.05:  # commands acknowledged in time, not yet for long enough
+        assert "no ack for command 1" in client.check(late)  # late: a loaded computer, or a dead driver
+        _answer(b, client, late + 0.1)  # it answers after all
+        t = late + 0.1
+        while t < late + 0.1 + RECOVERY_S - 0.05:  # commands acknowledged in time, not yet for long enough
             client.send(t, [0.0] * 4)
             _answer(b, client, t)
             assert client.check(t) and not client.recover(t), t
@@ -223,20 +225,21 @@ def test_a_late_ack_clears_after_acks_in_time_and_any_other_error_stays():
 
 def test_an_ack_that_never_comes_never_clears():
     a, b = socket.socketpair()
-    client = MotorClient(a, 300, 750, ack_timeout_s=0.5)
+    client = MotorClient(a, 300, 750, ack_timeout_s=SHIPPED_ACK_TIMEOUT)
+    late = SHIPPED_ACK_TIMEOUT + 0.1
     try:
         client.send(0.0, [0.0] * 4)
-        assert client.check(0.6)
+        assert client.check(late)
         b.recv(4096)  # the driver read it and never answered: later commands answered do not excuse it
         for i in range(1, 80):
-            client.send(0.6 + 0.05 * i, [0.0] * 4)
+            client.send(late + 0.05 * i, [0.0] * 4)
             seq = client.seq
             b.sendall(mp.ack(seq, AckStatus.STOPPED))
         deadline = time.monotonic() + 5
         while len(client.pending) > 1 and time.monotonic() < deadline:
-            client.on_readable(5.0)
+            client.on_readable(late + 4.0)
         assert list(client.pending) == [1]
-        assert client.check(5.0) and not client.recover(5.0)
+        assert client.check(late + 4.0) and not client.recover(late + 4.0)
     finally:
         a.close()
         b.close()

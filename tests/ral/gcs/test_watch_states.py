@@ -15,7 +15,7 @@ ROBOT = "uav1"
 
 def test_an_undecodable_state_is_dropped_and_counted(router: int) -> None:
     robot = open_session(local_client(router))
-    station = Gcs(local_client(router), name="station", timeout_s=10.0)
+    station = Gcs(local_client(router), name="station")
     try:
         got: list[float] = []
         station.watch(ROBOT, lambda s: got.append(s.stamp))
