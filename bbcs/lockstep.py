@@ -41,6 +41,8 @@ log = logging.getLogger(__name__)
 
 SIM_ENV = "CROMAT_SIM"
 MANAGER_MEMBER = "manager"
+FOLLOWER_MEMBER = "sim"
+"""A fleet follower simulator's member name (``Follower``): the leader waits for it as for a manager."""
 """The manager's member name (no module may be called so: the manager's own slots live under it). Not
 ``@manager``: a key chunk starting with ``@`` is matched by no wildcard."""
 DEFAULT_STEP_S = 0.2
@@ -67,6 +69,15 @@ class SimSettings(msgspec.Struct, frozen=True, kw_only=True):
     """Simulated seconds between two barriers (the simulators sub-step their physics inside it)."""
     deadline_s: float = DEFAULT_DEADLINE_S
     """Wall seconds a step waits for a member before leaving it behind."""
+    fleet: list[str] = msgspec.field(default_factory=list)
+    """Robots that step together on one barrier (manifest ``[sim] fleet``; this robot among them): the first
+    one's simulator is the fleet's stepper, the others' simulators follow its steps (``Follower``). Empty: this
+    robot alone."""
+
+    @property
+    def leads(self) -> bool:
+        """This robot's simulator is the stepper (alone, or the first robot of its fleet)."""
+        return not self.fleet or self.fleet[0] == self.robot
 
 
 TIME_QUERY_S = 2.0
@@ -274,6 +285,11 @@ class Barrier:
     deadline_s: float = DEFAULT_DEADLINE_S
     required: frozenset[str] = frozenset()
     check: Callable[[Mapping[str, Done]], str] | None = None
+    release_on_leave: bool = False
+    """A fleet: a required member that leaves (its robot killed or stopped) is no longer required, so the other
+    robots fly on; it is waited for as any member if it comes back. Alone, a robot's required manager is the robot."""
+    reask: bool = False
+    """A required member joined after the current round was asked (it never got the ask): ask the round again."""
     step: int = -1
     round: int = 0
     started: float = 0.0
@@ -297,6 +313,7 @@ class Barrier:
     def begin(self, step: int, now: float) -> None:
         self.step, self.round, self.started, self.warned_at, self.begun = step, 0, now, now, now
         self.slow_logged = False
+        self.reask = False
         self.asked = set(self.members)
         self.busy_rounds = 0
         self.last = {}
@@ -305,8 +322,14 @@ class Barrier:
 
     def joined(self, member: str) -> None:
         self.members.add(member)
+        if member in self.required and member not in self.asked and self.step >= 0:
+            self.asked.add(member)
+            self.reask = True
 
     def left(self, member: str) -> None:
+        if self.release_on_leave and member in self.required:
+            self.required = self.required - {member}
+            log.warning("lockstep: %s left; the fleet steps on without it", member)
         self.members.discard(member)
         self.asked.discard(member)
         self.behind.pop(member, None)
@@ -385,19 +408,50 @@ class Barrier:
 # --- the stepper's side ----------------------------------------------------------------------------------------
 
 
+def robot_of(member: str) -> str:
+    """The robot of a fleet member name (``<robot>/<member>``); '' for a robot's own (unprefixed) name."""
+    return member.partition("/")[0] if "/" in member else ""
+
+
+def _own_answers(check: Callable[[Mapping[str, Done]], str],
+                 robot: str) -> Callable[[Mapping[str, Done]], str]:
+    """A stepper's check on its own robot's answers only (another robot's DSP module counts another line)."""
+    prefix = f"{robot}/"
+
+    def own(answers: Mapping[str, Done]) -> str:
+        return check({m[len(prefix):]: d for m, d in answers.items() if m.startswith(prefix)})
+
+    return own
+
+
 class Stepper:
     """A simulator's end of the barrier, on its own Zenoh session; made for a ``select`` loop.
 
     ``begin(t)`` publishes the new time and the first round; ``poll()`` answers True once the step is handled
     (asking further rounds as needed). Answers and membership changes arrive on Zenoh's threads and are handed
-    over through a pipe: ``wake_fd`` turns readable (call ``drain_wake()`` then ``poll()``)."""
+    over through a pipe: ``wake_fd`` turns readable (call ``drain_wake()`` then ``poll()``).
+
+    ``fleet``: the robots stepping on this barrier (``SimSettings.fleet``, this robot first). Each robot's members
+    are asked on its own keys and named ``<robot>/<member>`` here; every robot's manager and every other robot's
+    simulator (``Follower``) are required, until they leave. ``check`` sees this robot's answers only."""
 
     def __init__(self, session: zenoh.Session, robot: str, *, deadline_s: float = DEFAULT_DEADLINE_S,
                  required: frozenset[str] = frozenset({MANAGER_MEMBER}),
                  check: Callable[[Mapping[str, Done]], str] | None = None,
-                 wall: Callable[[], float] = time.monotonic, epoch: float | None = None) -> None:
+                 wall: Callable[[], float] = time.monotonic, epoch: float | None = None,
+                 fleet: list[str] | None = None) -> None:
         self.robot = robot
-        self.barrier = Barrier(deadline_s=deadline_s, required=required, check=check)
+        robots = list(fleet) if fleet else [robot]
+        if robots[0] != robot:
+            raise ValueError(f"the fleet's stepper is its first robot's simulator ({robots[0]}), not {robot}'s")
+        self.robots = robots
+        self.fleet = len(robots) > 1
+        if self.fleet:
+            required = frozenset({*(f"{r}/{m}" for r in robots for m in required),
+                                  *(f"{r}/{FOLLOWER_MEMBER}" for r in robots[1:])})
+            if check is not None:
+                check = _own_answers(check, robot)
+        self.barrier = Barrier(deadline_s=deadline_s, required=required, check=check, release_on_leave=self.fleet)
         self.epoch = time.time() if epoch is None else epoch
         self.step = -1
         self.t = 0.0
@@ -411,15 +465,18 @@ class Stepper:
         os.set_blocking(self._wake_r, False)
         self._clock_pub = session.declare_publisher(clock_key(robot), congestion_control=zenoh.CongestionControl.BLOCK,
                                                     reliability=zenoh.Reliability.RELIABLE)
-        self._ask_pub = session.declare_publisher(ask_key(robot), congestion_control=zenoh.CongestionControl.BLOCK,
-                                                  reliability=zenoh.Reliability.RELIABLE,
-                                                  priority=zenoh.Priority.DATA)
+        self._ask_pubs = [session.declare_publisher(ask_key(r), congestion_control=zenoh.CongestionControl.BLOCK,
+                                                    reliability=zenoh.Reliability.RELIABLE,
+                                                    priority=zenoh.Priority.DATA) for r in robots]
         self._now = SimTime(step=0, t=0.0, epoch=self.epoch)
-        self._entities = [
-            session.declare_subscriber(done_key(robot, "*"), self._on_done),
-            session.liveliness().declare_subscriber(member_key(robot, "*"), self._on_member, history=True),
-            session.declare_queryable(clock_key(robot), self._on_time_query),
-        ]
+        self._entities = [session.declare_queryable(clock_key(robot), self._on_time_query)]
+        for r in robots:
+            prefix = f"{r}/" if self.fleet else ""
+            self._entities += [
+                session.declare_subscriber(done_key(r, "*"), lambda sample, p=prefix: self._on_done(sample, p)),
+                session.liveliness().declare_subscriber(
+                    member_key(r, "*"), lambda sample, p=prefix: self._on_member(sample, p), history=True),
+            ]
 
     @property
     def wake_fd(self) -> int:
@@ -431,15 +488,17 @@ class Stepper:
             self._take()
             return set(self.barrier.members)
 
-    def _on_done(self, sample: zenoh.Sample) -> None:
+    def _on_done(self, sample: zenoh.Sample, prefix: str = "") -> None:
         try:
             done = _decode_done(sample.payload.to_bytes())
         except msgspec.MsgspecError:
             return
+        if prefix:  # a fleet: the member named by its robot too (two robots each have a "dsp")
+            done = msgspec.structs.replace(done, member=prefix + member_of(str(sample.key_expr)))
         self._hand_over(done)
 
-    def _on_member(self, sample: zenoh.Sample) -> None:
-        self._hand_over((member_of(str(sample.key_expr)), sample.kind == zenoh.SampleKind.PUT))
+    def _on_member(self, sample: zenoh.Sample, prefix: str = "") -> None:
+        self._hand_over((prefix + member_of(str(sample.key_expr)), sample.kind == zenoh.SampleKind.PUT))
 
     def _hand_over(self, item: Any) -> None:
         with self._lock:
@@ -486,7 +545,9 @@ class Stepper:
 
     def _ask(self, ask: Ask) -> None:
         self.rounds += 1
-        self._ask_pub.put(_encode(ask))
+        payload = _encode(ask)
+        for pub in self._ask_pubs:
+            pub.put(payload)
 
     def poll(self) -> bool:
         """True once the current step is handled; otherwise asks the next round when one is due."""
@@ -499,6 +560,10 @@ class Stepper:
             return False
         with self._lock:
             self._take()
+            if self.barrier.reask:  # a required member came after this round was asked: it needs the ask
+                self.barrier.reask = False
+                self._ask(Ask(step=self.step, round=self.barrier.round,
+                              now=SimTime(step=self.step, t=self.t, epoch=self.epoch)))
             decision = self.barrier.decide(self._wall())
         if decision.verdict is Verdict.ASK:
             if decision.delay > 0:
@@ -517,7 +582,7 @@ class Stepper:
         return max(0.0, self._ask_at - self._wall())
 
     def close(self) -> None:
-        for entity in [*self._entities, self._clock_pub, self._ask_pub]:
+        for entity in [*self._entities, self._clock_pub, *self._ask_pubs]:
             try:
                 entity.undeclare()
             except Exception as exc:
@@ -527,3 +592,81 @@ class Stepper:
                 os.close(fd)
             except OSError:
                 pass
+
+
+# --- a fleet follower's side -----------------------------------------------------------------------------------
+
+
+class Follower:
+    """A simulator stepping on another robot's barrier (a fleet, ``SimSettings.fleet``), made for a ``select``
+    loop as the ``Stepper`` is: a member of its own robot named ``FOLLOWER_MEMBER``, which the fleet's stepper
+    requires. ``take()`` gives the newest ask not yet handled (after ``wake_fd`` turned readable): the simulator
+    moves its physics to the ask's time, writes what that produced, and ``answer``s with what it has handled and
+    its device link's counts (``wire_counts``: the barrier pairs them with the device module's). It also keeps
+    its robot's clock: ``@clock`` published each step, and answered to a module starting mid-simulation."""
+
+    def __init__(self, session: zenoh.Session, robot: str) -> None:
+        self.robot = robot
+        self._lock = threading.Lock()
+        self._pending: Ask | None = None
+        self._now: SimTime | None = None
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        self._clock_pub = session.declare_publisher(clock_key(robot), congestion_control=zenoh.CongestionControl.BLOCK,
+                                                    reliability=zenoh.Reliability.RELIABLE)
+        self._queryable = session.declare_queryable(clock_key(robot), self._on_time_query)
+        self._member = Member(session, robot, FOLLOWER_MEMBER, self._on_ask)
+
+    @property
+    def wake_fd(self) -> int:
+        return self._wake_r
+
+    def _on_ask(self, ask: Ask) -> None:
+        with self._lock:
+            if self._pending is None or (ask.step, ask.round) >= (self._pending.step, self._pending.round):
+                self._pending = ask
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
+
+    def _on_time_query(self, query: zenoh.Query) -> None:
+        now = self._now
+        if now is not None:  # before its first step the fleet's time is not known here: no answer (time 0)
+            query.reply(clock_key(self.robot), _encode(now))
+
+    def take(self) -> Ask | None:
+        try:
+            while os.read(self._wake_r, 4096):
+                pass
+        except (BlockingIOError, OSError):
+            pass
+        with self._lock:
+            ask, self._pending = self._pending, None
+        if ask is not None and (self._now is None or ask.now.step != self._now.step):
+            self._now = ask.now
+            self._clock_pub.put(_encode(ask.now))
+        return ask
+
+    def answer(self, ask: Ask, activity: int, counts: dict[str, int]) -> None:
+        self._member.answer(ask, activity, "", counts)
+
+    def close(self) -> None:
+        self._member.close()
+        for entity in (self._queryable, self._clock_pub):
+            try:
+                entity.undeclare()
+            except Exception as exc:
+                log.debug("lockstep follower close: %s", exc)
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+def frames_due(now_t: float, sim_t: float, dt: float) -> int:
+    """A follower's physics sub-steps of ``dt`` that take it from ``sim_t`` to the fleet's ``now_t`` (0 when it
+    is there: a later round of the same step). Both times are sums of the same sub-steps, so rounding only
+    absorbs the last ulp."""
+    return max(0, round((now_t - sim_t) / dt))

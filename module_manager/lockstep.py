@@ -57,7 +57,7 @@ def settings_for(manifest: Manifest, connect: list[str], speed: float | str | No
     chosen = sim.speed if speed is None else speed
     return SimSettings(robot=manifest.robot, connect=list(connect),
                        speed=SPEED_MAX if chosen == SPEED_MAX else None if chosen is None else float(chosen),
-                       step_s=sim.step_s, deadline_s=sim.deadline_s)
+                       step_s=sim.step_s, deadline_s=sim.deadline_s, fleet=list(sim.fleet))
 
 
 class ManagerMember:

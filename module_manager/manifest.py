@@ -22,6 +22,7 @@ from bbcs import IGNORE, ConfDocument, ConfError, InvalidNameError, Kind, SlotRe
 from bbcs.codec import resolve_type, type_name
 from bbcs.contracts.errors import ErrorReport
 from bbcs.contracts.robot import RobotTelemetry
+from bbcs.lockstep import FOLLOWER_MEMBER
 from module_manager.supervision import Policy
 
 MANAGER_MODULE = "manager"
@@ -145,6 +146,9 @@ class SimSection(_Section):
     """Simulated seconds between two barriers (each costs a few bus round trips to every module)."""
     deadline_s: Positive = 20.0
     """Wall seconds a step waits for a module before it goes on without it (a loaded machine may take seconds)."""
+    fleet: list[str] = msgspec.field(default_factory=list)
+    """Robots (this one among them, each launched with the same list) that step on one barrier: the first one's
+    DSP simulator steps the fleet, the others' follow it. Their routers must be meshed (``[bus] peers``)."""
 
 
 class SlotDef(_Section):
@@ -509,6 +513,23 @@ class _Checker:
         where, line, note = _where(self.sources, key)
         return ManifestError(message + note, path=where, key=key, line=line)
 
+    def sim_fleet(self, raw: ManifestFile) -> None:
+        """``[sim] fleet``: a lockstep list of distinct robot names with this robot in it."""
+        fleet = raw.sim.fleet
+        if not fleet:
+            return
+        if not raw.sim.lockstep:
+            raise self.fail("sim.fleet", "a fleet steps together only in lockstep: set [sim] lockstep = true")
+        for i, robot in enumerate(fleet):
+            self.name(robot, f"sim.fleet.{i}", "robot name")
+        if len(set(fleet)) != len(fleet):
+            raise self.fail("sim.fleet", f"a robot is named twice in {fleet}")
+        if raw.robot.name not in fleet:
+            raise self.fail("sim.fleet", f"this robot ({raw.robot.name}) is not in its own fleet {fleet}")
+        if FOLLOWER_MEMBER in raw.modules or FOLLOWER_MEMBER in raw.processes:
+            raise self.fail("sim.fleet", f"{FOLLOWER_MEMBER!r} is a fleet follower simulator's member name: "
+                                         "rename the module or process of that name")
+
     def name(self, value: str, key: str, what: str) -> None:
         try:
             keys.validate_name(value, what)
@@ -560,6 +581,7 @@ class _Checker:
         if raw.sim.lockstep and (raw.bus.tls is not None or raw.bus.zenoh_config is not None):
             raise self.fail("sim.lockstep", "lockstep under access control is not built: the router's rules do not "
                                             "grant the @clock and @lockstep keys (docs/simulation.md)")
+        self.sim_fleet(raw)
         for i, endpoint in enumerate(raw.bus.peers):
             if raw.bus.tls is None and not endpoint.startswith("tcp/"):
                 raise self.fail(f"bus.peers.{i}", f"{endpoint!r}: without [bus.tls] the fleet mesh is built over tcp/ "

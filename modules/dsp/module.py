@@ -33,6 +33,7 @@ from bbcs.contracts import dsp as contract
 from bbcs.contracts import dsp as p
 from bbcs.contracts.dsp import COMMAND_RIGHTS, LinkErrorCode, LinkStats, commands_slot, refused_classes
 from bbcs.contracts.errors import ErrorReport
+from bbcs.lockstep import wire_counts
 from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
 from modules.dsp.errors import DspLinkError, DspPreempted, DspRejected, DspTimeout
 from modules.dsp.intake import CommandIntake, Flood
@@ -257,11 +258,14 @@ class DspModule(Module):
             return "command batch to send" if self._batches or getattr(self, "_sending", False) else ""
 
     def lockstep_counts(self) -> dict[str, int]:
-        """Bytes on the DSP line both ways: the simulator steps only once both ends agree."""
+        """Bytes on the DSP line both ways: the simulator steps only once both ends agree. Reported twice: for
+        the robot's own stepper (``dsp_bytes_*``), and as a device link (``wire/dsp/<robot>``) for a fleet's
+        follower simulator, a member whose counts the barrier pairs with these."""
         link = getattr(self, "link", None)
         if link is None:
             return {}
-        return {"dsp_bytes_tx": link.stats().bytes_tx, "dsp_bytes_rx": link.bytes_handled}
+        tx, rx = link.stats().bytes_tx, link.bytes_handled
+        return {"dsp_bytes_tx": tx, "dsp_bytes_rx": rx, **wire_counts(f"dsp/{self.robot}", tx, rx)}
 
     def _send_batch(self, batch: contract.DspCommands, generation: int) -> None:
         for i, cmd in enumerate(batch.commands):

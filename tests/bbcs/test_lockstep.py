@@ -13,16 +13,21 @@ from bbcs import keys
 from bbcs.clock import SimClock
 from bbcs.context import ModuleContext
 from bbcs.lockstep import (
+    FOLLOWER_MEMBER,
     MANAGER_MEMBER,
     SIM_ENV,
     SLOW_STEP_S,
     Ask,
     Barrier,
     Done,
+    Follower,
     Member,
     SimSettings,
     Stepper,
     Verdict,
+    current_time,
+    frames_due,
+    robot_of,
     settings_env,
     settings_from_env,
     unpaired_wires,
@@ -150,6 +155,95 @@ def test_a_member_that_leaves_is_no_longer_waited_for() -> None:
     b.answer(done("a", 0, 0, 1))
     b.left("dead")
     assert b.decide(0.1).verdict is Verdict.ASK
+
+
+def test_a_required_member_that_comes_after_the_ask_is_asked_again() -> None:
+    """A fleet's other robot launched after the fleet's first step was asked: its manager never got that ask."""
+    b = barrier("a", required=frozenset({"r2/manager"}))
+    assert not b.reask
+    b.joined("r2/manager")
+    assert b.reask  # the stepper asks the round again
+    b.answer(done("a", 0, 0, 1))
+    b.answer(done("r2/manager", 0, 0, 1))
+    assert b.decide(0.1).verdict is Verdict.ASK
+    b.begin(1, now=0.2)
+    assert not b.reask  # a new step's first round goes to everyone
+    b.joined("later")  # not required: waited for from the next round, as before
+    assert not b.reask
+
+
+def test_in_a_fleet_a_required_member_that_leaves_is_released_and_alone_it_is_not() -> None:
+    fleet = barrier("a", "r2/manager", required=frozenset({"r2/manager"}), release_on_leave=True)
+    fleet.left("r2/manager")  # its robot killed: the fleet flies on
+    fleet.answer(done("a", 0, 0, 1))
+    assert fleet.decide(0.1).verdict is Verdict.ASK
+    fleet.answer(done("a", 0, 1, 1))
+    assert fleet.decide(0.2).verdict is Verdict.STEP
+    alone = barrier("a", MANAGER_MEMBER, required=frozenset({MANAGER_MEMBER}))
+    alone.left(MANAGER_MEMBER)  # a robot without its manager has nothing to step for
+    alone.answer(done("a", 0, 0, 1))
+    assert alone.decide(100.0).verdict is Verdict.WAIT
+
+
+def test_a_follower_moves_to_the_fleets_time_in_whole_physics_steps() -> None:
+    t = 0.0
+    for _ in range(10):
+        t += 0.02
+    assert frames_due(t, 0.0, 0.02) == 10  # the leader's summed time: rounding absorbs the last ulp
+    assert frames_due(t, t, 0.02) == 0  # a later round of the same step
+    assert frames_due(0.0, t, 0.02) == 0  # never backwards
+    assert robot_of("uav_b/dsp") == "uav_b" and robot_of("dsp") == ""
+
+
+def test_the_fleets_stepper_asks_every_robots_members_and_a_follower_keeps_its_robots_clock() -> None:
+    """A real router: the leader's stepper (robot r1) waits for r2's manager and follower as well as its own
+    members, each robot's members on their own keys; a member named alike on both robots counts twice; the
+    follower's robot's @clock says the leader's time."""
+    procs = Processes()
+    sessions = []
+    try:
+        cfg = local_client(start_router(procs))
+        sessions = [open_session(cfg) for _ in range(5)]
+        stepper = Stepper(sessions[0], "r1", fleet=["r1", "r2"], check=lambda answers: (
+            "" if set(answers) <= {MANAGER_MEMBER, "dsp"} else f"not its own robot's: {sorted(answers)}"))
+        assert stepper.barrier.required == {"r1/manager", "r2/manager", f"r2/{FOLLOWER_MEMBER}"}
+        seen: dict[str, list[Ask]] = {}
+        members = {}
+        for s, (robot, name) in zip(sessions[1:4], [("r1", MANAGER_MEMBER), ("r2", MANAGER_MEMBER), ("r2", "dsp")],
+                                    strict=True):
+            def on_ask(ask: Ask, key: str = f"{robot}/{name}") -> None:
+                seen.setdefault(key, []).append(ask)
+                members[key].answer(ask, activity=1)
+            members[f"{robot}/{name}"] = Member(s, robot, name, on_ask)
+        follower = Follower(sessions[4], "r2")
+        wait_until(lambda: stepper.members >= {"r1/manager", "r2/manager", "r2/dsp", f"r2/{FOLLOWER_MEMBER}"}, 10,
+                   "every robot's members")
+        stepper.begin(0.2)
+        for _ in range(20):  # the follower has not answered: the step waits for it
+            assert not stepper.poll()
+            threading.Event().wait(0.01)
+        asks = []
+        wait_until(lambda: (a := follower.take()) is not None and asks.append(a) is None, 10, "the follower asked")
+        follower.answer(asks[-1], 1, {})
+
+        def handled() -> bool:
+            if (a := follower.take()) is not None:
+                follower.answer(a, 1, {})
+            return stepper.poll()
+
+        wait_until(handled, 10, "the step handled")
+        assert {k: {a.step for a in v} for k, v in seen.items()} == {"r1/manager": {0}, "r2/manager": {0},
+                                                                      "r2/dsp": {0}}
+        assert current_time(sessions[1], "r2") == current_time(sessions[1], "r1") == asks[-1].now
+        assert asks[-1].now.t == 0.2
+        follower.close()
+        for m in members.values():
+            m.close()
+        stepper.close()
+    finally:
+        for s in sessions:
+            s.close()
+        procs.stop_all()
 
 
 def wired(member: str, step: int, rnd: int, activity: int, busy: str = "", **links: tuple[int, int]) -> Done:

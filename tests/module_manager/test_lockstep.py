@@ -52,6 +52,29 @@ def test_a_bad_sim_table_names_file_and_line(bad: str, key: str) -> None:
     assert f"{SHIPPED}:{line}" in str(err.value) and key in str(err.value)
 
 
+def test_a_fleet_travels_in_the_settings_and_its_first_robot_leads() -> None:
+    m = parse_manifest(manifest_with('lockstep = true\nfleet = ["uav1", "uav2"]'), SHIPPED)
+    s = settings_for(m, [])
+    assert s is not None and s.fleet == ["uav1", "uav2"] and s.leads
+    follower = parse_manifest(manifest_with('lockstep = true\nfleet = ["uav0", "uav1"]'), SHIPPED)
+    assert not settings_for(follower, []).leads  # type: ignore[union-attr]
+    assert settings_for(parse_manifest(manifest_with("lockstep = true"), SHIPPED), []).leads  # type: ignore[union-attr]
+
+
+@pytest.mark.parametrize("sim, why", [
+    ('lockstep = false\nfleet = ["uav1", "uav2"]', "only in lockstep"),
+    ('lockstep = true\nfleet = ["uav2", "uav3"]', "not in its own fleet"),
+    ('lockstep = true\nfleet = ["uav1", "uav1"]', "named twice"),
+    ('lockstep = true\nfleet = ["uav1", "bad name"]', "robot name"),
+])
+def test_a_bad_fleet_names_file_line_and_why(sim: str, why: str) -> None:
+    text = manifest_with(sim)
+    line = text.splitlines().index(sim.splitlines()[1]) + 1
+    with pytest.raises(ManifestError, match=why) as err:
+        parse_manifest(text, SHIPPED)
+    assert f"{SHIPPED}:{line}" in str(err.value) and "sim.fleet" in str(err.value)
+
+
 def test_lockstep_under_access_control_is_refused() -> None:
     text = manifest_with("lockstep = true").replace('# zenoh_config = "uav1_router.json5"',
                                                      'zenoh_config = "zenoh/robot_router_secure.json5"')

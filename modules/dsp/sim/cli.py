@@ -18,7 +18,7 @@ import threading
 from bbcs import SessionConfig, open_session
 from bbcs.contracts import dsp as p
 from bbcs.geodesy import valid_lat_lon
-from bbcs.lockstep import SimSettings, Stepper, settings_from_env
+from bbcs.lockstep import Follower, SimSettings, Stepper, settings_from_env
 from modules.dsp.codec import DSP_TO_PC_LENGTHS
 from modules.dsp.sim.control import ControlPort
 from modules.dsp.sim.faults import BadTelemetry, FaultInjector
@@ -165,11 +165,16 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, on_signal)
     url = endpoint.path if isinstance(endpoint, PtyEndpoint) else f"socket://{endpoint.host}:{endpoint.port}"
     print(url, flush=True)
-    session = stepper = None
+    session = None
+    stepper: Stepper | Follower | None = None
     if settings is not None:  # after the readiness line: the DSP module may connect while the bus session opens
         session = open_session(SessionConfig(mode="client", connect=settings.connect))
-        stepper = Stepper(session, settings.robot, deadline_s=settings.deadline_s)
-        sim.use_stepper(stepper)
+        if settings.leads:
+            stepper = Stepper(session, settings.robot, deadline_s=settings.deadline_s, fleet=settings.fleet)
+            sim.use_stepper(stepper)
+        else:  # a fleet's other robot: the first robot's simulator steps, this one follows
+            stepper = Follower(session, settings.robot)
+            sim.use_follower(stepper)
     timer = threading.Timer(args.duration, sim.stop) if args.duration > 0 else None
     if timer is not None:
         timer.daemon = True

@@ -24,6 +24,7 @@ import msgspec
 import numpy as np
 
 from bbcs.contracts import dsp as p
+from bbcs.lockstep import frames_due, wire_counts
 from modules.dsp.codec import PC_TO_DSP_LENGTHS, encode, message_name
 from modules.dsp.codec import _encode_telemetry as encode_telemetry_unchecked
 from modules.dsp.framing import FrameParser, build_frame
@@ -34,13 +35,16 @@ from modules.dsp.sim.truth import TruthSender
 from modules.dsp.sim.vehicle import VehicleParams
 
 if TYPE_CHECKING:
-    from bbcs.lockstep import Done, Stepper
+    from bbcs.lockstep import Done, Follower, Stepper
 
 log = logging.getLogger(__name__)
 MAX_CATCH_UP_STEPS = 50
 """Steps behind the wall clock beyond which simulated time slips instead of catching up."""
 STEPS_PER_PASS = 5
 """Steps between two looks at the line while catching up."""
+FOLLOWER_JUMP_FRAMES = 100
+"""A fleet follower further behind the fleet's time than this many physics steps joined late (its robot launched
+or relaunched into a running fleet): its time jumps to the fleet's instead of flying the gap on the ground."""
 
 
 @dataclass(frozen=True)
@@ -123,6 +127,8 @@ class DspSimulator:
         self.line_tx = 0
         """Bytes read from / written to the PC now on the line (since it connected): lockstep compares them."""
         self._line_client = 0
+        self.follower: Follower | None = None
+        """A fleet's follower (``use_follower``): steps when another robot's simulator says (bbcs/lockstep.py)."""
         if stepper is not None:
             self.use_stepper(stepper)
         self._clock = clock
@@ -185,6 +191,11 @@ class DspSimulator:
         if self.truth is not None:
             self.truth.close()
 
+    def use_follower(self, follower: Follower) -> None:
+        """Step on a fleet's barrier, led by another robot's simulator (before ``run``): the physics moves to each
+        step's time when its first ask arrives; the DSP line is paired with the DSP module's by the barrier."""
+        self.follower = follower
+
     def use_stepper(self, stepper: Stepper) -> None:
         """Step on this lockstep barrier (before ``run``): frames of ``frame_s``, the DSP line checked."""
         self.stepper = stepper
@@ -222,6 +233,9 @@ class DspSimulator:
     def run(self) -> None:
         if self.stepper is not None:
             self._run_lockstep(self.stepper)
+            return
+        if self.follower is not None:
+            self._run_following(self.follower)
             return
         dt = 1.0 / self.rate_hz
         wall_dt = dt / self.time_scale
@@ -312,6 +326,56 @@ class DspSimulator:
             wall = self._clock() - self._start_wall
             log.info("lockstep: %d frames, %d rounds, %.1f s simulated in %.1f s of wall (%.2fx)", stepper.step,
                      stepper.rounds, self.machine.time_s, wall, self.machine.time_s / wall if wall > 0 else 0.0)
+            if self._thread is None:
+                self._close()
+
+    def _run_following(self, follower: Follower) -> None:
+        """A fleet's follower: each new step's first ask moves the physics to its time (sub-steps at ``rate_hz``,
+        what they produce written to the line); every ask is answered with the frames and commands handled so
+        far and the line's byte counts, which the barrier pairs with the DSP module's (``wire_counts``).
+        Commands are read and acknowledged at once, as in ``_run_lockstep``."""
+        dt = 1.0 / self.rate_hz
+        link = f"dsp/{follower.robot}"
+        fds = [self._wake_r, follower.wake_fd]
+        self._running = True
+        handled = 0
+        try:
+            while not self._stop.is_set():
+                ready, _, _ = select.select([*self.endpoint.fileno_list(), *fds], [], [], 0.5)
+                ask = None
+                for fd in ready:
+                    if fd == self._wake_r:
+                        os.read(self._wake_r, 64)
+                    elif fd == follower.wake_fd:
+                        ask = follower.take()
+                    else:
+                        data = self.endpoint.on_readable(fd)
+                        if data:
+                            self._on_rx(data)
+                            handled += 1
+                if ask is None:
+                    continue
+                due = frames_due(ask.now.t, self.machine.time_s, dt)
+                if due > FOLLOWER_JUMP_FRAMES:  # joined a fleet long under way: on the ground until now
+                    log.warning("lockstep: joining the fleet at %.1f s simulated: the aircraft waited until then",
+                                ask.now.t)
+                    with self._lock:
+                        self.machine.time_s = ask.now.t
+                    due = 0
+                for _ in range(due):
+                    with self._lock:
+                        out = self.machine.step(dt)
+                        if self.truth is not None:
+                            self.truth.send(self.machine)
+                    for msg in out:
+                        self._send(msg)
+                handled += due
+                self._follow_client()
+                follower.answer(ask, handled, wire_counts(link, self.line_tx, self.line_rx))
+        finally:
+            self._running = False
+            log.info("lockstep (following): %.1f s simulated in %.1f s of wall", self.machine.time_s,
+                     self._clock() - self._start_wall)
             if self._thread is None:
                 self._close()
 

@@ -57,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
         settings = settings_from_env()
     except ValueError as exc:
         ap.error(str(exc))
+    if settings is not None and settings.fleet:
+        ap.error("a uQuad in a lockstep fleet ([sim] fleet) is not built: its simulator steps its own robot "
+                 "only (docs/simulation.md)")
     cfg = load_config(Path(args.conf))
     sim = QuadSim(params=cfg.quad, calib=load_calibration(cfg.imu_calib_file),
                   home=Home(cfg.home_lat, cfg.home_lon, cfg.home_alt), seed=args.seed)

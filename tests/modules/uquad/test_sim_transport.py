@@ -283,3 +283,15 @@ def test_on_the_bus_barrier_a_step_waits_for_every_member_and_every_byte_on_the_
         for s in sessions:
             s.close()
         procs.stop_all()
+
+
+def test_a_uquad_simulator_refuses_a_lockstep_fleet() -> None:
+    """Not built (docs/simulation.md): said at start, before any device end is opened."""
+    from bbcs.lockstep import SimSettings, settings_env
+    from bbcs.testing import child_env
+
+    env = {**child_env(), **settings_env(SimSettings(robot="uquad1", fleet=["uquad1", "uav2"]))}
+    run = subprocess.run([sys.executable, "-m", "modules.uquad.sim", "--conf", str(CONF)], env=env,
+                         capture_output=True, text=True, timeout=60, cwd=str(ROOT))
+    assert run.returncode == 2 and "a uQuad in a lockstep fleet ([sim] fleet) is not built" in run.stderr
+    assert "uquad sim ready" not in run.stdout
