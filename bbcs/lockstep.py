@@ -449,9 +449,9 @@ class Stepper:
         if self.fleet:
             required = frozenset({*(f"{r}/{m}" for r in robots for m in required),
                                   *(f"{r}/{FOLLOWER_MEMBER}" for r in robots[1:])})
-            if check is not None:
-                check = _own_answers(check, robot)
-        self.barrier = Barrier(deadline_s=deadline_s, required=required, check=check, release_on_leave=self.fleet)
+        self.barrier = Barrier(deadline_s=deadline_s, required=required, release_on_leave=self.fleet)
+        if check is not None:
+            self.use_check(check)
         self.epoch = time.time() if epoch is None else epoch
         self.step = -1
         self.t = 0.0
@@ -477,6 +477,11 @@ class Stepper:
                 session.liveliness().declare_subscriber(
                     member_key(r, "*"), lambda sample, p=prefix: self._on_member(sample, p), history=True),
             ]
+
+    def use_check(self, check: Callable[[Mapping[str, Done]], str]) -> None:
+        """The stepper's own condition on its robot's answers (in a fleet, the other robots' are not given it:
+        another robot's DSP module counts another line)."""
+        self.barrier.check = _own_answers(check, self.robot) if self.fleet else check
 
     @property
     def wake_fd(self) -> int:

@@ -1,10 +1,12 @@
-"""A fleet in lockstep (``[sim] fleet``, docs/simulation.md): two robots launched from uav1_sim.toml, their routers
-meshed, on one barrier at ``--speed max``: the first robot's DSP simulator steps, the second's follows.
+"""A fleet in lockstep (``[sim] fleet``, docs/simulation.md): two robots launched from uav1_sim.toml at their own
+homes, their routers meshed, on one barrier at ``--speed max``: the first robot's DSP simulator steps, the second's
+follows.
 
 Tested by effect: both simulators read one clock (the same simulated time on both robots' ``@clock`` while the
-fleet is held); the same tasks sent to both in one step give both DSP records the same commands at the same
-simulated times, and nothing else in the 20 simulated seconds after the landing; a follower robot killed mid-flight
-(its whole stack) leaves the leader flying on.
+fleet is held); the same task sent to both in one step reaches both DSPs at the same simulated time; a fleet task
+is allocated by the robots among themselves over the mesh (the bids cross robots inside the barrier) and each DSP
+receives its own target only; nothing reaches either DSP in the 20 simulated seconds after the landing; a follower
+robot killed (its whole stack) leaves the leader flying on.
 """
 
 from __future__ import annotations
@@ -19,10 +21,12 @@ from pathlib import Path
 import pytest
 
 from bbcs.contracts import gri
+from bbcs.contracts.fleet import FleetTarget, FleetTask
 from bbcs.lockstep import current_time
 from bbcs.session import local_client, open_session
 from bbcs.testing import StepGate, wait_until
 from module_manager.fleet import drop_sections
+from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -33,6 +37,9 @@ from test_fleet_mesh import N_MODULES, VISION_SECTIONS, fleet_manifest  # noqa: 
 from modules.dsp.sim.record import read_record
 
 FLEET = ["uav_a", "uav_b"]
+HOMES = {"uav_a": (37.4117, -6.0025), "uav_b": (37.4117, -6.0000)}
+"""About 220 m apart (as in test_fleet_alloc.py), at 12 m above sea level."""
+HOME_ALT = 12.0
 AFTER_S = 20.0
 """Simulated seconds watched after the landing: nothing unrequested may reach either DSP."""
 
@@ -40,6 +47,10 @@ AFTER_S = 20.0
 def launch(tmp_path: Path, name: str, peers: list[int]) -> tuple[Launch, Path]:
     manifest, record = fleet_manifest(tmp_path, name, peers)
     text = drop_sections(manifest.read_text(), VISION_SECTIONS)
+    old = '"--tcp", "127.0.0.1:{port:dsp}",'
+    assert old in text, "uav1_sim.toml's DSP simulator command line changed"
+    lat, lon = HOMES[name]
+    text = text.replace(old, f'{old} "--home", "{lat},{lon},{HOME_ALT}",', 1)
     assert "\n[bus]\n" in text, "uav1_sim.toml has no [bus] table to put [sim] before"
     fleet = ", ".join(f'"{r}"' for r in FLEET)
     manifest.write_text(text.replace("\n[bus]\n", f"\n[sim]\nlockstep = true\nfleet = [{fleet}]\n\n[bus]\n", 1))
@@ -130,7 +141,30 @@ def test_a_fleet_in_lockstep_flies_on_one_clock_and_a_dead_follower_does_not_hol
         held(lambda: ids.update(station.send_all(gri.TakeOff(height=10.0))), "both DSPs got the take-off",
              lambda: all(any(c[0] == "SET_MODE" for c in commands(r)) for r in records))
         wait_until(lambda: station.completed(ids), 90, "both take-offs completed")
+        took_off = [[c for c in commands(r) if c[1] > 0.0] for r in records]  # after the start-up sequences
+        assert took_off[0] == took_off[1] and took_off[0][-1][0] == "SET_MODE", \
+            "the same take-off commands at the same simulated times on both"
         ids.clear()
+
+        # a fleet task: one target by each robot's home, allocated by the robots over the mesh, each flown by its own
+        view = FleetView(session)
+        try:
+            targets = {r[-1]: (round(lat + 2e-4, 4), round(lon + 2e-4, 4)) for r, (lat, lon) in HOMES.items()}
+            n_before = [len(commands(r)) for r in records]
+            view.post(FleetTask(id="t1", speed=8.0, targets=[
+                FleetTarget(id=k, lat=lat, lon=lon, alt=HOME_ALT + 10.0) for k, (lat, lon) in targets.items()]))
+            decision = view.wait(lambda: view.agreed("t1", set(FLEET)), 60)
+            assert decision, view.decisions("t1")
+            assert decision.routes == {"uav_a": ["a"], "uav_b": ["b"]}, decision.routes
+            wait_until(lambda: view.visited("t1") == {"a", "b"}, 120, "both targets visited")
+        finally:
+            view.close()
+        for robot, record, n in zip(FLEET, records, n_before, strict=True):
+            flown = {(round(c[2]["lat"], 4), round(c[2]["lon"], 4)) for c in commands(record)[n:]
+                     if c[0] == "ADD_WAYPOINT"}
+            assert targets[robot[-1]] in flown, (robot, flown)
+            other = next(k for k in targets if k != robot[-1])
+            assert targets[other] not in flown, (robot, flown)
         n_before = [len(commands(r)) for r in records]
         held(lambda: ids.update(station.send_all(gri.Land())), "both DSPs got the landing",
              lambda: all(len(commands(r)) > n for r, n in zip(records, n_before, strict=True)))
@@ -144,11 +178,9 @@ def test_a_fleet_in_lockstep_flies_on_one_clock_and_a_dead_follower_does_not_hol
                    f"{AFTER_S:g} simulated seconds after the landing")
         assert [commands(r) for r in records] == landed, "a DSP received commands no task asked for"
 
-        # the same tasks in the same steps: the same commands at the same simulated times on both robots
-        rec_a, rec_b = landed
-        flown = [c for c in rec_a if c[0] == "SET_MODE"]
-        assert [c[2]["mode"] for c in flown] == [4, 5], f"take-off then land, nothing else: {flown}"
-        assert rec_a == rec_b, "both robots' DSPs got the same commands at the same simulated times"
+        # the landing, sent to both in one step, reached both DSPs at the same simulated time
+        modes = [[(c[1], c[2]["mode"]) for c in rec if c[0] == "SET_MODE"] for rec in landed]
+        assert modes[0][-1] == modes[1][-1] and modes[0][-1][1] == 5, modes
 
         # the follower robot killed (its whole stack): the leader's simulation steps on without it
         for pid in group_members(b.pgid):

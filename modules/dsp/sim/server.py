@@ -199,7 +199,7 @@ class DspSimulator:
     def use_stepper(self, stepper: Stepper) -> None:
         """Step on this lockstep barrier (before ``run``): frames of ``frame_s``, the DSP line checked."""
         self.stepper = stepper
-        stepper.barrier.check = self._line_settled
+        stepper.use_check(self._line_settled)
 
     # --- observation ---------------------------------------------------------------------------------------
 

@@ -235,7 +235,7 @@ class SimServer:
         self.step_speed = speed
         self.lockstep = True
         self.answer_timeout_s = deadline_s
-        stepper.barrier.check = self._links_settled
+        stepper.use_check(self._links_settled)
 
     def links(self) -> DeviceLinks:
         """The device links' counters as the barrier's check reads them."""
