@@ -112,6 +112,7 @@ def fleet(tmp_path: Path) -> Iterator[tuple[list[Launch], list[Path]]]:
             la.cleanup()
 
 
+@pytest.mark.timeout(300)  # two robots at --speed max beside the other test workers: a loaded machine slows them
 def test_a_fleet_in_lockstep_flies_on_one_clock_and_a_dead_follower_does_not_hold_the_leader(fleet) -> None:
     (a, b), records = fleet
     station = Station(a.port)
