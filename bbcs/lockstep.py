@@ -587,16 +587,7 @@ class Stepper:
         return max(0.0, self._ask_at - self._wall())
 
     def close(self) -> None:
-        for entity in [*self._entities, self._clock_pub, *self._ask_pubs]:
-            try:
-                entity.undeclare()
-            except Exception as exc:
-                log.debug("lockstep stepper close: %s", exc)
-        for fd in (self._wake_r, self._wake_w):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        _release([*self._entities, self._clock_pub, *self._ask_pubs], (self._wake_r, self._wake_w), "stepper")
 
 
 # --- a fleet follower's side -----------------------------------------------------------------------------------
@@ -658,16 +649,21 @@ class Follower:
 
     def close(self) -> None:
         self._member.close()
-        for entity in (self._queryable, self._clock_pub):
-            try:
-                entity.undeclare()
-            except Exception as exc:
-                log.debug("lockstep follower close: %s", exc)
-        for fd in (self._wake_r, self._wake_w):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        _release([self._queryable, self._clock_pub], (self._wake_r, self._wake_w), "follower")
+
+
+def _release(entities: list[Any], fds: tuple[int, ...], what: str) -> None:
+    """Undeclare ``entities`` and close the wake pipe's ``fds``, whatever state the session is in."""
+    for entity in entities:
+        try:
+            entity.undeclare()
+        except Exception as exc:  # the session may already be closing
+            log.debug("lockstep %s close: %s", what, exc)
+    for fd in fds:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
 
 
 def frames_due(now_t: float, sim_t: float, dt: float) -> int:

@@ -261,12 +261,7 @@ class DspSimulator:
                 # a few steps per pass, then back to select: a simulator catching up (a loaded machine) still
                 # answers every command within a few steps, as the real DSP's interrupt-driven line does
                 while now >= next_tick and steps < STEPS_PER_PASS:
-                    with self._lock:
-                        out = self.machine.step(dt)
-                        if self.truth is not None:
-                            self.truth.send(self.machine)
-                    for msg in out:
-                        self._send(msg)
+                    self._physics_step(dt)
                     next_tick += wall_dt
                     steps += 1
                 if now - next_tick > MAX_CATCH_UP_STEPS * wall_dt:
@@ -311,12 +306,7 @@ class DspSimulator:
                 if frame_wall is not None and started < next_wall:
                     continue
                 for _ in range(steps):
-                    with self._lock:
-                        out = self.machine.step(dt)
-                        if self.truth is not None:
-                            self.truth.send(self.machine)
-                    for msg in out:
-                        self._send(msg)
+                    self._physics_step(dt)
                 if frame_wall is not None:  # paced from when this frame started: a late frame is not made up
                     next_wall = max(next_wall, started) + frame_wall
                 stepper.begin(self.machine.time_s)
@@ -363,12 +353,7 @@ class DspSimulator:
                         self.machine.time_s = ask.now.t
                     due = 0
                 for _ in range(due):
-                    with self._lock:
-                        out = self.machine.step(dt)
-                        if self.truth is not None:
-                            self.truth.send(self.machine)
-                    for msg in out:
-                        self._send(msg)
+                    self._physics_step(dt)
                 handled += due
                 self._follow_client()
                 follower.answer(ask, handled, wire_counts(link, self.line_tx, self.line_rx))
@@ -378,6 +363,15 @@ class DspSimulator:
                      self._clock() - self._start_wall)
             if self._thread is None:
                 self._close()
+
+    def _physics_step(self, dt: float) -> None:
+        """One physics step: the truth to the lidar simulators, then what the DSP sends written to the line."""
+        with self._lock:
+            out = self.machine.step(dt)
+            if self.truth is not None:
+                self.truth.send(self.machine)
+        for msg in out:
+            self._send(msg)
 
     def _line_settled(self, answers: dict[str, Done]) -> str:
         """Lockstep: '' once the DSP module has read every byte sent to it and the simulator every byte it wrote
