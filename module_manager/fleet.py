@@ -39,6 +39,7 @@ import sys
 import threading
 import time
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -77,6 +78,12 @@ class FleetSpec:
     groups: tuple[FleetSpec, ...] = ()
     """More robots of other manifests (``[[fleet.group]]``, e.g. uQuads beside the UAVs), meshed on the same hub,
     their homes further along the same line."""
+    lockstep: bool = False
+    """The robots step together on one barrier (each robot manifest gets ``[sim] lockstep = true`` and the fleet's
+    names in ``fleet``; the first robot's DSP simulator steps them, docs/simulation.md "A fleet in lockstep")."""
+    speed: float | str | None = None
+    """A lockstep fleet's pace (``[sim] speed``): "max", simulated seconds per wall second, or None (the DSP
+    simulators' ``time_scale``)."""
 
     @property
     def total(self) -> int:
@@ -105,7 +112,7 @@ def load_fleet(path: Path) -> FleetSpec:
     if not isinstance(f, dict):
         raise FleetError(f"{path}: no [fleet] table")
     unknown = set(f) - {"manifest", "robots", "name", "home", "spacing_m", "drop", "time_scale", "record", "conf",
-                        "secure", "hub", "group"}
+                        "secure", "hub", "group", "lockstep", "speed"}
     if unknown:
         raise FleetError(f"{path}: unknown key(s) in [fleet]: {sorted(unknown)}")
     try:
@@ -121,6 +128,7 @@ def load_fleet(path: Path) -> FleetSpec:
         raise FleetError(f"{path}: [fleet] robots = {spec.robots}: 1..100 on one machine")
     if len(spec.home) != 3:
         raise FleetError(f"{path}: [fleet] home must be [lat, lon, alt]")
+    spec = replace(spec, **_lockstep(path, f))
     spec = replace(spec, groups=_groups(path, f.get("group", []), spec))
     if spec.total > 100:
         raise FleetError(f"{path}: [fleet] {spec.total} robots in all: 1..100 on one machine")
@@ -133,6 +141,20 @@ def load_fleet(path: Path) -> FleetSpec:
         raise FleetError(f"{path}: [[fleet.group]]: a secured fleet of several robot manifests is not built "
                          "(docs/fleet.md); launch one manifest per secured fleet")
     return _secured(path, f, spec, names)
+
+
+def _lockstep(path: Path, f: dict) -> dict[str, object]:
+    """``lockstep`` and ``speed`` of ``[fleet]``, refused naming the file and key."""
+    lockstep = f.get("lockstep", False)
+    if not isinstance(lockstep, bool):
+        raise FleetError(f"{path}: [fleet] lockstep = {lockstep!r}: true or false")
+    speed = f.get("speed")
+    if speed is not None:
+        if not lockstep:
+            raise FleetError(f"{path}: [fleet] speed: a pace for a fleet in lockstep only (set lockstep = true)")
+        if speed != "max" and (isinstance(speed, bool) or not isinstance(speed, (int, float)) or not speed > 0):
+            raise FleetError(f"{path}: [fleet] speed = {speed!r}: \"max\" or a positive number")
+    return {"lockstep": lockstep, "speed": speed}
 
 
 def _groups(path: Path, raw: object, fleet: FleetSpec) -> tuple[FleetSpec, ...]:
@@ -232,11 +254,13 @@ def drop_sections(text: str, headers: set[str]) -> str:
     return "".join(out)
 
 
-def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str], place: int | None = None) -> Path:
+def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str], place: int | None = None,
+                   fleet: Sequence[str] = ()) -> Path:
     """Write robot ``n``'s manifest (and its renamed .conf) under ``run_dir/<name>``; returns the manifest. Its home
     is ``place`` (default ``n - 1``) spacings east of the fleet's: the DSP simulator's ``--home``, or for a robot
     without one (the uQuad) its .conf's ``HOME_LAT``/``HOME_LON``/``HOME_ALT``, which its simulator starts from.
-    A secured fleet's robot gets its pki folder ``run_dir/<name>/pki`` and the hub in ``[bus.tls] hubs`` (its
+    ``fleet``: every robot's name, for a fleet in lockstep (``[sim] fleet``). A secured fleet's robot gets its pki
+    folder ``run_dir/<name>/pki`` and the hub in ``[bus.tls] hubs`` (its
     certificates are issued after: :func:`issue_identities`)."""
     name = robot_name(spec, n)
     folder = run_dir / name
@@ -297,6 +321,16 @@ def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str], pla
     text = re.sub(r'(?m)^(ready = \{ kind = "stdout", pattern = "socket://", timeout_s = )[0-9.]+',
                   r"\g<1>60.0", text)  # ten simulators starting on one small machine: more time to be ready
     text = drop_sections(text, set(spec.drop))
+    if spec.lockstep:
+        if not has_dsp_sim:
+            raise FleetError(f"robot {name}: {spec.manifest} has no DSP simulator: only robots on DSP simulators "
+                             "step together (a uQuad in a lockstep fleet is not built, docs/simulation.md)")
+        if re.search(r"(?m)^\[sim\]\s*$", text):
+            raise FleetError(f"robot {name}: {spec.manifest} has its own [sim] table: a fleet in lockstep sets it "
+                             "([fleet] lockstep and speed)")
+        listed = ", ".join(f'"{r}"' for r in fleet)
+        pace = "" if spec.speed is None else f"speed = {spec.speed!r}\n".replace("'", '"')
+        text = text.replace("[bus]\n", f"[sim]\nlockstep = true\n{pace}fleet = [{listed}]\n\n[bus]\n", 1)
     if spec.secure:
         text = re.sub(r"(?m)^(hubs|mesh_robots) = .*\n", "", text)
         text, k = re.subn(r'(?m)^pki = "[^"]*"', f'pki = "{folder / "pki"}"', text, count=1)
@@ -371,7 +405,8 @@ class Fleet:
         self.scheme = "tls" if spec.secure else "tcp"
         self.hub_endpoint = f"{self.scheme}/127.0.0.1:{self.hub_port}"
         self.names = [robot_name(g, n) for g, n, _ in who]
-        self.manifests = [robot_manifest(g, n, run_dir, [self.hub_endpoint], place) for g, n, place in who]
+        self.manifests = [robot_manifest(g, n, run_dir, [self.hub_endpoint], place, self.names)
+                          for g, n, place in who]
         self.pki = issue_identities(spec, run_dir, self.names, self.manifests, self.hub_endpoint) if spec.secure \
             else None
         self.hub: subprocess.Popen | None = None

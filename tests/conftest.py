@@ -66,7 +66,6 @@ HEAVY_STACKS = frozenset({
     "tests/system/test_fleet_mesh.py", "tests/system/test_fleet_mesh_loss.py",
     "tests/system/test_fleet_partition.py", "tests/system/test_fleet_scale.py", "tests/system/test_world_sync.py",
     "tests/system/test_fleet_secure_launch.py", "tests/system/test_fleet_mixed.py",
-    "tests/system/test_fleet_robot_death.py",
     "tests/cromat/mavlink/test_uquad_fleet.py",
 })
 """Test files that run several free-running robot stacks (fleets not in lockstep: partitions, mesh loss, the mixed
@@ -75,8 +74,8 @@ and secured fleets, which a fleet in lockstep cannot or does not yet fly; docs/s
 Two of them side by side put 30-40 processes on the 2 cores, and simulators then answer later than the seed's
 acknowledgement windows. A robot in lockstep does not: its simulators wait for its modules, so a loaded machine
 slows its flight and changes nothing in it (docs/simulation.md); the lidar survey, the uQuad's flights and the
-survey tests left this unit when they moved onto lockstep, as did the fleet allocation test when it moved onto a
-fleet in lockstep (``[sim] fleet``). Under xdist they form one work unit
+survey tests left this unit when they moved onto lockstep, as did the fleet allocation and robot-death tests when they
+moved onto a fleet in lockstep (``[sim] fleet``, ``[fleet] lockstep``). Under xdist they form one work unit
 (``pytest_xdist_make_scheduler`` below): one worker runs them one after another, from the start of the run, while
 the other workers run the rest of the suite."""
 

@@ -9,6 +9,7 @@ import pytest
 
 from bbcs.geodesy import distance_m
 from module_manager.fleet import FleetError, load_fleet, members, robot_manifest, robot_name
+from module_manager.lockstep import settings_for
 from module_manager.manifest import load_manifest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -53,6 +54,50 @@ def test_a_conf_override_that_is_not_a_conf_key_is_refused(tmp_path: Path) -> No
                     'conf = {{ "bad key" = "1" }}\n'.replace("{{", "{").replace("}}", "}"))
     with pytest.raises(FleetError, match="not a .conf key"):
         robot_manifest(load_fleet(path), 1, tmp_path / "run", [])
+
+
+def test_a_lockstep_fleet_gives_every_robot_the_fleets_sim_table(tmp_path: Path) -> None:
+    path = tmp_path / "fleet.toml"
+    path.write_text(FLEET.read_text().replace('manifest = "uav1_sim.toml"',
+                                              f'manifest = "{ROOT / "bbcs_conf" / "uav1_sim.toml"}"')
+                    .replace("robots = 10", 'robots = 3\nlockstep = true\nspeed = "max"'))
+    spec = load_fleet(path)
+    names = [robot_name(spec, n) for n in (1, 2, 3)]
+    for n in (1, 3):
+        m = load_manifest(robot_manifest(spec, n, tmp_path, ["tcp/127.0.0.1:41000"], fleet=names))
+        sim = m.raw.sim
+        assert (sim.lockstep, sim.speed, sim.fleet) == (True, "max", ["uav01", "uav02", "uav03"])
+        settings = settings_for(m, [])
+        assert settings is not None and settings.leads == (n == 1)  # uav01's simulator steps the fleet
+    path.write_text(path.read_text().replace('speed = "max"\n', ""))  # unpaced: the simulators' time_scale
+    unpaced = load_fleet(path)
+    assert unpaced.speed is None
+    assert load_manifest(robot_manifest(unpaced, 1, tmp_path / "b", [], fleet=names)).raw.sim.speed is None
+
+
+@pytest.mark.parametrize("extra, why", [
+    ("lockstep = 1", "lockstep = 1: true or false"),
+    ("speed = 4", "a pace for a fleet in lockstep only"),
+    ('lockstep = true\nspeed = "fast"', "speed = 'fast'"),
+    ("lockstep = true\nspeed = 0", "speed = 0"),
+])
+def test_a_bad_lockstep_fleet_is_refused_naming_the_file_and_key(tmp_path: Path, extra: str, why: str) -> None:
+    path = tmp_path / "fleet.toml"
+    path.write_text(f'[fleet]\nmanifest = "{ROOT / "bbcs_conf" / "uav1_sim.toml"}"\nrobots = 2\n{extra}\n')
+    with pytest.raises(FleetError, match=why) as err:
+        load_fleet(path)
+    assert str(path) in str(err.value)
+
+
+def test_a_uquad_in_a_lockstep_fleet_is_refused_before_anything_starts(tmp_path: Path) -> None:
+    path = tmp_path / "fleet.toml"
+    path.write_text(MIXED.read_text().replace('"uav1_sim.toml"', f'"{ROOT / "bbcs_conf" / "uav1_sim.toml"}"')
+                    .replace('"uquad1_sim.toml"', f'"{ROOT / "bbcs_conf" / "uquad1_sim.toml"}"')
+                    .replace("[fleet]\n", "[fleet]\nlockstep = true\n", 1))
+    spec = load_fleet(path)
+    (group, n, place), = [x for x in members(spec) if x[0] is not spec]
+    with pytest.raises(FleetError, match="a uQuad in a lockstep fleet is not built"):
+        robot_manifest(group, n, tmp_path, [], place, fleet=["uav01", "quad01"])
 
 
 MIXED = ROOT / "bbcs_conf" / "fleet_mixed_sim.toml"

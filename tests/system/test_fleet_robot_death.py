@@ -1,21 +1,25 @@
 """Issue 30 case 9: ``cromat fleet`` with two UAVs of the shipped ``uav1_sim.toml``; a ground station on the hub
 takes them off and posts a target north of each home; ``kill -9`` of uav02's Module Manager before it got there.
 The launcher says which robot went down and why, and keeps uav01 flying (its manager alive, its GRI answering);
-the fleet re-allocates uav02's target to uav01, whose DSP simulator receives it and which visits it."""
+the fleet re-allocates uav02's target to uav01, whose DSP simulator receives it and which visits it.
+
+The fleet runs in lockstep (``[fleet] lockstep = true``, ``speed = "max"``: docs/simulation.md, "A fleet in
+lockstep"): uav01's simulator steps both robots, and steps on alone once uav02's members are gone; the kill lands
+at a step the test holds (``StepGate``), and the re-allocation is timed on the robots' clock."""
 
 from __future__ import annotations
 
 import os
 import signal
 import sys
-import time
 from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
 
+from bbcs.lockstep import current_time
 from bbcs.session import open_session
-from bbcs.testing import wait_until
+from bbcs.testing import StepGate, wait_until
 from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, session_config
 
@@ -35,7 +39,7 @@ def fleet_manifest(tmp: Path) -> Path:
     shipped = (ROOT / "bbcs_conf" / "fleet10_sim.toml").read_text()
     assert "robots = 10" in shipped and 'manifest = "uav1_sim.toml"' in shipped
     path = tmp / "fleet2.toml"
-    path.write_text(shipped.replace("robots = 10", "robots = 2").replace(
+    path.write_text(shipped.replace("robots = 10", 'robots = 2\nlockstep = true\nspeed = "max"').replace(
         'manifest = "uav1_sim.toml"', f'manifest = "{ROOT / "bbcs_conf" / "uav1_sim.toml"}"'))
     return path
 
@@ -77,14 +81,18 @@ def test_a_robot_killed_mid_task_leaves_the_others_flying_and_its_target_realloc
         first = view.wait(lambda: view.agreed("death", set(NAMES)), 20)
         assert first is not None and first.routes == {"uav01": ["uav01_t"], "uav02": ["uav02_t"]}, first
 
-        os.kill(victim, signal.SIGKILL)
-        killed = time.monotonic()
-        line = fleet.wait_line(lambda x: "fleet: robot uav02 is down" in x, 20, "the launcher naming uav02")
+        gate = StepGate(session, "uav01")
+        closing.callback(gate.leave)
+        with gate.closed():  # the kill at one simulated instant, before uav02 can reach its target
+            killed = current_time(session, "uav01")
+            assert killed is not None
+            os.kill(victim, signal.SIGKILL)
+            line = fleet.wait_line(lambda x: "fleet: robot uav02 is down" in x, 20, "the launcher naming uav02")
         assert "killed by SIGKILL" in line and "1 of 2 robots fly on (uav01)" in line, line
         assert "uav02_t" not in view.visited("death"), "uav02 got there before the kill: nothing to re-allocate"
-        after = view.wait(lambda: (d := view.agreed("death", {"uav01"})) is not None and d.round >= 1 and d, 20)
+        after = view.wait(lambda: (d := view.agreed("death", {"uav01"})) is not None and d.round >= 1 and d, 60)
         assert after and after.routes["uav01"] and "uav02_t" in after.routes["uav01"], view.decisions("death")
-        print(f"re-allocated {time.monotonic() - killed:.2f} s after the kill")
+        print(f"re-allocated {after.decided - killed.epoch - killed.t:.2f} simulated s after the kill")
         wait_until(lambda: view.visited("death") >= {"uav01_t", "uav02_t"}, 90, "both targets visited by uav01")
         assert where["uav02_t"][:2] in set(records(run, "uav01")), "uav02's target never reached uav01's DSP"
 
