@@ -222,6 +222,11 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
             # pause when its ACK is late: the resend must not move where the mission continues (test_vehicle.py)
             robot.wait_state(lambda s: 0 < (s.waypoints_queued or 0) < 4, 60, "the first waypoint reached")
             with site.gate.closed():
+                # paused as a ground station pauses: once the gateway's own mission progress has the first waypoint
+                # behind it. The gateway reads the robot's state on its own subscription, in no order with this
+                # test's: paused on the test's word alone, it noted waypoint 0 and the continue re-flew all 4 (ci35:
+                # one pause, no resend, in the gateway's log)
+                await first(mission.subscribe_mission_progress(), lambda p: p.current >= 1, 30)
                 await mission.pause_mission()
                 wait_until(lambda: "ABORT" in [c["name"] for c in robot.commands()[mark:]], 15, "the hold's ABORT")
             await asyncio.sleep(1.0)
