@@ -194,9 +194,8 @@ def test_the_lidar_survey_in_lockstep_logs_the_same_scans_quiet_and_beside_busy_
     assert [k for _, k, _ in quiet.events] == ["task_completed"] * 2
     assert [e[:2] for e in quiet.events] == [e[:2] for e in loaded.events]
     for (_, _, a), (_, _, b) in zip(quiet.events, loaded.events, strict=True):
-        # the flight is the same (the DSP records, below); the RAL's completion *event* is stamped when the manager's
-        # task book says the task ended, one bus round trip after the RAL judged it, which lands in the step the
-        # judgment came in or the next: two frames (ci35: 99.6 and 99.2 s, with equal records). Open (simulation.md)
+        # the flight is the same (the DSP records, below); the RAL's completion *event* came two frames apart once
+        # (ci35: 99.6 and 99.2 s, with equal records): exact to two frames, the cause open (simulation.md, Limits)
         assert abs(a - b) <= 2 * 0.2 + 1e-6, (quiet.events, loaded.events)
     assert quiet.record == loaded.record, span  # every command at the same simulated time: the same flight
     cut = min(span, quiet.end_t - 1.0, loaded.end_t - 1.0)
