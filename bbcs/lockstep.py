@@ -41,10 +41,11 @@ log = logging.getLogger(__name__)
 
 SIM_ENV = "CROMAT_SIM"
 MANAGER_MEMBER = "manager"
-FOLLOWER_MEMBER = "sim"
-"""A fleet follower simulator's member name (``Follower``): the leader waits for it as for a manager."""
 """The manager's member name (no module may be called so: the manager's own slots live under it). Not
 ``@manager``: a key chunk starting with ``@`` is matched by no wildcard."""
+FOLLOWER_MEMBER = "sim"
+"""A fleet follower simulator's member name (``Follower``): the fleet's stepper requires it, as a manager (no module
+or process of a fleet robot may be called so, module_manager/manifest.py)."""
 DEFAULT_STEP_S = 0.2
 DEFAULT_DEADLINE_S = 20.0
 SLOW_STEP_S = 5.0
@@ -406,11 +407,6 @@ class Barrier:
 
 
 # --- the stepper's side ----------------------------------------------------------------------------------------
-
-
-def robot_of(member: str) -> str:
-    """The robot of a fleet member name (``<robot>/<member>``); '' for a robot's own (unprefixed) name."""
-    return member.partition("/")[0] if "/" in member else ""
 
 
 def _own_answers(check: Callable[[Mapping[str, Done]], str],

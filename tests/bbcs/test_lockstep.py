@@ -27,7 +27,6 @@ from bbcs.lockstep import (
     Verdict,
     current_time,
     frames_due,
-    robot_of,
     settings_env,
     settings_from_env,
     unpaired_wires,
@@ -192,7 +191,6 @@ def test_a_follower_moves_to_the_fleets_time_in_whole_physics_steps() -> None:
     assert frames_due(t, 0.0, 0.02) == 10  # the leader's summed time: rounding absorbs the last ulp
     assert frames_due(t, t, 0.02) == 0  # a later round of the same step
     assert frames_due(0.0, t, 0.02) == 0  # never backwards
-    assert robot_of("uav_b/dsp") == "uav_b" and robot_of("dsp") == ""
 
 
 def test_the_fleets_stepper_asks_every_robots_members_and_a_follower_keeps_its_robots_clock() -> None:

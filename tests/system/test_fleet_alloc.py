@@ -8,7 +8,7 @@ an area to survey is split among the robots, each flying the cells it won;
 a robot killed mid-mission (its whole stack, SIGKILL) has its unvisited targets flown by the others, and the
 time from the kill to the survivors' agreed new allocation is measured and bounded.
 
-The three robots fly as a fleet in lockstep (``[sim] fleet``, docs/simulation.md) at ``--speed max``: a loaded
+The three robots fly as a fleet in lockstep (``[sim] fleet``, docs/simulation.md) paced at ``FLEET_PACE``: a loaded
 machine slows them and changes nothing in their flights, and the re-allocation time is simulated time, the
 robots' own (the kill lands at a step the test holds with a ``StepGate``).
 """
@@ -36,6 +36,7 @@ from ral.survey_area import parse_area
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
+from fleet_support import FLEET_PACE  # noqa: E402
 from launch_support import ROOT, Launch, group_members  # noqa: E402
 from test_fleet_mesh import VISION_SECTIONS, fleet_manifest  # noqa: E402
 
@@ -62,7 +63,7 @@ HOMES = {"uav_a": (37.4117, -6.0025), "uav_b": (37.4117, -6.0000), "uav_c": (37.
 
 
 class FleetRobot:
-    """One robot of a test fleet; ``fleet``: the robots of a fleet in lockstep at ``--speed max`` (None: the
+    """One robot of a test fleet; ``fleet``: the robots of a fleet in lockstep paced at ``FLEET_PACE`` (None: the
     free-running simulator at the manifest's time scale)."""
 
     def __init__(self, tmp: Path, name: str, peers: list[int], can_do: str = "",
@@ -84,7 +85,7 @@ class FleetRobot:
             text = text.replace("\n[bus]\n", f"\n[sim]\nlockstep = true\nfleet = [{listed}]\n\n[bus]\n", 1)
         manifest.write_text(drop_sections(text, VISION_SECTIONS))
         self.name = name
-        self.launch = Launch(manifest, tmp / name, *(("--speed", "max") if fleet is not None else ()))
+        self.launch = Launch(manifest, tmp / name, *(("--speed", f"{FLEET_PACE:g}") if fleet is not None else ()))
 
     def commands(self) -> list[dict]:
         if not self.record.exists():

@@ -1,6 +1,6 @@
 """A fleet in lockstep (``[sim] fleet``, docs/simulation.md): two robots launched from uav1_sim.toml at their own
-homes, their routers meshed, on one barrier at ``--speed max``: the first robot's DSP simulator steps, the second's
-follows.
+homes, their routers meshed, on one barrier (paced, ``fleet_support.FLEET_PACE``): the first robot's DSP simulator
+steps, the second's follows.
 
 Tested by effect: both simulators read one clock (the same simulated time on both robots' ``@clock`` while the
 fleet is held); the same task sent to both in one step reaches both DSPs at the same simulated time; a fleet task
@@ -31,6 +31,7 @@ from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "module_manager"))
+from fleet_support import FLEET_PACE  # noqa: E402
 from launch_support import Launch, group_members  # noqa: E402
 from test_fleet_mesh import N_MODULES, VISION_SECTIONS, fleet_manifest  # noqa: E402
 
@@ -54,7 +55,7 @@ def launch(tmp_path: Path, name: str, peers: list[int]) -> tuple[Launch, Path]:
     assert "\n[bus]\n" in text, "uav1_sim.toml has no [bus] table to put [sim] before"
     fleet = ", ".join(f'"{r}"' for r in FLEET)
     manifest.write_text(text.replace("\n[bus]\n", f"\n[sim]\nlockstep = true\nfleet = [{fleet}]\n\n[bus]\n", 1))
-    return Launch(manifest, tmp_path / name, "--speed", "max"), record
+    return Launch(manifest, tmp_path / name, "--speed", f"{FLEET_PACE:g}"), record
 
 
 class Station:
@@ -112,7 +113,7 @@ def fleet(tmp_path: Path) -> Iterator[tuple[list[Launch], list[Path]]]:
             la.cleanup()
 
 
-@pytest.mark.timeout(300)  # two robots at --speed max beside the other test workers: a loaded machine slows them
+@pytest.mark.timeout(300)  # two robots beside the other test workers: a loaded machine slows them
 def test_a_fleet_in_lockstep_flies_on_one_clock_and_a_dead_follower_does_not_hold_the_leader(fleet) -> None:
     (a, b), records = fleet
     station = Station(a.port)

@@ -3,7 +3,7 @@ takes them off and posts a target north of each home; ``kill -9`` of uav02's Mod
 The launcher says which robot went down and why, and keeps uav01 flying (its manager alive, its GRI answering);
 the fleet re-allocates uav02's target to uav01, whose DSP simulator receives it and which visits it.
 
-The fleet runs in lockstep (``[fleet] lockstep = true``, ``speed = "max"``: docs/simulation.md, "A fleet in
+The fleet runs in lockstep (``[fleet] lockstep = true``, ``speed`` = ``FLEET_PACE``: docs/simulation.md, "A fleet in
 lockstep"): uav01's simulator steps both robots, and steps on alone once uav02's members are gone; the kill lands
 at a step the test holds (``StepGate``), and the re-allocation is timed on the robots' clock."""
 
@@ -24,7 +24,7 @@ from ral.fleet_gcs import FleetView
 from ral.gcs.api import Gcs, session_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fleet_support import ROOT, fleet_run  # noqa: E402
+from fleet_support import FLEET_PACE, ROOT, fleet_run  # noqa: E402
 from test_fleet_alloc import FLEET_SPEED, cli_post, take_off_all  # noqa: E402
 from test_fleet_scale import records  # noqa: E402
 
@@ -39,7 +39,7 @@ def fleet_manifest(tmp: Path) -> Path:
     shipped = (ROOT / "bbcs_conf" / "fleet10_sim.toml").read_text()
     assert "robots = 10" in shipped and 'manifest = "uav1_sim.toml"' in shipped
     path = tmp / "fleet2.toml"
-    path.write_text(shipped.replace("robots = 10", 'robots = 2\nlockstep = true\nspeed = "max"').replace(
+    path.write_text(shipped.replace("robots = 10", f"robots = 2\nlockstep = true\nspeed = {FLEET_PACE}").replace(
         'manifest = "uav1_sim.toml"', f'manifest = "{ROOT / "bbcs_conf" / "uav1_sim.toml"}"'))
     return path
 

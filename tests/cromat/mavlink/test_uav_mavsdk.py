@@ -258,7 +258,8 @@ def test_fly_take_off_mission_gimbal_rtl_land(site: Site) -> None:
     assert end.position is not None
     assert _metres(end.position.lat, end.position.lon, *path[-1]) < 8.0
     watch_quiet(robot, "the mission's end")  # nothing unrequested follows it
-    assert not any(e.kind in ("failsafe", "task_failed") for e in robot.events), robot.events
+    assert not any(e.kind in ("failsafe", "task_failed") for e in robot.events), \
+        "\n".join(f"{e.stamp:.2f} {e.kind} task {e.task_id} {e.detail}" for e in robot.events)  # every one, untruncated
 
     rtl_texts: list[str] = []
 
