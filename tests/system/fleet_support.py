@@ -20,10 +20,9 @@ from launch_support import ROOT, group_members  # noqa: E402
 
 FLEET_PACE = 4.0
 """``--speed`` of the suite's fleets in lockstep: paced, not "max". At "max" a fleet takes every free processor while
-its test waits on the wall clock (a CLI run, a ground station's reply), and the other test workers starve: with
-the three fleet tests at "max", two clean-clone runs took 13.5 and 15 minutes (9-10 before), a DSP module took
-over 60 s to start beside them and a MAVLink link was lost. Paced at 4x (the free-running fleets' time scale) a
-two-robot fleet costs about half a processor however long its test waits, and still flies the same flight."""
+its test waits on the wall clock (a CLI run, a ground station's reply), which the other test workers need. Paced at
+4x (the free-running fleets' time scale) a two-robot fleet costs about half a processor however long its test
+waits, and still flies the same flight."""
 
 
 class FleetRun:
