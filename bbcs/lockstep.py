@@ -165,6 +165,12 @@ def wire_counts(link: str, tx: int, rx: int) -> dict[str, int]:
     return {f"{WIRE_PREFIX}{link}/tx": tx, f"{WIRE_PREFIX}{link}/rx": rx}
 
 
+def wire_end(counts: Mapping[str, int], link: str) -> tuple[int, int] | None:
+    """One member's end of ``link`` from its ``Done.counts`` (``wire_counts``): (written, read), or None."""
+    tx, rx = counts.get(f"{WIRE_PREFIX}{link}/tx"), counts.get(f"{WIRE_PREFIX}{link}/rx")
+    return None if tx is None or rx is None else (tx, rx)
+
+
 def unpaired_wires(answers: Mapping[str, Done]) -> str:
     """The barrier's rule for device links between two members ('' when met): for every link reported by two
     members (``wire_counts``), what each end wrote the other has read, both ways. A link reported by one member

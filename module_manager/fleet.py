@@ -31,6 +31,7 @@ the run dir (a fleet CA in ``ca/``, each robot's identities in ``<name>/pki``, t
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import shutil
 import signal
@@ -329,7 +330,7 @@ def robot_manifest(spec: FleetSpec, n: int, run_dir: Path, peers: list[str], pla
             raise FleetError(f"robot {name}: {spec.manifest} has its own [sim] table: a fleet in lockstep sets it "
                              "([fleet] lockstep and speed)")
         listed = ", ".join(f'"{r}"' for r in fleet)
-        pace = "" if spec.speed is None else f"speed = {spec.speed!r}\n".replace("'", '"')
+        pace = "" if spec.speed is None else f"speed = {json.dumps(spec.speed)}\n"  # "max" or a number, as TOML
         text = text.replace("[bus]\n", f"[sim]\nlockstep = true\n{pace}fleet = [{listed}]\n\n[bus]\n", 1)
     if spec.secure:
         text = re.sub(r"(?m)^(hubs|mesh_robots) = .*\n", "", text)

@@ -35,6 +35,12 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+
+def lockstep_link(robot: str) -> str:
+    """The DSP line's name as a lockstep device link (``bbcs.lockstep.wire_counts``), the same at both ends: the
+    DSP module reports its end, the robot's simulator checks it, or pairs its own with it as a fleet's follower."""
+    return f"dsp/{robot}"
+
 WRITE_TIMEOUT_S = 2.0
 """A frame the port takes no byte of for this long fails the link (``bbcs.serial_io.write_all``)."""
 

@@ -37,7 +37,7 @@ from bbcs.lockstep import wire_counts
 from modules.dsp.config import DspConfig, conf_errors, load_dsp_config
 from modules.dsp.errors import DspLinkError, DspPreempted, DspRejected, DspTimeout
 from modules.dsp.intake import CommandIntake, Flood
-from modules.dsp.link import DspLink, open_link, startup
+from modules.dsp.link import DspLink, lockstep_link, open_link, startup
 from modules.dsp.params import dsp_param_errors, load_dsp_params
 from modules.dsp.refusals import Refusal, RefusalCounter, RefusalReport
 
@@ -258,14 +258,12 @@ class DspModule(Module):
             return "command batch to send" if self._batches or getattr(self, "_sending", False) else ""
 
     def lockstep_counts(self) -> dict[str, int]:
-        """Bytes on the DSP line both ways: the simulator steps only once both ends agree. Reported twice: for
-        the robot's own stepper (``dsp_bytes_*``), and as a device link (``wire/dsp/<robot>``) for a fleet's
-        follower simulator, a member whose counts the barrier pairs with these."""
+        """Bytes on the DSP line both ways, as a device link (``lockstep_link``): the simulator steps only once
+        both ends agree (the robot's stepper checks them; a fleet's follower simulator is paired with them)."""
         link = getattr(self, "link", None)
         if link is None:
             return {}
-        tx, rx = link.stats().bytes_tx, link.bytes_handled
-        return {"dsp_bytes_tx": tx, "dsp_bytes_rx": rx, **wire_counts(f"dsp/{self.robot}", tx, rx)}
+        return wire_counts(lockstep_link(self.robot), link.stats().bytes_tx, link.bytes_handled)
 
     def _send_batch(self, batch: contract.DspCommands, generation: int) -> None:
         for i, cmd in enumerate(batch.commands):

@@ -24,10 +24,11 @@ import msgspec
 import numpy as np
 
 from bbcs.contracts import dsp as p
-from bbcs.lockstep import frames_due, wire_counts
+from bbcs.lockstep import frames_due, wire_counts, wire_end
 from modules.dsp.codec import PC_TO_DSP_LENGTHS, encode, message_name
 from modules.dsp.codec import _encode_telemetry as encode_telemetry_unchecked
 from modules.dsp.framing import FrameParser, build_frame
+from modules.dsp.link import lockstep_link
 from modules.dsp.sim.faults import BadTelemetry, FaultInjector, garble
 from modules.dsp.sim.machine import DspMachine, DspParams
 from modules.dsp.sim.transport import Endpoint
@@ -325,7 +326,7 @@ class DspSimulator:
         far and the line's byte counts, which the barrier pairs with the DSP module's (``wire_counts``).
         Commands are read and acknowledged at once, as in ``_run_lockstep``."""
         dt = 1.0 / self.rate_hz
-        link = f"dsp/{follower.robot}"
+        link = lockstep_link(follower.robot)
         fds = [self._wake_r, follower.wake_fd]
         self._running = True
         handled = 0
@@ -377,10 +378,12 @@ class DspSimulator:
         """Lockstep: '' once the DSP module has read every byte sent to it and the simulator every byte it wrote
         (nothing still on the line); else what is missing."""
         self._follow_client()
+        link = lockstep_link(self.stepper.robot) if self.stepper is not None else ""
         for done in answers.values():
-            tx, rx = done.counts.get("dsp_bytes_tx"), done.counts.get("dsp_bytes_rx")
-            if tx is None or rx is None:
+            end = wire_end(done.counts, link)
+            if end is None:
                 continue
+            tx, rx = end
             with self._lock:
                 line_rx, line_tx = self.line_rx, self.line_tx
             if tx != line_rx or rx != line_tx:

@@ -12,10 +12,10 @@ import pytest
 
 from bbcs.clock import SimClock
 from bbcs.contracts import dsp as p
-from bbcs.lockstep import MANAGER_MEMBER, Ask, Member, Stepper
+from bbcs.lockstep import MANAGER_MEMBER, Ask, Member, Stepper, wire_counts
 from bbcs.session import local_client, open_session
 from bbcs.testing import Processes, start_router, wait_until
-from modules.dsp.link import DspLink
+from modules.dsp.link import DspLink, lockstep_link
 from modules.dsp.sim import DspSimulator
 from modules.dsp.sim.transport import TcpEndpoint
 
@@ -92,8 +92,8 @@ def test_a_command_is_acknowledged_while_the_step_waits_and_the_line_is_counted(
     link_clock = SimClock()
     link = DspLink(f"socket://127.0.0.1:{sim.endpoint.port}", ack_timeout=0.25, retries=0,  # type: ignore[attr-defined]
                    clock=link_clock)
-    dsp = StandIn(bus[2], "dsp", counts=lambda: {"dsp_bytes_tx": link.stats().bytes_tx,
-                                                 "dsp_bytes_rx": link.bytes_handled})
+    dsp = StandIn(bus[2], "dsp", counts=lambda: wire_counts(lockstep_link(ROBOT), link.stats().bytes_tx,
+                                                            link.bytes_handled))
     try:
         wait_until(lambda: sim.machine.time_s >= 0.3, 20, "steps with the DSP member answering")
         manager.hold.set()  # the simulation stands still from the next ask on
